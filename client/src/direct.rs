@@ -1,0 +1,232 @@
+//! Direct light from point lights at every layout texel: the input the runtime turns into
+//! indirect light.
+//!
+//! Owns the project's direct-light convention (see `shared/papers/README.md`): at a Lambertian
+//! texel of albedo ρ, unit normal n and centre x, a point light of radiant intensity I (W/sr) at
+//! p gives outgoing radiance `L_d = ρ/π · I · max(cosθ, 0) / r² · V`, with `r = |p − x|`,
+//! `cosθ = n · (p − x) / r` and `V` the shadow-ray visibility from [`Occluders::occluded`].
+//!
+//! Invariants:
+//! - [`DirectLight::radiance`] has one entry per layout texel, in layout order.
+//! - Every value is finite and non-negative for finite, non-negative lights: `r²` is clamped
+//!   below at `(1e-4 · scene scale)²` (scene scale: the diagonal of the box around texel centres
+//!   and occluders), and a light exactly at a texel centre (no direction) contributes nothing.
+
+use lightfarm_proto::bundle::Layout;
+use lightfarm_proto::lights::{Light, LightKind};
+
+use crate::occluders::Occluders;
+
+/// `r²` is clamped below at `(R_MIN_REL · scene scale)²`.
+const R_MIN_REL: f64 = 1e-4;
+
+/// Direct outgoing radiance, one RGB value per layout texel.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DirectLight {
+    pub radiance: Vec<[f32; 3]>,
+}
+
+/// The diagonal of the box around the texel centres and the occluders (1 if that is empty or
+/// degenerate).
+fn scene_scale(layout: &Layout, occluders: &Occluders) -> f64 {
+    let mut bounds = occluders.bounds();
+    for p in &layout.positions {
+        bounds = Some(match bounds {
+            None => (*p, *p),
+            Some((mut lo, mut hi)) => {
+                for k in 0..3 {
+                    lo[k] = lo[k].min(p[k]);
+                    hi[k] = hi[k].max(p[k]);
+                }
+                (lo, hi)
+            }
+        });
+    }
+    let diag = bounds.map_or(0.0, |(lo, hi)| {
+        (0..3)
+            .map(|k| (hi[k] as f64 - lo[k] as f64).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    });
+    if diag.is_finite() && diag > 0.0 {
+        diag
+    } else {
+        1.0
+    }
+}
+
+/// Evaluates `L_d = ρ/π · I · max(cosθ, 0) / r² · V` summed over `lights` at every texel centre.
+pub fn direct_from_point_lights(
+    layout: &Layout,
+    occluders: &Occluders,
+    lights: &[Light],
+) -> DirectLight {
+    let r2_min = (R_MIN_REL * scene_scale(layout, occluders)).powi(2);
+    let light_pos: Vec<[f32; 3]> = lights
+        .iter()
+        .map(|l| {
+            [
+                l.position[0] as f32,
+                l.position[1] as f32,
+                l.position[2] as f32,
+            ]
+        })
+        .collect();
+    let radiance = layout
+        .positions
+        .iter()
+        .zip(&layout.normals)
+        .zip(&layout.albedo)
+        .map(|((&x, &n), &rho)| {
+            let mut irr = [0.0f64; 3];
+            for (light, &p) in lights.iter().zip(&light_pos) {
+                match light.kind {
+                    LightKind::Point => {}
+                }
+                if light.intensity.iter().all(|&i| i == 0.0) {
+                    continue;
+                }
+                let to = [
+                    light.position[0] - x[0] as f64,
+                    light.position[1] - x[1] as f64,
+                    light.position[2] - x[2] as f64,
+                ];
+                let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
+                if r2.is_nan() || r2 <= 0.0 {
+                    continue;
+                }
+                let cos =
+                    (n[0] as f64 * to[0] + n[1] as f64 * to[1] + n[2] as f64 * to[2]) / r2.sqrt();
+                if cos.is_nan() || cos <= 0.0 || occluders.occluded(x, p) {
+                    continue;
+                }
+                let g = cos / r2.max(r2_min);
+                for (e, i) in irr.iter_mut().zip(light.intensity) {
+                    *e += i * g;
+                }
+            }
+            let k = std::f64::consts::FRAC_1_PI;
+            [
+                (rho[0] as f64 * k * irr[0]) as f32,
+                (rho[1] as f64 * k * irr[1]) as f32,
+                (rho[2] as f64 * k * irr[2]) as f32,
+            ]
+        })
+        .collect();
+    DirectLight { radiance }
+}
+
+#[cfg(test)]
+#[allow(clippy::needless_range_loop)]
+mod tests {
+    use super::*;
+    use lightfarm_proto::bundle::Rect;
+
+    fn light(position: [f64; 3], intensity: [f64; 3]) -> Light {
+        Light {
+            kind: LightKind::Point,
+            position,
+            intensity,
+        }
+    }
+
+    /// Texels on the floor z = 0 (normal +z) of a 4 m box.
+    fn floor(points: &[[f32; 3]]) -> Layout {
+        Layout {
+            scene_name: "test".into(),
+            surfaces: vec![],
+            positions: points.to_vec(),
+            normals: vec![[0.0, 0.0, 1.0]; points.len()],
+            albedo: vec![[0.5, 0.25, 0.8]; points.len()],
+            rects: vec![Rect {
+                axis: 2,
+                coord: 0.0,
+                min: [0.0, 0.0],
+                max: [4.0, 4.0],
+            }],
+            triangles: vec![],
+        }
+    }
+
+    fn close(a: f32, b: f64) -> bool {
+        (a as f64 - b).abs() <= 1e-5 * b.abs().max(1e-12)
+    }
+
+    #[test]
+    fn unoccluded_texel_matches_closed_form() {
+        let layout = floor(&[[1.0, 1.0, 0.0]]);
+        let occ = Occluders::from_layout(&layout);
+        let i = [10.0, 20.0, 5.0];
+        let p = [2.0, 3.0, 2.5];
+        let d = light(p, i);
+        let out = direct_from_point_lights(&layout, &occ, std::slice::from_ref(&d));
+        let to = [1.0f64, 2.0, 2.5];
+        let r2 = to.iter().map(|v| v * v).sum::<f64>();
+        let cos = 2.5 / r2.sqrt();
+        for c in 0..3 {
+            let want = layout.albedo[0][c] as f64 / std::f64::consts::PI * i[c] * cos / r2;
+            assert!(
+                close(out.radiance[0][c], want),
+                "channel {c}: {} vs {want}",
+                out.radiance[0][c]
+            );
+        }
+        // Two lights add.
+        let twice = direct_from_point_lights(&layout, &occ, &[d.clone(), d]);
+        for c in 0..3 {
+            assert!(close(twice.radiance[0][c], 2.0 * out.radiance[0][c] as f64));
+        }
+    }
+
+    #[test]
+    fn texel_behind_an_occluder_gets_zero() {
+        let mut layout = floor(&[[1.0, 1.0, 0.0], [3.0, 3.0, 0.0]]);
+        layout.rects.push(Rect {
+            axis: 2,
+            coord: 1.0,
+            min: [0.5, 0.5],
+            max: [1.5, 1.5],
+        });
+        let occ = Occluders::from_layout(&layout);
+        let out = direct_from_point_lights(&layout, &occ, &[light([1.0, 1.0, 3.0], [1.0; 3])]);
+        assert_eq!(out.radiance[0], [0.0; 3]);
+        assert!(
+            out.radiance[1].iter().all(|&v| v > 0.0),
+            "the other texel is lit"
+        );
+    }
+
+    #[test]
+    fn light_behind_the_surface_gives_zero() {
+        let layout = floor(&[[1.0, 1.0, 0.0]]);
+        let occ = Occluders::new(&[], &[]);
+        let out = direct_from_point_lights(&layout, &occ, &[light([1.0, 1.0, -2.0], [5.0; 3])]);
+        assert_eq!(out.radiance[0], [0.0; 3]);
+        // Grazing (in the plane) gives zero too.
+        let out = direct_from_point_lights(&layout, &occ, &[light([3.0, 1.0, 0.0], [5.0; 3])]);
+        assert_eq!(out.radiance[0], [0.0; 3]);
+    }
+
+    #[test]
+    fn light_on_or_at_a_texel_stays_finite() {
+        let layout = floor(&[[1.0, 1.0, 0.0], [2.0, 2.0, 0.0]]);
+        let occ = Occluders::from_layout(&layout);
+        // Exactly at texel 0, just above texel 1's plane next to it.
+        let lights = [
+            light([1.0, 1.0, 0.0], [1.0; 3]),
+            light([2.0, 2.0, 1e-7], [1.0; 3]),
+        ];
+        let out = direct_from_point_lights(&layout, &occ, &lights);
+        for v in out.radiance.iter().flatten() {
+            assert!(v.is_finite() && *v >= 0.0, "{v}");
+        }
+        assert!(out.radiance[1][0] > 0.0);
+    }
+
+    #[test]
+    fn one_value_per_texel_and_nothing_without_lights() {
+        let layout = floor(&[[1.0, 1.0, 0.0], [2.0, 1.0, 0.0], [3.0, 1.0, 0.0]]);
+        let out = direct_from_point_lights(&layout, &Occluders::from_layout(&layout), &[]);
+        assert_eq!(out.radiance, vec![[0.0; 3]; 3]);
+    }
+}

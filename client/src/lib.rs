@@ -1,0 +1,42 @@
+//! The lightfarm thin client: decode an operator bundle, compute direct light from point lights
+//! with shadow rays, and turn it into indirect light every frame.
+//!
+//! Typical frame loop:
+//!
+//! ```no_run
+//! # fn frame(bytes: &[u8], lights: &[lightfarm_proto::lights::Light]) -> Result<(), Box<dyn std::error::Error>> {
+//! use lightfarm_client::{decode, direct_from_point_lights, IndirectLight, Method, Occluders, Runtime};
+//! let bundle = decode(bytes)?;
+//! let occluders = Occluders::from_layout(&bundle.layout);
+//! let direct = direct_from_point_lights(&bundle.layout, &occluders, lights);
+//! let mut runtime = Runtime::new(bundle);
+//! let mut indirect = IndirectLight::default();
+//! runtime.apply(Method::Mrt, &direct, &mut indirect)?;
+//! # Ok(()) }
+//! ```
+//!
+//! # Layout
+//! - [`occluders`]: a BVH over the bundle's occluder rects and triangles; shadow-ray queries.
+//! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
+//! - [`runtime`]: the per-frame, allocation-free application of the bundle's operators
+//!   ([`Method::Mrt`] block operators and transport, or the dense [`Method::Full`] operator).
+//!
+//! Invariants: this crate depends only on `lightfarm-proto` and `thiserror`; it does no I/O;
+//! every per-texel vector is in layout order with one RGB value per layout texel; operators are
+//! albedo-free and the receiving texel's albedo is multiplied in last.
+
+pub mod direct;
+pub mod occluders;
+pub mod runtime;
+
+pub use direct::{direct_from_point_lights, DirectLight};
+pub use lightfarm_proto::bundle::{Bundle, BundleError};
+pub use lightfarm_proto::lights::Light;
+pub use occluders::Occluders;
+pub use runtime::{ApplyError, IndirectLight, Method, Runtime};
+
+/// Decodes and validates a bundle (`Bundle::decode`): `Ok` only for a bundle [`Runtime::new`]
+/// accepts; never panics.
+pub fn decode(bytes: &[u8]) -> Result<Bundle, BundleError> {
+    Bundle::decode(bytes)
+}

@@ -1,0 +1,635 @@
+//! Shadow-ray queries against the bundle's occluding geometry (axis-aligned rects and triangles).
+//!
+//! Owns a small bounding-volume hierarchy: median split over primitive centroids along the
+//! longest centroid axis, leaves of at most [`LEAF_SIZE`] primitives, nodes in one flat array
+//! (an inner node's children sit next to each other), traversed iteratively with a fixed-size
+//! stack. The only query is [`Occluders::occluded`]: does any primitive cross the open segment
+//! between two points?
+//!
+//! Invariants:
+//! - Hits count only strictly inside the segment, away from both ends by
+//!   `T_EPS_REL + EPS_SCALE · scale / length` (in units of the segment, so the margin is about
+//!   `1e-4 ·` scene scale in distance plus `1e-4 ·` the segment length). A shadow ray leaving a
+//!   texel centre on a wall does not hit that wall; a light sitting on or near a surface does not
+//!   hit the surface it sits on. A segment shorter than twice the margin is never occluded.
+//! - Rect hits are inclusive at the edges, so rects sharing an edge leave no crack; triangles use
+//!   Möller–Trumbore, inclusive at edges. A segment lying in a primitive's plane does not hit it.
+//! - Node boxes are padded by a tiny multiple of the scene scale, so the hierarchy never culls a
+//!   primitive the exact primitive test would report: traversal answers exactly what a brute-force
+//!   loop over all primitives with the same tests answers.
+//! - Construction never panics, whatever the input (degenerate rects and triangles are kept and
+//!   simply never hit, or hit as their exact tests say).
+
+use lightfarm_proto::bundle::{Layout, Rect};
+
+/// Most primitives in a leaf.
+pub const LEAF_SIZE: usize = 4;
+/// Depth of the traversal stack. Median splits halve the primitive count per level, so depth
+/// is at most `log2(n / LEAF_SIZE) + 1`: 64 covers any count that fits in memory.
+const STACK_DEPTH: usize = 64;
+/// Segment end margin, relative to the segment length.
+const T_EPS_REL: f32 = 1e-4;
+/// Segment end margin, relative to the scene scale (a distance).
+const EPS_SCALE: f32 = 1e-4;
+/// Node-box padding, relative to the scene scale.
+const BOX_PAD: f32 = 1e-5;
+
+/// One occluding primitive.
+#[derive(Clone, Copy, Debug)]
+enum Prim {
+    /// `axis`, plane `coord`, tangent-axis bounds (tangents are the other two axes ascending).
+    Rect {
+        axis: u8,
+        coord: f32,
+        min: [f32; 2],
+        max: [f32; 2],
+    },
+    Tri([[f32; 3]; 3]),
+}
+
+/// A BVH node. `count > 0`: a leaf holding `prims[first .. first + count]`; `count == 0`: an
+/// inner node whose children are `nodes[first]` and `nodes[first + 1]`.
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    min: [f32; 3],
+    max: [f32; 3],
+    first: u32,
+    count: u32,
+}
+
+/// Occluding geometry with a BVH for shadow rays.
+#[derive(Clone, Debug)]
+pub struct Occluders {
+    /// Primitives, reordered so every leaf's are contiguous.
+    prims: Vec<Prim>,
+    nodes: Vec<Node>,
+    /// Bounds of all primitives (`None` when there are none).
+    bounds: Option<([f32; 3], [f32; 3])>,
+    /// Diagonal of `bounds`, or 1 when that is zero or there are no primitives.
+    scale: f32,
+}
+
+fn tangent_axes(axis: u8) -> (usize, usize) {
+    match axis {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    }
+}
+
+impl Prim {
+    fn bounds(&self) -> ([f32; 3], [f32; 3]) {
+        match *self {
+            Prim::Rect {
+                axis,
+                coord,
+                min,
+                max,
+            } => {
+                let (u, v) = tangent_axes(axis);
+                let (mut lo, mut hi) = ([0.0; 3], [0.0; 3]);
+                lo[axis as usize] = coord;
+                hi[axis as usize] = coord;
+                lo[u] = min[0];
+                hi[u] = max[0];
+                lo[v] = min[1];
+                hi[v] = max[1];
+                (lo, hi)
+            }
+            Prim::Tri(p) => {
+                let mut lo = p[0];
+                let mut hi = p[0];
+                for q in &p[1..] {
+                    for a in 0..3 {
+                        lo[a] = lo[a].min(q[a]);
+                        hi[a] = hi[a].max(q[a]);
+                    }
+                }
+                (lo, hi)
+            }
+        }
+    }
+
+    fn centroid(&self) -> [f32; 3] {
+        let (lo, hi) = self.bounds();
+        [
+            0.5 * (lo[0] + hi[0]),
+            0.5 * (lo[1] + hi[1]),
+            0.5 * (lo[2] + hi[2]),
+        ]
+    }
+
+    /// Does the primitive cross the segment `o + t·d` for `tmin < t < tmax`?
+    #[inline]
+    fn hit(&self, o: [f32; 3], d: [f32; 3], tmin: f32, tmax: f32) -> bool {
+        match *self {
+            Prim::Rect {
+                axis,
+                coord,
+                min,
+                max,
+            } => {
+                let a = axis as usize;
+                if d[a] == 0.0 {
+                    return false;
+                }
+                let t = (coord - o[a]) / d[a];
+                // `!(t > tmin && t < tmax)` also rejects NaN.
+                if !(t > tmin && t < tmax) {
+                    return false;
+                }
+                let (u, v) = tangent_axes(axis);
+                let pu = o[u] + t * d[u];
+                let pv = o[v] + t * d[v];
+                pu >= min[0] && pu <= max[0] && pv >= min[1] && pv <= max[1]
+            }
+            Prim::Tri([p0, p1, p2]) => {
+                // Möller–Trumbore.
+                let e1 = sub(p1, p0);
+                let e2 = sub(p2, p0);
+                let pv = cross(d, e2);
+                let det = dot(e1, pv);
+                if det == 0.0 {
+                    return false;
+                }
+                let inv = 1.0 / det;
+                let s = sub(o, p0);
+                let u = dot(s, pv) * inv;
+                if !(0.0..=1.0).contains(&u) {
+                    return false;
+                }
+                let qv = cross(s, e1);
+                let v = dot(d, qv) * inv;
+                if !(v >= 0.0 && u + v <= 1.0) {
+                    return false;
+                }
+                let t = dot(e2, qv) * inv;
+                t > tmin && t < tmax
+            }
+        }
+    }
+}
+
+#[inline]
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline]
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+#[inline]
+fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn union(a: ([f32; 3], [f32; 3]), b: ([f32; 3], [f32; 3])) -> ([f32; 3], [f32; 3]) {
+    let mut out = a;
+    for k in 0..3 {
+        out.0[k] = out.0[k].min(b.0[k]);
+        out.1[k] = out.1[k].max(b.1[k]);
+    }
+    out
+}
+
+/// Does the segment `o + t·d`, `tmin ≤ t ≤ tmax`, touch the closed box? Exact for axes the
+/// segment does not move along.
+#[inline]
+fn segment_hits_box(
+    o: [f32; 3],
+    inv_d: [f32; 3],
+    d: [f32; 3],
+    tmin: f32,
+    tmax: f32,
+    n: &Node,
+) -> bool {
+    let (mut t0, mut t1) = (tmin, tmax);
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            if o[a] < n.min[a] || o[a] > n.max[a] {
+                return false;
+            }
+        } else {
+            let ta = (n.min[a] - o[a]) * inv_d[a];
+            let tb = (n.max[a] - o[a]) * inv_d[a];
+            t0 = t0.max(ta.min(tb));
+            t1 = t1.min(ta.max(tb));
+        }
+    }
+    t0 <= t1
+}
+
+impl Occluders {
+    /// The layout's rects and triangles.
+    pub fn from_layout(layout: &Layout) -> Occluders {
+        Occluders::new(&layout.rects, &layout.triangles)
+    }
+
+    /// Builds the hierarchy over `rects` and `triangles`.
+    pub fn new(rects: &[Rect], triangles: &[[[f32; 3]; 3]]) -> Occluders {
+        let mut prims: Vec<Prim> = Vec::with_capacity(rects.len() + triangles.len());
+        for r in rects {
+            prims.push(Prim::Rect {
+                axis: r.axis.min(2),
+                coord: r.coord,
+                min: [r.min[0].min(r.max[0]), r.min[1].min(r.max[1])],
+                max: [r.min[0].max(r.max[0]), r.min[1].max(r.max[1])],
+            });
+        }
+        prims.extend(triangles.iter().map(|t| Prim::Tri(*t)));
+
+        let bounds = prims.iter().map(Prim::bounds).reduce(union);
+        let scale = match bounds {
+            Some((lo, hi)) => {
+                let diag = dot(sub(hi, lo), sub(hi, lo)).sqrt();
+                if diag.is_finite() && diag > 0.0 {
+                    diag
+                } else {
+                    1.0
+                }
+            }
+            None => 1.0,
+        };
+        let pad = BOX_PAD * scale;
+
+        let mut nodes: Vec<Node> = Vec::with_capacity(2 * prims.len().div_ceil(LEAF_SIZE).max(1));
+        if !prims.is_empty() {
+            let mut centroids: Vec<([f32; 3], Prim)> =
+                prims.iter().map(|p| (p.centroid(), *p)).collect();
+            nodes.push(Node {
+                min: [0.0; 3],
+                max: [0.0; 3],
+                first: 0,
+                count: 0,
+            });
+            // (node index, primitive range) still to be built.
+            let mut work: Vec<(usize, usize, usize)> = vec![(0, 0, centroids.len())];
+            while let Some((ni, start, end)) = work.pop() {
+                let items = &mut centroids[start..end];
+                let (mut lo, mut hi) = items[0].1.bounds();
+                for (_, p) in items.iter() {
+                    (lo, hi) = union((lo, hi), p.bounds());
+                }
+                for k in 0..3 {
+                    lo[k] -= pad;
+                    hi[k] += pad;
+                }
+                nodes[ni].min = lo;
+                nodes[ni].max = hi;
+                if items.len() <= LEAF_SIZE {
+                    nodes[ni].first = start as u32;
+                    nodes[ni].count = items.len() as u32;
+                    continue;
+                }
+                let (mut clo, mut chi) = (items[0].0, items[0].0);
+                for (c, _) in items.iter() {
+                    (clo, chi) = union((clo, chi), (*c, *c));
+                }
+                let ext = sub(chi, clo);
+                let axis = if ext[0] >= ext[1] && ext[0] >= ext[2] {
+                    0
+                } else if ext[1] >= ext[2] {
+                    1
+                } else {
+                    2
+                };
+                let mid = items.len() / 2;
+                items.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
+                let left = nodes.len();
+                nodes.push(Node {
+                    min: [0.0; 3],
+                    max: [0.0; 3],
+                    first: 0,
+                    count: 0,
+                });
+                nodes.push(Node {
+                    min: [0.0; 3],
+                    max: [0.0; 3],
+                    first: 0,
+                    count: 0,
+                });
+                nodes[ni].first = left as u32;
+                nodes[ni].count = 0;
+                work.push((left, start, start + mid));
+                work.push((left + 1, start + mid, end));
+            }
+            prims = centroids.into_iter().map(|(_, p)| p).collect();
+        }
+        Occluders {
+            prims,
+            nodes,
+            bounds,
+            scale,
+        }
+    }
+
+    /// Number of primitives.
+    pub fn len(&self) -> usize {
+        self.prims.len()
+    }
+
+    /// True when there is nothing to hit.
+    pub fn is_empty(&self) -> bool {
+        self.prims.is_empty()
+    }
+
+    /// Bounds `(min, max)` of all primitives, `None` when there are none.
+    pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
+        self.bounds
+    }
+
+    /// Scene scale the epsilons are relative to: the diagonal of [`Occluders::bounds`], or 1.
+    pub fn scale(&self) -> f32 {
+        self.scale
+    }
+
+    /// Segment direction and the open parameter interval a hit must fall in; `None` when the
+    /// segment is too short (or not finite) to be occluded.
+    fn segment(&self, origin: [f32; 3], target: [f32; 3]) -> Option<([f32; 3], f32, f32)> {
+        let d = sub(target, origin);
+        let len = dot(d, d).sqrt();
+        if !(len > 0.0 && len.is_finite()) {
+            return None;
+        }
+        let eps = T_EPS_REL + EPS_SCALE * self.scale / len;
+        let (tmin, tmax) = (eps, 1.0 - eps);
+        (tmin < tmax).then_some((d, tmin, tmax))
+    }
+
+    /// Does any primitive cross the segment strictly between `origin` and `target` (away from
+    /// both ends by the margins in the module doc)?
+    pub fn occluded(&self, origin: [f32; 3], target: [f32; 3]) -> bool {
+        if self.nodes.is_empty() {
+            return false;
+        }
+        let Some((d, tmin, tmax)) = self.segment(origin, target) else {
+            return false;
+        };
+        let inv_d = [1.0 / d[0], 1.0 / d[1], 1.0 / d[2]];
+        let mut stack = [0u32; STACK_DEPTH];
+        let mut top = 0usize;
+        let mut ni = 0usize;
+        loop {
+            let node = &self.nodes[ni];
+            if segment_hits_box(origin, inv_d, d, tmin, tmax, node) {
+                if node.count > 0 {
+                    let first = node.first as usize;
+                    let leaf = &self.prims[first..first + node.count as usize];
+                    if leaf.iter().any(|p| p.hit(origin, d, tmin, tmax)) {
+                        return true;
+                    }
+                } else {
+                    // Depth is bounded (see STACK_DEPTH), so the stack cannot overflow.
+                    stack[top] = node.first + 1;
+                    top += 1;
+                    ni = node.first as usize;
+                    continue;
+                }
+            }
+            if top == 0 {
+                return false;
+            }
+            top -= 1;
+            ni = stack[top] as usize;
+        }
+    }
+
+    /// The same query by testing every primitive (the reference for the hierarchy).
+    #[cfg(test)]
+    fn occluded_brute(&self, origin: [f32; 3], target: [f32; 3]) -> bool {
+        let Some((d, tmin, tmax)) = self.segment(origin, target) else {
+            return false;
+        };
+        self.prims.iter().any(|p| p.hit(origin, d, tmin, tmax))
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A fixed-seed linear congruential generator (no `rand` in this crate).
+    pub(crate) struct Lcg(pub u64);
+
+    impl Lcg {
+        pub(crate) fn next_u32(&mut self) -> u32 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (self.0 >> 33) as u32
+        }
+        /// Uniform in `[0, 1)`.
+        pub(crate) fn unit(&mut self) -> f32 {
+            (self.next_u32() >> 8) as f32 / (1u32 << 24) as f32
+        }
+        pub(crate) fn range(&mut self, lo: f32, hi: f32) -> f32 {
+            lo + (hi - lo) * self.unit()
+        }
+        fn point(&mut self, lo: f32, hi: f32) -> [f32; 3] {
+            [self.range(lo, hi), self.range(lo, hi), self.range(lo, hi)]
+        }
+    }
+
+    fn random_scene(
+        rng: &mut Lcg,
+        n_rects: usize,
+        n_tris: usize,
+    ) -> (Vec<Rect>, Vec<[[f32; 3]; 3]>) {
+        let rects = (0..n_rects)
+            .map(|_| {
+                let (a, b) = (rng.range(-5.0, 5.0), rng.range(-5.0, 5.0));
+                let (w, h) = (rng.range(0.0, 2.0), rng.range(0.0, 2.0));
+                Rect {
+                    axis: (rng.next_u32() % 3) as u8,
+                    coord: rng.range(-5.0, 5.0),
+                    min: [a, b],
+                    max: [a + w, b + h],
+                }
+            })
+            .collect();
+        let tris = (0..n_tris)
+            .map(|_| {
+                let c = rng.point(-5.0, 5.0);
+                let p = |rng: &mut Lcg| {
+                    let o = rng.point(-1.0, 1.0);
+                    [c[0] + o[0], c[1] + o[1], c[2] + o[2]]
+                };
+                [p(rng), p(rng), p(rng)]
+            })
+            .collect();
+        (rects, tris)
+    }
+
+    #[test]
+    fn bvh_matches_brute_force_on_random_scenes() {
+        let mut rng = Lcg(0x5eed_1234);
+        let mut hits = 0;
+        let mut total = 0;
+        for scene in 0..40 {
+            let (rects, tris) = random_scene(&mut rng, scene * 3, (scene * 7) % 50);
+            let occ = Occluders::new(&rects, &tris);
+            assert_eq!(occ.len(), rects.len() + tris.len());
+            for _ in 0..400 {
+                let o = rng.point(-6.0, 6.0);
+                let t = rng.point(-6.0, 6.0);
+                let got = occ.occluded(o, t);
+                assert_eq!(
+                    got,
+                    occ.occluded_brute(o, t),
+                    "scene {scene}: {o:?} → {t:?}"
+                );
+                hits += got as usize;
+                total += 1;
+            }
+            // Segments that start on a primitive (texel-like origins) and axis-parallel ones.
+            for r in &rects {
+                let (u, v) = tangent_axes(r.axis);
+                let mut o = [0.0; 3];
+                o[r.axis as usize] = r.coord;
+                o[u] = rng.range(r.min[0], r.max[0]);
+                o[v] = rng.range(r.min[1], r.max[1]);
+                let mut t = rng.point(-6.0, 6.0);
+                assert_eq!(occ.occluded(o, t), occ.occluded_brute(o, t));
+                t = o;
+                t[(rng.next_u32() % 3) as usize] += rng.range(-8.0, 8.0);
+                assert_eq!(occ.occluded(o, t), occ.occluded_brute(o, t));
+            }
+        }
+        // The test is only meaningful if both answers occur often.
+        assert!(
+            hits > total / 10 && hits < total * 9 / 10,
+            "{hits} of {total}"
+        );
+    }
+
+    #[test]
+    fn build_is_a_proper_tree() {
+        let mut rng = Lcg(7);
+        let (rects, tris) = random_scene(&mut rng, 300, 300);
+        let occ = Occluders::new(&rects, &tris);
+        let mut seen = vec![0u32; occ.prims.len()];
+        for n in &occ.nodes {
+            if n.count > 0 {
+                assert!(n.count as usize <= LEAF_SIZE);
+                for s in &mut seen[n.first as usize..(n.first + n.count) as usize] {
+                    *s += 1;
+                }
+            }
+        }
+        assert!(
+            seen.iter().all(|&s| s == 1),
+            "every primitive in exactly one leaf"
+        );
+    }
+
+    #[test]
+    fn empty_scene_never_occludes() {
+        let occ = Occluders::new(&[], &[]);
+        assert!(occ.is_empty());
+        assert!(!occ.occluded([0.0; 3], [1.0, 2.0, 3.0]));
+    }
+
+    /// A 4 m room: floor z = 0 and ceiling z = 4, walls at x = 0 and x = 4.
+    fn room() -> Occluders {
+        let wall = |axis, coord| Rect {
+            axis,
+            coord,
+            min: [0.0, 0.0],
+            max: [4.0, 4.0],
+        };
+        Occluders::new(
+            &[wall(2, 0.0), wall(2, 4.0), wall(0, 0.0), wall(0, 4.0)],
+            &[],
+        )
+    }
+
+    #[test]
+    fn ray_leaving_a_wall_texel_does_not_hit_the_wall() {
+        let occ = room();
+        // Texel centres on the floor and the wall, light inside the room.
+        assert!(!occ.occluded([1.3, 2.1, 0.0], [2.0, 2.0, 3.0]));
+        assert!(!occ.occluded([0.0, 1.7, 2.9], [3.0, 2.0, 1.0]));
+        // Grazing, but still leaving the floor.
+        assert!(!occ.occluded([0.1, 2.0, 0.0], [3.9, 2.0, 0.05]));
+    }
+
+    #[test]
+    fn light_near_or_on_a_surface_still_lights() {
+        let occ = room();
+        // On the ceiling, and a hair below it.
+        assert!(!occ.occluded([1.0, 1.0, 0.0], [2.0, 2.0, 4.0]));
+        assert!(!occ.occluded([1.0, 1.0, 0.0], [2.0, 2.0, 4.0 - 1e-5]));
+        // A hair inside the ceiling (the light's own surface is within the end margin).
+        assert!(!occ.occluded([1.0, 1.0, 0.0], [2.0, 2.0, 4.0 + 1e-5]));
+        // ...but a light clearly beyond the ceiling is shadowed.
+        assert!(occ.occluded([1.0, 1.0, 0.0], [2.0, 2.0, 4.1]));
+        // Near the wall the texel is on.
+        assert!(!occ.occluded([0.0, 1.0, 1.0], [1e-4, 2.0, 2.0]));
+    }
+
+    #[test]
+    fn a_blocker_between_occludes() {
+        let mut rects = vec![Rect {
+            axis: 2,
+            coord: 2.0,
+            min: [1.0, 1.0],
+            max: [3.0, 3.0],
+        }];
+        let occ = Occluders::new(&rects, &[]);
+        assert!(occ.occluded([2.0, 2.0, 0.0], [2.0, 2.0, 4.0]));
+        assert!(!occ.occluded([0.5, 2.0, 0.0], [0.5, 2.0, 4.0]));
+        assert!(
+            !occ.occluded([2.0, 2.0, 0.0], [2.0, 2.0, 1.5]),
+            "blocker beyond the target"
+        );
+        // Inclusive edges: two rects sharing the edge x = 2 leave no crack.
+        rects = vec![
+            Rect {
+                axis: 2,
+                coord: 2.0,
+                min: [1.0, 1.0],
+                max: [2.0, 3.0],
+            },
+            Rect {
+                axis: 2,
+                coord: 2.0,
+                min: [2.0, 1.0],
+                max: [3.0, 3.0],
+            },
+        ];
+        let occ = Occluders::new(&rects, &[]);
+        assert!(occ.occluded([2.0, 2.0, 0.0], [2.0, 2.0, 4.0]));
+        assert!(occ.occluded([1.0, 2.0, 0.0], [3.0, 2.0, 4.0]));
+        // Edge of a lone rect counts too.
+        let occ = Occluders::new(&rects[..1], &[]);
+        assert!(occ.occluded([1.0, 1.0, 0.0], [1.0, 1.0, 4.0]));
+    }
+
+    #[test]
+    fn triangles_occlude() {
+        let tri = [[0.0, 0.0, 1.0], [2.0, 0.0, 1.0], [0.0, 2.0, 1.0]];
+        let occ = Occluders::new(&[], &[tri]);
+        assert!(occ.occluded([0.5, 0.5, 0.0], [0.5, 0.5, 2.0]));
+        assert!(
+            occ.occluded([0.5, 0.5, 2.0], [0.5, 0.5, 0.0]),
+            "either winding"
+        );
+        assert!(
+            !occ.occluded([1.5, 1.5, 0.0], [1.5, 1.5, 2.0]),
+            "outside the hypotenuse"
+        );
+        assert!(
+            !occ.occluded([0.5, 0.5, 0.0], [0.5, 0.5, 0.9]),
+            "stops short"
+        );
+        // A shared edge between two triangles has no crack (the diagonal x + y = 2).
+        let other = [[2.0, 0.0, 1.0], [2.0, 2.0, 1.0], [0.0, 2.0, 1.0]];
+        let occ = Occluders::new(&[], &[tri, other]);
+        assert!(occ.occluded([1.0, 1.0, 0.0], [1.0, 1.0, 2.0]));
+    }
+}

@@ -1,0 +1,20 @@
+//! The lightfarm contract: what crosses a crate or process boundary.
+//!
+//! # Layout
+//! - [`scene`]: the scene description `lightfarm.scene/1`, its validation and JSON Schema.
+//! - [`lights`]: LIGHTS.json (point lights, dynamic-object poses).
+//! - [`result`]: RESULT.json (per-texel direct and indirect radiance) and `compare`.
+//! - [`bundle`]: the operator bundle the server writes and the client reads.
+//! - [`face`]: box faces and the texel layout on each.
+//! - [`wire`]: the little-endian encoding the bundle and the operator cache share.
+//!
+//! Invariant: this crate does no light-transport math and no I/O beyond bytes and strings.
+
+pub mod bundle;
+pub mod face;
+pub mod lights;
+pub mod result;
+pub mod scene;
+pub mod wire;
+
+pub use face::Face;

@@ -1,0 +1,664 @@
+//! The scene description `lightfarm.scene/1`: types, parsing and validation.
+//!
+//! Units: metres for positions, albedo is RGB reflectance in [0, 1). Blocks are axis-aligned
+//! boxes (a warp of the unit cube) whose closed faces are lit from the inside. Two blocks connect
+//! where an open face of one coincides exactly with an open face of the other; an open face with
+//! no neighbour opens onto the void.
+//!
+//! Invariant: a [`Scene`] returned by [`Scene::from_json`] or [`Scene::validate`] has finite
+//! coordinates, positive extents, albedo in [0, 1), unique ids and a consistent connectivity
+//! graph; downstream code (the bake engine, the service) never re-checks these. Error messages
+//! name the object and field (`block "a": max.y (0) <= min.y (3)`), and the CLI and the HTTP
+//! API show the same text.
+
+use std::collections::{BTreeMap, HashSet};
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::face::Face;
+
+/// The only format string this version reads.
+pub const SCENE_FORMAT: &str = "lightfarm.scene/1";
+
+/// A whole level: blocks, clutter, dynamic objects and bake settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// Must be `lightfarm.scene/1`.
+    pub format: String,
+    /// Human-readable name.
+    pub name: String,
+    /// Bake settings; every field has a default.
+    #[serde(default)]
+    pub settings: Settings,
+    /// Warped boxes the level is built from.
+    pub blocks: Vec<Block>,
+    /// Static props inside the blocks.
+    #[serde(default)]
+    pub clutter: Vec<Clutter>,
+    /// Moving objects (posed per frame in LIGHTS.json).
+    #[serde(default)]
+    pub dynamic: Vec<DynamicObject>,
+    /// Where lights will be (optional; default: anywhere inside the blocks).
+    #[serde(default)]
+    pub light_regions: Vec<Aabb>,
+}
+
+/// How inter-block light is carried.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum Transport {
+    /// MRT's scene-independent way: reduced lightfields on openings composed over the graph.
+    Lightfield,
+    /// Ray-traced cross-block operators through the real geometry (accurate).
+    Traced,
+}
+
+/// Bake settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct Settings {
+    /// Texels along each edge of a block face (T×T texels per closed face).
+    pub texels_per_face: u32,
+    /// Cosine-weighted rays traced per texel for every operator.
+    pub rays_per_texel: u32,
+    /// Fraction of energy (squared Frobenius norm) an operator truncation may drop; ranks and
+    /// propagation depth are chosen from it.
+    pub tolerance: f64,
+    /// Inter-block transport.
+    pub transport: Transport,
+    /// Spatial cells along each edge of an opening's lightfield.
+    pub lightfield_cells: u32,
+    /// Direction bins along each edge of the lightfield's (concentric-square) hemisphere map.
+    pub lightfield_directions: u32,
+    /// Point lights sampled per block to build the lighting prior.
+    pub prior_lights: u32,
+    /// Seed of every quasi-random sequence; a bake is a pure function of scene and seed.
+    pub seed: u64,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            texels_per_face: 16,
+            rays_per_texel: 1024,
+            tolerance: 0.001,
+            transport: Transport::Lightfield,
+            lightfield_cells: 4,
+            lightfield_directions: 6,
+            prior_lights: 768,
+            seed: 0,
+        }
+    }
+}
+
+/// An axis-aligned box.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Aabb {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+impl Aabb {
+    pub fn extent(&self) -> [f64; 3] {
+        [
+            self.max[0] - self.min[0],
+            self.max[1] - self.min[1],
+            self.max[2] - self.min[2],
+        ]
+    }
+
+    /// The intersection with `other`, if it has positive volume.
+    pub fn intersection(&self, other: &Aabb) -> Option<Aabb> {
+        let mut out = *self;
+        for k in 0..3 {
+            out.min[k] = self.min[k].max(other.min[k]);
+            out.max[k] = self.max[k].min(other.max[k]);
+            if out.max[k] <= out.min[k] {
+                return None;
+            }
+        }
+        Some(out)
+    }
+
+    /// The rectangle of one face: (plane coordinate, min and max along the tangent axes).
+    pub fn face_rect(&self, face: Face) -> ([f64; 2], [f64; 2], f64) {
+        let (u, v) = face.tangent_axes();
+        let c = if face.is_max_side() {
+            self.max[face.axis()]
+        } else {
+            self.min[face.axis()]
+        };
+        ([self.min[u], self.min[v]], [self.max[u], self.max[v]], c)
+    }
+}
+
+/// A warped box of the level.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Block {
+    pub id: String,
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+    /// Removed faces.
+    #[serde(default)]
+    pub open: Vec<Face>,
+    /// RGB albedo of every closed face.
+    pub albedo: [f64; 3],
+    /// Per-face albedo overrides.
+    #[serde(default)]
+    pub face_albedo: BTreeMap<Face, [f64; 3]>,
+}
+
+impl Block {
+    pub fn aabb(&self) -> Aabb {
+        Aabb {
+            min: self.min,
+            max: self.max,
+        }
+    }
+
+    pub fn is_open(&self, face: Face) -> bool {
+        self.open.contains(&face)
+    }
+
+    /// Closed faces in canonical order (the order their texels are laid out in).
+    pub fn closed_faces(&self) -> Vec<Face> {
+        Face::ALL
+            .into_iter()
+            .filter(|f| !self.is_open(*f))
+            .collect()
+    }
+
+    /// Albedo of a face (its override or the block's).
+    pub fn face_albedo(&self, face: Face) -> [f64; 3] {
+        *self.face_albedo.get(&face).unwrap_or(&self.albedo)
+    }
+}
+
+/// Translation, rotation (unit quaternion x, y, z, w) and scale, applied scale first.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct Transform {
+    pub translation: [f64; 3],
+    pub rotation: [f64; 4],
+    pub scale: [f64; 3],
+}
+
+impl Default for Transform {
+    fn default() -> Self {
+        Transform {
+            translation: [0.0; 3],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+            scale: [1.0; 3],
+        }
+    }
+}
+
+impl Transform {
+    /// Applies the transform to a point.
+    pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
+        let s = [
+            p[0] * self.scale[0],
+            p[1] * self.scale[1],
+            p[2] * self.scale[2],
+        ];
+        let r = rotate(self.rotation, s);
+        [
+            r[0] + self.translation[0],
+            r[1] + self.translation[1],
+            r[2] + self.translation[2],
+        ]
+    }
+}
+
+/// Rotates `v` by the unit quaternion `q = (x, y, z, w)`.
+pub fn rotate(q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
+    let [x, y, z, w] = q;
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let qv = [x, y, z];
+    let t = cross(qv, v).map(|c| 2.0 * c);
+    let c2 = cross(qv, t);
+    [
+        v[0] + w * t[0] + c2[0],
+        v[1] + w * t[1] + c2[1],
+        v[2] + w * t[2] + c2[2],
+    ]
+}
+
+/// A static prop: a box or a mesh file (glTF/GLB/OBJ, path relative to the scene file).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Clutter {
+    pub id: String,
+    #[serde(rename = "box", default, skip_serializing_if = "Option::is_none")]
+    pub box_: Option<Aabb>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transform: Option<Transform>,
+    pub albedo: [f64; 3],
+}
+
+/// A moving object; its pose comes per frame (LIGHTS.json `poses`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct DynamicObject {
+    pub id: String,
+    pub mesh: String,
+    pub albedo: [f64; 3],
+}
+
+/// Two blocks joined through coincident open faces.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Connection {
+    pub block_a: usize,
+    pub face_a: Face,
+    pub block_b: usize,
+    pub face_b: Face,
+}
+
+/// Where an open face of a block leads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Opening {
+    /// Into another block through its coincident open face.
+    Neighbour { block: usize, face: Face },
+    /// Out of the level: light leaves.
+    Void,
+}
+
+/// Why a scene was refused. The message names the object and field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SceneError {
+    #[error("scene JSON: {0}")]
+    Json(String),
+    #[error("format: expected \"{SCENE_FORMAT}\", got \"{0}\"")]
+    Format(String),
+    #[error("{object}: {message}")]
+    Invalid { object: String, message: String },
+}
+
+fn invalid(object: impl Into<String>, message: impl Into<String>) -> SceneError {
+    SceneError::Invalid {
+        object: object.into(),
+        message: message.into(),
+    }
+}
+
+const AXES: [&str; 3] = ["x", "y", "z"];
+
+fn fmt_num(x: f64) -> String {
+    format!("{x}")
+}
+
+fn check_finite(object: &str, field: &str, values: &[f64]) -> Result<(), SceneError> {
+    for (k, v) in values.iter().enumerate() {
+        if !v.is_finite() {
+            let sub = if values.len() == 3 {
+                format!("{field}.{}", AXES[k])
+            } else {
+                format!("{field}[{k}]")
+            };
+            return Err(invalid(object, format!("{sub} is not finite ({v})")));
+        }
+    }
+    Ok(())
+}
+
+fn check_box(object: &str, min: &[f64; 3], max: &[f64; 3], prefix: &str) -> Result<(), SceneError> {
+    check_finite(object, &format!("{prefix}min"), min)?;
+    check_finite(object, &format!("{prefix}max"), max)?;
+    for k in 0..3 {
+        if max[k] <= min[k] {
+            return Err(invalid(
+                object,
+                format!(
+                    "{prefix}max.{a} ({}) <= {prefix}min.{a} ({})",
+                    fmt_num(max[k]),
+                    fmt_num(min[k]),
+                    a = AXES[k]
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn check_albedo(object: &str, field: &str, albedo: &[f64; 3]) -> Result<(), SceneError> {
+    check_finite(object, field, albedo)?;
+    for (k, a) in albedo.iter().enumerate() {
+        if !(0.0..1.0).contains(a) {
+            return Err(invalid(
+                object,
+                format!("{field}[{k}] ({a}) is outside [0, 1)"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn check_id(kind: &str, id: &str, seen: &mut HashSet<String>) -> Result<(), SceneError> {
+    if id.is_empty()
+        || id.len() > 128
+        || id.contains(['/', '"', '\\'])
+        || id.chars().any(char::is_control)
+    {
+        return Err(invalid(
+            format!("{kind} \"{id}\""),
+            "id must be 1-128 characters without '/', '\"', '\\' or control characters",
+        ));
+    }
+    if !seen.insert(format!("{kind}:{id}")) {
+        return Err(invalid(format!("{kind} \"{id}\""), "duplicate id"));
+    }
+    Ok(())
+}
+
+impl Scene {
+    /// Parses and validates a scene.
+    pub fn from_json(text: &str) -> Result<Scene, SceneError> {
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| SceneError::Json(e.to_string()))?;
+        if let Some(format) = value.get("format") {
+            match format.as_str() {
+                Some(SCENE_FORMAT) => {}
+                Some(other) => return Err(SceneError::Format(other.to_string())),
+                None => return Err(SceneError::Format(format.to_string())),
+            }
+        }
+        let scene: Scene =
+            serde_json::from_value(value).map_err(|e| SceneError::Json(e.to_string()))?;
+        scene.validate()?;
+        Ok(scene)
+    }
+
+    /// Checks every invariant the bake engine relies on.
+    pub fn validate(&self) -> Result<(), SceneError> {
+        if self.format != SCENE_FORMAT {
+            return Err(SceneError::Format(self.format.clone()));
+        }
+        self.settings.validate()?;
+        if self.blocks.is_empty() {
+            return Err(invalid("blocks", "a scene needs at least one block"));
+        }
+        let mut seen = HashSet::new();
+        for block in &self.blocks {
+            check_id("block", &block.id, &mut seen)?;
+            let object = format!("block \"{}\"", block.id);
+            check_box(&object, &block.min, &block.max, "")?;
+            check_albedo(&object, "albedo", &block.albedo)?;
+            for (face, albedo) in &block.face_albedo {
+                check_albedo(&object, &format!("face_albedo.{face}"), albedo)?;
+            }
+            let mut open = HashSet::new();
+            for face in &block.open {
+                if !open.insert(*face) {
+                    return Err(invalid(&object, format!("open lists {face} twice")));
+                }
+            }
+        }
+        for clutter in &self.clutter {
+            check_id("clutter", &clutter.id, &mut seen)?;
+            let object = format!("clutter \"{}\"", clutter.id);
+            check_albedo(&object, "albedo", &clutter.albedo)?;
+            match (&clutter.box_, &clutter.mesh) {
+                (Some(b), None) => {
+                    check_box(&object, &b.min, &b.max, "box.")?;
+                    if clutter.transform.is_some() {
+                        return Err(invalid(
+                            &object,
+                            "transform applies to meshes only; give the box in world coordinates",
+                        ));
+                    }
+                }
+                (None, Some(path)) => {
+                    check_mesh_path(&object, path)?;
+                    if let Some(t) = &clutter.transform {
+                        check_transform(&object, t)?;
+                    }
+                }
+                (Some(_), Some(_)) => {
+                    return Err(invalid(&object, "give either box or mesh, not both"))
+                }
+                (None, None) => return Err(invalid(&object, "needs a box or a mesh")),
+            }
+        }
+        for object in &self.dynamic {
+            check_id("dynamic", &object.id, &mut seen)?;
+            let name = format!("dynamic \"{}\"", object.id);
+            check_albedo(&name, "albedo", &object.albedo)?;
+            check_mesh_path(&name, &object.mesh)?;
+        }
+        for (k, region) in self.light_regions.iter().enumerate() {
+            check_box(&format!("light_regions[{k}]"), &region.min, &region.max, "")?;
+        }
+        self.check_block_overlaps()?;
+        self.openings()?;
+        Ok(())
+    }
+
+    fn check_block_overlaps(&self) -> Result<(), SceneError> {
+        for (i, a) in self.blocks.iter().enumerate() {
+            for b in &self.blocks[i + 1..] {
+                if let Some(overlap) = a.aabb().intersection(&b.aabb()) {
+                    let e = overlap.extent();
+                    let tol = 1e-9 * scale_of(&a.aabb()).max(scale_of(&b.aabb()));
+                    if e.iter().all(|x| *x > tol) {
+                        return Err(invalid(
+                            format!("block \"{}\"", a.id),
+                            format!("overlaps block \"{}\"", b.id),
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Where every open face of every block leads, indexed `[block][face]`
+    /// (`None` for closed faces). Refuses partial overlaps and open-against-closed faces.
+    pub fn openings(&self) -> Result<Vec<[Option<Opening>; 6]>, SceneError> {
+        let mut out = vec![[None; 6]; self.blocks.len()];
+        for (i, a) in self.blocks.iter().enumerate() {
+            for face in Face::ALL {
+                let (amin, amax, ac) = a.aabb().face_rect(face);
+                let mut found = None;
+                for (j, b) in self.blocks.iter().enumerate() {
+                    if i == j {
+                        continue;
+                    }
+                    let other = face.opposite();
+                    let (bmin, bmax, bc) = b.aabb().face_rect(other);
+                    // Symmetric in a and b, so both blocks agree on whether they connect.
+                    let tol = 1e-9 * scale_of(&a.aabb()).max(scale_of(&b.aabb()));
+                    if (ac - bc).abs() > tol {
+                        continue;
+                    }
+                    let overlap = (0..2).all(|k| amin[k].max(bmin[k]) < amax[k].min(bmax[k]) - tol);
+                    if !overlap {
+                        continue;
+                    }
+                    let same = (0..2).all(|k| {
+                        (amin[k] - bmin[k]).abs() <= tol && (amax[k] - bmax[k]).abs() <= tol
+                    });
+                    let a_open = a.is_open(face);
+                    let b_open = b.is_open(other);
+                    let names = || (format!("block \"{}\"", a.id), format!("block \"{}\"", b.id));
+                    if !a_open && !b_open {
+                        continue; // back-to-back walls
+                    }
+                    if !same {
+                        let (na, nb) = names();
+                        return Err(invalid(
+                            na,
+                            format!("face {face} partially overlaps face {other} of {nb}; openings must coincide exactly"),
+                        ));
+                    }
+                    if a_open != b_open {
+                        let (na, nb) = names();
+                        let (open_name, closed_name, open_face, closed_face) = if a_open {
+                            (na, nb, face, other)
+                        } else {
+                            (nb, na, other, face)
+                        };
+                        return Err(invalid(
+                            open_name,
+                            format!("open face {open_face} lies against closed face {closed_face} of {closed_name}"),
+                        ));
+                    }
+                    found = Some(Opening::Neighbour {
+                        block: j,
+                        face: other,
+                    });
+                }
+                if a.is_open(face) {
+                    out[i][face.index()] = Some(found.unwrap_or(Opening::Void));
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Every pair of connected blocks once (`block_a < block_b`).
+    pub fn connections(&self) -> Result<Vec<Connection>, SceneError> {
+        let mut out = Vec::new();
+        for (a, faces) in self.openings()?.iter().enumerate() {
+            for face in Face::ALL {
+                if let Some(Opening::Neighbour { block, face: fb }) = faces[face.index()] {
+                    if a < block {
+                        out.push(Connection {
+                            block_a: a,
+                            face_a: face,
+                            block_b: block,
+                            face_b: fb,
+                        });
+                    }
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Bounding box of all blocks.
+    pub fn bounds(&self) -> Aabb {
+        let mut b = self.blocks[0].aabb();
+        for block in &self.blocks {
+            for k in 0..3 {
+                b.min[k] = b.min[k].min(block.min[k]);
+                b.max[k] = b.max[k].max(block.max[k]);
+            }
+        }
+        b
+    }
+}
+
+fn scale_of(b: &Aabb) -> f64 {
+    b.min
+        .iter()
+        .chain(b.max.iter())
+        .fold(1.0f64, |m, x| m.max(x.abs()))
+}
+
+fn check_mesh_path(object: &str, path: &str) -> Result<(), SceneError> {
+    let lower = path.to_ascii_lowercase();
+    if path.is_empty() {
+        return Err(invalid(object, "mesh path is empty"));
+    }
+    if !(lower.ends_with(".obj") || lower.ends_with(".gltf") || lower.ends_with(".glb")) {
+        return Err(invalid(
+            object,
+            format!("mesh \"{path}\" is not .obj, .gltf or .glb"),
+        ));
+    }
+    Ok(())
+}
+
+fn check_transform(object: &str, t: &Transform) -> Result<(), SceneError> {
+    check_finite(object, "transform.translation", &t.translation)?;
+    check_finite(object, "transform.rotation", &t.rotation)?;
+    check_finite(object, "transform.scale", &t.scale)?;
+    let norm = t.rotation.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if (norm - 1.0).abs() > 1e-3 {
+        return Err(invalid(
+            object,
+            format!("transform.rotation is not a unit quaternion (norm {norm})"),
+        ));
+    }
+    for (k, s) in t.scale.iter().enumerate() {
+        if *s == 0.0 {
+            return Err(invalid(
+                object,
+                format!("transform.scale.{} is zero", AXES[k]),
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl Settings {
+    pub fn validate(&self) -> Result<(), SceneError> {
+        let object = "settings";
+        if !(1..=128).contains(&self.texels_per_face) {
+            return Err(invalid(
+                object,
+                format!(
+                    "texels_per_face ({}) must be in 1..=128",
+                    self.texels_per_face
+                ),
+            ));
+        }
+        if !(1..=1 << 20).contains(&self.rays_per_texel) {
+            return Err(invalid(
+                object,
+                format!(
+                    "rays_per_texel ({}) must be in 1..=1048576",
+                    self.rays_per_texel
+                ),
+            ));
+        }
+        if !(self.tolerance > 0.0 && self.tolerance < 1.0) {
+            return Err(invalid(
+                object,
+                format!("tolerance ({}) must be in (0, 1)", self.tolerance),
+            ));
+        }
+        if !(1..=32).contains(&self.lightfield_cells) {
+            return Err(invalid(
+                object,
+                format!(
+                    "lightfield_cells ({}) must be in 1..=32",
+                    self.lightfield_cells
+                ),
+            ));
+        }
+        if !(1..=32).contains(&self.lightfield_directions) {
+            return Err(invalid(
+                object,
+                format!(
+                    "lightfield_directions ({}) must be in 1..=32",
+                    self.lightfield_directions
+                ),
+            ));
+        }
+        if !(1..=65536).contains(&self.prior_lights) {
+            return Err(invalid(
+                object,
+                format!("prior_lights ({}) must be in 1..=65536", self.prior_lights),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The JSON Schema of `lightfarm.scene/1`.
+pub fn scene_schema() -> serde_json::Value {
+    serde_json::to_value(schemars::schema_for!(Scene)).expect("schema serialises")
+}

@@ -1,0 +1,341 @@
+//! The scene as the bake engine sees it: lit surfaces divided into texels, and the primitives
+//! rays can hit (axis-aligned rectangles for block walls and clutter boxes, triangles for meshes).
+//!
+//! Frames and units: world coordinates in metres. A block face's lit side faces into the block;
+//! a clutter box face's lit side faces out of the box. Texel `(i, j)` of a `T×T` face is global
+//! texel `surface.texel_offset + j*T + i`, `i` along the face's first tangent axis (see
+//! `lightfarm_proto::Face`). Global texel order: blocks in scene order (closed faces in canonical
+//! order), then clutter boxes (six faces each). Mesh clutter is geometry only (no texels yet).
+//!
+//! Invariant: `texels[k].surface` indexes `surfaces`, and every rectangle primitive with a
+//! `surface` maps hit points back to that surface's texels with [`Geometry::texel_at`].
+
+use std::ops::Range;
+use std::path::Path;
+
+use lightfarm_proto::scene::{Aabb, Scene, Transform};
+use lightfarm_proto::Face;
+
+use super::mesh::{self, MeshError};
+
+/// Who owns a lit surface.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SurfaceOwner {
+    Block { block: usize, face: Face },
+    ClutterBox { clutter: usize, face: Face },
+}
+
+/// An axis-aligned lit rectangle divided into `t × t` texels.
+#[derive(Clone, Debug)]
+pub struct Surface {
+    /// `block:<id>/<face>` or `clutter:<id>`.
+    pub name: String,
+    pub owner: SurfaceOwner,
+    pub axis: usize,
+    pub coord: f64,
+    pub min: [f64; 2],
+    pub max: [f64; 2],
+    /// The lit side's normal is `normal_sign · e_axis`.
+    pub normal_sign: f64,
+    pub t: usize,
+    pub texel_offset: usize,
+    /// Index (in RESULT.json) of this surface's first texel within its name.
+    pub index_offset: u32,
+    pub albedo: [f64; 3],
+}
+
+impl Surface {
+    pub fn normal(&self) -> [f64; 3] {
+        let mut n = [0.0; 3];
+        n[self.axis] = self.normal_sign;
+        n
+    }
+    pub fn tangent_axes(&self) -> (usize, usize) {
+        match self.axis {
+            0 => (1, 2),
+            1 => (0, 2),
+            _ => (0, 1),
+        }
+    }
+    /// Centre of texel `(i, j)`.
+    pub fn texel_center(&self, i: usize, j: usize) -> [f64; 3] {
+        let (u, v) = self.tangent_axes();
+        let mut p = [0.0; 3];
+        p[self.axis] = self.coord;
+        p[u] = self.min[0] + (i as f64 + 0.5) / self.t as f64 * (self.max[0] - self.min[0]);
+        p[v] = self.min[1] + (j as f64 + 0.5) / self.t as f64 * (self.max[1] - self.min[1]);
+        p
+    }
+    /// Area of one texel.
+    pub fn texel_area(&self) -> f64 {
+        (self.max[0] - self.min[0]) * (self.max[1] - self.min[1]) / (self.t * self.t) as f64
+    }
+    /// Local texel index of a point on the surface (clamped to the surface).
+    pub fn local_texel(&self, p: [f64; 3]) -> usize {
+        let (u, v) = self.tangent_axes();
+        let cell = |x: f64, lo: f64, hi: f64| {
+            (((x - lo) / (hi - lo) * self.t as f64).floor().max(0.0) as usize).min(self.t - 1)
+        };
+        cell(p[v], self.min[1], self.max[1]) * self.t + cell(p[u], self.min[0], self.max[0])
+    }
+}
+
+/// One lightmap texel.
+#[derive(Clone, Copy, Debug)]
+pub struct Texel {
+    pub position: [f64; 3],
+    pub normal: [f64; 3],
+    pub albedo: [f64; 3],
+    pub surface: u32,
+    pub index: u32,
+}
+
+/// Something a ray can hit.
+#[derive(Clone, Copy, Debug)]
+pub enum Primitive {
+    /// Two-sided axis-aligned rectangle; `surface` is its lit side (if lightmapped).
+    Rect {
+        axis: usize,
+        coord: f64,
+        min: [f64; 2],
+        max: [f64; 2],
+        surface: Option<u32>,
+        albedo: [f64; 3],
+    },
+    /// Two-sided triangle.
+    Triangle { v: [[f64; 3]; 3], albedo: [f64; 3] },
+}
+
+/// Surfaces, texels and primitives of a scene (or of a lone shape).
+#[derive(Clone, Debug, Default)]
+pub struct Geometry {
+    pub surfaces: Vec<Surface>,
+    pub texels: Vec<Texel>,
+    pub primitives: Vec<Primitive>,
+    /// Global texel range of each block (empty for blocks with every face open).
+    pub block_texels: Vec<Range<usize>>,
+    /// Global texel range of each clutter object (empty for mesh clutter).
+    pub clutter_texels: Vec<Range<usize>>,
+}
+
+/// Why a scene's geometry could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum GeometryError {
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+}
+
+impl Geometry {
+    /// Adds an axis-aligned lit rectangle with `t × t` texels.
+    #[allow(clippy::too_many_arguments)]
+    pub fn add_surface(
+        &mut self,
+        name: String,
+        owner: SurfaceOwner,
+        rect: ([f64; 2], [f64; 2], f64),
+        axis: usize,
+        normal_sign: f64,
+        t: usize,
+        index_offset: u32,
+        albedo: [f64; 3],
+    ) {
+        let surface_index = self.surfaces.len() as u32;
+        let surface = Surface {
+            name,
+            owner,
+            axis,
+            coord: rect.2,
+            min: rect.0,
+            max: rect.1,
+            normal_sign,
+            t,
+            texel_offset: self.texels.len(),
+            index_offset,
+            albedo,
+        };
+        for j in 0..t {
+            for i in 0..t {
+                self.texels.push(Texel {
+                    position: surface.texel_center(i, j),
+                    normal: surface.normal(),
+                    albedo,
+                    surface: surface_index,
+                    index: index_offset + (j * t + i) as u32,
+                });
+            }
+        }
+        self.primitives.push(Primitive::Rect {
+            axis,
+            coord: rect.2,
+            min: rect.0,
+            max: rect.1,
+            surface: Some(surface_index),
+            albedo,
+        });
+        self.surfaces.push(surface);
+    }
+
+    /// Adds the closed faces of a block (lit from inside).
+    pub fn add_block(
+        &mut self,
+        block: usize,
+        id: &str,
+        aabb: &Aabb,
+        closed: &[Face],
+        albedo: impl Fn(Face) -> [f64; 3],
+        t: usize,
+    ) -> Range<usize> {
+        let start = self.texels.len();
+        for face in closed {
+            let normal_sign = if face.is_max_side() { -1.0 } else { 1.0 };
+            self.add_surface(
+                format!("block:{id}/{face}"),
+                SurfaceOwner::Block { block, face: *face },
+                aabb.face_rect(*face),
+                face.axis(),
+                normal_sign,
+                t,
+                0,
+                albedo(*face),
+            );
+        }
+        start..self.texels.len()
+    }
+
+    /// Builds the full scene: blocks, clutter (boxes with texels, meshes as triangles).
+    pub fn from_scene(scene: &Scene, scene_dir: &Path) -> Result<Geometry, GeometryError> {
+        let t = scene.settings.texels_per_face as usize;
+        let mut g = Geometry::default();
+        for (b, block) in scene.blocks.iter().enumerate() {
+            let range = g.add_block(
+                b,
+                &block.id,
+                &block.aabb(),
+                &block.closed_faces(),
+                |f| block.face_albedo(f),
+                t,
+            );
+            g.block_texels.push(range);
+        }
+        for (c, clutter) in scene.clutter.iter().enumerate() {
+            let start = g.texels.len();
+            if let Some(aabb) = &clutter.box_ {
+                for face in Face::ALL {
+                    let normal_sign = if face.is_max_side() { 1.0 } else { -1.0 };
+                    let offset = (face.index() * t * t) as u32;
+                    g.add_surface(
+                        format!("clutter:{}", clutter.id),
+                        SurfaceOwner::ClutterBox { clutter: c, face },
+                        aabb.face_rect(face),
+                        face.axis(),
+                        normal_sign,
+                        t,
+                        offset,
+                        clutter.albedo,
+                    );
+                }
+            } else if let Some(path) = &clutter.mesh {
+                let transform = clutter.transform.unwrap_or_default();
+                let mesh = mesh::load_mesh(
+                    &format!("clutter \"{}\"", clutter.id),
+                    scene_dir,
+                    path,
+                    &transform,
+                )?;
+                g.add_triangles(&mesh.triangles, clutter.albedo);
+            }
+            g.clutter_texels.push(start..g.texels.len());
+        }
+        Ok(g)
+    }
+
+    /// Adds dynamic objects at the given poses (geometry only).
+    pub fn add_posed_dynamic(
+        &mut self,
+        scene: &Scene,
+        scene_dir: &Path,
+        poses: &[lightfarm_proto::lights::Pose],
+    ) -> Result<(), GeometryError> {
+        for pose in poses {
+            let Some(object) = scene.dynamic.iter().find(|d| d.id == pose.id) else {
+                continue;
+            };
+            let transform = Transform {
+                translation: pose.translation,
+                rotation: pose.rotation,
+                scale: [1.0; 3],
+            };
+            let mesh = mesh::load_mesh(
+                &format!("dynamic \"{}\"", object.id),
+                scene_dir,
+                &object.mesh,
+                &transform,
+            )?;
+            self.add_triangles(&mesh.triangles, object.albedo);
+        }
+        Ok(())
+    }
+
+    pub fn add_triangles(&mut self, triangles: &[[[f64; 3]; 3]], albedo: [f64; 3]) {
+        for tri in triangles {
+            self.primitives
+                .push(Primitive::Triangle { v: *tri, albedo });
+        }
+    }
+
+    /// The global texel a hit on `surface` at point `p` lands in.
+    pub fn texel_at(&self, surface: u32, p: [f64; 3]) -> usize {
+        let s = &self.surfaces[surface as usize];
+        s.texel_offset + s.local_texel(p)
+    }
+
+    /// Largest absolute coordinate (sets ray epsilons).
+    pub fn scale(&self) -> f64 {
+        let mut m: f64 = 1e-3;
+        for p in &self.primitives {
+            match p {
+                Primitive::Rect {
+                    coord, min, max, ..
+                } => {
+                    m = m
+                        .max(coord.abs())
+                        .max(min[0].abs())
+                        .max(min[1].abs())
+                        .max(max[0].abs())
+                        .max(max[1].abs());
+                }
+                Primitive::Triangle { v, .. } => {
+                    for x in v.iter().flatten() {
+                        m = m.max(x.abs());
+                    }
+                }
+            }
+        }
+        m
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn texel_centres_map_back_to_their_own_texels() {
+        let mut g = Geometry::default();
+        let aabb = Aabb {
+            min: [0.0, 0.0, 0.0],
+            max: [4.0, 3.0, 2.0],
+        };
+        g.add_block(0, "a", &aabb, &Face::ALL, |_| [0.5; 3], 5);
+        assert_eq!(g.texels.len(), 6 * 25);
+        for (k, t) in g.texels.iter().enumerate() {
+            assert_eq!(g.texel_at(t.surface, t.position), k);
+            // Lit side faces into the block.
+            let centre = [2.0, 1.5, 1.0];
+            let to_centre: f64 = (0..3)
+                .map(|a| (centre[a] - t.position[a]) * t.normal[a])
+                .sum();
+            assert!(to_centre > 0.0);
+        }
+    }
+}

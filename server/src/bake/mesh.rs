@@ -1,0 +1,253 @@
+//! Loading clutter and dynamic-object meshes (OBJ through `tobj`, glTF/GLB through `gltf`) into
+//! world-space triangles.
+//!
+//! Invariant: returned triangles are finite and have positive area; zero-area triangles are
+//! dropped and counted, a NaN or infinite vertex is an error naming the object and triangle.
+//! Paths are relative to the scene file's directory.
+
+use std::path::{Path, PathBuf};
+
+use lightfarm_proto::scene::Transform;
+
+/// A triangle mesh in world coordinates (metres).
+#[derive(Clone, Debug, Default)]
+pub struct TriangleMesh {
+    pub triangles: Vec<[[f64; 3]; 3]>,
+    /// Zero-area triangles that were dropped.
+    pub dropped_degenerate: usize,
+}
+
+/// Why a mesh could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    #[error("{object}: cannot read mesh {path}: {message}")]
+    Read {
+        object: String,
+        path: PathBuf,
+        message: String,
+    },
+    #[error("{object}: triangle {triangle} has a non-finite vertex")]
+    NonFinite { object: String, triangle: usize },
+    #[error("{object}: mesh has {count} triangles, more than the limit of {limit}")]
+    TooLarge {
+        object: String,
+        count: usize,
+        limit: usize,
+    },
+    #[error("{object}: mesh has no triangles with positive area")]
+    Empty { object: String },
+}
+
+/// Most triangles one mesh may have.
+pub const MAX_TRIANGLES: usize = 2_000_000;
+
+/// Loads a mesh file and applies `transform`.
+pub fn load_mesh(
+    object: &str,
+    base_dir: &Path,
+    relative: &str,
+    transform: &Transform,
+) -> Result<TriangleMesh, MeshError> {
+    let path = base_dir.join(relative);
+    let read_err = |message: String| MeshError::Read {
+        object: object.to_string(),
+        path: path.clone(),
+        message,
+    };
+    let lower = relative.to_ascii_lowercase();
+    let raw: Vec<[[f64; 3]; 3]> = if lower.ends_with(".obj") {
+        let (models, _) = tobj::load_obj(
+            &path,
+            &tobj::LoadOptions {
+                triangulate: true,
+                single_index: true,
+                ..Default::default()
+            },
+        )
+        .map_err(|e| read_err(e.to_string()))?;
+        let mut tris = Vec::new();
+        for model in models {
+            let m = model.mesh;
+            let vertex = |i: u32| -> [f64; 3] {
+                let i = i as usize * 3;
+                [
+                    m.positions[i] as f64,
+                    m.positions[i + 1] as f64,
+                    m.positions[i + 2] as f64,
+                ]
+            };
+            for idx in m.indices.chunks_exact(3) {
+                if idx
+                    .iter()
+                    .any(|i| (*i as usize + 1) * 3 > m.positions.len())
+                {
+                    return Err(read_err("face index out of range".into()));
+                }
+                tris.push([vertex(idx[0]), vertex(idx[1]), vertex(idx[2])]);
+            }
+        }
+        tris
+    } else {
+        let (doc, buffers, _) = gltf::import(&path).map_err(|e| read_err(e.to_string()))?;
+        let mut tris = Vec::new();
+        let scene = doc.default_scene().or_else(|| doc.scenes().next());
+        let Some(scene) = scene else {
+            return Err(read_err("glTF has no scene".into()));
+        };
+        let mut stack: Vec<(gltf::Node, [[f64; 4]; 4])> =
+            scene.nodes().map(|n| (n, identity4())).collect();
+        while let Some((node, parent)) = stack.pop() {
+            let local = node.transform().matrix().map(|c| c.map(|x| x as f64));
+            let world = mul4(parent, local);
+            if let Some(mesh) = node.mesh() {
+                for prim in mesh.primitives() {
+                    if prim.mode() != gltf::mesh::Mode::Triangles {
+                        continue;
+                    }
+                    let reader = prim.reader(|b| Some(&buffers[b.index()]));
+                    let Some(pos) = reader.read_positions() else {
+                        continue;
+                    };
+                    let pos: Vec<[f64; 3]> =
+                        pos.map(|p| apply4(&world, p.map(|x| x as f64))).collect();
+                    let indices: Vec<u32> = match reader.read_indices() {
+                        Some(i) => i.into_u32().collect(),
+                        None => (0..pos.len() as u32).collect(),
+                    };
+                    for idx in indices.chunks_exact(3) {
+                        let get = |i: u32| {
+                            pos.get(i as usize)
+                                .copied()
+                                .ok_or_else(|| read_err("index out of range".into()))
+                        };
+                        tris.push([get(idx[0])?, get(idx[1])?, get(idx[2])?]);
+                    }
+                }
+            }
+            stack.extend(node.children().map(|c| (c, world)));
+        }
+        tris
+    };
+    if raw.len() > MAX_TRIANGLES {
+        return Err(MeshError::TooLarge {
+            object: object.to_string(),
+            count: raw.len(),
+            limit: MAX_TRIANGLES,
+        });
+    }
+    let mut mesh = TriangleMesh::default();
+    for (k, tri) in raw.into_iter().enumerate() {
+        if tri.iter().flatten().any(|x| !x.is_finite()) {
+            return Err(MeshError::NonFinite {
+                object: object.to_string(),
+                triangle: k,
+            });
+        }
+        let world = tri.map(|v| transform.apply(v));
+        if triangle_area(&world) <= 0.0 {
+            mesh.dropped_degenerate += 1;
+            continue;
+        }
+        mesh.triangles.push(world);
+    }
+    if mesh.triangles.is_empty() {
+        return Err(MeshError::Empty {
+            object: object.to_string(),
+        });
+    }
+    Ok(mesh)
+}
+
+/// Area of a triangle.
+pub fn triangle_area(t: &[[f64; 3]; 3]) -> f64 {
+    let e1 = sub(t[1], t[0]);
+    let e2 = sub(t[2], t[0]);
+    0.5 * norm(cross(e1, e2))
+}
+
+pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+pub(crate) fn norm(a: [f64; 3]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+fn identity4() -> [[f64; 4]; 4] {
+    let mut m = [[0.0; 4]; 4];
+    for (i, row) in m.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    m
+}
+
+/// Column-major 4×4 product (glTF convention: `m[col][row]`).
+fn mul4(a: [[f64; 4]; 4], b: [[f64; 4]; 4]) -> [[f64; 4]; 4] {
+    let mut out = [[0.0; 4]; 4];
+    for c in 0..4 {
+        for r in 0..4 {
+            out[c][r] = (0..4).map(|k| a[k][r] * b[c][k]).sum();
+        }
+    }
+    out
+}
+
+fn apply4(m: &[[f64; 4]; 4], p: [f64; 3]) -> [f64; 3] {
+    let mut out = [0.0; 3];
+    for (r, o) in out.iter_mut().enumerate() {
+        *o = m[0][r] * p[0] + m[1][r] * p[1] + m[2][r] * p[2] + m[3][r];
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn obj_loads_transformed_and_drops_degenerate_triangles() {
+        let dir = std::env::temp_dir().join(format!("lf-mesh-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("m.obj"),
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n",
+        )
+        .unwrap();
+        let t = Transform {
+            translation: [1.0, 2.0, 3.0],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+            scale: [2.0, 2.0, 2.0],
+        };
+        let mesh = load_mesh("clutter \"m\"", &dir, "m.obj", &t).unwrap();
+        assert_eq!(mesh.triangles.len(), 1);
+        assert_eq!(mesh.dropped_degenerate, 1);
+        assert_eq!(mesh.triangles[0][1], [3.0, 2.0, 3.0]);
+        std::fs::write(
+            dir.join("bad.obj"),
+            "v 0 0 0\nv 1 0 0\nv 0 nan 0\nf 1 2 3\n",
+        )
+        .unwrap();
+        let err = load_mesh(
+            "clutter \"pillar2\"",
+            &dir,
+            "bad.obj",
+            &Transform::default(),
+        );
+        match err {
+            Err(e) => assert!(e.to_string().starts_with("clutter \"pillar2\": "), "{e}"),
+            Ok(m) => panic!("accepted a NaN vertex: {:?}", m.triangles),
+        }
+        let missing =
+            load_mesh("clutter \"x\"", &dir, "missing.obj", &Transform::default()).unwrap_err();
+        assert!(missing.to_string().contains("missing.obj"), "{missing}");
+    }
+}

@@ -1,0 +1,30 @@
+//! The bake engine: light-transport math only.
+//!
+//! # Layout
+//! - [`sampling`]: seeded quasi-random numbers and hemisphere maps.
+//! - [`geometry`], [`mesh`]: texels and primitives of a scene or a lone shape; mesh loading.
+//! - [`tracer`]: the obvhs BVH and exact rectangle/triangle intersection.
+//! - [`one_bounce`]: sparse one-bounce gather rows (traced transport, the dense operator).
+//! - [`lighting_prior`], [`low_rank`], [`lightfield`], [`shape`]: MRT shape operators.
+//! - [`shape_cache`]: content-addressed on-disk cache of shape operators.
+//! - [`transport`]: inter-block transport (lightfield composition or traced).
+//! - [`reference`]: the brute-force one-bounce reference solver.
+//! - [`pipeline`]: scene → bundle; [`progress`]: how long work reports progress.
+//!
+//! **Invariant:** nothing here imports axum, tokio or serde_json; everything is deterministic
+//! for a given scene and seed, whatever the thread count.
+
+pub mod geometry;
+pub mod lightfield;
+pub mod lighting_prior;
+pub mod low_rank;
+pub mod mesh;
+pub mod one_bounce;
+pub mod pipeline;
+pub mod progress;
+pub mod reference;
+pub mod sampling;
+pub mod shape;
+pub mod shape_cache;
+pub mod tracer;
+pub mod transport;

@@ -1,0 +1,338 @@
+//! The bake: scene → geometry → shape operators (cached) → inter-block transport → optional
+//! dense operator → [`Bundle`].
+//!
+//! Invariant: the bundle is a pure function of the scene (and its meshes); the cache only saves
+//! time. Operators are stored albedo-free; albedo enters through the layout.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use faer::Mat;
+
+use lightfarm_proto::bundle::{
+    self, Bundle, Layout, Matrix, SparseRows, SurfaceInfo, TransportOps,
+};
+use lightfarm_proto::scene::{Scene, SceneError, Transport};
+
+use super::geometry::{Geometry, GeometryError, Primitive};
+use super::one_bounce::{gather_rows, PURPOSE_FULL};
+use super::progress::Progress;
+use super::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
+use super::shape_cache::{Lookup, ShapeCache};
+use super::tracer::Tracer;
+use super::transport::{lightfield_transport, traced_transport, TransportStats};
+
+/// What to bake beyond the scene's own settings.
+#[derive(Clone, Debug, Default)]
+pub struct BakeOptions {
+    /// Shape-operator cache (None: compute everything).
+    pub cache: Option<ShapeCache>,
+    /// Also bake the dense one-bounce operator over all texels (`--method full`).
+    pub full: bool,
+    /// Override `settings.transport`.
+    pub transport: Option<Transport>,
+}
+
+/// Figures about a bake.
+#[derive(Clone, Debug, Default)]
+pub struct BakeReport {
+    pub blocks: usize,
+    pub texels: usize,
+    pub unique_shapes: usize,
+    pub shapes_from_cache: usize,
+    pub shapes_computed: usize,
+    pub corrupt_cache_entries: usize,
+    pub ranks: Vec<usize>,
+    pub transport: TransportStats,
+    pub stage_seconds: Vec<(String, f64)>,
+    pub bundle_bytes: usize,
+}
+
+/// Why a bake failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BakeError {
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    #[error(transparent)]
+    Geometry(#[from] GeometryError),
+    #[error(transparent)]
+    Shape(#[from] ShapeError),
+    #[error("operator cache: {0}")]
+    Cache(#[from] std::io::Error),
+}
+
+fn to_matrix(m: &Mat<f64>) -> Matrix {
+    let mut data = Vec::with_capacity(m.nrows() * m.ncols());
+    for i in 0..m.nrows() {
+        for j in 0..m.ncols() {
+            data.push(m[(i, j)] as f32);
+        }
+    }
+    Matrix {
+        rows: m.nrows() as u32,
+        cols: m.ncols() as u32,
+        data,
+    }
+}
+
+/// Geometry of the blocks alone (what MRT transport sees).
+pub fn blocks_geometry(scene: &Scene) -> Geometry {
+    let t = scene.settings.texels_per_face as usize;
+    let mut g = Geometry::default();
+    for (b, block) in scene.blocks.iter().enumerate() {
+        let range = g.add_block(
+            b,
+            &block.id,
+            &block.aabb(),
+            &block.closed_faces(),
+            |f| block.face_albedo(f),
+            t,
+        );
+        g.block_texels.push(range);
+    }
+    g
+}
+
+/// The bundle layout of a full geometry.
+pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
+    let mut surfaces: Vec<SurfaceInfo> = Vec::new();
+    for s in &g.surfaces {
+        let n = (s.t * s.t) as u32;
+        match surfaces.last_mut() {
+            // Clutter boxes: six faces, one surface name.
+            Some(last) if last.name == s.name => last.texel_count += n,
+            _ => surfaces.push(SurfaceInfo {
+                name: s.name.clone(),
+                texel_offset: s.texel_offset as u32,
+                texel_count: n,
+            }),
+        }
+    }
+    let f3 = |v: [f64; 3]| v.map(|x| x as f32);
+    let mut rects = Vec::new();
+    let mut triangles = Vec::new();
+    for p in &g.primitives {
+        match p {
+            Primitive::Rect {
+                axis,
+                coord,
+                min,
+                max,
+                ..
+            } => rects.push(bundle::Rect {
+                axis: *axis as u8,
+                coord: *coord as f32,
+                min: min.map(|x| x as f32),
+                max: max.map(|x| x as f32),
+            }),
+            Primitive::Triangle { v, .. } => triangles.push(v.map(f3)),
+        }
+    }
+    Layout {
+        scene_name: scene.name.clone(),
+        surfaces,
+        positions: g.texels.iter().map(|t| f3(t.position)).collect(),
+        normals: g.texels.iter().map(|t| f3(t.normal)).collect(),
+        albedo: g.texels.iter().map(|t| f3(t.albedo)).collect(),
+        rects,
+        triangles,
+    }
+}
+
+/// Bakes a validated scene. `scene_dir` resolves mesh paths.
+pub fn bake(
+    scene: &Scene,
+    scene_dir: &Path,
+    options: &BakeOptions,
+    progress: &dyn Progress,
+) -> Result<(Bundle, BakeReport), BakeError> {
+    scene.validate()?;
+    let mut report = BakeReport::default();
+    let mut timer = Instant::now();
+    let mut lap = |report: &mut BakeReport, name: &str| {
+        report
+            .stage_seconds
+            .push((name.to_string(), timer.elapsed().as_secs_f64()));
+        timer = Instant::now();
+    };
+    let settings = &scene.settings;
+    let full_geometry = Geometry::from_scene(scene, scene_dir)?;
+    let block_geometry = blocks_geometry(scene);
+    let openings = scene.openings()?;
+    report.blocks = scene.blocks.len();
+    report.texels = full_geometry.texels.len();
+    lap(&mut report, "geometry");
+
+    // Shape operators, deduplicated by content key.
+    let specs: Vec<ShapeSpec> = scene
+        .blocks
+        .iter()
+        .map(|b| ShapeSpec::for_block(&b.aabb(), &b.open, settings, &scene.light_regions))
+        .collect();
+    let mut unique: Vec<String> = Vec::new();
+    let mut shape_index: Vec<usize> = Vec::new();
+    let mut key_to_index: HashMap<String, usize> = HashMap::new();
+    let mut unique_specs: Vec<&ShapeSpec> = Vec::new();
+    for spec in &specs {
+        let key = spec.key();
+        let idx = *key_to_index.entry(key.clone()).or_insert_with(|| {
+            unique.push(key.clone());
+            unique_specs.push(spec);
+            unique.len() - 1
+        });
+        shape_index.push(idx);
+    }
+    report.unique_shapes = unique.len();
+    let mut shapes: Vec<Arc<ShapeOperators>> = Vec::new();
+    let mut to_compute: Vec<usize> = Vec::new();
+    let mut slots: Vec<Option<Arc<ShapeOperators>>> = vec![None; unique.len()];
+    for (i, key) in unique.iter().enumerate() {
+        match options.cache.as_ref().map(|c| c.get(key)) {
+            Some(Lookup::Hit(ops)) => {
+                report.shapes_from_cache += 1;
+                slots[i] = Some(Arc::from(ops));
+            }
+            Some(Lookup::Corrupt) => {
+                report.corrupt_cache_entries += 1;
+                to_compute.push(i);
+            }
+            _ => to_compute.push(i),
+        }
+    }
+    let texels_to_do: u64 = to_compute
+        .iter()
+        .map(|i| unique_specs[*i].geometry().texels.len() as u64)
+        .sum();
+    progress.stage("shape operators", texels_to_do);
+    for i in to_compute {
+        let ops = bake_shape(unique_specs[i], &|n| progress.advance(n))?;
+        if let Some(cache) = &options.cache {
+            cache.put(&ops)?;
+        }
+        report.shapes_computed += 1;
+        slots[i] = Some(Arc::new(ops));
+    }
+    shapes.extend(
+        slots
+            .into_iter()
+            .map(|s| s.expect("every shape is cached or computed")),
+    );
+    report.ranks = shapes.iter().map(|s| s.rank()).collect();
+    lap(&mut report, "shape operators");
+
+    // Inter-block transport.
+    let per_block: Vec<&ShapeOperators> = shape_index.iter().map(|i| shapes[*i].as_ref()).collect();
+    let transport = match options.transport.unwrap_or(settings.transport) {
+        Transport::Lightfield => {
+            progress.stage("lightfield transport", 1);
+            let (blocks, stats) = lightfield_transport(&per_block, &openings, settings.tolerance);
+            progress.advance(1);
+            report.transport = stats;
+            TransportOps::Lightfield(
+                blocks
+                    .into_iter()
+                    .map(|b| bundle::PropEntry {
+                        target_block: b.target_block as u32,
+                        target_face: b.target_face.index() as u8,
+                        source_block: b.source_block as u32,
+                        matrix: to_matrix(&b.matrix),
+                    })
+                    .collect(),
+            )
+        }
+        Transport::Traced => {
+            progress.stage("traced transport", block_geometry.texels.len() as u64);
+            let tracer = Tracer::new(block_geometry.primitives.clone(), block_geometry.scale());
+            let (blocks, stats) = traced_transport(
+                &block_geometry,
+                &tracer,
+                &per_block,
+                settings.rays_per_texel,
+                settings.seed,
+                settings.tolerance,
+                &|n| progress.advance(n),
+            );
+            report.transport = stats;
+            TransportOps::Traced(
+                blocks
+                    .into_iter()
+                    .map(|b| bundle::TracedEntry {
+                        target_block: b.target_block as u32,
+                        source_block: b.source_block as u32,
+                        matrix: to_matrix(&b.matrix),
+                    })
+                    .collect(),
+            )
+        }
+    };
+    lap(&mut report, "transport");
+
+    // The dense Hašan-style operator over the full geometry.
+    let full = if options.full {
+        progress.stage("dense operator", full_geometry.texels.len() as u64);
+        let tracer = Tracer::new(full_geometry.primitives.clone(), full_geometry.scale());
+        let all: Vec<usize> = (0..full_geometry.texels.len()).collect();
+        let rows = gather_rows(
+            &full_geometry,
+            &tracer,
+            &all,
+            settings.rays_per_texel,
+            settings.seed,
+            PURPOSE_FULL,
+            &|n| progress.advance(n),
+        );
+        let mut sparse = SparseRows {
+            n: all.len() as u32,
+            row_start: vec![0],
+            cols: Vec::new(),
+            values: Vec::new(),
+        };
+        for row in rows {
+            for (c, v) in row {
+                sparse.cols.push(c);
+                sparse.values.push(v);
+            }
+            sparse.row_start.push(sparse.cols.len() as u32);
+        }
+        Some(sparse)
+    } else {
+        None
+    };
+    lap(&mut report, "dense operator");
+
+    let bundle = Bundle {
+        layout: layout_of(scene, &full_geometry),
+        shapes: shapes
+            .iter()
+            .map(|s| bundle::ShapeOps {
+                key: s.key.clone(),
+                u_b: to_matrix(&s.u_b),
+                t_db: to_matrix(&s.t_db),
+                openings: s
+                    .openings
+                    .iter()
+                    .map(|o| bundle::OpeningOps {
+                        face: o.face.index() as u8,
+                        u_r: to_matrix(&o.u_r),
+                    })
+                    .collect(),
+            })
+            .collect(),
+        blocks: scene
+            .blocks
+            .iter()
+            .enumerate()
+            .map(|(b, block)| bundle::BlockOps {
+                id: block.id.clone(),
+                shape: shape_index[b] as u32,
+                texel_offset: full_geometry.block_texels[b].start as u32,
+            })
+            .collect(),
+        transport: Some(transport),
+        full,
+    };
+    lap(&mut report, "bundle");
+    Ok((bundle, report))
+}

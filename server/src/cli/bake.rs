@@ -1,0 +1,77 @@
+//! `lightfarm bake SCENE.json -o OUT.lfb`: bake a scene into an operator bundle.
+
+use std::path::{Path, PathBuf};
+
+use lightfarm_proto::scene::{Scene, Transport};
+
+use super::progress_bar::Bar;
+use super::{read_text, write_atomic};
+use crate::bake::pipeline::{bake, BakeOptions};
+use crate::bake::shape_cache::ShapeCache;
+
+/// Arguments of `bake`.
+pub struct BakeArgs {
+    pub scene: PathBuf,
+    pub out: PathBuf,
+    pub cache: Option<PathBuf>,
+    pub full: bool,
+    pub transport: Option<Transport>,
+    pub quiet: bool,
+}
+
+/// Loads and validates a scene file; returns it with its directory.
+pub fn load_scene(path: &Path) -> anyhow::Result<(Scene, PathBuf)> {
+    let text = read_text(path)?;
+    let scene = Scene::from_json(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    Ok((scene, dir))
+}
+
+pub fn run(args: BakeArgs) -> anyhow::Result<()> {
+    let (scene, dir) = load_scene(&args.scene)?;
+    let cache = match &args.cache {
+        Some(dir) => Some(ShapeCache::open(dir)?),
+        None => None,
+    };
+    let options = BakeOptions {
+        cache,
+        full: args.full,
+        transport: args.transport,
+    };
+    let bar = Bar::new();
+    let (bundle, mut report) = bake(&scene, &dir, &options, &bar)?;
+    bar.finish();
+    let bytes = bundle.encode();
+    report.bundle_bytes = bytes.len();
+    write_atomic(&args.out, &bytes)?;
+    if !args.quiet {
+        eprintln!(
+            "baked {}: {} blocks, {} texels, {} shapes ({} from cache, {} computed), ranks {:?}",
+            scene.name,
+            report.blocks,
+            report.texels,
+            report.unique_shapes,
+            report.shapes_from_cache,
+            report.shapes_computed,
+            report.ranks
+        );
+        let t = &report.transport;
+        eprintln!(
+            "transport: {} propagation steps ({} cut, max {} hops), {} traced pairs kept, {} dropped",
+            t.steps, t.cut, t.max_hops, t.pairs_kept, t.pairs_dropped
+        );
+        let stages: Vec<String> = report
+            .stage_seconds
+            .iter()
+            .map(|(n, s)| format!("{n} {s:.3}s"))
+            .collect();
+        eprintln!("stages: {}", stages.join(", "));
+        let total: f64 = report.stage_seconds.iter().map(|(_, s)| s).sum();
+        println!(
+            "bundle={} bytes={} bake_seconds={total:.3}",
+            args.out.display(),
+            report.bundle_bytes
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,62 @@
+//! `lightfarm eval OUT.lfb --lights LIGHTS.json [--method full|mrt] -o RESULT.json`: apply a
+//! bundle through the client crate, exactly as a game would, and write per-texel radiance.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use lightfarm_client::{
+    direct_from_point_lights, Bundle, DirectLight, IndirectLight, Method, Occluders, Runtime,
+};
+use lightfarm_proto::lights::LightSet;
+use lightfarm_proto::result::{ResultFile, TexelRecord};
+
+use super::{read_text, write_json};
+
+/// Arguments of `eval`.
+pub struct EvalArgs {
+    pub bundle: PathBuf,
+    pub lights: PathBuf,
+    pub method: Method,
+    pub out: PathBuf,
+}
+
+/// Applies a bundle to a light set; returns the records the method models.
+pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Result<ResultFile> {
+    let occluders = Occluders::from_layout(&bundle.layout);
+    let direct: DirectLight = direct_from_point_lights(&bundle.layout, &occluders, &lights.lights);
+    let mut runtime = Runtime::try_new(bundle)?;
+    let mut indirect = IndirectLight::default();
+    runtime.apply(method, &direct, &mut indirect)?;
+    let layout = &runtime.bundle().layout;
+    let mut texels = Vec::with_capacity(layout.n_texels());
+    for surface in &layout.surfaces {
+        // MRT models the blocks only; clutter is lit by DRT.
+        if method == Method::Mrt && !surface.name.starts_with("block:") {
+            continue;
+        }
+        for k in 0..surface.texel_count as usize {
+            let t = surface.texel_offset as usize + k;
+            let f = |v: [f32; 3]| v.map(|x| x as f64);
+            texels.push(TexelRecord {
+                surface: surface.name.clone(),
+                index: k as u32,
+                position: f(layout.positions[t]),
+                normal: f(layout.normals[t]),
+                albedo: f(layout.albedo[t]),
+                direct: f(direct.radiance[t]),
+                indirect: f(indirect.radiance[t]),
+            });
+        }
+    }
+    Ok(ResultFile { texels })
+}
+
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    let bytes = std::fs::read(&args.bundle)
+        .with_context(|| format!("cannot read {}", args.bundle.display()))?;
+    let bundle = Bundle::decode(&bytes).with_context(|| format!("{}", args.bundle.display()))?;
+    let lights = LightSet::from_json(&read_text(&args.lights)?)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.lights.display()))?;
+    let result = evaluate(bundle, &lights, args.method)?;
+    write_json(&args.out, &result)
+}

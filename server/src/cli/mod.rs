@@ -1,0 +1,40 @@
+//! The `lightfarm` subcommands. Each file holds one command; `main.rs` parses arguments with
+//! clap and calls `run`. Commands read and write files and print; the math lives in
+//! [`crate::bake`] and the client crate.
+
+pub mod bake;
+pub mod compare;
+pub mod eval;
+pub mod progress_bar;
+pub mod reference;
+
+use std::path::Path;
+
+use anyhow::Context;
+
+/// Reads a file to a string, naming it in the error.
+pub fn read_text(path: &Path) -> anyhow::Result<String> {
+    std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+/// Writes JSON atomically (temp file + rename).
+pub fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
+    write_atomic(path, &serde_json::to_vec(value)?)
+}
+
+/// Writes bytes to `path` through a temp file in the same directory.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let tmp = dir.join(format!(
+        ".{}.tmp{}",
+        path.file_name().and_then(|n| n.to_str()).unwrap_or("out"),
+        std::process::id()
+    ));
+    std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
