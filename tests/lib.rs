@@ -1,1 +1,110 @@
-//! Shared helpers for the end-to-end tests in `tests/tests/`.
+//! Shared helpers for the end-to-end tests in `tests/tests/`: load the example scenes with
+//! test-sized settings, bake them, apply bundles through the client and compare with the
+//! reference solver.
+
+use std::path::{Path, PathBuf};
+
+use lightfarm_client::Method;
+use lightfarm_proto::lights::LightSet;
+use lightfarm_proto::result::{compare, Comparison, ResultFile};
+use lightfarm_proto::scene::{Scene, Transport};
+use lightfarm_server::bake::geometry::Geometry;
+use lightfarm_server::bake::pipeline::{bake, BakeOptions, BakeReport};
+use lightfarm_server::bake::progress::NoProgress;
+use lightfarm_server::bake::reference::reference;
+use lightfarm_server::cli::eval::evaluate;
+
+/// `scenes/<name>` in the repository.
+pub fn scene_dir(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../scenes")
+        .join(name)
+}
+
+/// An example scene and its lights, with settings scaled down for tests.
+pub fn load_scene(name: &str, texels_per_face: u32, rays_per_texel: u32) -> (Scene, LightSet) {
+    let dir = scene_dir(name);
+    let mut scene =
+        Scene::from_json(&std::fs::read_to_string(dir.join("scene.json")).unwrap()).unwrap();
+    scene.settings.texels_per_face = texels_per_face;
+    scene.settings.rays_per_texel = rays_per_texel;
+    let lights =
+        LightSet::from_json(&std::fs::read_to_string(dir.join("lights.json")).unwrap()).unwrap();
+    (scene, lights)
+}
+
+/// Bakes with the given transport and an optional dense operator.
+pub fn bake_scene(
+    scene: &Scene,
+    dir: &Path,
+    transport: Transport,
+    full: bool,
+) -> (Vec<u8>, BakeReport) {
+    let options = BakeOptions {
+        cache: None,
+        full,
+        transport: Some(transport),
+    };
+    let (bundle, report) = bake(scene, dir, &options, &NoProgress).expect("bake");
+    (bundle.encode(), report)
+}
+
+/// Applies a bundle as a game would.
+pub fn apply(bundle: &[u8], lights: &LightSet, method: Method) -> ResultFile {
+    let bundle = lightfarm_client::decode(bundle).expect("decode");
+    evaluate(bundle, lights, method).expect("evaluate")
+}
+
+/// The reference solution of a scene.
+pub fn reference_of(scene: &Scene, dir: &Path, lights: &LightSet, rays: u32) -> ResultFile {
+    let mut g = Geometry::from_scene(scene, dir).unwrap();
+    g.add_posed_dynamic(scene, dir, &lights.poses).unwrap();
+    reference(&g, &lights.lights, rays, 1234, &|_| {})
+}
+
+/// The one accuracy check every test uses: `ours` against `reference` within `tolerance`
+/// (relative L2 over matched texels), with every value finite.
+pub fn check_against_reference(
+    label: &str,
+    ours: &ResultFile,
+    reference: &ResultFile,
+    tolerance: f64,
+) -> Comparison {
+    assert!(
+        ours.texels
+            .iter()
+            .all(|t| t.indirect.iter().chain(&t.direct).all(|x| x.is_finite())),
+        "{label}: non-finite output"
+    );
+    let c = compare(ours, reference);
+    eprintln!(
+        "{label}: relative_l2={:.4} p95={:.4} matched={}",
+        c.relative_l2, c.p95, c.matched
+    );
+    assert!(c.matched > 0, "{label}: no texels matched");
+    assert!(
+        c.relative_l2 <= tolerance,
+        "{label}: relative L2 {:.4} exceeds {tolerance}",
+        c.relative_l2
+    );
+    c
+}
+
+/// Largest `indirect / (albedo × max direct seen)` over texels and channels: ≤ 1 for any
+/// one-bounce solution (a perfect reflector cannot return more than the brightest direct light).
+pub fn energy_ratio(result: &ResultFile) -> f64 {
+    let max_direct = result
+        .texels
+        .iter()
+        .flat_map(|t| t.direct)
+        .fold(0.0, f64::max);
+    let mut worst: f64 = 0.0;
+    for t in &result.texels {
+        for c in 0..3 {
+            if t.albedo[c] > 0.0 && max_direct > 0.0 {
+                worst = worst.max(t.indirect[c] / (t.albedo[c] * max_direct));
+            }
+        }
+    }
+    worst
+}

@@ -55,14 +55,52 @@ fn scene_scale(layout: &Layout, occluders: &Occluders) -> f64 {
     }
 }
 
-/// Evaluates `L_d = ρ/π · I · max(cosθ, 0) / r² · V` summed over `lights` at every texel centre.
-pub fn direct_from_point_lights(
-    layout: &Layout,
-    occluders: &Occluders,
+/// Direct outgoing radiance at one point with normal `n` and albedo `rho`.
+fn radiance_at(
+    x: [f32; 3],
+    n: [f32; 3],
+    rho: [f32; 3],
     lights: &[Light],
-) -> DirectLight {
-    let r2_min = (R_MIN_REL * scene_scale(layout, occluders)).powi(2);
-    let light_pos: Vec<[f32; 3]> = lights
+    light_pos: &[[f32; 3]],
+    occluders: &Occluders,
+    r2_min: f64,
+) -> [f64; 3] {
+    let mut irr = [0.0f64; 3];
+    for (light, &p) in lights.iter().zip(light_pos) {
+        match light.kind {
+            LightKind::Point => {}
+        }
+        if light.intensity.iter().all(|&i| i == 0.0) {
+            continue;
+        }
+        let to = [
+            light.position[0] - x[0] as f64,
+            light.position[1] - x[1] as f64,
+            light.position[2] - x[2] as f64,
+        ];
+        let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
+        if r2.is_nan() || r2 <= 0.0 {
+            continue;
+        }
+        let cos = (n[0] as f64 * to[0] + n[1] as f64 * to[1] + n[2] as f64 * to[2]) / r2.sqrt();
+        if cos.is_nan() || cos <= 0.0 || occluders.occluded(x, p) {
+            continue;
+        }
+        let g = cos / r2.max(r2_min);
+        for (e, i) in irr.iter_mut().zip(light.intensity) {
+            *e += i * g;
+        }
+    }
+    let k = std::f64::consts::FRAC_1_PI;
+    [
+        rho[0] as f64 * k * irr[0],
+        rho[1] as f64 * k * irr[1],
+        rho[2] as f64 * k * irr[2],
+    ]
+}
+
+fn light_positions(lights: &[Light]) -> Vec<[f32; 3]> {
+    lights
         .iter()
         .map(|l| {
             [
@@ -71,49 +109,72 @@ pub fn direct_from_point_lights(
                 l.position[2] as f32,
             ]
         })
-        .collect();
-    let radiance = layout
-        .positions
-        .iter()
-        .zip(&layout.normals)
-        .zip(&layout.albedo)
-        .map(|((&x, &n), &rho)| {
-            let mut irr = [0.0f64; 3];
-            for (light, &p) in lights.iter().zip(&light_pos) {
-                match light.kind {
-                    LightKind::Point => {}
-                }
-                if light.intensity.iter().all(|&i| i == 0.0) {
-                    continue;
-                }
-                let to = [
-                    light.position[0] - x[0] as f64,
-                    light.position[1] - x[1] as f64,
-                    light.position[2] - x[2] as f64,
-                ];
-                let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
-                if r2.is_nan() || r2 <= 0.0 {
-                    continue;
-                }
-                let cos =
-                    (n[0] as f64 * to[0] + n[1] as f64 * to[1] + n[2] as f64 * to[2]) / r2.sqrt();
-                if cos.is_nan() || cos <= 0.0 || occluders.occluded(x, p) {
-                    continue;
-                }
-                let g = cos / r2.max(r2_min);
-                for (e, i) in irr.iter_mut().zip(light.intensity) {
-                    *e += i * g;
+        .collect()
+}
+
+/// Direct radiance `ρ/π · Σ I cosθ / r² · V` at each texel centre.
+pub fn direct_from_point_lights(
+    layout: &Layout,
+    occluders: &Occluders,
+    lights: &[Light],
+) -> DirectLight {
+    direct_from_point_lights_averaged(layout, occluders, lights, 1)
+}
+
+/// Direct radiance averaged over each texel's area on a `samples_per_edge²` grid (1: the
+/// centre only). The texel average is what the one-bounce operators expect as input: a ray
+/// landing anywhere in a texel reads that texel's value, so averaging removes the error of
+/// point-sampling sharp highlights (a light close to a wall).
+pub fn direct_from_point_lights_averaged(
+    layout: &Layout,
+    occluders: &Occluders,
+    lights: &[Light],
+    samples_per_edge: u32,
+) -> DirectLight {
+    let r2_min = (R_MIN_REL * scene_scale(layout, occluders)).powi(2);
+    let light_pos = light_positions(lights);
+    let m = samples_per_edge.max(1) as usize;
+    let radiance = (0..layout.n_texels())
+        .map(|t| {
+            let (x, n, rho) = (layout.positions[t], layout.normals[t], layout.albedo[t]);
+            let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
+            if m == 1 || size == [0.0, 0.0] {
+                return radiance_at(x, n, rho, lights, &light_pos, occluders, r2_min)
+                    .map(|v| v as f32);
+            }
+            let axis = dominant_axis(n);
+            let (u, v) = match axis {
+                0 => (1, 2),
+                1 => (0, 2),
+                _ => (0, 1),
+            };
+            let mut sum = [0.0f64; 3];
+            for j in 0..m {
+                for i in 0..m {
+                    let mut p = x;
+                    p[u] += ((i as f32 + 0.5) / m as f32 - 0.5) * size[0];
+                    p[v] += ((j as f32 + 0.5) / m as f32 - 0.5) * size[1];
+                    let l = radiance_at(p, n, rho, lights, &light_pos, occluders, r2_min);
+                    for c in 0..3 {
+                        sum[c] += l[c];
+                    }
                 }
             }
-            let k = std::f64::consts::FRAC_1_PI;
-            [
-                (rho[0] as f64 * k * irr[0]) as f32,
-                (rho[1] as f64 * k * irr[1]) as f32,
-                (rho[2] as f64 * k * irr[2]) as f32,
-            ]
+            sum.map(|s| (s / (m * m) as f64) as f32)
         })
         .collect();
     DirectLight { radiance }
+}
+
+fn dominant_axis(n: [f32; 3]) -> usize {
+    let a = n.map(f32::abs);
+    if a[0] >= a[1] && a[0] >= a[2] {
+        0
+    } else if a[1] >= a[2] {
+        1
+    } else {
+        2
+    }
 }
 
 #[cfg(test)]
@@ -138,6 +199,7 @@ mod tests {
             positions: points.to_vec(),
             normals: vec![[0.0, 0.0, 1.0]; points.len()],
             albedo: vec![[0.5, 0.25, 0.8]; points.len()],
+            texel_size: vec![[0.0, 0.0]; points.len()],
             rects: vec![Rect {
                 axis: 2,
                 coord: 0.0,

@@ -29,7 +29,7 @@ pub mod direct;
 pub mod occluders;
 pub mod runtime;
 
-pub use direct::{direct_from_point_lights, DirectLight};
+pub use direct::{direct_from_point_lights, direct_from_point_lights_averaged, DirectLight};
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use occluders::Occluders;

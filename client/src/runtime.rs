@@ -545,6 +545,7 @@ mod tests {
             surfaces,
             positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
             normals: vec![[0.0, 0.0, 1.0]; n],
+            texel_size: vec![[0.5, 0.5]; n],
             albedo: (0..n)
                 .map(|_| {
                     [

@@ -100,6 +100,9 @@ pub struct Layout {
     /// Unit normals on the lit side.
     pub normals: Vec<[f32; 3]>,
     pub albedo: Vec<[f32; 3]>,
+    /// Texel size (metres) along the two tangent axes of the normal's dominant axis
+    /// (ascending axis order); lets a client average direct light over a texel.
+    pub texel_size: Vec<[f32; 2]>,
     pub rects: Vec<Rect>,
     pub triangles: Vec<[[f32; 3]; 3]>,
 }
@@ -232,6 +235,8 @@ impl Layout {
         write_vec3s(w, &self.positions);
         write_vec3s(w, &self.normals);
         write_vec3s(w, &self.albedo);
+        let sizes: Vec<f32> = self.texel_size.iter().flatten().copied().collect();
+        w.f32s(&sizes);
         w.u32(self.rects.len() as u32);
         for rect in &self.rects {
             w.u8(rect.axis);
@@ -260,11 +265,18 @@ impl Layout {
         let normals = read_vec3s(r, "layout normals")?;
         let albedo = read_vec3s(r, "layout albedo")?;
         let n = positions.len();
-        if normals.len() != n || albedo.len() != n {
+        let sizes = r.f32s()?;
+        if normals.len() != n || albedo.len() != n || sizes.len() != 2 * n {
             return Err(BundleError::Invalid(
-                "layout: positions, normals and albedo differ in length".into(),
+                "layout: positions, normals, albedo and texel sizes differ in length".into(),
             ));
         }
+        if sizes.iter().any(|x| !x.is_finite() || *x < 0.0) {
+            return Err(BundleError::Invalid(
+                "layout: texel size not finite and non-negative".into(),
+            ));
+        }
+        let texel_size = sizes.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
         let mut next = 0u64;
         for s in &surfaces {
             if s.texel_offset as u64 != next {
@@ -312,6 +324,7 @@ impl Layout {
             positions,
             normals,
             albedo,
+            texel_size,
             rects,
             triangles,
         })

@@ -136,6 +136,17 @@ pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
         positions: g.texels.iter().map(|t| f3(t.position)).collect(),
         normals: g.texels.iter().map(|t| f3(t.normal)).collect(),
         albedo: g.texels.iter().map(|t| f3(t.albedo)).collect(),
+        texel_size: g
+            .texels
+            .iter()
+            .map(|t| {
+                let s = &g.surfaces[t.surface as usize];
+                [
+                    ((s.max[0] - s.min[0]) / s.t as f64) as f32,
+                    ((s.max[1] - s.min[1]) / s.t as f64) as f32,
+                ]
+            })
+            .collect(),
         rects,
         triangles,
     }

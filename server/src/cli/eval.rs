@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use lightfarm_client::{
-    direct_from_point_lights, Bundle, DirectLight, IndirectLight, Method, Occluders, Runtime,
+    direct_from_point_lights, direct_from_point_lights_averaged, Bundle, DirectLight,
+    IndirectLight, Method, Occluders, Runtime,
 };
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
@@ -20,13 +21,24 @@ pub struct EvalArgs {
     pub out: PathBuf,
 }
 
+/// Direct light is averaged over a 4×4 grid per texel before it enters the operators.
+pub const DIRECT_SAMPLES_PER_EDGE: u32 = 4;
+
 /// Applies a bundle to a light set; returns the records the method models.
 pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Result<ResultFile> {
     let occluders = Occluders::from_layout(&bundle.layout);
+    // RESULT.json reports direct light at texel centres; the operators are fed the texel
+    // average, which is what a ray landing in the texel sees.
     let direct: DirectLight = direct_from_point_lights(&bundle.layout, &occluders, &lights.lights);
+    let averaged = direct_from_point_lights_averaged(
+        &bundle.layout,
+        &occluders,
+        &lights.lights,
+        DIRECT_SAMPLES_PER_EDGE,
+    );
     let mut runtime = Runtime::try_new(bundle)?;
     let mut indirect = IndirectLight::default();
-    runtime.apply(method, &direct, &mut indirect)?;
+    runtime.apply(method, &averaged, &mut indirect)?;
     let layout = &runtime.bundle().layout;
     let mut texels = Vec::with_capacity(layout.n_texels());
     for surface in &layout.surfaces {
