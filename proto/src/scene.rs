@@ -572,6 +572,16 @@ fn check_mesh_path(object: &str, path: &str) -> Result<(), SceneError> {
     if path.is_empty() {
         return Err(invalid(object, "mesh path is empty"));
     }
+    let escapes = path.starts_with('/')
+        || path.starts_with('\\')
+        || path.contains(':')
+        || path.split(['/', '\\']).any(|part| part == "..");
+    if escapes {
+        return Err(invalid(
+            object,
+            format!("mesh \"{path}\" must be a relative path inside the scene's directory"),
+        ));
+    }
     if !(lower.ends_with(".obj") || lower.ends_with(".gltf") || lower.ends_with(".glb")) {
         return Err(invalid(
             object,

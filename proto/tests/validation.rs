@@ -1210,3 +1210,20 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn mesh_paths_may_not_leave_the_scene_directory() {
+    for path in ["/etc/x.obj", "../x.obj", "a/../../x.obj", "C:/x.obj"] {
+        let json = format!(
+            r#"{{ "format": "lightfarm.scene/1", "name": "s", "blocks": [ {{ "id": "a", "min": [0,0,0], "max": [4,3,4], "albedo": [0.5,0.5,0.5] }} ],
+                 "clutter": [ {{ "id": "m", "mesh": "{path}", "albedo": [0.5,0.5,0.5] }} ] }}"#
+        );
+        let err = lightfarm_proto::scene::Scene::from_json(&json)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("must be a relative path inside the scene's directory"),
+            "{path}: {err}"
+        );
+    }
+}

@@ -1,0 +1,150 @@
+//! The CLI contract other tools depend on: `bake`, `eval`, `reference`, `compare`, `schema`,
+//! run as processes on a small scene.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn lightfarm() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_lightfarm"))
+}
+
+fn run(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("run lightfarm");
+    assert!(
+        out.status.success(),
+        "{:?} failed: {}",
+        cmd,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn workdir() -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lf-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn write_scene(dir: &Path) -> (PathBuf, PathBuf) {
+    let scene = dir.join("scene.json");
+    std::fs::write(
+        &scene,
+        r#"{ "format": "lightfarm.scene/1", "name": "two rooms",
+             "settings": { "texels_per_face": 4, "rays_per_texel": 128, "tolerance": 0.01 },
+             "blocks": [ { "id": "a", "min": [0,0,0], "max": [3,2.5,3], "open": ["+x"], "albedo": [0.7,0.7,0.7] },
+                         { "id": "b", "min": [3,0,0], "max": [5,2.5,3], "open": ["-x"], "albedo": [0.6,0.5,0.4],
+                           "face_albedo": { "-y": [0.2, 0.6, 0.2] } } ],
+             "clutter": [ { "id": "crate", "box": { "min": [1,0,1], "max": [1.5,0.5,1.5] }, "albedo": [0.5,0.5,0.5] } ] }"#,
+    )
+    .unwrap();
+    let lights = dir.join("lights.json");
+    std::fs::write(&lights, r#"{ "lights": [ { "kind": "point", "position": [1.5, 2.0, 1.5], "intensity": [4, 4, 4] } ], "poses": [] }"#).unwrap();
+    (scene, lights)
+}
+
+#[test]
+fn bake_eval_reference_compare_round_trip() {
+    let dir = workdir();
+    let (scene, lights) = write_scene(&dir);
+    let bundle = dir.join("out.lfb");
+    run(lightfarm()
+        .args(["bake"])
+        .arg(&scene)
+        .arg("-o")
+        .arg(&bundle)
+        .arg("--cache")
+        .arg(dir.join("cache"))
+        .arg("--full"));
+    assert!(bundle.exists());
+    for method in ["mrt", "full"] {
+        let result = dir.join(format!("{method}.json"));
+        run(lightfarm()
+            .arg("eval")
+            .arg(&bundle)
+            .arg("--lights")
+            .arg(&lights)
+            .args(["--method", method, "-o"])
+            .arg(&result));
+        let parsed: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
+        let first = &parsed["texels"][0];
+        for field in [
+            "surface", "index", "position", "normal", "albedo", "direct", "indirect",
+        ] {
+            assert!(!first[field].is_null(), "RESULT.json texel lacks {field}");
+        }
+        assert_eq!(first["surface"], "block:a/-x");
+    }
+    let reference = dir.join("ref.json");
+    run(lightfarm()
+        .arg("reference")
+        .arg(&scene)
+        .arg("--lights")
+        .arg(&lights)
+        .args(["--rays", "1024", "-o"])
+        .arg(&reference));
+    let out = run(lightfarm()
+        .arg("compare")
+        .arg(dir.join("mrt.json"))
+        .arg(&reference));
+    let last = out.lines().last().unwrap();
+    assert!(
+        last.starts_with("relative_l2=") && last.contains(" p95="),
+        "{last}"
+    );
+    let rel: f64 = last
+        .trim_start_matches("relative_l2=")
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(rel.is_finite() && rel < 1.0, "{rel}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bad_scene_is_refused_with_the_offending_field() {
+    let dir = workdir().join("bad");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("scene.json");
+    std::fs::write(&scene, r#"{ "format": "lightfarm.scene/1", "name": "x", "blocks": [ { "id": "a", "min": [0,3,0], "max": [4,0,4], "albedo": [0.5,0.5,0.5] } ] }"#).unwrap();
+    let out = lightfarm()
+        .arg("bake")
+        .arg(&scene)
+        .arg("-o")
+        .arg(dir.join("x.lfb"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(r#"block "a": max.y (0) <= min.y (3)"#),
+        "{err}"
+    );
+    assert!(
+        !dir.join("x.lfb").exists(),
+        "nothing written for a refused scene"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn schema_describes_the_scene_format() {
+    let out = run(lightfarm().arg("schema"));
+    let schema: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(schema["title"], "Scene");
+    for field in [
+        "format",
+        "blocks",
+        "clutter",
+        "dynamic",
+        "light_regions",
+        "settings",
+    ] {
+        assert!(
+            !schema["properties"][field].is_null(),
+            "schema lacks {field}"
+        );
+    }
+}
