@@ -625,6 +625,7 @@ mod tests {
             blocks,
             transport,
             full,
+            drt: None,
         }
     }
 

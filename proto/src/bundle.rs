@@ -26,6 +26,7 @@ pub mod section {
     pub const BLOCKS: u32 = 3;
     pub const TRANSPORT: u32 = 4;
     pub const FULL: u32 = 5;
+    pub const DRT: u32 = 6;
 }
 
 /// A dense row-major f32 matrix.
@@ -179,6 +180,47 @@ pub struct Bundle {
     pub blocks: Vec<BlockOps>,
     pub transport: Option<TransportOps>,
     pub full: Option<SparseRows>,
+    /// Delta Radiance Transfer operators (clutter); absent in MRT-only bundles.
+    pub drt: Option<DrtOps>,
+}
+
+/// Where the coefficients a delta operator multiplies come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeltaSource {
+    /// A block's `b` (r coefficients per channel).
+    Block(u32),
+    /// A clutter object's `c` (m coefficients per channel).
+    Clutter(u32),
+}
+
+/// Rows of a delta operator: `out[rows[i]] += matrix.row(i) · coefficients(source)` for each
+/// channel. `rows` are global texel indices (ascending, unique). This one form carries ΔU_b
+/// (delta occlusion, source = block), ΔU_c (delta reflection, source = clutter), C_b (clutter
+/// gather, rows on clutter, source = block) and clutter-to-clutter bounce (source = clutter).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DeltaEntry {
+    pub rows: Vec<u32>,
+    pub source: DeltaSource,
+    /// rows.len() × (r or m).
+    pub matrix: Matrix,
+}
+
+/// Direct light on one clutter object projected to its basis: `c = t_dc · l_d[texels]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClutterOps {
+    pub id: String,
+    pub texel_offset: u32,
+    /// m × texel count.
+    pub t_dc: Matrix,
+}
+
+/// The DRT section.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DrtOps {
+    pub clutter: Vec<ClutterOps>,
+    pub entries: Vec<DeltaEntry>,
+    /// Texels buried in or under geometry (their values are inpainted).
+    pub buried: Vec<u32>,
 }
 
 /// Why bytes are not a usable bundle.
@@ -387,6 +429,32 @@ impl Bundle {
             }
             sections.push((section::TRANSPORT, w.bytes));
         }
+        if let Some(d) = &self.drt {
+            let mut w = Writer::new();
+            w.u32(d.clutter.len() as u32);
+            for c in &d.clutter {
+                w.str(&c.id);
+                w.u32(c.texel_offset);
+                c.t_dc.write(&mut w);
+            }
+            w.u32(d.entries.len() as u32);
+            for e in &d.entries {
+                w.u32s(&e.rows);
+                match e.source {
+                    DeltaSource::Block(b) => {
+                        w.u8(0);
+                        w.u32(b);
+                    }
+                    DeltaSource::Clutter(c) => {
+                        w.u8(1);
+                        w.u32(c);
+                    }
+                }
+                e.matrix.write(&mut w);
+            }
+            w.u32s(&d.buried);
+            sections.push((section::DRT, w.bytes));
+        }
         if let Some(f) = &self.full {
             let mut w = Writer::new();
             w.u32(f.n);
@@ -422,8 +490,8 @@ impl Bundle {
             return Err(BundleError::Version(major));
         }
         let n_sections = r.u32()?;
-        let (mut layout, mut shapes, mut blocks, mut transport, mut full) =
-            (None, None, None, None, None);
+        let (mut layout, mut shapes, mut blocks, mut transport, mut full, mut drt) =
+            (None, None, None, None, None, None);
         for _ in 0..n_sections {
             let kind = r.u32()?;
             let len = r.u64()?;
@@ -446,6 +514,7 @@ impl Bundle {
                 section::BLOCKS => blocks = Some(read_blocks(&mut p)?),
                 section::TRANSPORT => transport = Some(read_transport(&mut p)?),
                 section::FULL => full = Some(read_full(&mut p)?),
+                section::DRT => drt = Some(read_drt(&mut p)?),
                 _ => {} // a newer minor version's section: skip
             }
         }
@@ -455,6 +524,7 @@ impl Bundle {
             blocks: blocks.ok_or(BundleError::Missing("blocks"))?,
             transport,
             full,
+            drt,
         };
         bundle.check_consistency()?;
         Ok(bundle)
@@ -538,6 +608,37 @@ impl Bundle {
                 return bad("full: column index or value out of range".into());
             }
         }
+        if let Some(d) = &self.drt {
+            let n_blocks = self.blocks.len() as u64;
+            let n_clutter = d.clutter.len() as u64;
+            for (k, c) in d.clutter.iter().enumerate() {
+                if c.texel_offset as u64 + c.t_dc.cols as u64 > n_texels {
+                    return bad(format!("drt: clutter {k} texel range past the layout"));
+                }
+            }
+            for (k, e) in d.entries.iter().enumerate() {
+                let cols = match e.source {
+                    DeltaSource::Block(b) if (b as u64) < n_blocks => {
+                        self.shapes[self.blocks[b as usize].shape as usize].u_b.cols
+                    }
+                    DeltaSource::Clutter(c) if (c as u64) < n_clutter => {
+                        d.clutter[c as usize].t_dc.rows
+                    }
+                    _ => return bad(format!("drt: entry {k} names a missing source")),
+                };
+                if e.matrix.rows as usize != e.rows.len() || e.matrix.cols != cols {
+                    return bad(format!("drt: entry {k} matrix has the wrong size"));
+                }
+                if e.rows.iter().any(|r| *r as u64 >= n_texels)
+                    || e.rows.windows(2).any(|w| w[1] <= w[0])
+                {
+                    return bad(format!("drt: entry {k} rows out of range or not ascending"));
+                }
+            }
+            if d.buried.iter().any(|r| *r as u64 >= n_texels) {
+                return bad("drt: buried texel out of range".into());
+            }
+        }
         Ok(())
     }
 }
@@ -618,5 +719,41 @@ fn read_full(r: &mut Reader) -> Result<SparseRows, BundleError> {
         row_start: r.u32s()?,
         cols: r.u32s()?,
         values: r.f32s()?,
+    })
+}
+
+fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
+    let n_clutter = r.u32()? as usize;
+    let mut clutter = Vec::with_capacity(n_clutter.min(r.remaining() / 16));
+    for _ in 0..n_clutter {
+        clutter.push(ClutterOps {
+            id: r.str()?,
+            texel_offset: r.u32()?,
+            t_dc: Matrix::read(r, "drt clutter")?,
+        });
+    }
+    let n_entries = r.u32()? as usize;
+    let mut entries = Vec::with_capacity(n_entries.min(r.remaining() / 24));
+    for _ in 0..n_entries {
+        let rows = r.u32s()?;
+        let source = match r.u8()? {
+            0 => DeltaSource::Block(r.u32()?),
+            1 => DeltaSource::Clutter(r.u32()?),
+            k => {
+                return Err(BundleError::Invalid(format!(
+                    "drt: unknown source kind {k}"
+                )))
+            }
+        };
+        entries.push(DeltaEntry {
+            rows,
+            source,
+            matrix: Matrix::read(r, "drt entry")?,
+        });
+    }
+    Ok(DrtOps {
+        clutter,
+        entries,
+        buried: r.u32s()?,
     })
 }

@@ -343,6 +343,7 @@ pub fn bake(
             .collect(),
         transport: Some(transport),
         full,
+        drt: None,
     };
     lap(&mut report, "bundle");
     Ok((bundle, report))
