@@ -19,7 +19,8 @@
 //! - [`occluders`]: a BVH over the bundle's occluder rects and triangles; shadow-ray queries.
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
 //! - [`runtime`]: the per-frame, allocation-free application of the bundle's operators
-//!   ([`Method::Mrt`] block operators and transport, or the dense [`Method::Full`] operator).
+//!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
+//!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator).
 //!
 //! Invariants: this crate depends only on `lightfarm-proto` and `thiserror`; it does no I/O;
 //! every per-texel vector is in layout order with one RGB value per layout texel; operators are

@@ -11,6 +11,15 @@
 //!    with the shape's (first) opening of that face;
 //! 4. multiplies by the receiving texel's albedo. Texels in no block (clutter) get 0.
 //!
+//! [`Method::Drt`] (delta radiance transfer; needs the bundle's DRT section):
+//! 1. steps 1–3 of MRT, albedo-free (block texels get `U_b b + transport`, every other texel 0),
+//!    keeping every block's `b`;
+//! 2. `c_j = t_dc · l_d[texel_offset .. texel_offset + t_dc.cols]` for every clutter object j;
+//! 3. for every delta entry and each of its rows i: `out[rows[i]] += matrix.row(i) · x`, with
+//!    `x` the source block's `b` or the source clutter object's `c`. Entries on block texels
+//!    correct the MRT result; entries on clutter texels are those texels' whole indirect light;
+//! 4. multiplies by the receiving texel's albedo.
+//!
 //! [`Method::Full`]: `l_ind = ρ ⊙ (F · l_d)` with the bundle's sparse dense-bounce operator F.
 //!
 //! Invariants:
@@ -21,7 +30,7 @@
 //! - Scratch vectors are planar (channel-major: channel c of an n-vector at `c·n .. (c+1)·n`),
 //!   so every matrix row is one contiguous pass accumulating all three channels.
 
-use lightfarm_proto::bundle::{Bundle, BundleError, Matrix, TransportOps};
+use lightfarm_proto::bundle::{Bundle, BundleError, DeltaSource, Matrix, TransportOps};
 
 use crate::direct::DirectLight;
 
@@ -32,6 +41,8 @@ pub enum Method {
     Full,
     /// Modular radiance transfer: per-block operators plus inter-block transport.
     Mrt,
+    /// Delta radiance transfer: MRT plus the clutter corrections of the bundle's DRT section.
+    Drt,
 }
 
 /// Indirect outgoing radiance, one RGB value per layout texel.
@@ -45,6 +56,8 @@ pub struct IndirectLight {
 pub enum ApplyError {
     #[error("this bundle has no dense operator; bake it with --full")]
     MissingFull,
+    #[error("this bundle has no DRT operators; bake a scene with clutter")]
+    MissingDrt,
     #[error("direct light has {got} texels but the bundle's layout has {expected}")]
     DirectLength { expected: usize, got: usize },
 }
@@ -81,6 +94,12 @@ pub struct Runtime {
     b: Vec<f32>,
     /// Scratch: reduced lightfield coefficients, planar, 3 × n_lf.
     lf: Vec<f32>,
+    /// Per clutter object of the DRT section: offset of its m coefficients in `c`.
+    clutter_offset: Vec<usize>,
+    /// Total coefficients over all clutter objects (0 without a DRT section).
+    n_clutter_coef: usize,
+    /// Scratch: clutter coefficients, planar, 3 × n_clutter_coef.
+    c: Vec<f32>,
 }
 
 /// Row · x for three channels in one pass; `x[c]` must be at least as long as `row`.
@@ -138,6 +157,41 @@ fn add_matvec(out: &mut [[f32; 3]], m: &Matrix, x: [&[f32]; 3]) {
     }
     for (o, row) in out.iter_mut().zip(m.data.chunks_exact(cols)) {
         let v = dot3(row, x);
+        o[0] += v[0];
+        o[1] += v[1];
+        o[2] += v[2];
+    }
+}
+
+/// `dst[j] = M.row(j) · x` (per channel) for every row j of `m`, into the slots
+/// `[offset, offset + m.rows)` of the planar 3 × `stride` vector `dst`.
+#[inline]
+fn set_matvec(dst: &mut [f32], stride: usize, offset: usize, m: &Matrix, x: [&[f32]; 3]) {
+    let (rows, cols) = (m.rows as usize, m.cols as usize);
+    if cols == 0 {
+        for ch in 0..3 {
+            dst[ch * stride + offset..ch * stride + offset + rows].fill(0.0);
+        }
+        return;
+    }
+    for (j, row) in m.data.chunks_exact(cols).enumerate() {
+        let v = dot3(row, x);
+        dst[offset + j] = v[0];
+        dst[stride + offset + j] = v[1];
+        dst[2 * stride + offset + j] = v[2];
+    }
+}
+
+/// `out[rows[i]] += M.row(i) · x` (per channel) for every row i of `m`.
+#[inline]
+fn scatter_matvec(out: &mut [[f32; 3]], rows: &[u32], m: &Matrix, x: [&[f32]; 3]) {
+    let cols = m.cols as usize;
+    if cols == 0 {
+        return;
+    }
+    for (&t, row) in rows.iter().zip(m.data.chunks_exact(cols)) {
+        let v = dot3(row, x);
+        let o = &mut out[t as usize];
         o[0] += v[0];
         o[1] += v[1];
         o[2] += v[2];
@@ -230,6 +284,36 @@ fn check(bundle: &Bundle) -> Result<(), BundleError> {
             return bad("full: column index out of range".into());
         }
     }
+    if let Some(d) = &bundle.drt {
+        for (k, c) in d.clutter.iter().enumerate() {
+            let what = format!("drt: clutter {k} t_dc");
+            check_matrix(&c.t_dc, c.t_dc.rows, c.t_dc.cols, &what)?;
+            if c.texel_offset as u64 + c.t_dc.cols as u64 > n_texels {
+                return bad(format!("drt: clutter {k} texel range past the layout"));
+            }
+        }
+        for (k, e) in d.entries.iter().enumerate() {
+            let cols = match e.source {
+                DeltaSource::Block(b) => shape_of(b).map(|s| s.u_b.cols),
+                DeltaSource::Clutter(c) => d.clutter.get(c as usize).map(|c| c.t_dc.rows),
+            };
+            let Some(cols) = cols else {
+                return bad(format!("drt: entry {k} names a missing source"));
+            };
+            if e.rows.len() as u64 != e.matrix.rows as u64 {
+                return bad(format!("drt: entry {k} matrix has the wrong size"));
+            }
+            check_matrix(&e.matrix, e.matrix.rows, cols, &format!("drt: entry {k}"))?;
+            if e.rows.iter().any(|&r| r as u64 >= n_texels)
+                || e.rows.windows(2).any(|w| w[1] <= w[0])
+            {
+                return bad(format!("drt: entry {k} rows out of range or not ascending"));
+            }
+        }
+        if d.buried.iter().any(|&r| r as u64 >= n_texels) {
+            return bad("drt: buried texel out of range".into());
+        }
+    }
     Ok(())
 }
 
@@ -288,6 +372,15 @@ impl Runtime {
             }
         }
 
+        let (mut clutter_offset, mut n_clutter_coef) = (Vec::new(), 0);
+        if let Some(d) = &bundle.drt {
+            clutter_offset.reserve_exact(d.clutter.len());
+            for c in &d.clutter {
+                clutter_offset.push(n_clutter_coef);
+                n_clutter_coef += c.t_dc.rows as usize;
+            }
+        }
+
         Ok(Runtime {
             n_texels,
             coef_offset,
@@ -298,6 +391,9 @@ impl Runtime {
             ld: vec![0.0; 3 * n_texels],
             b: vec![0.0; 3 * n_coef],
             lf: vec![0.0; 3 * n_lf],
+            clutter_offset,
+            n_clutter_coef,
+            c: vec![0.0; 3 * n_clutter_coef],
             bundle,
         })
     }
@@ -315,6 +411,11 @@ impl Runtime {
     /// Whether [`Method::Full`] is available (the bundle was baked with `--full`).
     pub fn has_full(&self) -> bool {
         self.bundle.full.is_some()
+    }
+
+    /// Whether [`Method::Drt`] is available (the bundle has a DRT section).
+    pub fn has_drt(&self) -> bool {
+        self.bundle.drt.is_some()
     }
 
     /// Turns direct light into indirect light by `method`, writing every texel of `out`
@@ -335,13 +436,24 @@ impl Runtime {
         if method == Method::Full && self.bundle.full.is_none() {
             return Err(ApplyError::MissingFull);
         }
+        if method == Method::Drt && self.bundle.drt.is_none() {
+            return Err(ApplyError::MissingDrt);
+        }
         if out.radiance.len() != n {
             out.radiance.clear();
             out.radiance.resize(n, [0.0; 3]);
         }
         match method {
             Method::Full => self.apply_full(&direct.radiance, &mut out.radiance),
-            Method::Mrt => self.apply_mrt(&direct.radiance, &mut out.radiance),
+            Method::Mrt => {
+                self.mrt_albedo_free(&direct.radiance, &mut out.radiance);
+                self.multiply_albedo(&mut out.radiance);
+            }
+            Method::Drt => {
+                self.mrt_albedo_free(&direct.radiance, &mut out.radiance);
+                self.add_drt_deltas(&mut out.radiance);
+                self.multiply_albedo(&mut out.radiance);
+            }
         }
         Ok(())
     }
@@ -362,7 +474,9 @@ impl Runtime {
         }
     }
 
-    fn apply_mrt(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+    /// MRT steps 1–3: fills the planar direct light `ld` and the block coefficients `b`, and
+    /// writes `U_b b + transport` (albedo-free) to block texels and 0 to every other texel.
+    fn mrt_albedo_free(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
         let n = self.n_texels;
         let Runtime {
             bundle,
@@ -387,21 +501,9 @@ impl Runtime {
 
         // 1. b_B = T_d→b · l_d^B.
         for (blk, &co) in bundle.blocks.iter().zip(coef_offset.iter()) {
-            let shape = &bundle.shapes[blk.shape as usize];
-            let texels = shape.u_b.rows as usize;
-            let x = planar(ld, n, blk.texel_offset as usize, texels);
-            if texels == 0 {
-                b[co..co + shape.t_db.rows as usize].fill(0.0);
-                b[n_coef + co..n_coef + co + shape.t_db.rows as usize].fill(0.0);
-                b[2 * n_coef + co..2 * n_coef + co + shape.t_db.rows as usize].fill(0.0);
-                continue;
-            }
-            for (j, row) in shape.t_db.data.chunks_exact(texels).enumerate() {
-                let v = dot3(row, x);
-                b[co + j] = v[0];
-                b[n_coef + co + j] = v[1];
-                b[2 * n_coef + co + j] = v[2];
-            }
+            let t_db = &bundle.shapes[blk.shape as usize].t_db;
+            let x = planar(ld, n, blk.texel_offset as usize, t_db.cols as usize);
+            set_matvec(b, n_coef, co, t_db, x);
         }
 
         // 2. l_ind^B = U_b · b_B (clutter texels stay 0).
@@ -463,9 +565,48 @@ impl Runtime {
             }
             None => {}
         }
+    }
 
-        // 4. Albedo of the receiving texel.
-        for (o, rho) in out.iter_mut().zip(&bundle.layout.albedo) {
+    /// DRT steps 2–3, after [`Runtime::mrt_albedo_free`] (which leaves `ld` and `b` filled):
+    /// projects direct light on every clutter object to its coefficients `c`, then adds every
+    /// delta entry (albedo-free). Does nothing without a DRT section.
+    fn add_drt_deltas(&mut self, out: &mut [[f32; 3]]) {
+        let n = self.n_texels;
+        let Runtime {
+            bundle,
+            coef_offset,
+            n_coef,
+            ld,
+            b,
+            clutter_offset,
+            n_clutter_coef,
+            c,
+            ..
+        } = self;
+        let Some(drt) = &bundle.drt else { return };
+        let (n_coef, n_cc) = (*n_coef, *n_clutter_coef);
+
+        // 2. c_j = t_dc · l_d^j.
+        for (clutter, &co) in drt.clutter.iter().zip(clutter_offset.iter()) {
+            let t_dc = &clutter.t_dc;
+            let x = planar(ld, n, clutter.texel_offset as usize, t_dc.cols as usize);
+            set_matvec(c, n_cc, co, t_dc, x);
+        }
+
+        // 3. out[rows[i]] += matrix.row(i) · (b_source or c_source).
+        for e in &drt.entries {
+            let cols = e.matrix.cols as usize;
+            let x = match e.source {
+                DeltaSource::Block(k) => planar(b, n_coef, coef_offset[k as usize], cols),
+                DeltaSource::Clutter(j) => planar(c, n_cc, clutter_offset[j as usize], cols),
+            };
+            scatter_matvec(out, &e.rows, &e.matrix, x);
+        }
+    }
+
+    /// Multiplies every texel by its albedo (the operators are albedo-free).
+    fn multiply_albedo(&self, out: &mut [[f32; 3]]) {
+        for (o, rho) in out.iter_mut().zip(&self.bundle.layout.albedo) {
             o[0] *= rho[0];
             o[1] *= rho[1];
             o[2] *= rho[2];
@@ -479,8 +620,10 @@ mod tests {
     use super::*;
     use crate::occluders::tests::Lcg;
     use lightfarm_proto::bundle::{
-        BlockOps, Layout, OpeningOps, PropEntry, ShapeOps, SparseRows, SurfaceInfo, TracedEntry,
+        BlockOps, ClutterOps, DeltaEntry, DrtOps, Layout, OpeningOps, PropEntry, ShapeOps,
+        SparseRows, SurfaceInfo, TracedEntry,
     };
+    use lightfarm_proto::wire::checksum;
     use std::alloc::{GlobalAlloc, Layout as AllocLayout, System};
     use std::cell::Cell;
 
@@ -523,41 +666,16 @@ mod tests {
     /// Three blocks (shape 0: 4 texels, r = 2, openings +x (q = 3) and -z (q = 2); shape 1:
     /// 11 texels, r = 3, opening -x (q = 2)), then 2 clutter texels.
     fn bundle(rng: &mut Lcg, transport: Option<TransportOps>, full: bool) -> Bundle {
-        let texels = [4usize, 11, 4];
-        let offsets = [0usize, 4, 15];
-        let n = 21;
-        let mut surfaces: Vec<SurfaceInfo> = ["block:a/+x", "block:b/-x", "block:c/+x"]
-            .iter()
-            .zip(texels.iter().zip(offsets))
-            .map(|(name, (&count, off))| SurfaceInfo {
-                name: (*name).into(),
-                texel_offset: off as u32,
-                texel_count: count as u32,
-            })
-            .collect();
-        surfaces.push(SurfaceInfo {
-            name: "clutter:box".into(),
-            texel_offset: 19,
-            texel_count: 2,
-        });
-        let layout = Layout {
-            scene_name: "hand-built".into(),
-            surfaces,
-            positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
-            normals: vec![[0.0, 0.0, 1.0]; n],
-            texel_size: vec![[0.5, 0.5]; n],
-            albedo: (0..n)
-                .map(|_| {
-                    [
-                        rng.range(0.1, 0.9),
-                        rng.range(0.1, 0.9),
-                        rng.range(0.1, 0.9),
-                    ]
-                })
-                .collect(),
-            rects: vec![],
-            triangles: vec![],
-        };
+        let layout = layout(
+            rng,
+            &[
+                ("block:a/+x", 4),
+                ("block:b/-x", 11),
+                ("block:c/+x", 4),
+                ("clutter:box", 2),
+            ],
+        );
+        let n = layout.n_texels();
         let shapes = vec![
             ShapeOps {
                 key: "s0".into(),
@@ -601,24 +719,7 @@ mod tests {
                 texel_offset: 15,
             },
         ];
-        let full = full.then(|| {
-            let mut f = SparseRows {
-                n: n as u32,
-                row_start: vec![0],
-                cols: vec![],
-                values: vec![],
-            };
-            for _ in 0..n {
-                for c in 0..n as u32 {
-                    if rng.next_u32().is_multiple_of(3) {
-                        f.cols.push(c);
-                        f.values.push(rng.range(0.0, 0.1));
-                    }
-                }
-                f.row_start.push(f.cols.len() as u32);
-            }
-            f
-        });
+        let full = full.then(|| random_full(rng, n));
         Bundle {
             layout,
             shapes,
@@ -626,6 +727,197 @@ mod tests {
             transport,
             full,
             drt: None,
+        }
+    }
+
+    /// A random sparse n × n dense-bounce operator (about a third of the entries set).
+    fn random_full(rng: &mut Lcg, n: usize) -> SparseRows {
+        let mut f = SparseRows {
+            n: n as u32,
+            row_start: vec![0],
+            cols: vec![],
+            values: vec![],
+        };
+        for _ in 0..n {
+            for c in 0..n as u32 {
+                if rng.next_u32().is_multiple_of(3) {
+                    f.cols.push(c);
+                    f.values.push(rng.range(0.0, 0.1));
+                }
+            }
+            f.row_start.push(f.cols.len() as u32);
+        }
+        f
+    }
+
+    fn layout(rng: &mut Lcg, surfaces: &[(&str, usize)]) -> Layout {
+        let mut next = 0;
+        let surfaces: Vec<SurfaceInfo> = surfaces
+            .iter()
+            .map(|&(name, count)| {
+                next += count;
+                SurfaceInfo {
+                    name: name.into(),
+                    texel_offset: (next - count) as u32,
+                    texel_count: count as u32,
+                }
+            })
+            .collect();
+        let n = next;
+        Layout {
+            scene_name: "hand-built".into(),
+            surfaces,
+            positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
+            normals: vec![[0.0, 0.0, 1.0]; n],
+            texel_size: vec![[0.5, 0.5]; n],
+            albedo: (0..n)
+                .map(|_| {
+                    [
+                        rng.range(0.1, 0.9),
+                        rng.range(0.1, 0.9),
+                        rng.range(0.1, 0.9),
+                    ]
+                })
+                .collect(),
+            rects: vec![],
+            triangles: vec![],
+        }
+    }
+
+    /// Texels of the DRT test bundle: blocks a (0..4) and b (4..10), clutter box (10..14) and,
+    /// with `two_clutter`, clutter lamp (14..17).
+    const DRT_BOX: std::ops::Range<usize> = 10..14;
+
+    /// Two blocks (a: shape 0, 4 texels, r = 2, opening +x (q = 3); b: shape 1, 6 texels,
+    /// r = 3, opening -x (q = 2)) with traced or lightfield transport between them, one clutter
+    /// object (box: 4 texels, m = 2) or two (plus lamp: 3 texels, m = 3), and delta entries of
+    /// all four kinds: block rows from a block, block rows from clutter, clutter rows from a
+    /// block, clutter rows from clutter (plus a self-entry, an empty one and overlapping rows).
+    fn drt_bundle(rng: &mut Lcg, lightfield: bool, two_clutter: bool, full: bool) -> Bundle {
+        let mut surfaces = vec![("block:a/+x", 4), ("block:b/-x", 6), ("clutter:box", 4)];
+        if two_clutter {
+            surfaces.push(("clutter:lamp", 3));
+        }
+        let layout = layout(rng, &surfaces);
+        let n = layout.n_texels();
+        let shapes = vec![
+            ShapeOps {
+                key: "s0".into(),
+                u_b: matrix(rng, 4, 2),
+                t_db: matrix(rng, 2, 4),
+                openings: vec![OpeningOps {
+                    face: 1,
+                    u_r: matrix(rng, 4, 3),
+                }],
+            },
+            ShapeOps {
+                key: "s1".into(),
+                u_b: matrix(rng, 6, 3),
+                t_db: matrix(rng, 3, 6),
+                openings: vec![OpeningOps {
+                    face: 0,
+                    u_r: matrix(rng, 6, 2),
+                }],
+            },
+        ];
+        let blocks = vec![
+            BlockOps {
+                id: "a".into(),
+                shape: 0,
+                texel_offset: 0,
+            },
+            BlockOps {
+                id: "b".into(),
+                shape: 1,
+                texel_offset: 4,
+            },
+        ];
+        let r = [2usize, 3];
+        let transport = if lightfield {
+            // (target, face, q, source)
+            let entries = [(0u32, 1u8, 3usize, 1u32), (1, 0, 2, 0), (1, 0, 2, 1)];
+            TransportOps::Lightfield(
+                entries
+                    .iter()
+                    .map(|&(t, face, q, s)| PropEntry {
+                        target_block: t,
+                        target_face: face,
+                        source_block: s,
+                        matrix: matrix(rng, q, r[s as usize]),
+                    })
+                    .collect(),
+            )
+        } else {
+            let texels = [4usize, 6];
+            TransportOps::Traced(
+                [(0u32, 1u32), (1, 0), (1, 1)]
+                    .iter()
+                    .map(|&(t, s)| TracedEntry {
+                        target_block: t,
+                        source_block: s,
+                        matrix: matrix(rng, texels[t as usize], r[s as usize]),
+                    })
+                    .collect(),
+            )
+        };
+        let mut clutter = vec![ClutterOps {
+            id: "box".into(),
+            texel_offset: 10,
+            t_dc: matrix(rng, 2, 4),
+        }];
+        let m = [2usize, 3];
+        let mut entries: Vec<(Vec<u32>, DeltaSource)> = vec![
+            // Block rows (in both blocks) from a block: delta occlusion.
+            (vec![1, 3, 6, 9], DeltaSource::Block(1)),
+            (vec![0, 1, 2, 3], DeltaSource::Block(0)),
+            // Block rows from clutter: delta reflection.
+            (vec![0, 2, 5, 7], DeltaSource::Clutter(0)),
+            // Clutter rows from a block: clutter gather.
+            (vec![10, 11, 13], DeltaSource::Block(0)),
+            // Clutter rows from clutter (its own): bounce, overlapping the gather's rows.
+            (vec![10, 11, 12, 13], DeltaSource::Clutter(0)),
+            (vec![], DeltaSource::Clutter(0)),
+        ];
+        if two_clutter {
+            clutter.push(ClutterOps {
+                id: "lamp".into(),
+                texel_offset: 14,
+                t_dc: matrix(rng, 3, 3),
+            });
+            entries.extend([
+                (vec![14, 15, 16], DeltaSource::Clutter(1)),
+                (vec![12], DeltaSource::Clutter(1)),
+                (vec![4, 8], DeltaSource::Clutter(1)),
+                (vec![14, 16], DeltaSource::Block(1)),
+                (vec![15], DeltaSource::Clutter(0)),
+            ]);
+        }
+        let entries = entries
+            .into_iter()
+            .map(|(rows, source)| {
+                let cols = match source {
+                    DeltaSource::Block(k) => r[k as usize],
+                    DeltaSource::Clutter(j) => m[j as usize],
+                };
+                DeltaEntry {
+                    matrix: matrix(rng, rows.len(), cols),
+                    rows,
+                    source,
+                }
+            })
+            .collect();
+        let full = full.then(|| random_full(rng, n));
+        Bundle {
+            layout,
+            shapes,
+            blocks,
+            transport: Some(transport),
+            full,
+            drt: Some(DrtOps {
+                clutter,
+                entries,
+                buried: vec![3, 12],
+            }),
         }
     }
 
@@ -687,28 +979,51 @@ mod tests {
         m.data[i * m.cols as usize + j] as f64
     }
 
-    /// Straightforward dense MRT, in f64.
-    fn reference_mrt(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
-        let shape = |bi: u32| &bundle.shapes[bundle.blocks[bi as usize].shape as usize];
-        let coefs: Vec<Vec<[f64; 3]>> = bundle
+    /// `m · ld[offset .. offset + m.cols]` per channel, in f64.
+    fn reference_project(m: &Matrix, ld: &[[f32; 3]], offset: u32) -> Vec<[f64; 3]> {
+        (0..m.rows as usize)
+            .map(|j| {
+                let mut v = [0.0; 3];
+                for t in 0..m.cols as usize {
+                    for c in 0..3 {
+                        v[c] += get(m, j, t) * ld[offset as usize + t][c] as f64;
+                    }
+                }
+                v
+            })
+            .collect()
+    }
+
+    /// Every block's coefficients b, in f64.
+    fn reference_coefs(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<Vec<[f64; 3]>> {
+        bundle
             .blocks
             .iter()
             .map(|blk| {
                 let s = &bundle.shapes[blk.shape as usize];
-                (0..s.t_db.rows as usize)
-                    .map(|j| {
-                        let mut v = [0.0; 3];
-                        for t in 0..s.t_db.cols as usize {
-                            for c in 0..3 {
-                                v[c] += get(&s.t_db, j, t)
-                                    * ld[blk.texel_offset as usize + t][c] as f64;
-                            }
-                        }
-                        v
-                    })
-                    .collect()
+                reference_project(&s.t_db, ld, blk.texel_offset)
             })
-            .collect();
+            .collect()
+    }
+
+    fn times_albedo(bundle: &Bundle, mut out: Vec<[f64; 3]>) -> Vec<[f64; 3]> {
+        for (o, rho) in out.iter_mut().zip(&bundle.layout.albedo) {
+            for c in 0..3 {
+                o[c] *= rho[c] as f64;
+            }
+        }
+        out
+    }
+
+    /// Straightforward dense MRT, in f64.
+    fn reference_mrt(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
+        times_albedo(bundle, reference_mrt_albedo_free(bundle, ld))
+    }
+
+    /// Dense MRT before the albedo, in f64.
+    fn reference_mrt_albedo_free(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
+        let shape = |bi: u32| &bundle.shapes[bundle.blocks[bi as usize].shape as usize];
+        let coefs = reference_coefs(bundle, ld);
         let mut out = vec![[0.0f64; 3]; ld.len()];
         let mut add = |bi: u32, m: &Matrix, x: &[[f64; 3]]| {
             let off = bundle.blocks[bi as usize].texel_offset as usize;
@@ -752,12 +1067,47 @@ mod tests {
             }
             None => {}
         }
-        for (o, rho) in out.iter_mut().zip(&bundle.layout.albedo) {
-            for c in 0..3 {
-                o[c] *= rho[c] as f64;
+        out
+    }
+
+    /// Straightforward dense DRT, in f64: every delta entry expanded into a dense
+    /// n_texels × (Σ r + Σ m) matrix D over the stacked coefficients `[b_0 … b_B, c_0 … c_J]`,
+    /// then `l_ind = ρ ⊙ (MRT_albedo_free + D · coefficients)`.
+    fn reference_drt(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
+        let drt = bundle.drt.as_ref().unwrap();
+        let n = ld.len();
+        let mut coefs: Vec<[f64; 3]> = reference_coefs(bundle, ld).concat();
+        let mut block_start = vec![0];
+        for blk in &bundle.blocks {
+            let r = bundle.shapes[blk.shape as usize].u_b.cols as usize;
+            block_start.push(block_start.last().unwrap() + r);
+        }
+        let mut clutter_start = vec![coefs.len()];
+        for cl in &drt.clutter {
+            coefs.extend(reference_project(&cl.t_dc, ld, cl.texel_offset));
+            clutter_start.push(coefs.len());
+        }
+        let mut dense = vec![vec![0.0f64; coefs.len()]; n];
+        for e in &drt.entries {
+            let start = match e.source {
+                DeltaSource::Block(k) => block_start[k as usize],
+                DeltaSource::Clutter(j) => clutter_start[j as usize],
+            };
+            for (i, &t) in e.rows.iter().enumerate() {
+                for j in 0..e.matrix.cols as usize {
+                    dense[t as usize][start + j] += get(&e.matrix, i, j);
+                }
             }
         }
-        out
+        let mut out = reference_mrt_albedo_free(bundle, ld);
+        for (o, row) in out.iter_mut().zip(&dense) {
+            for (d, x) in row.iter().zip(&coefs) {
+                for c in 0..3 {
+                    o[c] += d * x[c];
+                }
+            }
+        }
+        times_albedo(bundle, out)
     }
 
     fn reference_full(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
@@ -906,7 +1256,8 @@ mod tests {
         let mut out = IndirectLight::default();
         for len in [0, 20, 22] {
             let ld = direct(&mut rng, len);
-            for method in [Method::Mrt, Method::Full] {
+            // Drt too: the length is checked before whether the bundle has the section.
+            for method in [Method::Mrt, Method::Full, Method::Drt] {
                 let err = rt.apply(method, &ld, &mut out).unwrap_err();
                 assert_eq!(
                     err,
@@ -925,10 +1276,21 @@ mod tests {
         let before = allocs();
         drop(std::hint::black_box(vec![1u8; 64]));
         assert!(allocs() > before, "the allocation counter works");
+        let mrt_full: &[Method] = &[Method::Mrt, Method::Full];
+        let all: &[Method] = &[Method::Mrt, Method::Full, Method::Drt];
+        let mut cases = Vec::new();
         for transport in [Some(traced(&mut rng)), Some(lightfield(&mut rng)), None] {
-            let mut rt = Runtime::new(bundle(&mut rng, transport, true));
-            let ld = direct(&mut rng, 21);
-            for method in [Method::Mrt, Method::Full] {
+            cases.push((bundle(&mut rng, transport, true), mrt_full));
+        }
+        for (lightfield, two_clutter) in [(false, false), (true, true)] {
+            cases.push((drt_bundle(&mut rng, lightfield, two_clutter, true), all));
+        }
+        for (b, methods) in cases {
+            let n = b.layout.n_texels();
+            let mut rt = Runtime::new(b);
+            let ld = direct(&mut rng, n);
+            let mut firsts = Vec::new();
+            for &method in methods {
                 // A wrong-length `out` is resized; a right-length one is reused.
                 let mut out = IndirectLight {
                     radiance: vec![[9.0; 3]; 5],
@@ -944,6 +1306,13 @@ mod tests {
                 out.radiance.fill([f32::NAN; 3]);
                 rt.apply(method, &ld, &mut out).unwrap();
                 assert_eq!(out, first);
+                firsts.push(first);
+            }
+            // Nor does one method's scratch leak into another's result.
+            let mut out = IndirectLight::default();
+            for (&method, first) in methods.iter().zip(&firsts).rev() {
+                rt.apply(method, &ld, &mut out).unwrap();
+                assert_eq!(&out, first, "{method:?} after another method");
             }
         }
     }
@@ -962,6 +1331,22 @@ mod tests {
                     run(decoded.clone(), method, &ld)
                 );
             }
+        }
+    }
+
+    #[test]
+    fn drt_encode_decode_round_trip_gives_the_same_output() {
+        let mut rng = Lcg(28);
+        for (lightfield, two_clutter, full) in [(false, false, true), (true, true, false)] {
+            let b = drt_bundle(&mut rng, lightfield, two_clutter, full);
+            let decoded = Bundle::decode(&b.encode()).expect("hand-built DRT bundle decodes");
+            assert_eq!(decoded, b);
+            let ld = direct(&mut rng, b.layout.n_texels());
+            let want = reference_drt(&b, &ld.radiance);
+            let got = run(decoded.clone(), Method::Drt, &ld);
+            assert_close(&got, &want);
+            assert_eq!(got, run(b.clone(), Method::Drt, &ld));
+            assert_eq!(run(decoded, Method::Mrt, &ld), run(b, Method::Mrt, &ld));
         }
     }
 
@@ -992,5 +1377,232 @@ mod tests {
         let mut b = good;
         b.layout.albedo.pop();
         assert!(Runtime::try_new(b).is_err(), "albedo length");
+    }
+
+    #[test]
+    fn inconsistent_drt_sections_are_refused_as_decode_refuses_them() {
+        let mut rng = Lcg(29);
+        let good = drt_bundle(&mut rng, true, true, false);
+        assert!(Runtime::try_new(good.clone()).is_ok());
+        type Break = (&'static str, fn(&mut DrtOps));
+        let breaks: [Break; 11] = [
+            ("clutter past the layout", |d| {
+                d.clutter[1].texel_offset = 15
+            }),
+            ("short t_dc", |d| {
+                d.clutter[0].t_dc.data.pop();
+            }),
+            ("missing source block", |d| {
+                d.entries[0].source = DeltaSource::Block(2)
+            }),
+            ("missing source clutter", |d| {
+                d.entries[2].source = DeltaSource::Clutter(2)
+            }),
+            ("source with another coefficient count", |d| {
+                d.entries[2].source = DeltaSource::Clutter(1)
+            }),
+            ("block source with another r", |d| {
+                d.entries[0].source = DeltaSource::Block(0)
+            }),
+            ("more rows than matrix rows", |d| d.entries[0].rows.push(12)),
+            ("rows not ascending", |d| d.entries[0].rows.swap(0, 1)),
+            ("repeated row", |d| d.entries[0].rows[1] = 1),
+            ("row past the layout", |d| d.entries[6].rows[2] = 17),
+            ("buried past the layout", |d| d.buried.push(17)),
+        ];
+        for (what, f) in breaks {
+            let mut b = good.clone();
+            f(b.drt.as_mut().unwrap());
+            assert!(
+                Runtime::try_new(b.clone()).is_err(),
+                "runtime accepts: {what}"
+            );
+            assert!(
+                Bundle::decode(&b.encode()).is_err(),
+                "decode accepts: {what}"
+            );
+        }
+    }
+
+    #[test]
+    fn drt_matches_dense_reference() {
+        let mut rng = Lcg(21);
+        for (lightfield, two_clutter) in
+            [(false, false), (true, false), (false, true), (true, true)]
+        {
+            let b = drt_bundle(&mut rng, lightfield, two_clutter, false);
+            let n = b.layout.n_texels();
+            let ld = direct(&mut rng, n);
+            let want = reference_drt(&b, &ld.radiance);
+            let mrt = reference_mrt(&b, &ld.radiance);
+            let got = run(b, Method::Drt, &ld);
+            assert_close(&got, &want);
+            // The entries really contribute: block texels differ from MRT, clutter is lit.
+            assert!(want[..10]
+                .iter()
+                .zip(&mrt)
+                .any(|(d, m)| (d[0] - m[0]).abs() > 1e-3));
+            for t in 10..n {
+                assert!(
+                    got.radiance[t].iter().all(|&v| v != 0.0),
+                    "clutter texel {t}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn drt_without_entries_is_mrt_and_leaves_clutter_dark() {
+        let mut rng = Lcg(22);
+        for lightfield in [false, true] {
+            let mut b = drt_bundle(&mut rng, lightfield, true, false);
+            b.drt.as_mut().unwrap().entries.clear();
+            let n = b.layout.n_texels();
+            let ld = direct(&mut rng, n);
+            let mut rt = Runtime::new(b);
+            let (mut drt, mut mrt) = (IndirectLight::default(), IndirectLight::default());
+            rt.apply(Method::Drt, &ld, &mut drt).unwrap();
+            rt.apply(Method::Mrt, &ld, &mut mrt).unwrap();
+            assert_eq!(drt.radiance[..10], mrt.radiance[..10], "block texels");
+            assert!(drt.radiance[..10].iter().flatten().any(|&v| v != 0.0));
+            assert!(
+                drt.radiance[DRT_BOX.start..]
+                    .iter()
+                    .flatten()
+                    .all(|&v| v == 0.0),
+                "clutter texels get only what entries add"
+            );
+        }
+    }
+
+    #[test]
+    fn drt_without_the_section_is_an_error() {
+        let mut rng = Lcg(23);
+        let t = traced(&mut rng);
+        let mut rt = Runtime::new(bundle(&mut rng, Some(t), true));
+        assert!(!rt.has_drt());
+        let ld = direct(&mut rng, 21);
+        let mut out = IndirectLight::default();
+        let err = rt.apply(Method::Drt, &ld, &mut out).unwrap_err();
+        assert_eq!(err, ApplyError::MissingDrt);
+        assert_eq!(
+            err.to_string(),
+            "this bundle has no DRT operators; bake a scene with clutter"
+        );
+        assert!(Runtime::new(drt_bundle(&mut rng, false, false, false)).has_drt());
+    }
+
+    /// The 16-byte file header and every (kind, payload) section of an encoded bundle.
+    fn split_sections(bytes: &[u8]) -> (Vec<u8>, Vec<(u32, Vec<u8>)>) {
+        let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+        let count = word(12);
+        let mut at = 16;
+        let mut sections = Vec::new();
+        for _ in 0..count {
+            let len = u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
+            sections.push((word(at), bytes[at + 20..at + 20 + len].to_vec()));
+            at += 20 + len;
+        }
+        assert_eq!(at, bytes.len());
+        (bytes[..16].to_vec(), sections)
+    }
+
+    /// Inverse of [`split_sections`], with fresh lengths and checksums.
+    fn join_sections(header: &[u8], sections: &[(u32, Vec<u8>)]) -> Vec<u8> {
+        let mut out = header.to_vec();
+        for (kind, payload) in sections {
+            out.extend_from_slice(&kind.to_le_bytes());
+            out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+            out.extend_from_slice(&checksum(payload).to_le_bytes());
+            out.extend_from_slice(payload);
+        }
+        out
+    }
+
+    /// Decodes `bytes`; a decoded bundle must make a runtime, which must apply every method
+    /// without panicking. Returns whether the bytes decoded.
+    fn decode_and_apply(bytes: &[u8]) -> bool {
+        let Ok(bundle) = Bundle::decode(bytes) else {
+            return false;
+        };
+        let mut rt = match Runtime::try_new(bundle) {
+            Ok(rt) => rt,
+            Err(e) => panic!("decode accepted a bundle the runtime refuses: {e}"),
+        };
+        let ld = DirectLight {
+            radiance: vec![[0.5, 1.0, 1.5]; rt.n_texels()],
+        };
+        let mut out = IndirectLight::default();
+        for method in [Method::Mrt, Method::Full, Method::Drt] {
+            let _ = rt.apply(method, &ld, &mut out);
+        }
+        true
+    }
+
+    #[test]
+    fn mutated_drt_bundles_never_panic() {
+        let mut rng = Lcg(24);
+        let b = drt_bundle(&mut rng, false, true, true);
+        let bytes = b.encode();
+        assert!(decode_and_apply(&bytes));
+        let (header, sections) = split_sections(&bytes);
+        assert_eq!(join_sections(&header, &sections), bytes);
+        let drt = sections
+            .iter()
+            .position(|(kind, _)| *kind == lightfarm_proto::bundle::section::DRT)
+            .expect("the bundle has a DRT section");
+        let mutate = |byte: &mut u8, rng: &mut Lcg| {
+            *byte = match rng.next_u32() % 3 {
+                0 => *byte ^ (1 + rng.next_u32() % 255) as u8,
+                1 => rng.next_u32() as u8,
+                _ => [0x00, 0x01, 0x7f, 0x80, 0xff][rng.next_u32() as usize % 5],
+            };
+        };
+        let (mut decoded, mut tried) = (0, 0);
+
+        // Single bytes anywhere (the checksums catch nearly all of these).
+        for _ in 0..1500 {
+            let mut m = bytes.clone();
+            let at = rng.next_u32() as usize % m.len();
+            mutate(&mut m[at], &mut rng);
+            decode_and_apply(&m);
+        }
+        // Truncations of the file.
+        for _ in 0..500 {
+            let len = rng.next_u32() as usize % bytes.len();
+            assert!(!decode_and_apply(&bytes[..len]), "truncated to {len}");
+        }
+        // Single bytes inside a section, checksum repaired, so validation sees them; half in
+        // the DRT section.
+        for k in 0..3000 {
+            let mut s = sections.clone();
+            let i = if k % 2 == 0 {
+                drt
+            } else {
+                rng.next_u32() as usize % s.len()
+            };
+            let payload = &mut s[i].1;
+            let at = rng.next_u32() as usize % payload.len();
+            mutate(&mut payload[at], &mut rng);
+            tried += 1;
+            decoded += decode_and_apply(&join_sections(&header, &s)) as usize;
+        }
+        // Sections truncated inside, length and checksum repaired.
+        for k in 0..1000 {
+            let mut s = sections.clone();
+            let i = if k % 2 == 0 {
+                drt
+            } else {
+                rng.next_u32() as usize % s.len()
+            };
+            let len = rng.next_u32() as usize % s[i].1.len();
+            s[i].1.truncate(len);
+            decode_and_apply(&join_sections(&header, &s));
+        }
+        // Some repaired mutations (a changed value) still decode; many are refused.
+        assert!(
+            decoded > 0 && decoded < tried,
+            "{decoded} of {tried} decoded"
+        );
     }
 }

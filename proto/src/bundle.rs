@@ -17,7 +17,7 @@ use crate::wire::{checksum, Reader, WireError, Writer};
 
 pub const BUNDLE_MAGIC: &[u8; 8] = b"LFBUNDLE";
 pub const BUNDLE_MAJOR: u16 = 0;
-pub const BUNDLE_MINOR: u16 = 1;
+pub const BUNDLE_MINOR: u16 = 2;
 
 /// Section kinds.
 pub mod section {
@@ -526,11 +526,12 @@ impl Bundle {
             full,
             drt,
         };
-        bundle.check_consistency()?;
+        bundle.validate()?;
         Ok(bundle)
     }
 
-    fn check_consistency(&self) -> Result<(), BundleError> {
+    /// Checks every index, size and rank against the data (what `decode` runs).
+    pub fn validate(&self) -> Result<(), BundleError> {
         let bad = |m: String| Err(BundleError::Invalid(m));
         let n_texels = self.layout.n_texels() as u64;
         for (k, s) in self.shapes.iter().enumerate() {
@@ -541,8 +542,15 @@ impl Bundle {
                     s.u_b.rows, s.u_b.cols, s.t_db.rows, s.t_db.cols
                 ));
             }
+            // Ranks never exceed texel counts, so scratch sizes are bounded by real data.
+            if s.u_b.cols > n || n as u64 > n_texels {
+                return bad(format!(
+                    "shape {k}: rank {} exceeds its {n} texels",
+                    s.u_b.cols
+                ));
+            }
             for o in &s.openings {
-                if o.face > 5 || o.u_r.rows != n {
+                if o.face > 5 || o.u_r.rows != n || o.u_r.cols > n {
                     return bad(format!(
                         "shape {k}: opening operator does not match the shape"
                     ));
@@ -612,7 +620,9 @@ impl Bundle {
             let n_blocks = self.blocks.len() as u64;
             let n_clutter = d.clutter.len() as u64;
             for (k, c) in d.clutter.iter().enumerate() {
-                if c.texel_offset as u64 + c.t_dc.cols as u64 > n_texels {
+                if c.texel_offset as u64 + c.t_dc.cols as u64 > n_texels
+                    || c.t_dc.rows > c.t_dc.cols
+                {
                     return bad(format!("drt: clutter {k} texel range past the layout"));
                 }
             }

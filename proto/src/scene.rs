@@ -55,6 +55,16 @@ pub enum Transport {
     Traced,
 }
 
+/// Basis for direct light on clutter (DRT §4.2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ClutterBasis {
+    /// A lighting prior over the clutter's texels from the scene's light distribution.
+    Prior,
+    /// One constant per clutter face (the paper's choice).
+    FaceConstant,
+}
+
 /// Bake settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -76,6 +86,8 @@ pub struct Settings {
     pub prior_lights: u32,
     /// Seed of every quasi-random sequence; a bake is a pure function of scene and seed.
     pub seed: u64,
+    /// Basis for direct light on clutter.
+    pub clutter_basis: ClutterBasis,
 }
 
 impl Default for Settings {
@@ -89,6 +101,7 @@ impl Default for Settings {
             lightfield_directions: 6,
             prior_lights: 768,
             seed: 0,
+            clutter_basis: ClutterBasis::Prior,
         }
     }
 }

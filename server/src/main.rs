@@ -58,7 +58,7 @@ enum Command {
         bundle: PathBuf,
         #[arg(long)]
         lights: PathBuf,
-        #[arg(long, value_enum, default_value = "mrt")]
+        #[arg(long, value_enum, default_value = "drt")]
         method: MethodArg,
         #[arg(short, long)]
         out: PathBuf,
@@ -74,7 +74,19 @@ enum Command {
         out: PathBuf,
     },
     /// Relative L2 and p95 error of A against B.
-    Compare { a: PathBuf, b: PathBuf },
+    Compare {
+        a: PathBuf,
+        b: PathBuf,
+        /// Only surfaces whose name starts with this (e.g. `clutter:` or `block:`).
+        #[arg(long)]
+        only: Option<String>,
+        /// The scene (for --near-clutter).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Only block texels within this many metres of clutter.
+        #[arg(long)]
+        near_clutter: Option<f64>,
+    },
     /// Print the JSON Schema of the scene description.
     Schema,
 }
@@ -113,7 +125,7 @@ fn main() -> anyhow::Result<()> {
             let method = match method {
                 MethodArg::Full => Method::Full,
                 MethodArg::Mrt => Method::Mrt,
-                MethodArg::Drt => anyhow::bail!("--method drt needs DRT operators, which this version does not bake yet; use mrt or full"),
+                MethodArg::Drt => Method::Drt,
             };
             cli::eval::run(cli::eval::EvalArgs {
                 bundle,
@@ -133,7 +145,19 @@ fn main() -> anyhow::Result<()> {
             rays,
             out,
         }),
-        Command::Compare { a, b } => cli::compare::run(&a, &b),
+        Command::Compare {
+            a,
+            b,
+            only,
+            scene,
+            near_clutter,
+        } => cli::compare::run(cli::compare::CompareArgs {
+            a,
+            b,
+            only,
+            scene,
+            near_clutter,
+        }),
         Command::Schema => {
             println!(
                 "{}",

@@ -14,6 +14,8 @@
 //! **Invariant:** nothing here imports axum, tokio or serde_json; everything is deterministic
 //! for a given scene and seed, whatever the thread count.
 
+pub mod clutter_basis;
+pub mod drt;
 pub mod geometry;
 pub mod lightfield;
 pub mod lighting_prior;

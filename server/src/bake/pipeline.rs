@@ -16,13 +16,14 @@ use lightfarm_proto::bundle::{
 };
 use lightfarm_proto::scene::{Scene, SceneError, Transport};
 
+use super::drt::{build_drt, DrtStats};
 use super::geometry::{Geometry, GeometryError, Primitive};
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
 use super::progress::Progress;
 use super::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
 use super::shape_cache::{Lookup, ShapeCache};
 use super::tracer::Tracer;
-use super::transport::{lightfield_transport, traced_transport, TransportStats};
+use super::transport::{lightfield_transport, traced_transport, MrtTransport, TransportStats};
 
 /// What to bake beyond the scene's own settings.
 #[derive(Clone, Debug, Default)]
@@ -48,6 +49,7 @@ pub struct BakeReport {
     pub transport: TransportStats,
     pub stage_seconds: Vec<(String, f64)>,
     pub bundle_bytes: usize,
+    pub drt: Option<DrtStats>,
 }
 
 /// Why a bake failed.
@@ -59,6 +61,8 @@ pub enum BakeError {
     Geometry(#[from] GeometryError),
     #[error(transparent)]
     Shape(#[from] ShapeError),
+    #[error("clutter operators: {0}")]
+    Drt(String),
     #[error("operator cache: {0}")]
     Cache(#[from] std::io::Error),
 }
@@ -235,23 +239,13 @@ pub fn bake(
 
     // Inter-block transport.
     let per_block: Vec<&ShapeOperators> = shape_index.iter().map(|i| shapes[*i].as_ref()).collect();
-    let transport = match options.transport.unwrap_or(settings.transport) {
+    let mrt = match options.transport.unwrap_or(settings.transport) {
         Transport::Lightfield => {
             progress.stage("lightfield transport", 1);
             let (blocks, stats) = lightfield_transport(&per_block, &openings, settings.tolerance);
             progress.advance(1);
             report.transport = stats;
-            TransportOps::Lightfield(
-                blocks
-                    .into_iter()
-                    .map(|b| bundle::PropEntry {
-                        target_block: b.target_block as u32,
-                        target_face: b.target_face.index() as u8,
-                        source_block: b.source_block as u32,
-                        matrix: to_matrix(&b.matrix),
-                    })
-                    .collect(),
-            )
+            MrtTransport::Lightfield(blocks)
         }
         Transport::Traced => {
             progress.stage("traced transport", block_geometry.texels.len() as u64);
@@ -266,19 +260,74 @@ pub fn bake(
                 &|n| progress.advance(n),
             );
             report.transport = stats;
-            TransportOps::Traced(
-                blocks
-                    .into_iter()
-                    .map(|b| bundle::TracedEntry {
-                        target_block: b.target_block as u32,
-                        source_block: b.source_block as u32,
-                        matrix: to_matrix(&b.matrix),
-                    })
-                    .collect(),
-            )
+            MrtTransport::Traced(blocks)
         }
     };
+    let transport = match &mrt {
+        MrtTransport::Lightfield(blocks) => TransportOps::Lightfield(
+            blocks
+                .iter()
+                .map(|b| bundle::PropEntry {
+                    target_block: b.target_block as u32,
+                    target_face: b.target_face.index() as u8,
+                    source_block: b.source_block as u32,
+                    matrix: to_matrix(&b.matrix),
+                })
+                .collect(),
+        ),
+        MrtTransport::Traced(blocks) => TransportOps::Traced(
+            blocks
+                .iter()
+                .map(|b| bundle::TracedEntry {
+                    target_block: b.target_block as u32,
+                    source_block: b.source_block as u32,
+                    matrix: to_matrix(&b.matrix),
+                })
+                .collect(),
+        ),
+    };
     lap(&mut report, "transport");
+
+    // DRT: clutter operators.
+    let drt = if scene.clutter.is_empty() {
+        None
+    } else {
+        let n = full_geometry.texels.len() as u64;
+        progress.stage("clutter operators", n);
+        let ops = build_drt(
+            scene,
+            &openings,
+            &full_geometry,
+            &block_geometry,
+            &per_block,
+            &mrt,
+            &|k| progress.advance(k),
+        )
+        .map_err(|source| BakeError::Drt(source.to_string()))?;
+        report.drt = Some(ops.stats.clone());
+        Some(bundle::DrtOps {
+            clutter: ops
+                .clutter
+                .iter()
+                .map(|c| bundle::ClutterOps {
+                    id: c.id.clone(),
+                    texel_offset: c.texel_offset as u32,
+                    t_dc: to_matrix(&c.basis.basis.transpose().to_owned()),
+                })
+                .collect(),
+            entries: ops
+                .entries
+                .iter()
+                .map(|e| bundle::DeltaEntry {
+                    rows: e.rows.clone(),
+                    source: e.source,
+                    matrix: to_matrix(&e.matrix),
+                })
+                .collect(),
+            buried: ops.buried.clone(),
+        })
+    };
+    lap(&mut report, "clutter operators");
 
     // The dense Hašan-style operator over the full geometry.
     let full = if options.full {
@@ -343,7 +392,7 @@ pub fn bake(
             .collect(),
         transport: Some(transport),
         full,
-        drt: None,
+        drt,
     };
     lap(&mut report, "bundle");
     Ok((bundle, report))

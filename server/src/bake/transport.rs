@@ -194,3 +194,64 @@ pub fn traced_transport(
     }
     (out, stats)
 }
+
+/// The MRT inter-block operators of a bake, kept in f64 for DRT's inpainting.
+pub enum MrtTransport {
+    Lightfield(Vec<PropBlock>),
+    Traced(Vec<TracedBlock>),
+}
+
+impl MrtTransport {
+    /// Row `local` of the operator mapping source block `source`'s `b` to indirect light on
+    /// target block `target`'s texels (albedo-free): `U_b` for the block itself plus the
+    /// inter-block term. None when the source does not reach the target.
+    pub fn row(
+        &self,
+        shapes: &[&ShapeOperators],
+        target: usize,
+        source: usize,
+        local: usize,
+    ) -> Option<Vec<f64>> {
+        let r = shapes[source].rank();
+        let mut row = vec![0.0; r];
+        let mut any = false;
+        if target == source {
+            let u_b = &shapes[target].u_b;
+            for (j, x) in row.iter_mut().enumerate() {
+                *x += u_b[(local, j)];
+            }
+            any = true;
+        }
+        match self {
+            MrtTransport::Traced(blocks) => {
+                for b in blocks
+                    .iter()
+                    .filter(|b| b.target_block == target && b.source_block == source)
+                {
+                    for (j, x) in row.iter_mut().enumerate() {
+                        *x += b.matrix[(local, j)];
+                    }
+                    any = true;
+                }
+            }
+            MrtTransport::Lightfield(blocks) => {
+                for b in blocks
+                    .iter()
+                    .filter(|b| b.target_block == target && b.source_block == source)
+                {
+                    let Some(opening) = shapes[target].opening(b.target_face) else {
+                        continue;
+                    };
+                    for k in 0..opening.u_r.ncols() {
+                        let u = opening.u_r[(local, k)];
+                        for (j, x) in row.iter_mut().enumerate() {
+                            *x += u * b.matrix[(k, j)];
+                        }
+                    }
+                    any = true;
+                }
+            }
+        }
+        any.then_some(row)
+    }
+}

@@ -37,6 +37,12 @@ pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Re
         DIRECT_SAMPLES_PER_EDGE,
     );
     let mut runtime = Runtime::try_new(bundle)?;
+    // A scene without clutter has no DRT operators: DRT is MRT there.
+    let method = if method == Method::Drt && !runtime.has_drt() {
+        Method::Mrt
+    } else {
+        method
+    };
     let mut indirect = IndirectLight::default();
     runtime.apply(method, &averaged, &mut indirect)?;
     let layout = &runtime.bundle().layout;

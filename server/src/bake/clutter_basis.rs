@@ -1,0 +1,178 @@
+//! The basis for direct light on a clutter object (DRT §4.2): `c = T_d→c l_d`, `T_d→c = Bᵀ`
+//! with `B` (texels × m) orthonormal.
+//!
+//! Two choices (`settings.clutter_basis`):
+//! - `face_constant` — the paper's: one constant radiance per clutter face (m = faces);
+//! - `prior` — what the paper names as better: a lighting prior over the clutter's texels built
+//!   from the same light distribution as the blocks' (lights in the blocks the clutter stands in
+//!   and their neighbours, clipped to the light regions), with shadows from the real geometry.
+//!   A clutter object has one albedo, so direct light is `ρ · pattern` and one SVD over all its
+//!   texels is albedo-invariant. Rank from the tolerance.
+//!
+//! Frames: world, metres. Invariant: `basis` has orthonormal columns.
+
+use faer::Mat;
+use rayon::prelude::*;
+
+use lightfarm_proto::scene::{Aabb, ClutterBasis, Opening, Scene};
+
+use super::geometry::Geometry;
+use super::low_rank::{truncated_svd, LowRankError};
+use super::sampling::{mix64, stream_key};
+use super::tracer::Tracer;
+
+/// An orthonormal basis over one clutter object's texels.
+pub struct ClutterBasisOps {
+    /// texels × m.
+    pub basis: Mat<f64>,
+    pub dropped_energy: f64,
+}
+
+fn halton(i: u64, base: u64) -> f64 {
+    let (mut f, mut r, mut i) = (1.0 / base as f64, 0.0, i);
+    while i > 0 {
+        r += f * (i % base) as f64;
+        i /= base;
+        f /= base as f64;
+    }
+    r
+}
+
+/// Blocks whose volume meets `aabb`, and their neighbours one opening away.
+fn nearby_blocks(scene: &Scene, openings: &[[Option<Opening>; 6]], aabb: &Aabb) -> Vec<usize> {
+    let mut out: Vec<usize> = scene
+        .blocks
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| (0..3).all(|k| b.min[k] <= aabb.max[k] && aabb.min[k] <= b.max[k]))
+        .map(|(i, _)| i)
+        .collect();
+    let direct = out.clone();
+    for b in direct {
+        for o in openings[b].iter().flatten() {
+            if let Opening::Neighbour { block, .. } = o {
+                if !out.contains(block) {
+                    out.push(*block);
+                }
+            }
+        }
+    }
+    out.sort_unstable();
+    out
+}
+
+/// Builds the basis for clutter object `clutter` whose texels are `texels` in `g`.
+#[allow(clippy::too_many_arguments)]
+pub fn clutter_basis(
+    scene: &Scene,
+    openings: &[[Option<Opening>; 6]],
+    g: &Geometry,
+    tracer: &Tracer,
+    clutter: usize,
+    aabb: &Aabb,
+    texels: std::ops::Range<usize>,
+) -> Result<ClutterBasisOps, LowRankError> {
+    let n = texels.len();
+    let settings = &scene.settings;
+    if settings.clutter_basis == ClutterBasis::FaceConstant {
+        // One column per face (surface) of the object.
+        let mut faces: Vec<(usize, usize)> = Vec::new();
+        for s in &g.surfaces {
+            if s.texel_offset >= texels.start && s.texel_offset < texels.end {
+                faces.push((s.texel_offset - texels.start, s.t * s.t));
+            }
+        }
+        let mut basis = Mat::<f64>::zeros(n, faces.len());
+        for (j, (start, count)) in faces.iter().enumerate() {
+            for i in 0..*count {
+                basis[(start + i, j)] = 1.0 / (*count as f64).sqrt();
+            }
+        }
+        return Ok(ClutterBasisOps {
+            basis,
+            dropped_energy: f64::NAN,
+        });
+    }
+    // Light positions in nearby blocks (volume-weighted), clipped to light regions.
+    let blocks = nearby_blocks(scene, openings, aabb);
+    let mut volumes: Vec<Aabb> = Vec::new();
+    for b in &blocks {
+        let block = scene.blocks[*b].aabb();
+        if scene.light_regions.is_empty() {
+            volumes.push(block);
+        } else {
+            volumes.extend(
+                scene
+                    .light_regions
+                    .iter()
+                    .filter_map(|r| r.intersection(&block)),
+            );
+        }
+    }
+    if volumes.is_empty() {
+        volumes = blocks.iter().map(|b| scene.blocks[*b].aabb()).collect();
+    }
+    let weights: Vec<f64> = volumes
+        .iter()
+        .map(|v| v.extent().iter().product())
+        .collect();
+    let total: f64 = weights.iter().sum();
+    let count = settings.prior_lights as usize;
+    let key = stream_key(settings.seed, 21, clutter as u64);
+    let mut lights = Vec::with_capacity(count);
+    let mut acc = 0.0;
+    for (v, w) in volumes.iter().zip(&weights) {
+        let start = (acc / total * count as f64).round() as usize;
+        acc += w;
+        let end = (acc / total * count as f64).round() as usize;
+        for i in start..end {
+            let mut p = [0.0; 3];
+            for (k, base) in [2u64, 3, 5].into_iter().enumerate() {
+                let shift = (mix64(key ^ k as u64) >> 11) as f64 / (1u64 << 53) as f64;
+                p[k] =
+                    v.min[k] + (halton(i as u64 + 1, base) + shift).fract() * (v.max[k] - v.min[k]);
+            }
+            // Lights inside the clutter itself are not plausible.
+            if !(0..3).all(|k| p[k] > aabb.min[k] && p[k] < aabb.max[k]) {
+                lights.push(p);
+            }
+        }
+    }
+    let min_r2 = (1e-3 * g.scale()).powi(2);
+    let columns: Vec<Vec<f64>> = lights
+        .par_iter()
+        .map(|l| {
+            let mut col: Vec<f64> = texels
+                .clone()
+                .map(|t| {
+                    let texel = &g.texels[t];
+                    let d = [
+                        l[0] - texel.position[0],
+                        l[1] - texel.position[1],
+                        l[2] - texel.position[2],
+                    ];
+                    let r2 = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).max(min_r2);
+                    let cos =
+                        (d[0] * texel.normal[0] + d[1] * texel.normal[1] + d[2] * texel.normal[2])
+                            / r2.sqrt();
+                    if cos <= 0.0 || tracer.occluded(texel.position, *l) {
+                        0.0
+                    } else {
+                        cos / r2
+                    }
+                })
+                .collect();
+            let norm = col.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if norm > 0.0 {
+                col.iter_mut().for_each(|x| *x /= norm);
+            }
+            col
+        })
+        .collect();
+    let patterns = Mat::from_fn(n, columns.len(), |i, j| columns[j][i]);
+    let svd = truncated_svd(patterns.as_ref(), settings.tolerance)?;
+    Ok(ClutterBasisOps {
+        basis: svd.u,
+        dropped_energy: svd.dropped_energy,
+    })
+}

@@ -1,0 +1,489 @@
+//! Delta Radiance Transfer (paper 000 §4–§5): the scene-dependent operators that add clutter to
+//! MRT, built by ray tracing against the real geometry.
+//!
+//! - **ΔU_b, delta occlusion (§4.1):** a block texel's rays that hit clutter continue (through the
+//!   empty blocks) to the wall behind, and subtract `L_imp` there — antiradiance. Source: any
+//!   block the continued ray lands in, so texels in other blocks that see the clutter get rows.
+//! - **ΔU_c, delta reflection (§4.2):** the same rays read the clutter's direct-light basis
+//!   `B_j` at the clutter texel they hit: `+ ΔU_c c_j` with `c_j = B_jᵀ l_d`.
+//! - **C_b, clutter gather (§4.3),** and clutter-to-clutter bounce (ours): a clutter texel's rays
+//!   read `L_imp` of the block texel they hit, or `B_j'` of another clutter object's texel.
+//! - **Transport inpainting (§5):** texels buried inside clutter get the average of their valid
+//!   neighbours' shadowed transport minus their own unshadowed transport; with no valid
+//!   neighbour on the face they get exactly minus their MRT transport (they are dark, never NaN).
+//!
+//! Model only what the scene needs: a block texel whose rays hit clutter less often than the
+//! tolerance gets no row (counted in the report). All operators are albedo-free.
+//!
+//! Invariant: deterministic per texel stream; rows are global texel indices, ascending.
+
+use std::collections::BTreeMap;
+
+use faer::Mat;
+use rayon::prelude::*;
+
+use lightfarm_proto::bundle::DeltaSource;
+use lightfarm_proto::scene::{Opening, Scene};
+
+use super::clutter_basis::{clutter_basis, ClutterBasisOps};
+use super::geometry::{Geometry, Primitive, SurfaceOwner};
+use super::low_rank::LowRankError;
+use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use super::shape::ShapeOperators;
+use super::tracer::{Hit, Tracer};
+use super::transport::MrtTransport;
+
+const PURPOSE_DRT_SCENE: u64 = 31;
+const PURPOSE_DRT_CLUTTER: u64 = 32;
+
+/// A delta operator block in f64.
+pub struct DeltaBlock {
+    pub rows: Vec<u32>,
+    pub source: DeltaSource,
+    pub matrix: Mat<f64>,
+}
+
+/// A clutter object's basis and where its texels are.
+pub struct ClutterProjection {
+    pub id: String,
+    pub texel_offset: usize,
+    pub basis: ClutterBasisOps,
+}
+
+/// Figures about the DRT build.
+#[derive(Clone, Debug, Default)]
+pub struct DrtStats {
+    pub scene_texels_with_rows: usize,
+    pub scene_texels_skipped: usize,
+    pub buried_scene_texels: usize,
+    pub buried_clutter_texels: usize,
+    pub inpainted_without_neighbours: usize,
+    pub clutter_ranks: Vec<usize>,
+}
+
+/// All DRT operators of a scene.
+pub struct DrtOperators {
+    pub clutter: Vec<ClutterProjection>,
+    pub entries: Vec<DeltaBlock>,
+    pub buried: Vec<u32>,
+    pub stats: DrtStats,
+}
+
+/// What one ray from a texel saw, for the delta operators.
+enum Seen {
+    Nothing,
+    /// Block texel (global index).
+    Block(u32),
+    /// Clutter texel (global index), or clutter without texels (mesh) when None.
+    Clutter {
+        texel: Option<u32>,
+        back: bool,
+    },
+}
+
+fn classify(g: &Geometry, tracer: &Tracer, hit: &Hit, clutter_of_texel: &[u32]) -> Seen {
+    match tracer.primitives()[hit.primitive as usize] {
+        Primitive::Rect {
+            surface: Some(s), ..
+        } => {
+            let surface = &g.surfaces[s as usize];
+            match surface.owner {
+                SurfaceOwner::Block { .. } if hit.front => {
+                    Seen::Block(g.texel_at(s, hit.point) as u32)
+                }
+                SurfaceOwner::Block { .. } => Seen::Nothing,
+                SurfaceOwner::ClutterBox { .. } => {
+                    let t = g.texel_at(s, hit.point);
+                    let _ = clutter_of_texel;
+                    Seen::Clutter {
+                        texel: hit.front.then_some(t as u32),
+                        back: !hit.front,
+                    }
+                }
+            }
+        }
+        Primitive::Rect { surface: None, .. } => Seen::Nothing,
+        // Triangles are mesh clutter (dynamic objects are not in the bake geometry).
+        Primitive::Triangle { .. } => Seen::Clutter {
+            texel: None,
+            back: false,
+        },
+    }
+}
+
+/// Accumulates `weight · row` into `map[source][global_row]`.
+fn add_row(
+    map: &mut BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>>,
+    source: DeltaSource,
+    row: u32,
+    values: &[f64],
+    weight: f64,
+) {
+    let key = match source {
+        DeltaSource::Block(b) => (0, b),
+        DeltaSource::Clutter(c) => (1, c),
+    };
+    let acc = map
+        .entry(key)
+        .or_default()
+        .entry(row)
+        .or_insert_with(|| vec![0.0; values.len()]);
+    for (a, v) in acc.iter_mut().zip(values) {
+        *a += weight * v;
+    }
+}
+
+fn source_of(key: (u8, u32)) -> DeltaSource {
+    if key.0 == 0 {
+        DeltaSource::Block(key.1)
+    } else {
+        DeltaSource::Clutter(key.1)
+    }
+}
+
+/// Builds the DRT operators. `g` is the full geometry (blocks first, then clutter), `gb` the
+/// blocks-only geometry with the same block texel indices.
+#[allow(clippy::too_many_arguments)]
+pub fn build_drt(
+    scene: &Scene,
+    openings: &[[Option<Opening>; 6]],
+    g: &Geometry,
+    gb: &Geometry,
+    shapes: &[&ShapeOperators],
+    mrt: &MrtTransport,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<DrtOperators, LowRankError> {
+    let settings = &scene.settings;
+    let tracer = Tracer::new(g.primitives.clone(), g.scale());
+    let block_tracer = Tracer::new(gb.primitives.clone(), gb.scale());
+    let sign = |s: u32| g.surfaces[s as usize].normal_sign;
+    let sign_b = |s: u32| gb.surfaces[s as usize].normal_sign;
+    let rays = settings.rays_per_texel;
+    let inv = 1.0 / rays as f64;
+    let n_blocks = scene.blocks.len();
+    let block_of: Vec<u32> = {
+        let mut o = vec![u32::MAX; g.texels.len()];
+        for (b, r) in g.block_texels.iter().enumerate() {
+            for t in r.clone() {
+                o[t] = b as u32;
+            }
+        }
+        for (c, r) in g.clutter_texels.iter().enumerate() {
+            for t in r.clone() {
+                o[t] = (n_blocks + c) as u32;
+            }
+        }
+        o
+    };
+    let local = |t: u32| -> (usize, usize) {
+        let owner = block_of[t as usize] as usize;
+        if owner < n_blocks {
+            (owner, t as usize - g.block_texels[owner].start)
+        } else {
+            (owner, t as usize - g.clutter_texels[owner - n_blocks].start)
+        }
+    };
+
+    // Clutter bases.
+    let mut clutter = Vec::new();
+    let mut stats = DrtStats::default();
+    for (c, object) in scene.clutter.iter().enumerate() {
+        let range = g.clutter_texels[c].clone();
+        if range.is_empty() {
+            continue; // mesh clutter: occluder only (no lightmap yet)
+        }
+        let aabb = object.box_.expect("texels only on box clutter");
+        let basis = clutter_basis(scene, openings, g, &tracer, c, &aabb, range.clone())?;
+        stats.clutter_ranks.push(basis.basis.ncols());
+        clutter.push((
+            c,
+            ClutterProjection {
+                id: object.id.clone(),
+                texel_offset: range.start,
+                basis,
+            },
+        ));
+    }
+    // Scene clutter index → index in the bundle's clutter list (box clutter only).
+    let projection_of: Vec<Option<usize>> = (0..scene.clutter.len())
+        .map(|c| clutter.iter().position(|(k, _)| *k == c))
+        .collect();
+    let basis_of = |c: usize| projection_of[c].map(|i| &clutter[i].1);
+
+    // Buried texels: inside a clutter box (closed), or clutter texels outside every block.
+    let inside_box = |p: [f64; 3], skip: Option<usize>| {
+        scene.clutter.iter().enumerate().any(|(c, object)| {
+            if Some(c) == skip {
+                return false;
+            }
+            let Some(b) = object.box_ else { return false };
+            let e = 1e-6 * g.scale();
+            let inside_closed = (0..3).all(|k| p[k] >= b.min[k] - e && p[k] <= b.max[k] + e);
+            inside_closed
+        })
+    };
+    let inside_blocks = |p: [f64; 3]| {
+        let e = 1e-6 * g.scale();
+        scene
+            .blocks
+            .iter()
+            .any(|b| (0..3).all(|k| p[k] > b.min[k] + e && p[k] < b.max[k] - e))
+    };
+
+    // Pass over block texels: occlusion and reflection.
+    let block_texels: Vec<usize> = g.block_texels.iter().flat_map(|r| r.clone()).collect();
+    type SceneRow = (Vec<(u32, f64)>, Vec<(u32, f64)>, f64, f64);
+    let scene_rows: Vec<SceneRow> = block_texels
+        .par_iter()
+        .map(|&x| {
+            let texel = &g.texels[x];
+            let key = stream_key(settings.seed, PURPOSE_DRT_SCENE, x as u64);
+            let mut occluded: Vec<(u32, f64)> = Vec::new();
+            let mut reflected: Vec<(u32, f64)> = Vec::new();
+            let (mut clutter_hits, mut back_hits) = (0.0, 0.0);
+            for i in 0..rays {
+                let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), texel.normal);
+                let Some(hit) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
+                    continue;
+                };
+                if let Seen::Clutter { texel: k, back } = classify(g, &tracer, &hit, &block_of) {
+                    clutter_hits += inv;
+                    if back {
+                        back_hits += inv;
+                    }
+                    if let Some(k) = k {
+                        reflected.push((k, inv));
+                    }
+                    if let Some(behind) =
+                        block_tracer.closest(texel.position, d, f64::INFINITY, &sign_b)
+                    {
+                        if let Seen::Block(t) = classify(gb, &block_tracer, &behind, &block_of) {
+                            occluded.push((t, inv));
+                        }
+                    }
+                }
+            }
+            progress(1);
+            (occluded, reflected, clutter_hits, back_hits)
+        })
+        .collect();
+
+    // Accumulate per target block: map[(kind, source)][row] = values.
+    let mut per_target: Vec<BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>>> =
+        (0..n_blocks).map(|_| BTreeMap::new()).collect();
+    let mut buried_scene: Vec<bool> = vec![false; g.texels.len()];
+    for (&x, (occluded, reflected, clutter_hits, back_hits)) in block_texels.iter().zip(&scene_rows)
+    {
+        let (target, _) = local(x as u32);
+        let buried = inside_box(g.texels[x].position, None) || *back_hits > 0.5;
+        buried_scene[x] = buried;
+        if buried {
+            stats.buried_scene_texels += 1;
+            continue;
+        }
+        if *clutter_hits < settings.tolerance || *clutter_hits == 0.0 {
+            stats.scene_texels_skipped += 1;
+            continue;
+        }
+        stats.scene_texels_with_rows += 1;
+        for &(t, w) in occluded {
+            let (source, l) = local(t);
+            let l_imp = &shapes[source].l_imp;
+            let row: Vec<f64> = (0..l_imp.ncols()).map(|j| -l_imp[(l, j)]).collect();
+            add_row(
+                &mut per_target[target],
+                DeltaSource::Block(source as u32),
+                x as u32,
+                &row,
+                w,
+            );
+        }
+        for &(k, w) in reflected {
+            let (owner, l) = local(k);
+            let c = owner - n_blocks;
+            if let Some(p) = basis_of(c) {
+                let row: Vec<f64> = (0..p.basis.basis.ncols())
+                    .map(|j| p.basis.basis[(l, j)])
+                    .collect();
+                add_row(
+                    &mut per_target[target],
+                    DeltaSource::Clutter(projection_of[c].unwrap() as u32),
+                    x as u32,
+                    &row,
+                    w,
+                );
+            }
+        }
+    }
+
+    // Inpainting (§5) of buried block texels, face by face.
+    for (target, map) in per_target.iter_mut().enumerate() {
+        let range = g.block_texels[target].clone();
+        let mut sources: Vec<(u8, u32)> = map.keys().copied().collect();
+        if !sources.contains(&(0, target as u32)) {
+            sources.push((0, target as u32));
+        }
+        for s in g
+            .surfaces
+            .iter()
+            .filter(|s| s.texel_offset >= range.start && s.texel_offset < range.end)
+        {
+            let t = s.t;
+            for j in 0..t {
+                for i in 0..t {
+                    let x = s.texel_offset + j * t + i;
+                    if !buried_scene[x] {
+                        continue;
+                    }
+                    // Nearest ring of valid neighbours on the same face.
+                    let mut neighbours = Vec::new();
+                    for radius in 1..t.max(2) {
+                        for dj in -(radius as i64)..=radius as i64 {
+                            for di in -(radius as i64)..=radius as i64 {
+                                if di.abs().max(dj.abs()) != radius as i64 {
+                                    continue;
+                                }
+                                let (ni, nj) = (i as i64 + di, j as i64 + dj);
+                                if ni < 0 || nj < 0 || ni >= t as i64 || nj >= t as i64 {
+                                    continue;
+                                }
+                                let n = s.texel_offset + nj as usize * t + ni as usize;
+                                if !buried_scene[n] {
+                                    neighbours.push(n);
+                                }
+                            }
+                        }
+                        if !neighbours.is_empty() {
+                            break;
+                        }
+                    }
+                    if neighbours.is_empty() {
+                        stats.inpainted_without_neighbours += 1;
+                    }
+                    let x_local = x - range.start;
+                    for &key in &sources {
+                        let width = match source_of(key) {
+                            DeltaSource::Block(b) => shapes[b as usize].rank(),
+                            DeltaSource::Clutter(c) => clutter[c as usize].1.basis.basis.ncols(),
+                        };
+                        let unshadowed = |row: usize| -> Vec<f64> {
+                            match source_of(key) {
+                                DeltaSource::Block(b) => mrt
+                                    .row(shapes, target, b as usize, row)
+                                    .unwrap_or_else(|| vec![0.0; width]),
+                                DeltaSource::Clutter(_) => vec![0.0; width],
+                            }
+                        };
+                        // ΔU[x] = mean_n (U[n] + ΔU[n]) − U[x]; no neighbours: −U[x].
+                        let mut value = vec![0.0; width];
+                        if !neighbours.is_empty() {
+                            let w = 1.0 / neighbours.len() as f64;
+                            for &n in &neighbours {
+                                let u = unshadowed(n - range.start);
+                                let delta = map.get(&key).and_then(|m| m.get(&(n as u32)));
+                                for c in 0..width {
+                                    value[c] += w * (u[c] + delta.map_or(0.0, |d| d[c]));
+                                }
+                            }
+                        }
+                        let own = unshadowed(x_local);
+                        for c in 0..width {
+                            value[c] -= own[c];
+                        }
+                        if value.iter().any(|v| *v != 0.0) {
+                            add_row(map, source_of(key), x as u32, &value, 1.0);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    // Clutter texels: gather from blocks (C_b) and from other clutter.
+    let clutter_texels: Vec<usize> = g.clutter_texels.iter().flat_map(|r| r.clone()).collect();
+    let clutter_rows: Vec<(Vec<u32>, f64)> = clutter_texels
+        .par_iter()
+        .map(|&x| {
+            let texel = &g.texels[x];
+            let key = stream_key(settings.seed, PURPOSE_DRT_CLUTTER, x as u64);
+            let mut hits = Vec::new();
+            let mut back = 0.0;
+            for i in 0..rays {
+                let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), texel.normal);
+                let Some(hit) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
+                    continue;
+                };
+                match classify(g, &tracer, &hit, &block_of) {
+                    Seen::Block(t) => hits.push(t),
+                    Seen::Clutter { texel: Some(k), .. } => hits.push(k),
+                    Seen::Clutter { back: true, .. } => back += inv,
+                    _ => {}
+                }
+            }
+            progress(1);
+            (hits, back)
+        })
+        .collect();
+    let mut per_clutter: BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>> = BTreeMap::new();
+    let mut buried = Vec::new();
+    for (&x, (hits, back)) in clutter_texels.iter().zip(&clutter_rows) {
+        let (owner, _) = local(x as u32);
+        let p = g.texels[x].position;
+        if !inside_blocks(p) || inside_box(p, Some(owner - n_blocks)) || *back > 0.5 {
+            stats.buried_clutter_texels += 1;
+            buried.push(x as u32);
+        }
+        for &t in hits {
+            let (source, l) = local(t);
+            if source < n_blocks {
+                let l_imp = &shapes[source].l_imp;
+                let row: Vec<f64> = (0..l_imp.ncols()).map(|j| l_imp[(l, j)]).collect();
+                add_row(
+                    &mut per_clutter,
+                    DeltaSource::Block(source as u32),
+                    x as u32,
+                    &row,
+                    inv,
+                );
+            } else if let Some(p) = basis_of(source - n_blocks) {
+                let row: Vec<f64> = (0..p.basis.basis.ncols())
+                    .map(|j| p.basis.basis[(l, j)])
+                    .collect();
+                add_row(
+                    &mut per_clutter,
+                    DeltaSource::Clutter(projection_of[source - n_blocks].unwrap() as u32),
+                    x as u32,
+                    &row,
+                    inv,
+                );
+            }
+        }
+    }
+    for (x, b) in buried_scene.iter().enumerate() {
+        if *b {
+            buried.push(x as u32);
+        }
+    }
+    buried.sort_unstable();
+
+    // Pack into blocks: one entry per (target object, source).
+    let mut entries = Vec::new();
+    for map in per_target.into_iter().chain(std::iter::once(per_clutter)) {
+        for (key, rows) in map {
+            let width = rows.values().next().map_or(0, |v| v.len());
+            let values: Vec<&Vec<f64>> = rows.values().collect();
+            let matrix = Mat::from_fn(rows.len(), width, |i, j| values[i][j]);
+            entries.push(DeltaBlock {
+                rows: rows.keys().copied().collect(),
+                source: source_of(key),
+                matrix,
+            });
+        }
+    }
+    Ok(DrtOperators {
+        clutter: clutter.into_iter().map(|(_, p)| p).collect(),
+        entries,
+        buried,
+        stats,
+    })
+}
