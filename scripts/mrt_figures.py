@@ -15,9 +15,15 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LF = os.path.join(ROOT, 'target', 'release', 'lightfarm')
 
 
+STAGES = []
+
+
 def run(args):
     t = time.time()
     out = subprocess.run([LF] + args, check=True, capture_output=True, text=True)
+    for line in out.stderr.splitlines():
+        if line.startswith('stages:') or line.startswith('baked') or line.startswith('drt:'):
+            STAGES.append(' '.join(args[:1]) + ' ' + ' '.join(a for a in args if a in ('lightfield', 'traced')) + ': ' + line)
     return out.stdout, time.time() - t
 
 
@@ -60,6 +66,15 @@ def main():
     bytes_tr = int(re.search(r'bytes=(\d+)', out).group(1))
     out, t_lf_only = run(['bake', scene_path, '-o', lf_bundle + '.nofull', '--no-cache', '--transport', 'lightfield'])
     bytes_lf_only = int(re.search(r'bytes=(\d+)', out).group(1))
+    methods = [('full', lf_bundle, 'full'), ('mrt-lightfield', lf_bundle, 'mrt'), ('mrt-traced', tr_bundle, 'mrt')]
+    if scene.get('clutter'):
+        face = dict(scene); face['settings'] = dict(scene.get('settings', {}), clutter_basis='face_constant')
+        face_path = scene_path + '.face.json'
+        json.dump(face, open(face_path, 'w'))
+        face_bundle = os.path.join(a.out, f'{name}-face.lfb')
+        run(['bake', face_path, '-o', face_bundle, '--cache', cache, '--transport', 'lightfield'])
+        os.remove(face_path)
+        methods += [('drt-lightfield', lf_bundle, 'drt'), ('drt-traced', tr_bundle, 'drt'), ('drt-face-constant', face_bundle, 'drt')]
     rng = random.Random(a.seed)
     sums = {}
     evals = {}
@@ -69,25 +84,33 @@ def main():
         json.dump(random_lights(scene, rng), open(lights, 'w'))
         ref = os.path.join(a.out, f'{name}-ref{k}.json')
         _, t = run(['reference', scene_path, '--lights', lights, '--rays', str(a.rays), '-o', ref]); t_ref += t
-        for label, bundle, method in [('full', lf_bundle, 'full'), ('mrt-lightfield', lf_bundle, 'mrt'), ('mrt-traced', tr_bundle, 'mrt')]:
+        for label, bundle, method in methods:
             res = os.path.join(a.out, f'{name}-{label}{k}.json')
             _, t = run(['eval', bundle, '--lights', lights, '--method', method, '-o', res])
             evals.setdefault(label, []).append(t)
-            out, _ = run(['compare', res, ref])
-            m = re.search(r'relative_l2=([\d.eE+-]+) p95=([\d.eE+-]+)', out.strip().splitlines()[-1])
-            s = sums.setdefault(label, [0.0, 0.0]); s[0] += float(m.group(1)); s[1] += float(m.group(2))
-        print(f'set {k}: ' + ' '.join(f'{l}={sums[l][0] / (k + 1):.4f}' for l in sums), file=sys.stderr, flush=True)
+            filters = [('all', [])]
+            if scene.get('clutter'):
+                filters += [('scene', ['--only', 'block:']), ('near1m', ['--scene', scene_path, '--near-clutter', '1.0']), ('clutter', ['--only', 'clutter:'])]
+            for fname, extra in filters:
+                try:
+                    out, _ = run(['compare', res, ref] + extra)
+                except subprocess.CalledProcessError:
+                    continue  # no texels after the filter (e.g. mrt has no clutter texels)
+                m = re.search(r'relative_l2=([\d.eE+-]+) p95=([\d.eE+-]+)', out.strip().splitlines()[-1])
+                s = sums.setdefault((label, fname), [0.0, 0.0, 0]); s[0] += float(m.group(1)); s[1] += float(m.group(2)); s[2] += 1
+        print(f'set {k}: ' + ' '.join(f'{l}/{f}={v[0] / v[2]:.4f}' for (l, f), v in sums.items()), file=sys.stderr, flush=True)
     os.remove(scene_path)
     print(f'## {name}: {a.sets} random light sets, reference {a.rays} rays/texel')
-    print('| method | relative L2 (mean) | p95 (mean) | eval wall time (median, s) |')
-    print('|---|---|---|---|')
-    for label, (l2, p95) in sums.items():
+    print('| method | texels | relative L2 (mean) | p95 (mean) | eval wall time (median, s) |')
+    print('|---|---|---|---|---|')
+    for (label, fname), (l2, p95, n) in sums.items():
         ts = sorted(evals[label]); med = ts[len(ts) // 2]
-        print(f'| {label} | {l2 / a.sets:.4f} | {p95 / a.sets:.4f} | {med:.3f} |')
+        print(f'| {label} | {fname} | {l2 / n:.4f} | {p95 / n:.4f} | {med:.3f} |')
     print(f'bake (lightfield, with dense operator, no cache): {t_lf:.2f} s, {bytes_lf} bytes')
     print(f'bake (lightfield, no dense operator, no cache): {t_lf_only:.2f} s, {bytes_lf_only} bytes')
     print(f'bake (traced, cold cache): {t_tr:.2f} s; warm cache: {t_tr_cached:.2f} s, {bytes_tr} bytes')
     print(f'reference: {t_ref / a.sets:.1f} s per light set')
+    print('```'); print('\n'.join(STAGES)); print('```')
 
 
 if __name__ == '__main__':

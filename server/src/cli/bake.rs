@@ -60,6 +60,12 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
             "transport: {} propagation steps ({} cut, max {} hops), {} traced pairs kept, {} dropped",
             t.steps, t.cut, t.max_hops, t.pairs_kept, t.pairs_dropped
         );
+        if let Some(d) = &report.drt {
+            eprintln!(
+                "drt: {} scene texels with rows, {} skipped (view of clutter below tolerance), {} buried scene texels ({} without a valid neighbour), {} buried clutter texels, clutter ranks {:?}",
+                d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.clutter_ranks
+            );
+        }
         let stages: Vec<String> = report
             .stage_seconds
             .iter()
