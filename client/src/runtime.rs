@@ -727,6 +727,7 @@ mod tests {
             transport,
             full,
             drt: None,
+            probes: None,
         }
     }
 
@@ -918,6 +919,7 @@ mod tests {
                 entries,
                 buried: vec![3, 12],
             }),
+            probes: None,
         }
     }
 

@@ -27,6 +27,7 @@ pub mod section {
     pub const TRANSPORT: u32 = 4;
     pub const FULL: u32 = 5;
     pub const DRT: u32 = 6;
+    pub const PROBES: u32 = 7;
 }
 
 /// A dense row-major f32 matrix.
@@ -182,6 +183,22 @@ pub struct Bundle {
     pub full: Option<SparseRows>,
     /// Delta Radiance Transfer operators (clutter); absent in MRT-only bundles.
     pub drt: Option<DrtOps>,
+    /// U_dyn: SH radiance probes from b and c, for dynamic objects (and MRT's clutter shading).
+    pub probes: Option<ProbeVolume>,
+}
+
+/// A regular grid of SH radiance probes (`crate::sh` convention, 9 coefficients per channel).
+/// Grid point `(i, j, k)` sits at `origin + spacing · (i, j, k)`; `slot[(k·ny + j)·nx + i]` is
+/// its probe index, or `u32::MAX` where there is no probe (outside the blocks, inside clutter).
+/// `entries` map block `b` / clutter `c` coefficients to rows `probe · 9 + coefficient`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProbeVolume {
+    pub origin: [f32; 3],
+    pub spacing: f32,
+    pub dims: [u32; 3],
+    pub slot: Vec<u32>,
+    pub n_probes: u32,
+    pub entries: Vec<DeltaEntry>,
 }
 
 /// Where the coefficients a delta operator multiplies come from.
@@ -437,23 +454,23 @@ impl Bundle {
                 w.u32(c.texel_offset);
                 c.t_dc.write(&mut w);
             }
-            w.u32(d.entries.len() as u32);
-            for e in &d.entries {
-                w.u32s(&e.rows);
-                match e.source {
-                    DeltaSource::Block(b) => {
-                        w.u8(0);
-                        w.u32(b);
-                    }
-                    DeltaSource::Clutter(c) => {
-                        w.u8(1);
-                        w.u32(c);
-                    }
-                }
-                e.matrix.write(&mut w);
-            }
+            write_entries(&mut w, &d.entries);
             w.u32s(&d.buried);
             sections.push((section::DRT, w.bytes));
+        }
+        if let Some(p) = &self.probes {
+            let mut w = Writer::new();
+            for x in p.origin {
+                w.f32(x);
+            }
+            w.f32(p.spacing);
+            for d in p.dims {
+                w.u32(d);
+            }
+            w.u32s(&p.slot);
+            w.u32(p.n_probes);
+            write_entries(&mut w, &p.entries);
+            sections.push((section::PROBES, w.bytes));
         }
         if let Some(f) = &self.full {
             let mut w = Writer::new();
@@ -490,8 +507,8 @@ impl Bundle {
             return Err(BundleError::Version(major));
         }
         let n_sections = r.u32()?;
-        let (mut layout, mut shapes, mut blocks, mut transport, mut full, mut drt) =
-            (None, None, None, None, None, None);
+        let (mut layout, mut shapes, mut blocks, mut transport, mut full, mut drt, mut probes) =
+            (None, None, None, None, None, None, None);
         for _ in 0..n_sections {
             let kind = r.u32()?;
             let len = r.u64()?;
@@ -515,6 +532,7 @@ impl Bundle {
                 section::TRANSPORT => transport = Some(read_transport(&mut p)?),
                 section::FULL => full = Some(read_full(&mut p)?),
                 section::DRT => drt = Some(read_drt(&mut p)?),
+                section::PROBES => probes = Some(read_probes(&mut p)?),
                 _ => {} // a newer minor version's section: skip
             }
         }
@@ -525,6 +543,7 @@ impl Bundle {
             transport,
             full,
             drt,
+            probes,
         };
         bundle.validate()?;
         Ok(bundle)
@@ -649,6 +668,33 @@ impl Bundle {
                 return bad("drt: buried texel out of range".into());
             }
         }
+        if let Some(p) = &self.probes {
+            let cells = p.dims.iter().map(|d| *d as u64).product::<u64>();
+            if !(p.spacing.is_finite() && p.spacing > 0.0) || p.origin.iter().any(|x| !x.is_finite()) {
+                return bad("probes: bad grid origin or spacing".into());
+            }
+            if cells != p.slot.len() as u64 || p.n_probes as u64 > cells {
+                return bad("probes: grid size does not match its slots".into());
+            }
+            if p.slot.iter().any(|s| *s != u32::MAX && *s >= p.n_probes) {
+                return bad("probes: slot names a missing probe".into());
+            }
+            let n_clutter = self.drt.as_ref().map_or(0, |d| d.clutter.len()) as u64;
+            let rows_max = p.n_probes as u64 * crate::sh::SH_COEFFS as u64;
+            for (k, e) in p.entries.iter().enumerate() {
+                let cols = match e.source {
+                    DeltaSource::Block(b) if (b as u64) < self.blocks.len() as u64 => self.shapes[self.blocks[b as usize].shape as usize].u_b.cols,
+                    DeltaSource::Clutter(c) if (c as u64) < n_clutter => self.drt.as_ref().unwrap().clutter[c as usize].t_dc.rows,
+                    _ => return bad(format!("probes: entry {k} names a missing source")),
+                };
+                if e.matrix.rows as usize != e.rows.len() || e.matrix.cols != cols {
+                    return bad(format!("probes: entry {k} matrix has the wrong size"));
+                }
+                if e.rows.iter().any(|r| *r as u64 >= rows_max) || e.rows.windows(2).any(|w| w[1] <= w[0]) {
+                    return bad(format!("probes: entry {k} rows out of range or not ascending"));
+                }
+            }
+        }
         Ok(())
     }
 }
@@ -742,6 +788,29 @@ fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
             t_dc: Matrix::read(r, "drt clutter")?,
         });
     }
+    let entries = read_entries(r)?;
+    Ok(DrtOps { clutter, entries, buried: r.u32s()? })
+}
+
+fn write_entries(w: &mut Writer, entries: &[DeltaEntry]) {
+    w.u32(entries.len() as u32);
+    for e in entries {
+        w.u32s(&e.rows);
+        match e.source {
+            DeltaSource::Block(b) => {
+                w.u8(0);
+                w.u32(b);
+            }
+            DeltaSource::Clutter(c) => {
+                w.u8(1);
+                w.u32(c);
+            }
+        }
+        e.matrix.write(w);
+    }
+}
+
+fn read_entries(r: &mut Reader) -> Result<Vec<DeltaEntry>, BundleError> {
     let n_entries = r.u32()? as usize;
     let mut entries = Vec::with_capacity(n_entries.min(r.remaining() / 24));
     for _ in 0..n_entries {
@@ -749,21 +818,19 @@ fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
         let source = match r.u8()? {
             0 => DeltaSource::Block(r.u32()?),
             1 => DeltaSource::Clutter(r.u32()?),
-            k => {
-                return Err(BundleError::Invalid(format!(
-                    "drt: unknown source kind {k}"
-                )))
-            }
+            k => return Err(BundleError::Invalid(format!("delta entry: unknown source kind {k}"))),
         };
-        entries.push(DeltaEntry {
-            rows,
-            source,
-            matrix: Matrix::read(r, "drt entry")?,
-        });
+        entries.push(DeltaEntry { rows, source, matrix: Matrix::read(r, "delta entry")? });
     }
-    Ok(DrtOps {
-        clutter,
-        entries,
-        buried: r.u32s()?,
-    })
+    Ok(entries)
+}
+
+fn read_probes(r: &mut Reader) -> Result<ProbeVolume, BundleError> {
+    let origin = [r.f32()?, r.f32()?, r.f32()?];
+    let spacing = r.f32()?;
+    let dims = [r.u32()?, r.u32()?, r.u32()?];
+    let slot = r.u32s()?;
+    let n_probes = r.u32()?;
+    let entries = read_entries(r)?;
+    Ok(ProbeVolume { origin, spacing, dims, slot, n_probes, entries })
 }

@@ -15,6 +15,7 @@ pub mod face;
 pub mod lights;
 pub mod result;
 pub mod scene;
+pub mod sh;
 pub mod wire;
 
 pub use face::Face;

@@ -393,6 +393,7 @@ pub fn bake(
         transport: Some(transport),
         full,
         drt,
+        probes: None,
     };
     lap(&mut report, "bundle");
     Ok((bundle, report))

@@ -1,7 +1,8 @@
-//! `lightfarm compare A.json B.json [--only PREFIX] [--scene S --near-clutter M]`: relative L2
+//! `lightfarm compare A.json B.json [--only PREFIX] [--scene S [--near-clutter M]]`: relative L2
 //! error of A's indirect against B's over the texels both hold (optionally only surfaces whose
 //! name starts with PREFIX, or only block texels within M metres of clutter), and the
-//! 95th-percentile texel error. Last line: `relative_l2=<x> p95=<y>`.
+//! 95th-percentile texel error. With `--scene`, block texels buried inside clutter boxes are left
+//! out (as the Mitsuba check does). Last line: `relative_l2=<x> p95=<y>`.
 
 use std::path::{Path, PathBuf};
 
@@ -67,6 +68,12 @@ pub fn run(args: CompareArgs) -> anyhow::Result<()> {
     if let Some(prefix) = &args.only {
         ours.texels
             .retain(|t| t.surface.starts_with(prefix.as_str()));
+    }
+    if let Some(scene) = &args.scene {
+        // Texels buried in clutter boxes are never seen; their reference values are meaningless.
+        let (scene, _) = load_scene(scene)?;
+        let boxes: Vec<Aabb> = scene.clutter.iter().filter_map(|c| c.box_).collect();
+        ours.texels.retain(|t| !t.surface.starts_with("block:") || !boxes.iter().any(|b| (0..3).all(|k| t.position[k] >= b.min[k] - 1e-6 && t.position[k] <= b.max[k] + 1e-6)));
     }
     if let Some(m) = args.near_clutter {
         let Some(scene) = &args.scene else {
