@@ -5,13 +5,21 @@
 //!
 //! ```no_run
 //! # fn frame(bytes: &[u8], lights: &[lightfarm_proto::lights::Light]) -> Result<(), Box<dyn std::error::Error>> {
-//! use lightfarm_client::{decode, direct_from_point_lights, IndirectLight, Method, Occluders, Runtime};
+//! use lightfarm_client::{decode, direct_from_point_lights, irradiance_at, IndirectLight, Method,
+//!     Occluders, ProbeField, Runtime};
 //! let bundle = decode(bytes)?;
 //! let occluders = Occluders::from_layout(&bundle.layout);
 //! let direct = direct_from_point_lights(&bundle.layout, &occluders, lights);
 //! let mut runtime = Runtime::new(bundle);
 //! let mut indirect = IndirectLight::default();
 //! runtime.apply(Method::Mrt, &direct, &mut indirect)?;
+//! // Dynamic objects: irradiance at any point and normal from the probe volume.
+//! let mut field = ProbeField::default();
+//! if runtime.has_probes() {
+//!     runtime.apply_probes(&direct, &mut field)?;
+//!     let volume = runtime.probe_volume().expect("has_probes");
+//!     let _rgb = irradiance_at(volume, &field, [1.0, 0.5, 2.0], [0.0, 1.0, 0.0]);
+//! }
 //! # Ok(()) }
 //! ```
 //!
@@ -20,7 +28,11 @@
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
 //! - [`runtime`]: the per-frame, allocation-free application of the bundle's operators
 //!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
-//!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator).
+//!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator), and
+//!   [`Runtime::apply_probes`], the SH radiance of the bundle's probe volume.
+//! - [`probes`]: the probe field ([`ProbeField`]: n_probes × 3 channels × 9 SH coefficients)
+//!   and [`irradiance_at`], trilinear probe interpolation and irradiance for any point and
+//!   normal (dynamic objects, clutter).
 //!
 //! Invariants: this crate depends only on `lightfarm-proto` and `thiserror`; it does no I/O;
 //! every per-texel vector is in layout order with one RGB value per layout texel; operators are
@@ -28,12 +40,14 @@
 
 pub mod direct;
 pub mod occluders;
+pub mod probes;
 pub mod runtime;
 
 pub use direct::{direct_from_point_lights, direct_from_point_lights_averaged, DirectLight};
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use occluders::Occluders;
+pub use probes::{irradiance_at, ProbeField};
 pub use runtime::{ApplyError, IndirectLight, Method, Runtime};
 
 /// Decodes and validates a bundle (`Bundle::decode`): `Ok` only for a bundle [`Runtime::new`]

@@ -22,6 +22,12 @@
 //!
 //! [`Method::Full`]: `l_ind = ρ ⊙ (F · l_d)` with the bundle's sparse dense-bounce operator F.
 //!
+//! [`Runtime::apply_probes`] (needs the bundle's probe volume): MRT step 1 and, when the bundle
+//! has a DRT section, DRT step 2 (the same code as `apply`, so the same `b` and `c`), then for
+//! every probe entry and each of its rows i: `field[rows[i]] += matrix.row(i) · x` per channel,
+//! `x` as in DRT step 3 and `rows[i] = probe · 9 + coefficient`. No albedo: a probe holds
+//! incident radiance at a point, not a surface's outgoing radiance (see [`crate::probes`]).
+//!
 //! Invariants:
 //! - A [`Runtime`] only exists for a bundle whose sizes and indices are consistent (checked in
 //!   [`Runtime::try_new`]; always true of a bundle from `Bundle::decode`), so `apply` indexes
@@ -30,9 +36,13 @@
 //! - Scratch vectors are planar (channel-major: channel c of an n-vector at `c·n .. (c+1)·n`),
 //!   so every matrix row is one contiguous pass accumulating all three channels.
 
-use lightfarm_proto::bundle::{Bundle, BundleError, DeltaSource, Matrix, TransportOps};
+use lightfarm_proto::bundle::{
+    Bundle, BundleError, DeltaSource, Matrix, ProbeVolume, TransportOps,
+};
+use lightfarm_proto::sh::SH_COEFFS;
 
 use crate::direct::DirectLight;
+use crate::probes::ProbeField;
 
 /// Which operator turns direct into indirect light.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -60,6 +70,8 @@ pub enum ApplyError {
     MissingDrt,
     #[error("direct light has {got} texels but the bundle's layout has {expected}")]
     DirectLength { expected: usize, got: usize },
+    #[error("this bundle has no probe volume")]
+    MissingProbes,
 }
 
 /// Reduced incoming lightfield of one opening of one block.
@@ -314,6 +326,57 @@ fn check(bundle: &Bundle) -> Result<(), BundleError> {
             return bad("drt: buried texel out of range".into());
         }
     }
+    if let Some(p) = &bundle.probes {
+        check_probes(bundle, p)?;
+    }
+    Ok(())
+}
+
+/// The probe-volume checks of `Bundle::validate`, plus matrix value counts.
+fn check_probes(bundle: &Bundle, p: &ProbeVolume) -> Result<(), BundleError> {
+    let bad = |m: String| Err(BundleError::Invalid(m));
+    if !(p.spacing.is_finite() && p.spacing > 0.0) || p.origin.iter().any(|x| !x.is_finite()) {
+        return bad("probes: bad grid origin or spacing".into());
+    }
+    // u128: three u32 dimensions can overflow u64.
+    let cells = p.dims.iter().map(|&d| d as u128).product::<u128>();
+    if cells != p.slot.len() as u128 || p.n_probes as u128 > cells {
+        return bad("probes: grid size does not match its slots".into());
+    }
+    if p.slot.iter().any(|&s| s != u32::MAX && s >= p.n_probes) {
+        return bad("probes: slot names a missing probe".into());
+    }
+    let rows_max = p.n_probes as u64 * SH_COEFFS as u64;
+    for (k, e) in p.entries.iter().enumerate() {
+        let cols = match e.source {
+            DeltaSource::Block(b) => bundle
+                .blocks
+                .get(b as usize)
+                .map(|b| bundle.shapes[b.shape as usize].u_b.cols),
+            DeltaSource::Clutter(c) => bundle
+                .drt
+                .as_ref()
+                .and_then(|d| d.clutter.get(c as usize))
+                .map(|c| c.t_dc.rows),
+        };
+        let Some(cols) = cols else {
+            return bad(format!("probes: entry {k} names a missing source"));
+        };
+        if e.rows.len() as u64 != e.matrix.rows as u64 {
+            return bad(format!("probes: entry {k} matrix has the wrong size"));
+        }
+        check_matrix(
+            &e.matrix,
+            e.matrix.rows,
+            cols,
+            &format!("probes: entry {k}"),
+        )?;
+        if e.rows.iter().any(|&r| r as u64 >= rows_max) || e.rows.windows(2).any(|w| w[1] <= w[0]) {
+            return bad(format!(
+                "probes: entry {k} rows out of range or not ascending"
+            ));
+        }
+    }
     Ok(())
 }
 
@@ -418,6 +481,61 @@ impl Runtime {
         self.bundle.drt.is_some()
     }
 
+    /// Whether [`Runtime::apply_probes`] is available (the bundle has a probe volume).
+    pub fn has_probes(&self) -> bool {
+        self.bundle.probes.is_some()
+    }
+
+    /// The bundle's probe volume (grid and operators), for [`crate::irradiance_at`].
+    pub fn probe_volume(&self) -> Option<&ProbeVolume> {
+        self.bundle.probes.as_ref()
+    }
+
+    /// Turns direct light into the SH radiance of every probe of the bundle's probe volume,
+    /// writing every value of `out` (resized if its probe count is wrong; otherwise no
+    /// allocation). Errors: [`ApplyError::DirectLength`] (checked first), then
+    /// [`ApplyError::MissingProbes`].
+    pub fn apply_probes(
+        &mut self,
+        direct: &DirectLight,
+        out: &mut ProbeField,
+    ) -> Result<(), ApplyError> {
+        let n = self.n_texels;
+        if direct.radiance.len() != n {
+            return Err(ApplyError::DirectLength {
+                expected: n,
+                got: direct.radiance.len(),
+            });
+        }
+        let Some(n_probes) = self.bundle.probes.as_ref().map(|p| p.n_probes as usize) else {
+            return Err(ApplyError::MissingProbes);
+        };
+        out.reset(n_probes);
+        self.project_blocks(&direct.radiance);
+        self.project_clutter();
+        self.add_probe_entries(out);
+        Ok(())
+    }
+
+    /// Probe step, after [`Runtime::project_blocks`] and [`Runtime::project_clutter`], into a
+    /// zeroed field of the volume's size: adds every probe entry. Does nothing without a probe
+    /// volume.
+    fn add_probe_entries(&self, out: &mut ProbeField) {
+        let Some(probes) = &self.bundle.probes else {
+            return;
+        };
+        for e in &probes.entries {
+            let cols = e.matrix.cols as usize;
+            if cols == 0 {
+                continue;
+            }
+            let x = self.source_coefficients(e.source, cols);
+            for (&r, row) in e.rows.iter().zip(e.matrix.data.chunks_exact(cols)) {
+                out.add_row(r, dot3(row, x));
+            }
+        }
+    }
+
     /// Turns direct light into indirect light by `method`, writing every texel of `out`
     /// (resized to the texel count if its length is wrong; otherwise no allocation).
     pub fn apply(
@@ -446,11 +564,14 @@ impl Runtime {
         match method {
             Method::Full => self.apply_full(&direct.radiance, &mut out.radiance),
             Method::Mrt => {
-                self.mrt_albedo_free(&direct.radiance, &mut out.radiance);
+                self.project_blocks(&direct.radiance);
+                self.mrt_albedo_free(&mut out.radiance);
                 self.multiply_albedo(&mut out.radiance);
             }
             Method::Drt => {
-                self.mrt_albedo_free(&direct.radiance, &mut out.radiance);
+                self.project_blocks(&direct.radiance);
+                self.mrt_albedo_free(&mut out.radiance);
+                self.project_clutter();
                 self.add_drt_deltas(&mut out.radiance);
                 self.multiply_albedo(&mut out.radiance);
             }
@@ -474,23 +595,18 @@ impl Runtime {
         }
     }
 
-    /// MRT steps 1–3: fills the planar direct light `ld` and the block coefficients `b`, and
-    /// writes `U_b b + transport` (albedo-free) to block texels and 0 to every other texel.
-    fn mrt_albedo_free(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+    /// MRT step 1: fills the planar direct light `ld` and every block's coefficients `b`.
+    fn project_blocks(&mut self, direct: &[[f32; 3]]) {
         let n = self.n_texels;
         let Runtime {
             bundle,
             coef_offset,
             n_coef,
-            slots,
-            entry_slot,
-            n_lf,
             ld,
             b,
-            lf,
             ..
         } = self;
-        let (n_coef, n_lf) = (*n_coef, *n_lf);
+        let n_coef = *n_coef;
 
         // Direct light, planar.
         let (ld0, rest) = ld.split_at_mut(n);
@@ -505,6 +621,23 @@ impl Runtime {
             let x = planar(ld, n, blk.texel_offset as usize, t_db.cols as usize);
             set_matvec(b, n_coef, co, t_db, x);
         }
+    }
+
+    /// MRT steps 2–3, after [`Runtime::project_blocks`]: writes `U_b b + transport`
+    /// (albedo-free) to block texels and 0 to every other texel.
+    fn mrt_albedo_free(&mut self, out: &mut [[f32; 3]]) {
+        let Runtime {
+            bundle,
+            coef_offset,
+            n_coef,
+            slots,
+            entry_slot,
+            n_lf,
+            b,
+            lf,
+            ..
+        } = self;
+        let (n_coef, n_lf) = (*n_coef, *n_lf);
 
         // 2. l_ind^B = U_b · b_B (clutter texels stay 0).
         out.fill([0.0; 3]);
@@ -567,24 +700,20 @@ impl Runtime {
         }
     }
 
-    /// DRT steps 2–3, after [`Runtime::mrt_albedo_free`] (which leaves `ld` and `b` filled):
-    /// projects direct light on every clutter object to its coefficients `c`, then adds every
-    /// delta entry (albedo-free). Does nothing without a DRT section.
-    fn add_drt_deltas(&mut self, out: &mut [[f32; 3]]) {
+    /// DRT step 2, after [`Runtime::project_blocks`] (which fills `ld`): projects direct light
+    /// on every clutter object to its coefficients `c`. Does nothing without a DRT section.
+    fn project_clutter(&mut self) {
         let n = self.n_texels;
         let Runtime {
             bundle,
-            coef_offset,
-            n_coef,
             ld,
-            b,
             clutter_offset,
             n_clutter_coef,
             c,
             ..
         } = self;
         let Some(drt) = &bundle.drt else { return };
-        let (n_coef, n_cc) = (*n_coef, *n_clutter_coef);
+        let n_cc = *n_clutter_coef;
 
         // 2. c_j = t_dc · l_d^j.
         for (clutter, &co) in drt.clutter.iter().zip(clutter_offset.iter()) {
@@ -592,14 +721,32 @@ impl Runtime {
             let x = planar(ld, n, clutter.texel_offset as usize, t_dc.cols as usize);
             set_matvec(c, n_cc, co, t_dc, x);
         }
+    }
 
+    /// The coefficients a delta entry's matrix multiplies: the source block's `b` or the source
+    /// clutter object's `c`, first `cols` of each channel. Needs `b` (and `c`) filled.
+    #[inline]
+    fn source_coefficients(&self, source: DeltaSource, cols: usize) -> [&[f32]; 3] {
+        match source {
+            DeltaSource::Block(k) => {
+                planar(&self.b, self.n_coef, self.coef_offset[k as usize], cols)
+            }
+            DeltaSource::Clutter(j) => planar(
+                &self.c,
+                self.n_clutter_coef,
+                self.clutter_offset[j as usize],
+                cols,
+            ),
+        }
+    }
+
+    /// DRT step 3, after [`Runtime::project_blocks`] and [`Runtime::project_clutter`]: adds
+    /// every delta entry (albedo-free). Does nothing without a DRT section.
+    fn add_drt_deltas(&self, out: &mut [[f32; 3]]) {
+        let Some(drt) = &self.bundle.drt else { return };
         // 3. out[rows[i]] += matrix.row(i) · (b_source or c_source).
         for e in &drt.entries {
-            let cols = e.matrix.cols as usize;
-            let x = match e.source {
-                DeltaSource::Block(k) => planar(b, n_coef, coef_offset[k as usize], cols),
-                DeltaSource::Clutter(j) => planar(c, n_cc, clutter_offset[j as usize], cols),
-            };
+            let x = self.source_coefficients(e.source, e.matrix.cols as usize);
             scatter_matvec(out, &e.rows, &e.matrix, x);
         }
     }

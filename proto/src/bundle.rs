@@ -393,6 +393,40 @@ impl Layout {
 impl Bundle {
     /// Encodes the bundle.
     pub fn encode(&self) -> Vec<u8> {
+        let sections = self.encode_sections();
+        let mut out = Writer::new();
+        out.bytes.extend_from_slice(BUNDLE_MAGIC);
+        out.bytes.extend_from_slice(&BUNDLE_MAJOR.to_le_bytes());
+        out.bytes.extend_from_slice(&BUNDLE_MINOR.to_le_bytes());
+        out.u32(sections.len() as u32);
+        for (kind, payload) in sections {
+            out.u32(kind);
+            out.u64(payload.len() as u64);
+            out.u64(checksum(&payload));
+            out.bytes.extend_from_slice(&payload);
+        }
+        out.bytes
+    }
+
+    /// Payload bytes per section kind, in file order (for size reports).
+    pub fn section_sizes(&self) -> Vec<(&'static str, usize)> {
+        let name = |k: u32| match k {
+            section::LAYOUT => "layout",
+            section::SHAPES => "shapes",
+            section::BLOCKS => "blocks",
+            section::TRANSPORT => "transport",
+            section::FULL => "full",
+            section::DRT => "drt",
+            section::PROBES => "probes",
+            _ => "unknown",
+        };
+        self.encode_sections()
+            .iter()
+            .map(|(k, p)| (name(*k), p.len()))
+            .collect()
+    }
+
+    fn encode_sections(&self) -> Vec<(u32, Vec<u8>)> {
         let mut sections: Vec<(u32, Vec<u8>)> = Vec::new();
         let mut w = Writer::new();
         self.layout.write(&mut w);
@@ -481,18 +515,7 @@ impl Bundle {
             sections.push((section::FULL, w.bytes));
         }
 
-        let mut out = Writer::new();
-        out.bytes.extend_from_slice(BUNDLE_MAGIC);
-        out.bytes.extend_from_slice(&BUNDLE_MAJOR.to_le_bytes());
-        out.bytes.extend_from_slice(&BUNDLE_MINOR.to_le_bytes());
-        out.u32(sections.len() as u32);
-        for (kind, payload) in sections {
-            out.u32(kind);
-            out.u64(payload.len() as u64);
-            out.u64(checksum(&payload));
-            out.bytes.extend_from_slice(&payload);
-        }
-        out.bytes
+        sections
     }
 
     /// Decodes and validates a bundle. Any byte string gives `Ok` or `Err`, never a panic.
@@ -670,7 +693,9 @@ impl Bundle {
         }
         if let Some(p) = &self.probes {
             let cells = p.dims.iter().map(|d| *d as u64).product::<u64>();
-            if !(p.spacing.is_finite() && p.spacing > 0.0) || p.origin.iter().any(|x| !x.is_finite()) {
+            if !(p.spacing.is_finite() && p.spacing > 0.0)
+                || p.origin.iter().any(|x| !x.is_finite())
+            {
                 return bad("probes: bad grid origin or spacing".into());
             }
             if cells != p.slot.len() as u64 || p.n_probes as u64 > cells {
@@ -683,15 +708,23 @@ impl Bundle {
             let rows_max = p.n_probes as u64 * crate::sh::SH_COEFFS as u64;
             for (k, e) in p.entries.iter().enumerate() {
                 let cols = match e.source {
-                    DeltaSource::Block(b) if (b as u64) < self.blocks.len() as u64 => self.shapes[self.blocks[b as usize].shape as usize].u_b.cols,
-                    DeltaSource::Clutter(c) if (c as u64) < n_clutter => self.drt.as_ref().unwrap().clutter[c as usize].t_dc.rows,
+                    DeltaSource::Block(b) if (b as u64) < self.blocks.len() as u64 => {
+                        self.shapes[self.blocks[b as usize].shape as usize].u_b.cols
+                    }
+                    DeltaSource::Clutter(c) if (c as u64) < n_clutter => {
+                        self.drt.as_ref().unwrap().clutter[c as usize].t_dc.rows
+                    }
                     _ => return bad(format!("probes: entry {k} names a missing source")),
                 };
                 if e.matrix.rows as usize != e.rows.len() || e.matrix.cols != cols {
                     return bad(format!("probes: entry {k} matrix has the wrong size"));
                 }
-                if e.rows.iter().any(|r| *r as u64 >= rows_max) || e.rows.windows(2).any(|w| w[1] <= w[0]) {
-                    return bad(format!("probes: entry {k} rows out of range or not ascending"));
+                if e.rows.iter().any(|r| *r as u64 >= rows_max)
+                    || e.rows.windows(2).any(|w| w[1] <= w[0])
+                {
+                    return bad(format!(
+                        "probes: entry {k} rows out of range or not ascending"
+                    ));
                 }
             }
         }
@@ -789,7 +822,11 @@ fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
         });
     }
     let entries = read_entries(r)?;
-    Ok(DrtOps { clutter, entries, buried: r.u32s()? })
+    Ok(DrtOps {
+        clutter,
+        entries,
+        buried: r.u32s()?,
+    })
 }
 
 fn write_entries(w: &mut Writer, entries: &[DeltaEntry]) {
@@ -818,9 +855,17 @@ fn read_entries(r: &mut Reader) -> Result<Vec<DeltaEntry>, BundleError> {
         let source = match r.u8()? {
             0 => DeltaSource::Block(r.u32()?),
             1 => DeltaSource::Clutter(r.u32()?),
-            k => return Err(BundleError::Invalid(format!("delta entry: unknown source kind {k}"))),
+            k => {
+                return Err(BundleError::Invalid(format!(
+                    "delta entry: unknown source kind {k}"
+                )))
+            }
         };
-        entries.push(DeltaEntry { rows, source, matrix: Matrix::read(r, "delta entry")? });
+        entries.push(DeltaEntry {
+            rows,
+            source,
+            matrix: Matrix::read(r, "delta entry")?,
+        });
     }
     Ok(entries)
 }
@@ -832,5 +877,12 @@ fn read_probes(r: &mut Reader) -> Result<ProbeVolume, BundleError> {
     let slot = r.u32s()?;
     let n_probes = r.u32()?;
     let entries = read_entries(r)?;
-    Ok(ProbeVolume { origin, spacing, dims, slot, n_probes, entries })
+    Ok(ProbeVolume {
+        origin,
+        spacing,
+        dims,
+        slot,
+        n_probes,
+        entries,
+    })
 }

@@ -88,6 +88,11 @@ pub struct Settings {
     pub seed: u64,
     /// Basis for direct light on clutter.
     pub clutter_basis: ClutterBasis,
+    /// Spacing (metres) of the SH probe volume U_dyn baked when the scene has clutter or
+    /// dynamic objects.
+    pub probe_spacing: f64,
+    /// Fraction of DRT gather rays aimed at clutter (importance sampling; 0 disables).
+    pub clutter_importance: f64,
 }
 
 impl Default for Settings {
@@ -102,6 +107,8 @@ impl Default for Settings {
             prior_lights: 768,
             seed: 0,
             clutter_basis: ClutterBasis::Prior,
+            probe_spacing: 1.0,
+            clutter_importance: 0.5,
         }
     }
 }
@@ -668,6 +675,21 @@ impl Settings {
                 format!(
                     "lightfield_directions ({}) must be in 1..=32",
                     self.lightfield_directions
+                ),
+            ));
+        }
+        if !(self.probe_spacing.is_finite() && self.probe_spacing > 0.0) {
+            return Err(invalid(
+                object,
+                format!("probe_spacing ({}) must be positive", self.probe_spacing),
+            ));
+        }
+        if !(0.0..1.0).contains(&self.clutter_importance) {
+            return Err(invalid(
+                object,
+                format!(
+                    "clutter_importance ({}) must be in [0, 1)",
+                    self.clutter_importance
                 ),
             ));
         }

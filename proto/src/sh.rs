@@ -67,7 +67,10 @@ mod tests {
         let w = 4.0 * PI / pts.len() as f64;
         for a in 0..SH_COEFFS {
             for b in 0..SH_COEFFS {
-                let dot: f64 = pts.iter().map(|d| sh_basis(*d)[a] * sh_basis(*d)[b] * w).sum();
+                let dot: f64 = pts
+                    .iter()
+                    .map(|d| sh_basis(*d)[a] * sh_basis(*d)[b] * w)
+                    .sum();
                 let expected = if a == b { 1.0 } else { 0.0 };
                 assert!((dot - expected).abs() < 2e-3, "<Y{a}, Y{b}> = {dot}");
             }

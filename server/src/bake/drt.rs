@@ -26,6 +26,7 @@ use lightfarm_proto::bundle::DeltaSource;
 use lightfarm_proto::scene::{Opening, Scene};
 
 use super::clutter_basis::{clutter_basis, ClutterBasisOps};
+use super::clutter_sampling::{ClutterGuidedSampler, Sphere};
 use super::geometry::{Geometry, Primitive, SurfaceOwner};
 use super::low_rank::LowRankError;
 use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
@@ -35,6 +36,51 @@ use super::transport::MrtTransport;
 
 const PURPOSE_DRT_SCENE: u64 = 31;
 const PURPOSE_DRT_CLUTTER: u64 = 32;
+const PURPOSE_DRT_PICK: u64 = 33;
+
+/// Bounding spheres of every clutter object (boxes from their box, meshes from their triangles).
+fn clutter_spheres(scene: &Scene, g: &Geometry) -> Vec<Sphere> {
+    let mut out = Vec::new();
+    for c in &scene.clutter {
+        if let Some(b) = c.box_ {
+            let center = [0, 1, 2].map(|k| 0.5 * (b.min[k] + b.max[k]));
+            let radius = (0..3)
+                .map(|k| (0.5 * (b.max[k] - b.min[k])).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            out.push(Sphere { center, radius });
+        }
+    }
+    // Mesh clutter: one sphere around all triangles of the geometry (they are all clutter).
+    let tris: Vec<&[[f64; 3]; 3]> = g
+        .primitives
+        .iter()
+        .filter_map(|p| {
+            if let Primitive::Triangle { v, .. } = p {
+                Some(v)
+            } else {
+                None
+            }
+        })
+        .collect();
+    if !tris.is_empty() {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for v in tris.iter().flat_map(|t| t.iter()) {
+            for k in 0..3 {
+                lo[k] = lo[k].min(v[k]);
+                hi[k] = hi[k].max(v[k]);
+            }
+        }
+        let center = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+        let radius = (0..3)
+            .map(|k| (0.5 * (hi[k] - lo[k])).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        out.push(Sphere { center, radius });
+    }
+    out
+}
 
 /// A delta operator block in f64.
 pub struct DeltaBlock {
@@ -64,6 +110,8 @@ pub struct DrtStats {
 /// All DRT operators of a scene.
 pub struct DrtOperators {
     pub clutter: Vec<ClutterProjection>,
+    /// Scene clutter index → index in `clutter` (None for mesh clutter).
+    pub projection_of: Vec<Option<usize>>,
     pub entries: Vec<DeltaBlock>,
     pub buried: Vec<u32>,
     pub stats: DrtStats,
@@ -230,7 +278,11 @@ pub fn build_drt(
             .any(|b| (0..3).all(|k| p[k] > b.min[k] + e && p[k] < b.max[k] - e))
     };
 
-    // Pass over block texels: occlusion and reflection.
+    // Pass over block texels: occlusion and reflection, rays guided toward clutter.
+    let guided = ClutterGuidedSampler {
+        spheres: clutter_spheres(scene, g),
+        alpha: settings.clutter_importance,
+    };
     let block_texels: Vec<usize> = g.block_texels.iter().flat_map(|r| r.clone()).collect();
     type SceneRow = (Vec<(u32, f64)>, Vec<(u32, f64)>, f64, f64);
     let scene_rows: Vec<SceneRow> = block_texels
@@ -241,24 +293,34 @@ pub fn build_drt(
             let mut occluded: Vec<(u32, f64)> = Vec::new();
             let mut reflected: Vec<(u32, f64)> = Vec::new();
             let (mut clutter_hits, mut back_hits) = (0.0, 0.0);
+            let pick_key = stream_key(settings.seed, PURPOSE_DRT_PICK, x as u64);
             for i in 0..rays {
-                let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), texel.normal);
+                let (d, weight) = guided.sample(
+                    texel.position,
+                    texel.normal,
+                    sobol_2d(pick_key, i)[0],
+                    sobol_2d(key, i),
+                );
+                if weight == 0.0 {
+                    continue;
+                }
+                let w = weight * inv;
                 let Some(hit) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
                     continue;
                 };
                 if let Seen::Clutter { texel: k, back } = classify(g, &tracer, &hit, &block_of) {
-                    clutter_hits += inv;
+                    clutter_hits += w;
                     if back {
-                        back_hits += inv;
+                        back_hits += w;
                     }
                     if let Some(k) = k {
-                        reflected.push((k, inv));
+                        reflected.push((k, w));
                     }
                     if let Some(behind) =
                         block_tracer.closest(texel.position, d, f64::INFINITY, &sign_b)
                     {
                         if let Seen::Block(t) = classify(gb, &block_tracer, &behind, &block_of) {
-                            occluded.push((t, inv));
+                            occluded.push((t, w));
                         }
                     }
                 }
@@ -482,6 +544,7 @@ pub fn build_drt(
     }
     Ok(DrtOperators {
         clutter: clutter.into_iter().map(|(_, p)| p).collect(),
+        projection_of,
         entries,
         buried,
         stats,

@@ -15,6 +15,7 @@
 //! for a given scene and seed, whatever the thread count.
 
 pub mod clutter_basis;
+pub mod clutter_sampling;
 pub mod drt;
 pub mod geometry;
 pub mod lightfield;
@@ -23,6 +24,7 @@ pub mod low_rank;
 pub mod mesh;
 pub mod one_bounce;
 pub mod pipeline;
+pub mod probe_volume;
 pub mod progress;
 pub mod reference;
 pub mod sampling;

@@ -16,9 +16,10 @@ use lightfarm_proto::bundle::{
 };
 use lightfarm_proto::scene::{Scene, SceneError, Transport};
 
-use super::drt::{build_drt, DrtStats};
+use super::drt::{build_drt, DeltaBlock, DrtStats};
 use super::geometry::{Geometry, GeometryError, Primitive};
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
+use super::probe_volume::build_probe_volume;
 use super::progress::Progress;
 use super::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
 use super::shape_cache::{Lookup, ShapeCache};
@@ -50,6 +51,7 @@ pub struct BakeReport {
     pub stage_seconds: Vec<(String, f64)>,
     pub bundle_bytes: usize,
     pub drt: Option<DrtStats>,
+    pub probes: usize,
 }
 
 /// Why a bake failed.
@@ -65,6 +67,14 @@ pub enum BakeError {
     Drt(String),
     #[error("operator cache: {0}")]
     Cache(#[from] std::io::Error),
+}
+
+fn to_entry(e: &DeltaBlock) -> bundle::DeltaEntry {
+    bundle::DeltaEntry {
+        rows: e.rows.clone(),
+        source: e.source,
+        matrix: to_matrix(&e.matrix),
+    }
 }
 
 fn to_matrix(m: &Mat<f64>) -> Matrix {
@@ -289,7 +299,7 @@ pub fn bake(
     lap(&mut report, "transport");
 
     // DRT: clutter operators.
-    let drt = if scene.clutter.is_empty() {
+    let drt_ops = if scene.clutter.is_empty() {
         None
     } else {
         let n = full_geometry.texels.len() as u64;
@@ -305,29 +315,49 @@ pub fn bake(
         )
         .map_err(|source| BakeError::Drt(source.to_string()))?;
         report.drt = Some(ops.stats.clone());
-        Some(bundle::DrtOps {
-            clutter: ops
-                .clutter
-                .iter()
-                .map(|c| bundle::ClutterOps {
-                    id: c.id.clone(),
-                    texel_offset: c.texel_offset as u32,
-                    t_dc: to_matrix(&c.basis.basis.transpose().to_owned()),
-                })
-                .collect(),
-            entries: ops
-                .entries
-                .iter()
-                .map(|e| bundle::DeltaEntry {
-                    rows: e.rows.clone(),
-                    source: e.source,
-                    matrix: to_matrix(&e.matrix),
-                })
-                .collect(),
-            buried: ops.buried.clone(),
+        Some(ops)
+    };
+    let drt = drt_ops.as_ref().map(|ops| bundle::DrtOps {
+        clutter: ops
+            .clutter
+            .iter()
+            .map(|c| bundle::ClutterOps {
+                id: c.id.clone(),
+                texel_offset: c.texel_offset as u32,
+                t_dc: to_matrix(&c.basis.basis.transpose().to_owned()),
+            })
+            .collect(),
+        entries: ops.entries.iter().map(to_entry).collect(),
+        buried: ops.buried.clone(),
+    });
+    lap(&mut report, "clutter operators");
+
+    // U_dyn: the probe volume, when something will read it.
+    let probes = if scene.clutter.is_empty() && scene.dynamic.is_empty() {
+        None
+    } else {
+        let (clutter, projection_of): (&[_], Vec<Option<usize>>) = match &drt_ops {
+            Some(ops) => (&ops.clutter, ops.projection_of.clone()),
+            None => (&[], vec![None; scene.clutter.len()]),
+        };
+        let volume = build_probe_volume(
+            scene,
+            &full_geometry,
+            &per_block,
+            clutter,
+            &projection_of,
+            &|_| {},
+        );
+        report.probes = volume.n_probes;
+        Some(bundle::ProbeVolume {
+            origin: volume.origin.map(|x| x as f32),
+            spacing: volume.spacing as f32,
+            dims: volume.dims.map(|d| d as u32),
+            slot: volume.slot,
+            n_probes: volume.n_probes as u32,
+            entries: volume.entries.iter().map(to_entry).collect(),
         })
     };
-    lap(&mut report, "clutter operators");
 
     // The dense Hašan-style operator over the full geometry.
     let full = if options.full {
@@ -393,7 +423,7 @@ pub fn bake(
         transport: Some(transport),
         full,
         drt,
-        probes: None,
+        probes,
     };
     lap(&mut report, "bundle");
     Ok((bundle, report))

@@ -66,6 +66,16 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
                 d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.clutter_ranks
             );
         }
+        let sizes: Vec<String> = bundle
+            .section_sizes()
+            .iter()
+            .map(|(n, b)| format!("{n} {b}"))
+            .collect();
+        eprintln!(
+            "sections (bytes): {}; probes: {}",
+            sizes.join(", "),
+            report.probes
+        );
         let stages: Vec<String> = report
             .stage_seconds
             .iter()

@@ -73,7 +73,14 @@ pub fn run(args: CompareArgs) -> anyhow::Result<()> {
         // Texels buried in clutter boxes are never seen; their reference values are meaningless.
         let (scene, _) = load_scene(scene)?;
         let boxes: Vec<Aabb> = scene.clutter.iter().filter_map(|c| c.box_).collect();
-        ours.texels.retain(|t| !t.surface.starts_with("block:") || !boxes.iter().any(|b| (0..3).all(|k| t.position[k] >= b.min[k] - 1e-6 && t.position[k] <= b.max[k] + 1e-6)));
+        ours.texels.retain(|t| {
+            !t.surface.starts_with("block:")
+                || !boxes.iter().any(|b| {
+                    (0..3).all(|k| {
+                        t.position[k] >= b.min[k] - 1e-6 && t.position[k] <= b.max[k] + 1e-6
+                    })
+                })
+        });
     }
     if let Some(m) = args.near_clutter {
         let Some(scene) = &args.scene else {
