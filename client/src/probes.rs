@@ -87,6 +87,12 @@ impl ProbeField {
         self.data[at + 2 * SH_COEFFS] += v[2];
     }
 
+    /// Sets every value to `v` (tests: stale values must not leak into a result).
+    #[cfg(test)]
+    pub(crate) fn fill_for_test(&mut self, v: f32) {
+        self.data.fill(v);
+    }
+
     /// Coefficients of `probe` as f64, per channel.
     fn probe_f64(&self, probe: usize) -> [[f64; SH_COEFFS]; CHANNELS] {
         let at = probe * PER_PROBE;
@@ -262,6 +268,7 @@ fn nearest_probe(grid: &Grid, g: [f64; 3], i0: [usize; 3]) -> Option<usize> {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use std::f64::consts::PI;

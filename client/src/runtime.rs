@@ -1,7 +1,8 @@
 //! The per-frame runtime: direct light in, indirect light out, by the bundle's operators.
 //!
 //! Owns the decoded [`Bundle`] and every scratch buffer the per-frame work needs, so
-//! [`Runtime::apply`] allocates nothing (it only resizes `out` when its length is wrong).
+//! [`Runtime::apply`] and [`Runtime::apply_probes`] allocate nothing (they only resize `out`
+//! when its size is wrong).
 //!
 //! [`Method::Mrt`] (modular radiance transfer), for every block B and channel c:
 //! 1. `b_B = T_d→b · l_d^B` (l_d^B: the block's texel range of direct radiance);
@@ -30,9 +31,12 @@
 //!
 //! Invariants:
 //! - A [`Runtime`] only exists for a bundle whose sizes and indices are consistent (checked in
-//!   [`Runtime::try_new`]; always true of a bundle from `Bundle::decode`), so `apply` indexes
-//!   without further checks and its only errors are the ones in [`ApplyError`].
-//! - `apply` is deterministic: the same direct light gives bit-identical output every call.
+//!   [`Runtime::try_new`]; always true of a bundle from `Bundle::decode`), so `apply` and
+//!   `apply_probes` index without further checks and their only errors are the ones in
+//!   [`ApplyError`].
+//! - `apply` and `apply_probes` are deterministic: the same direct light gives bit-identical
+//!   output every call, whatever was applied before (they share scratch but each refills what
+//!   it reads).
 //! - Scratch vectors are planar (channel-major: channel c of an n-vector at `c·n .. (c+1)·n`),
 //!   so every matrix row is one contiguous pass accumulating all three channels.
 
@@ -766,6 +770,7 @@ impl Runtime {
 mod tests {
     use super::*;
     use crate::occluders::tests::Lcg;
+    use crate::probes::irradiance_at;
     use lightfarm_proto::bundle::{
         BlockOps, ClutterOps, DeltaEntry, DrtOps, Layout, OpeningOps, PropEntry, ShapeOps,
         SparseRows, SurfaceInfo, TracedEntry,
@@ -1067,6 +1072,121 @@ mod tests {
                 buried: vec![3, 12],
             }),
             probes: None,
+        }
+    }
+
+    /// Probes of the probe test bundle; probe 5 (rows 45..54) is fed by no entry.
+    const N_PROBES: usize = 7;
+
+    /// [`drt_bundle`] (blocks a, b; clutter box) with a 2×2×2 probe volume whose grid point
+    /// (1, 1, 0) is empty (7 probes), and probe entries from both blocks and (with `drt`) the
+    /// clutter object, overlapping rows, an empty entry and the last row. Without `drt` the
+    /// bundle has no DRT section and no clutter-sourced probe entries.
+    fn probe_bundle(rng: &mut Lcg, drt: bool) -> Bundle {
+        let mut b = drt_bundle(rng, !drt, false, false);
+        let mut entries: Vec<(Vec<u32>, DeltaSource)> = vec![
+            ((0..9).collect(), DeltaSource::Block(0)),
+            (vec![2, 9, 10, 20, 35, 62], DeltaSource::Block(1)),
+            (vec![0, 4, 13, 27, 40, 54, 61], DeltaSource::Clutter(0)),
+            (vec![18, 19, 26, 36, 44], DeltaSource::Block(0)),
+            (vec![], DeltaSource::Clutter(0)),
+            (vec![1, 62], DeltaSource::Clutter(0)),
+        ];
+        if !drt {
+            b.drt = None;
+            entries[4].1 = DeltaSource::Block(1);
+            entries.retain(|(_, s)| matches!(s, DeltaSource::Block(_)));
+        }
+        let (r, m) = ([2usize, 3], 2usize);
+        let entries = entries
+            .into_iter()
+            .map(|(rows, source)| DeltaEntry {
+                matrix: matrix(
+                    rng,
+                    rows.len(),
+                    match source {
+                        DeltaSource::Block(k) => r[k as usize],
+                        DeltaSource::Clutter(_) => m,
+                    },
+                ),
+                rows,
+                source,
+            })
+            .collect();
+        b.probes = Some(ProbeVolume {
+            origin: [0.25, 0.5, -1.0],
+            spacing: 0.5,
+            dims: [2, 2, 2],
+            slot: vec![0, 1, 2, u32::MAX, 3, 4, 5, 6],
+            n_probes: N_PROBES as u32,
+            entries,
+        });
+        b
+    }
+
+    /// Straightforward dense probe field, in f64: every probe entry expanded into a dense
+    /// (n_probes · 9) × (Σ r + Σ m) matrix over the stacked `[b_0 … b_B, c_0 … c_J]`, times
+    /// those coefficients. Indexed `[probe · 9 + coefficient][channel]`.
+    fn reference_probes(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
+        let probes = bundle.probes.as_ref().unwrap();
+        let mut coefs: Vec<[f64; 3]> = reference_coefs(bundle, ld).concat();
+        let mut block_start = vec![0];
+        for blk in &bundle.blocks {
+            let r = bundle.shapes[blk.shape as usize].u_b.cols as usize;
+            block_start.push(block_start.last().unwrap() + r);
+        }
+        let mut clutter_start = vec![coefs.len()];
+        for cl in bundle.drt.iter().flat_map(|d| &d.clutter) {
+            coefs.extend(reference_project(&cl.t_dc, ld, cl.texel_offset));
+            clutter_start.push(coefs.len());
+        }
+        let n_rows = probes.n_probes as usize * 9;
+        let mut dense = vec![vec![0.0f64; coefs.len()]; n_rows];
+        for e in &probes.entries {
+            let start = match e.source {
+                DeltaSource::Block(k) => block_start[k as usize],
+                DeltaSource::Clutter(j) => clutter_start[j as usize],
+            };
+            for (i, &t) in e.rows.iter().enumerate() {
+                for j in 0..e.matrix.cols as usize {
+                    dense[t as usize][start + j] += get(&e.matrix, i, j);
+                }
+            }
+        }
+        dense
+            .iter()
+            .map(|row| {
+                let mut v = [0.0f64; 3];
+                for (d, x) in row.iter().zip(&coefs) {
+                    for c in 0..3 {
+                        v[c] += d * x[c];
+                    }
+                }
+                v
+            })
+            .collect()
+    }
+
+    fn run_probes(bundle: Bundle, ld: &DirectLight) -> ProbeField {
+        let mut rt = Runtime::new(bundle);
+        let mut out = ProbeField::default();
+        rt.apply_probes(ld, &mut out).unwrap();
+        out
+    }
+
+    fn assert_probes_close(got: &ProbeField, want: &[[f64; 3]]) {
+        assert_eq!(got.n_probes() * 9, want.len());
+        for (row, w) in want.iter().enumerate() {
+            for c in 0..3 {
+                let g = got.coefficients(row / 9, c)[row % 9] as f64;
+                assert!(
+                    (g - w[c]).abs() <= 1e-5 * (1.0 + w[c].abs()),
+                    "probe {} coefficient {} channel {c}: {g} vs {}",
+                    row / 9,
+                    row % 9,
+                    w[c]
+                );
+            }
         }
     }
 
@@ -1427,6 +1547,8 @@ mod tests {
         assert!(allocs() > before, "the allocation counter works");
         let mrt_full: &[Method] = &[Method::Mrt, Method::Full];
         let all: &[Method] = &[Method::Mrt, Method::Full, Method::Drt];
+        let (mrt_drt, mrt_only): (&[Method], &[Method]) =
+            (&[Method::Mrt, Method::Drt], &[Method::Mrt]);
         let mut cases = Vec::new();
         for transport in [Some(traced(&mut rng)), Some(lightfield(&mut rng)), None] {
             cases.push((bundle(&mut rng, transport, true), mrt_full));
@@ -1434,8 +1556,13 @@ mod tests {
         for (lightfield, two_clutter) in [(false, false), (true, true)] {
             cases.push((drt_bundle(&mut rng, lightfield, two_clutter, true), all));
         }
+        for drt in [false, true] {
+            let methods = if drt { mrt_drt } else { mrt_only };
+            cases.push((probe_bundle(&mut rng, drt), methods));
+        }
         for (b, methods) in cases {
             let n = b.layout.n_texels();
+            let has_probes = b.probes.is_some();
             let mut rt = Runtime::new(b);
             let ld = direct(&mut rng, n);
             let mut firsts = Vec::new();
@@ -1463,6 +1590,32 @@ mod tests {
                 rt.apply(method, &ld, &mut out).unwrap();
                 assert_eq!(&out, first, "{method:?} after another method");
             }
+            if !has_probes {
+                continue;
+            }
+            // apply_probes: a wrong-size field is resized, a right-size one reused.
+            let mut field = ProbeField::default();
+            field.reset(3);
+            rt.apply_probes(&ld, &mut field).unwrap();
+            let first = field.clone();
+            assert_eq!(first.n_probes(), N_PROBES);
+            let before = allocs();
+            rt.apply_probes(&ld, &mut field).unwrap();
+            rt.apply_probes(&ld, &mut field).unwrap();
+            assert_eq!(allocs(), before, "apply_probes allocated");
+            assert_eq!(field, first, "apply_probes not deterministic");
+            field.fill_for_test(f32::NAN);
+            rt.apply_probes(&ld, &mut field).unwrap();
+            assert_eq!(field, first, "stale values leak into apply_probes");
+            // apply and apply_probes share scratch without changing each other's results.
+            for (&method, first_out) in methods.iter().zip(&firsts) {
+                rt.apply(method, &ld, &mut out).unwrap();
+                rt.apply_probes(&ld, &mut field).unwrap();
+                assert_eq!(field, first, "apply_probes after {method:?}");
+                rt.apply(method, &ld, &mut out).unwrap();
+                assert_eq!(&out, first_out, "{method:?} after apply_probes");
+            }
+            assert_eq!(allocs(), before, "apply or apply_probes allocated");
         }
     }
 
@@ -1641,6 +1794,186 @@ mod tests {
         assert!(Runtime::new(drt_bundle(&mut rng, false, false, false)).has_drt());
     }
 
+    #[test]
+    fn probes_match_dense_reference() {
+        let mut rng = Lcg(31);
+        for drt in [true, false] {
+            let b = probe_bundle(&mut rng, drt);
+            let ld = direct(&mut rng, b.layout.n_texels());
+            let want = reference_probes(&b, &ld.radiance);
+            let volume = b.probes.clone().unwrap();
+            let got = run_probes(b.clone(), &ld);
+            assert_probes_close(&got, &want);
+            // Every probe but 5 is fed (its coefficients stay exactly 0); the clutter entries
+            // really contribute.
+            for p in 0..N_PROBES {
+                let zero = (0..3).all(|c| got.coefficients(p, c).iter().all(|&v| v == 0.0));
+                assert_eq!(zero, p == 5, "probe {p}");
+            }
+            if drt {
+                let mut blocks_only = b;
+                let p = blocks_only.probes.as_mut().unwrap();
+                p.entries
+                    .retain(|e| matches!(e.source, DeltaSource::Block(_)));
+                let without = reference_probes(&blocks_only, &ld.radiance);
+                assert!(want
+                    .iter()
+                    .zip(&without)
+                    .any(|(a, w)| (a[0] - w[0]).abs() > 1e-3));
+            }
+            // At a probe's grid point, irradiance_at gives that probe's own irradiance.
+            for (i, &s) in volume.slot.iter().enumerate() {
+                if s == u32::MAX {
+                    continue;
+                }
+                let g = [i & 1, i >> 1 & 1, i >> 2].map(|x| x as f32);
+                let pos: [f32; 3] = std::array::from_fn(|a| volume.origin[a] + 0.5 * g[a]);
+                let n = [0.6f32, 0.0, 0.8];
+                // Normalised as irradiance_at does it (0.6f32, 0.8f32 are not exactly unit).
+                let len = n.iter().map(|&x| (x as f64).powi(2)).sum::<f64>().sqrt();
+                let unit = n.map(|x| x as f64 / len);
+                let want: [f32; 3] = std::array::from_fn(|c| {
+                    let l = got.coefficients(s as usize, c).map(|v| v as f64);
+                    lightfarm_proto::sh::irradiance(&l, unit).max(0.0) as f32
+                });
+                assert_eq!(irradiance_at(&volume, &got, pos, n), want, "probe {s}");
+            }
+        }
+    }
+
+    #[test]
+    fn probes_without_the_section_are_an_error() {
+        let mut rng = Lcg(32);
+        let mut rt = Runtime::new(drt_bundle(&mut rng, true, true, false));
+        assert!(!rt.has_probes() && rt.probe_volume().is_none());
+        let n = rt.n_texels();
+        let mut field = ProbeField::default();
+        let err = rt
+            .apply_probes(&direct(&mut rng, n), &mut field)
+            .unwrap_err();
+        assert_eq!(err, ApplyError::MissingProbes);
+        assert_eq!(err.to_string(), "this bundle has no probe volume");
+        // The direct light's length is checked first.
+        let err = rt
+            .apply_probes(&direct(&mut rng, n + 1), &mut field)
+            .unwrap_err();
+        assert_eq!(
+            err,
+            ApplyError::DirectLength {
+                expected: n,
+                got: n + 1
+            }
+        );
+        let mut rt = Runtime::new(probe_bundle(&mut rng, true));
+        assert!(rt.has_probes() && rt.probe_volume().is_some());
+        let err = rt
+            .apply_probes(&direct(&mut rng, n - 1), &mut field)
+            .unwrap_err();
+        assert!(matches!(err, ApplyError::DirectLength { .. }));
+    }
+
+    #[test]
+    fn probe_encode_decode_round_trip_gives_the_same_output() {
+        let mut rng = Lcg(33);
+        for drt in [true, false] {
+            let b = probe_bundle(&mut rng, drt);
+            let decoded = Bundle::decode(&b.encode()).expect("hand-built probe bundle decodes");
+            assert_eq!(decoded, b);
+            let ld = direct(&mut rng, b.layout.n_texels());
+            let got = run_probes(decoded.clone(), &ld);
+            assert_eq!(got, run_probes(b.clone(), &ld));
+            assert_probes_close(&got, &reference_probes(&b, &ld.radiance));
+            for method in [Method::Mrt, Method::Drt]
+                .into_iter()
+                .take(1 + drt as usize)
+            {
+                assert_eq!(
+                    run(decoded.clone(), method, &ld),
+                    run(b.clone(), method, &ld)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn inconsistent_probe_sections_are_refused_as_decode_refuses_them() {
+        let mut rng = Lcg(34);
+        let good = probe_bundle(&mut rng, true);
+        assert!(Runtime::try_new(good.clone()).is_ok());
+        type Break = (&'static str, fn(&mut Bundle));
+        fn p(b: &mut Bundle) -> &mut ProbeVolume {
+            b.probes.as_mut().unwrap()
+        }
+        let breaks: [Break; 18] = [
+            ("zero spacing", |b| p(b).spacing = 0.0),
+            ("negative spacing", |b| p(b).spacing = -0.5),
+            ("NaN spacing", |b| p(b).spacing = f32::NAN),
+            ("infinite origin", |b| p(b).origin[1] = f32::INFINITY),
+            ("slot missing", |b| {
+                p(b).slot.pop();
+            }),
+            ("dims past the slots", |b| p(b).dims[0] = 3),
+            ("zero dims", |b| p(b).dims = [0, 2, 2]),
+            ("more probes than grid points", |b| p(b).n_probes = 9),
+            ("slot names a missing probe", |b| p(b).slot[3] = 7),
+            ("missing source block", |b| {
+                p(b).entries[1].source = DeltaSource::Block(2)
+            }),
+            ("missing source clutter", |b| {
+                p(b).entries[2].source = DeltaSource::Clutter(1)
+            }),
+            ("clutter source without a DRT section", |b| b.drt = None),
+            ("block source with another r", |b| {
+                p(b).entries[0].source = DeltaSource::Block(1)
+            }),
+            ("more rows than matrix rows", |b| {
+                p(b).entries[0].rows.push(9)
+            }),
+            ("rows not ascending", |b| p(b).entries[1].rows.swap(0, 1)),
+            ("repeated row", |b| p(b).entries[1].rows[1] = 2),
+            ("row past the probes", |b| p(b).entries[1].rows[5] = 63),
+            ("short matrix", |b| {
+                p(b).entries[3].matrix.data.pop();
+            }),
+        ];
+        for (what, f) in breaks {
+            let mut b = good.clone();
+            f(&mut b);
+            assert!(
+                Runtime::try_new(b.clone()).is_err(),
+                "runtime accepts: {what}"
+            );
+            assert!(
+                Bundle::decode(&b.encode()).is_err(),
+                "decode accepts: {what}"
+            );
+        }
+        // Grid sizes whose product overflows u64 (2^66 wraps to 0 = the slot count).
+        let mut b = good.clone();
+        p(&mut b).dims = [1 << 22; 3];
+        p(&mut b).slot.clear();
+        p(&mut b).n_probes = 0;
+        p(&mut b).entries.clear();
+        assert!(
+            Runtime::try_new(b).is_err(),
+            "runtime accepts overflowing dims"
+        );
+    }
+
+    /// `Bundle::validate` multiplies the three probe dims in u64: 2^66 panics in debug builds
+    /// (and wraps to 0 in release, accepting a grid that does not match its slots).
+    #[test]
+    fn decode_refuses_overflowing_probe_dims() {
+        let mut rng = Lcg(35);
+        let mut b = probe_bundle(&mut rng, false);
+        let p = b.probes.as_mut().unwrap();
+        p.dims = [1 << 22; 3];
+        p.slot.clear();
+        p.n_probes = 0;
+        p.entries.clear();
+        assert!(Bundle::decode(&b.encode()).is_err());
+    }
+
     /// The 16-byte file header and every (kind, payload) section of an encoded bundle.
     fn split_sections(bytes: &[u8]) -> (Vec<u8>, Vec<(u32, Vec<u8>)>) {
         let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
@@ -1685,6 +2018,21 @@ mod tests {
         for method in [Method::Mrt, Method::Full, Method::Drt] {
             let _ = rt.apply(method, &ld, &mut out);
         }
+        let mut field = ProbeField::default();
+        if rt.apply_probes(&ld, &mut field).is_ok() {
+            let volume = rt.probe_volume().expect("apply_probes needs a volume");
+            let o = volume.origin;
+            let s = volume.spacing;
+            for (g, n) in [
+                ([0.5f32, 0.5, 0.5], [0.0f32, 1.0, 0.0]),
+                ([1.0, 0.0, 0.3], [0.3, -0.2, 0.9]),
+                ([-3.0, 9.0, 0.5], [-1.0, 0.0, 0.0]),
+            ] {
+                let pos = std::array::from_fn(|a| o[a] + s * g[a]);
+                let e = irradiance_at(volume, &field, pos, n);
+                assert!(e.iter().all(|x| *x >= 0.0), "irradiance {e:?}");
+            }
+        }
         true
     }
 
@@ -1692,14 +2040,29 @@ mod tests {
     fn mutated_drt_bundles_never_panic() {
         let mut rng = Lcg(24);
         let b = drt_bundle(&mut rng, false, true, true);
+        fuzz_bundle(&mut rng, &b, lightfarm_proto::bundle::section::DRT);
+    }
+
+    #[test]
+    fn mutated_probe_bundles_never_panic() {
+        let mut rng = Lcg(36);
+        for drt in [true, false] {
+            let b = probe_bundle(&mut rng, drt);
+            fuzz_bundle(&mut rng, &b, lightfarm_proto::bundle::section::PROBES);
+        }
+    }
+
+    /// Byte mutations and truncations of `b`'s encoding, half of them inside the section of
+    /// kind `focus`: none may panic (decode, runtime, apply, apply_probes, irradiance_at).
+    fn fuzz_bundle(rng: &mut Lcg, b: &Bundle, focus: u32) {
         let bytes = b.encode();
         assert!(decode_and_apply(&bytes));
         let (header, sections) = split_sections(&bytes);
         assert_eq!(join_sections(&header, &sections), bytes);
-        let drt = sections
+        let focus_at = sections
             .iter()
-            .position(|(kind, _)| *kind == lightfarm_proto::bundle::section::DRT)
-            .expect("the bundle has a DRT section");
+            .position(|(kind, _)| *kind == focus)
+            .expect("the bundle has the focus section");
         let mutate = |byte: &mut u8, rng: &mut Lcg| {
             *byte = match rng.next_u32() % 3 {
                 0 => *byte ^ (1 + rng.next_u32() % 255) as u8,
@@ -1713,7 +2076,7 @@ mod tests {
         for _ in 0..1500 {
             let mut m = bytes.clone();
             let at = rng.next_u32() as usize % m.len();
-            mutate(&mut m[at], &mut rng);
+            mutate(&mut m[at], rng);
             decode_and_apply(&m);
         }
         // Truncations of the file.
@@ -1722,17 +2085,17 @@ mod tests {
             assert!(!decode_and_apply(&bytes[..len]), "truncated to {len}");
         }
         // Single bytes inside a section, checksum repaired, so validation sees them; half in
-        // the DRT section.
+        // the focus section.
         for k in 0..3000 {
             let mut s = sections.clone();
             let i = if k % 2 == 0 {
-                drt
+                focus_at
             } else {
                 rng.next_u32() as usize % s.len()
             };
             let payload = &mut s[i].1;
             let at = rng.next_u32() as usize % payload.len();
-            mutate(&mut payload[at], &mut rng);
+            mutate(&mut payload[at], rng);
             tried += 1;
             decoded += decode_and_apply(&join_sections(&header, &s)) as usize;
         }
@@ -1740,7 +2103,7 @@ mod tests {
         for k in 0..1000 {
             let mut s = sections.clone();
             let i = if k % 2 == 0 {
-                drt
+                focus_at
             } else {
                 rng.next_u32() as usize % s.len()
             };

@@ -692,7 +692,11 @@ impl Bundle {
             }
         }
         if let Some(p) = &self.probes {
-            let cells = p.dims.iter().map(|d| *d as u64).product::<u64>();
+            let cells = p
+                .dims
+                .iter()
+                .try_fold(1u64, |acc, d| acc.checked_mul(*d as u64))
+                .unwrap_or(u64::MAX);
             if !(p.spacing.is_finite() && p.spacing > 0.0)
                 || p.origin.iter().any(|x| !x.is_finite())
             {

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use lightfarm_client::{
-    direct_from_point_lights, direct_from_point_lights_averaged, Bundle, DirectLight,
-    IndirectLight, Method, Occluders, Runtime,
+    direct_from_point_lights, direct_from_point_lights_averaged, irradiance_at, Bundle,
+    DirectLight, IndirectLight, Method, Occluders, ProbeField, Runtime,
 };
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
@@ -45,11 +45,28 @@ pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Re
     };
     let mut indirect = IndirectLight::default();
     runtime.apply(method, &averaged, &mut indirect)?;
+    // MRT shades clutter from the probe volume (U_dyn), as the MRT paper does; DRT gathers.
+    let mut probe_lit: Option<Vec<[f32; 3]>> = None;
+    if method == Method::Mrt && runtime.has_probes() {
+        let mut field = ProbeField::default();
+        runtime.apply_probes(&averaged, &mut field)?;
+        let layout = &runtime.bundle().layout;
+        let volume = runtime.probe_volume().expect("has probes");
+        probe_lit = Some(
+            (0..layout.n_texels())
+                .map(|t| {
+                    let e = irradiance_at(volume, &field, layout.positions[t], layout.normals[t]);
+                    [0, 1, 2].map(|c| layout.albedo[t][c] * std::f32::consts::FRAC_1_PI * e[c])
+                })
+                .collect(),
+        );
+    }
     let layout = &runtime.bundle().layout;
     let mut texels = Vec::with_capacity(layout.n_texels());
     for surface in &layout.surfaces {
-        // MRT models the blocks only; clutter is lit by DRT.
-        if method == Method::Mrt && !surface.name.starts_with("block:") {
+        let is_clutter = !surface.name.starts_with("block:");
+        // MRT without a probe volume models the blocks only.
+        if method == Method::Mrt && is_clutter && probe_lit.is_none() {
             continue;
         }
         for k in 0..surface.texel_count as usize {
@@ -62,7 +79,10 @@ pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Re
                 normal: f(layout.normals[t]),
                 albedo: f(layout.albedo[t]),
                 direct: f(direct.radiance[t]),
-                indirect: f(indirect.radiance[t]),
+                indirect: match (&probe_lit, is_clutter) {
+                    (Some(lit), true) => f(lit[t]),
+                    _ => f(indirect.radiance[t]),
+                },
             });
         }
     }
