@@ -48,28 +48,43 @@ fn cone_pdf(cos_max: f64) -> f64 {
 }
 
 impl ClutterGuidedSampler {
-    fn mixture_pdf(&self, x: [f64; 3], n: [f64; 3], w: [f64; 3]) -> f64 {
-        let cos = dot(n, w);
-        let mut p = (1.0 - self.alpha) * cos.max(0.0) / PI;
-        if self.alpha > 0.0 && !self.spheres.is_empty() {
-            let share = self.alpha / self.spheres.len() as f64;
-            for s in &self.spheres {
-                let (cos_max, axis) = cone_cos(x, s);
-                if dot(w, axis) >= cos_max {
-                    p += share * cone_pdf(cos_max);
-                }
+    /// Cones worth aiming at from `x`: spheres that do not contain `x` and subtend less than
+    /// `MAX_CONE_HALF_ANGLE`. Wider cones gain nothing over cosine sampling and would cost the
+    /// texel its stratification.
+    fn usable(&self, x: [f64; 3]) -> Vec<(f64, [f64; 3])> {
+        self.spheres
+            .iter()
+            .map(|s| cone_cos(x, s))
+            .filter(|(cos_max, _)| *cos_max > MIN_CONE_COS)
+            .collect()
+    }
+
+    fn mixture_pdf(&self, cones: &[(f64, [f64; 3])], n: [f64; 3], w: [f64; 3]) -> f64 {
+        let cos_pdf = dot(n, w).max(0.0) / PI;
+        if cones.is_empty() || self.alpha <= 0.0 {
+            return cos_pdf;
+        }
+        let share = self.alpha / cones.len() as f64;
+        let mut p = (1.0 - self.alpha) * cos_pdf;
+        for (cos_max, axis) in cones {
+            if dot(w, *axis) >= *cos_max {
+                p += share * cone_pdf(*cos_max);
             }
         }
         p
     }
 
     /// A direction and its weight `(cosθ/π) / p_mix` (0 for directions below the surface).
-    /// `u_pick` chooses the strategy, `u` the direction.
+    /// `u_pick` chooses the strategy, `u` the direction. Where no cone is usable this is plain
+    /// cosine sampling with weight 1.
     pub fn sample(&self, x: [f64; 3], n: [f64; 3], u_pick: f64, u: [f64; 2]) -> ([f64; 3], f64) {
-        let w = if self.alpha > 0.0 && !self.spheres.is_empty() && u_pick < self.alpha {
-            let k = ((u_pick / self.alpha * self.spheres.len() as f64) as usize)
-                .min(self.spheres.len() - 1);
-            let (cos_max, axis) = cone_cos(x, &self.spheres[k]);
+        let cones = self.usable(x);
+        if cones.is_empty() || self.alpha <= 0.0 {
+            return (to_world(sample_cosine_hemisphere(u), n), 1.0);
+        }
+        let w = if u_pick < self.alpha {
+            let k = ((u_pick / self.alpha * cones.len() as f64) as usize).min(cones.len() - 1);
+            let (cos_max, axis) = cones[k];
             let cos_t = 1.0 - u[0] * (1.0 - cos_max);
             let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
             let phi = 2.0 * PI * u[1];
@@ -81,9 +96,12 @@ impl ClutterGuidedSampler {
         if cos <= 0.0 {
             return (w, 0.0);
         }
-        (w, cos / PI / self.mixture_pdf(x, n, w))
+        (w, cos / PI / self.mixture_pdf(&cones, n, w))
     }
 }
+
+/// Cones wider than 60° half-angle are not aimed at.
+const MIN_CONE_COS: f64 = 0.5;
 
 #[cfg(test)]
 mod tests {
@@ -107,6 +125,22 @@ mod tests {
             }
         }
         sum / n_rays as f64
+    }
+
+    #[test]
+    fn inside_a_bounding_sphere_the_estimate_stays_unbiased() {
+        // x inside the sphere: the guided sampler degrades to cosine sampling, weights 1.
+        let s = ClutterGuidedSampler {
+            spheres: vec![Sphere {
+                center: [0.0, 0.0, 0.5],
+                radius: 2.0,
+            }],
+            alpha: 0.5,
+        };
+        for i in 0..256 {
+            let (_, w) = s.sample([0.0; 3], [0.0, 0.0, 1.0], sobol_2d(5, i)[0], sobol_2d(6, i));
+            assert!((w - 1.0).abs() < 1e-12, "{w}");
+        }
     }
 
     #[test]
