@@ -329,6 +329,19 @@ fn check(bundle: &Bundle) -> Result<(), BundleError> {
         if d.buried.iter().any(|&r| r as u64 >= n_texels) {
             return bad("drt: buried texel out of range".into());
         }
+        if let Some(g) = &d.direct_gather {
+            let ok = g.row_start.len() == g.rows.len() + 1
+                && g.row_start.first() == Some(&0)
+                && g.row_start.windows(2).all(|w| w[1] >= w[0])
+                && g.row_start.last().map(|l| *l as usize) == Some(g.cols.len())
+                && g.cols.len() == g.values.len()
+                && g.rows.windows(2).all(|w| w[1] > w[0])
+                && g.rows.iter().chain(&g.cols).all(|r| (*r as u64) < n_texels)
+                && g.values.iter().all(|v| v.is_finite());
+            if !ok {
+                return bad("drt: direct gather is inconsistent".into());
+            }
+        }
     }
     if let Some(p) = &bundle.probes {
         check_probes(bundle, p)?;
@@ -577,6 +590,7 @@ impl Runtime {
                 self.mrt_albedo_free(&mut out.radiance);
                 self.project_clutter();
                 self.add_drt_deltas(&mut out.radiance);
+                self.add_direct_gather(&direct.radiance, &mut out.radiance);
                 self.multiply_albedo(&mut out.radiance);
             }
         }
@@ -752,6 +766,32 @@ impl Runtime {
         for e in &drt.entries {
             let x = self.source_coefficients(e.source, e.matrix.cols as usize);
             scatter_matvec(out, &e.rows, &e.matrix, x);
+        }
+    }
+
+    /// DRT exact clutter gather: sparse rows over the direct light (albedo-free).
+    fn add_direct_gather(&self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        let Some(g) = self
+            .bundle
+            .drt
+            .as_ref()
+            .and_then(|d| d.direct_gather.as_ref())
+        else {
+            return;
+        };
+        for (i, &row) in g.rows.iter().enumerate() {
+            let (start, end) = (g.row_start[i] as usize, g.row_start[i + 1] as usize);
+            let mut s = [0.0f32; 3];
+            for (&c, &v) in g.cols[start..end].iter().zip(&g.values[start..end]) {
+                let l = direct[c as usize];
+                s[0] += v * l[0];
+                s[1] += v * l[1];
+                s[2] += v * l[2];
+            }
+            let o = &mut out[row as usize];
+            o[0] += s[0];
+            o[1] += s[1];
+            o[2] += s[2];
         }
     }
 
@@ -1070,6 +1110,7 @@ mod tests {
                 clutter,
                 entries,
                 buried: vec![3, 12],
+                direct_gather: None,
             }),
             probes: None,
         }

@@ -17,7 +17,7 @@ use crate::wire::{checksum, Reader, WireError, Writer};
 
 pub const BUNDLE_MAGIC: &[u8; 8] = b"LFBUNDLE";
 pub const BUNDLE_MAJOR: u16 = 0;
-pub const BUNDLE_MINOR: u16 = 2;
+pub const BUNDLE_MINOR: u16 = 3;
 
 /// Section kinds.
 pub mod section {
@@ -238,6 +238,20 @@ pub struct DrtOps {
     pub entries: Vec<DeltaEntry>,
     /// Texels buried in or under geometry (their values are inpainted).
     pub buried: Vec<u32>,
+    /// Exact gather onto clutter texels from the direct light of the texels their rays hit
+    /// (`clutter_gather: exact`): `out[rows[i]] += Σ_k values[k] · l_d[cols[k]]` over
+    /// `row_start[i]..row_start[i+1]`, albedo-free. Replaces C_b's implicit lights, which cannot
+    /// hold the clutter's own shadow on the floor next to it (the weakness DRT §6 names).
+    pub direct_gather: Option<TexelGather>,
+}
+
+/// Sparse rows over texels (see [`DrtOps::direct_gather`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TexelGather {
+    pub rows: Vec<u32>,
+    pub row_start: Vec<u32>,
+    pub cols: Vec<u32>,
+    pub values: Vec<f32>,
 }
 
 /// Why bytes are not a usable bundle.
@@ -490,6 +504,16 @@ impl Bundle {
             }
             write_entries(&mut w, &d.entries);
             w.u32s(&d.buried);
+            match &d.direct_gather {
+                Some(g) => {
+                    w.u8(1);
+                    w.u32s(&g.rows);
+                    w.u32s(&g.row_start);
+                    w.u32s(&g.cols);
+                    w.f32s(&g.values);
+                }
+                None => w.u8(0),
+            }
             sections.push((section::DRT, w.bytes));
         }
         if let Some(p) = &self.probes {
@@ -690,6 +714,19 @@ impl Bundle {
             if d.buried.iter().any(|r| *r as u64 >= n_texels) {
                 return bad("drt: buried texel out of range".into());
             }
+            if let Some(g) = &d.direct_gather {
+                let ok = g.row_start.len() == g.rows.len() + 1
+                    && g.row_start.first() == Some(&0)
+                    && g.row_start.windows(2).all(|w| w[1] >= w[0])
+                    && g.row_start.last().map(|l| *l as usize) == Some(g.cols.len())
+                    && g.cols.len() == g.values.len()
+                    && g.rows.windows(2).all(|w| w[1] > w[0])
+                    && g.rows.iter().chain(&g.cols).all(|r| (*r as u64) < n_texels)
+                    && g.values.iter().all(|v| v.is_finite());
+                if !ok {
+                    return bad("drt: direct gather is inconsistent".into());
+                }
+            }
         }
         if let Some(p) = &self.probes {
             let cells = p
@@ -826,10 +863,26 @@ fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
         });
     }
     let entries = read_entries(r)?;
+    let buried = r.u32s()?;
+    let direct_gather = match r.u8()? {
+        0 => None,
+        1 => Some(TexelGather {
+            rows: r.u32s()?,
+            row_start: r.u32s()?,
+            cols: r.u32s()?,
+            values: r.f32s()?,
+        }),
+        k => {
+            return Err(BundleError::Invalid(format!(
+                "drt: unknown gather flag {k}"
+            )))
+        }
+    };
     Ok(DrtOps {
         clutter,
         entries,
-        buried: r.u32s()?,
+        buried,
+        direct_gather,
     })
 }
 

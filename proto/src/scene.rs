@@ -65,6 +65,16 @@ pub enum ClutterBasis {
     FaceConstant,
 }
 
+/// How clutter texels gather light from the scene (DRT §4.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ClutterGather {
+    /// From the actual direct light of the texels hit (sparse rows; holds contact shadows).
+    Exact,
+    /// From the blocks' implicit lights `L_imp b` (the paper's C_b).
+    Implicit,
+}
+
 /// Bake settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -93,6 +103,8 @@ pub struct Settings {
     pub probe_spacing: f64,
     /// Fraction of DRT gather rays aimed at clutter (importance sampling; 0 disables).
     pub clutter_importance: f64,
+    /// How clutter texels gather light from the scene.
+    pub clutter_gather: ClutterGather,
 }
 
 impl Default for Settings {
@@ -109,6 +121,7 @@ impl Default for Settings {
             clutter_basis: ClutterBasis::Prior,
             probe_spacing: 1.0,
             clutter_importance: 0.5,
+            clutter_gather: ClutterGather::Exact,
         }
     }
 }

@@ -235,3 +235,35 @@ fn probe_volume_shades_surfaces_close_to_the_reference_and_clutter_better_with_d
     eprintln!("clutter texels: mrt (probes) {e_mrt:.4}, drt {e_drt:.4}");
     assert!(!mrt.texels.is_empty() && e_drt < 0.5 * e_mrt);
 }
+
+#[test]
+fn exact_clutter_gather_holds_the_contact_shadow_the_implicit_one_misses() {
+    use lightfarm_proto::scene::ClutterGather;
+    let dir = scene_dir("cornell");
+    let lights = lights();
+    let base = room_with_box(8, 1024, ClutterBasis::Prior);
+    let reference = reference_of(&base, &dir, &lights, 8192);
+    let mut errors = Vec::new();
+    for gather in [ClutterGather::Exact, ClutterGather::Implicit] {
+        let mut scene = base.clone();
+        scene.settings.clutter_gather = gather;
+        let (bundle, _) = bake_scene(&scene, &dir, Transport::Lightfield, false);
+        let mut drt = apply(&bundle, &lights, Method::Drt);
+        drt.texels.retain(|t| t.surface.starts_with("clutter:"));
+        errors.push(
+            check_against_reference(
+                &format!("clutter texels, {gather:?} gather"),
+                &drt,
+                &reference,
+                0.25,
+            )
+            .relative_l2,
+        );
+    }
+    assert!(
+        errors[0] < 0.05 && errors[0] < 0.5 * errors[1],
+        "exact {} vs implicit {}",
+        errors[0],
+        errors[1]
+    );
+}

@@ -22,8 +22,8 @@ use std::collections::BTreeMap;
 use faer::Mat;
 use rayon::prelude::*;
 
-use lightfarm_proto::bundle::DeltaSource;
-use lightfarm_proto::scene::{Opening, Scene};
+use lightfarm_proto::bundle::{DeltaSource, TexelGather};
+use lightfarm_proto::scene::{ClutterGather, Opening, Scene};
 
 use super::clutter_basis::{clutter_basis, ClutterBasisOps};
 use super::clutter_sampling::{ClutterGuidedSampler, Sphere};
@@ -109,6 +109,8 @@ pub struct DrtStats {
 
 /// All DRT operators of a scene.
 pub struct DrtOperators {
+    /// Exact clutter gather (None with `clutter_gather: implicit`).
+    pub direct_gather: Option<TexelGather>,
     pub clutter: Vec<ClutterProjection>,
     /// Scene clutter index → index in `clutter` (None for mesh clutter).
     pub projection_of: Vec<Option<usize>>,
@@ -488,12 +490,38 @@ pub fn build_drt(
         .collect();
     let mut per_clutter: BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>> = BTreeMap::new();
     let mut buried = Vec::new();
+    let exact = settings.clutter_gather == ClutterGather::Exact;
+    let mut gather = TexelGather {
+        row_start: vec![0],
+        ..Default::default()
+    };
     for (&x, (hits, back)) in clutter_texels.iter().zip(&clutter_rows) {
         let (owner, _) = local(x as u32);
         let p = g.texels[x].position;
         if !inside_blocks(p) || inside_box(p, Some(owner - n_blocks)) || *back > 0.5 {
             stats.buried_clutter_texels += 1;
             buried.push(x as u32);
+        }
+        if exact {
+            // Sparse row over the direct light of the texels hit.
+            let mut sorted = hits.clone();
+            sorted.sort_unstable();
+            let mut row: Vec<(u32, f32)> = Vec::new();
+            for t in sorted {
+                match row.last_mut() {
+                    Some((last, w)) if *last == t => *w += inv as f32,
+                    _ => row.push((t, inv as f32)),
+                }
+            }
+            if !row.is_empty() {
+                gather.rows.push(x as u32);
+                for (c, v) in row {
+                    gather.cols.push(c);
+                    gather.values.push(v);
+                }
+                gather.row_start.push(gather.cols.len() as u32);
+            }
+            continue;
         }
         for &t in hits {
             let (source, l) = local(t);
@@ -543,6 +571,7 @@ pub fn build_drt(
         }
     }
     Ok(DrtOperators {
+        direct_gather: exact.then_some(gather),
         clutter: clutter.into_iter().map(|(_, p)| p).collect(),
         projection_of,
         entries,

@@ -329,6 +329,7 @@ pub fn bake(
             .collect(),
         entries: ops.entries.iter().map(to_entry).collect(),
         buried: ops.buried.clone(),
+        direct_gather: ops.direct_gather.clone(),
     });
     lap(&mut report, "clutter operators");
 
