@@ -43,7 +43,6 @@
 use lightfarm_proto::bundle::{
     Bundle, BundleError, DeltaSource, Matrix, ProbeVolume, TransportOps,
 };
-use lightfarm_proto::sh::SH_COEFFS;
 
 use crate::direct::DirectLight;
 use crate::probes::ProbeField;
@@ -214,189 +213,6 @@ fn scatter_matvec(out: &mut [[f32; 3]], rows: &[u32], m: &Matrix, x: [&[f32]; 3]
     }
 }
 
-fn check_matrix(m: &Matrix, rows: u32, cols: u32, what: &str) -> Result<(), BundleError> {
-    if m.rows != rows || m.cols != cols || m.data.len() as u64 != rows as u64 * cols as u64 {
-        return Err(BundleError::Invalid(format!(
-            "{what}: {}×{} matrix with {} values, expected {rows}×{cols}",
-            m.rows,
-            m.cols,
-            m.data.len()
-        )));
-    }
-    Ok(())
-}
-
-/// Checks every size and index the runtime relies on: the subset of `Bundle::decode`'s
-/// validation that matters here, for bundles built by hand.
-fn check(bundle: &Bundle) -> Result<(), BundleError> {
-    let bad = |m: String| Err(BundleError::Invalid(m));
-    let layout = &bundle.layout;
-    let n_texels = layout.n_texels() as u64;
-    if layout.normals.len() as u64 != n_texels || layout.albedo.len() as u64 != n_texels {
-        return bad("layout: positions, normals and albedo differ in length".into());
-    }
-    for (k, s) in bundle.shapes.iter().enumerate() {
-        check_matrix(&s.u_b, s.u_b.rows, s.u_b.cols, &format!("shape {k} U_b"))?;
-        check_matrix(&s.t_db, s.u_b.cols, s.u_b.rows, &format!("shape {k} T_d→b"))?;
-        for o in &s.openings {
-            if o.face > 5 {
-                return bad(format!("shape {k}: opening face {} out of range", o.face));
-            }
-            check_matrix(&o.u_r, s.u_b.rows, o.u_r.cols, &format!("shape {k} U_r"))?;
-        }
-    }
-    for b in &bundle.blocks {
-        let Some(shape) = bundle.shapes.get(b.shape as usize) else {
-            return bad(format!("block {}: shape {} does not exist", b.id, b.shape));
-        };
-        if b.texel_offset as u64 + shape.u_b.rows as u64 > n_texels {
-            return bad(format!("block {}: texel range past the layout", b.id));
-        }
-    }
-    let shape_of = |i: u32| {
-        bundle
-            .blocks
-            .get(i as usize)
-            .map(|b| &bundle.shapes[b.shape as usize])
-    };
-    match &bundle.transport {
-        Some(TransportOps::Lightfield(entries)) => {
-            for e in entries {
-                let (Some(target), Some(source)) =
-                    (shape_of(e.target_block), shape_of(e.source_block))
-                else {
-                    return bad("transport: entry names a missing block".into());
-                };
-                let Some(opening) = target.openings.iter().find(|o| o.face == e.target_face) else {
-                    return bad("transport: entry names an opening the shape lacks".into());
-                };
-                check_matrix(&e.matrix, opening.u_r.cols, source.u_b.cols, "transport")?;
-            }
-        }
-        Some(TransportOps::Traced(entries)) => {
-            for e in entries {
-                let (Some(target), Some(source)) =
-                    (shape_of(e.target_block), shape_of(e.source_block))
-                else {
-                    return bad("transport: entry names a missing block".into());
-                };
-                check_matrix(&e.matrix, target.u_b.rows, source.u_b.cols, "transport")?;
-            }
-        }
-        None => {}
-    }
-    if let Some(f) = &bundle.full {
-        if f.n as u64 != n_texels || f.row_start.len() as u64 != n_texels + 1 {
-            return bad("full: size does not match the layout".into());
-        }
-        if f.row_start.first() != Some(&0)
-            || f.row_start.windows(2).any(|w| w[1] < w[0])
-            || f.row_start.last().map(|&l| l as usize) != Some(f.cols.len())
-            || f.cols.len() != f.values.len()
-        {
-            return bad("full: row starts are inconsistent".into());
-        }
-        if f.cols.iter().any(|&c| c >= f.n) {
-            return bad("full: column index out of range".into());
-        }
-    }
-    if let Some(d) = &bundle.drt {
-        for (k, c) in d.clutter.iter().enumerate() {
-            let what = format!("drt: clutter {k} t_dc");
-            check_matrix(&c.t_dc, c.t_dc.rows, c.t_dc.cols, &what)?;
-            if c.texel_offset as u64 + c.t_dc.cols as u64 > n_texels {
-                return bad(format!("drt: clutter {k} texel range past the layout"));
-            }
-        }
-        for (k, e) in d.entries.iter().enumerate() {
-            let cols = match e.source {
-                DeltaSource::Block(b) => shape_of(b).map(|s| s.u_b.cols),
-                DeltaSource::Clutter(c) => d.clutter.get(c as usize).map(|c| c.t_dc.rows),
-            };
-            let Some(cols) = cols else {
-                return bad(format!("drt: entry {k} names a missing source"));
-            };
-            if e.rows.len() as u64 != e.matrix.rows as u64 {
-                return bad(format!("drt: entry {k} matrix has the wrong size"));
-            }
-            check_matrix(&e.matrix, e.matrix.rows, cols, &format!("drt: entry {k}"))?;
-            if e.rows.iter().any(|&r| r as u64 >= n_texels)
-                || e.rows.windows(2).any(|w| w[1] <= w[0])
-            {
-                return bad(format!("drt: entry {k} rows out of range or not ascending"));
-            }
-        }
-        if d.buried.iter().any(|&r| r as u64 >= n_texels) {
-            return bad("drt: buried texel out of range".into());
-        }
-        if let Some(g) = &d.direct_gather {
-            let ok = g.row_start.len() == g.rows.len() + 1
-                && g.row_start.first() == Some(&0)
-                && g.row_start.windows(2).all(|w| w[1] >= w[0])
-                && g.row_start.last().map(|l| *l as usize) == Some(g.cols.len())
-                && g.cols.len() == g.values.len()
-                && g.rows.windows(2).all(|w| w[1] > w[0])
-                && g.rows.iter().chain(&g.cols).all(|r| (*r as u64) < n_texels)
-                && g.values.iter().all(|v| v.is_finite());
-            if !ok {
-                return bad("drt: direct gather is inconsistent".into());
-            }
-        }
-    }
-    if let Some(p) = &bundle.probes {
-        check_probes(bundle, p)?;
-    }
-    Ok(())
-}
-
-/// The probe-volume checks of `Bundle::validate`, plus matrix value counts.
-fn check_probes(bundle: &Bundle, p: &ProbeVolume) -> Result<(), BundleError> {
-    let bad = |m: String| Err(BundleError::Invalid(m));
-    if !(p.spacing.is_finite() && p.spacing > 0.0) || p.origin.iter().any(|x| !x.is_finite()) {
-        return bad("probes: bad grid origin or spacing".into());
-    }
-    // u128: three u32 dimensions can overflow u64.
-    let cells = p.dims.iter().map(|&d| d as u128).product::<u128>();
-    if cells != p.slot.len() as u128 || p.n_probes as u128 > cells {
-        return bad("probes: grid size does not match its slots".into());
-    }
-    if p.slot.iter().any(|&s| s != u32::MAX && s >= p.n_probes) {
-        return bad("probes: slot names a missing probe".into());
-    }
-    let rows_max = p.n_probes as u64 * SH_COEFFS as u64;
-    for (k, e) in p.entries.iter().enumerate() {
-        let cols = match e.source {
-            DeltaSource::Block(b) => bundle
-                .blocks
-                .get(b as usize)
-                .map(|b| bundle.shapes[b.shape as usize].u_b.cols),
-            DeltaSource::Clutter(c) => bundle
-                .drt
-                .as_ref()
-                .and_then(|d| d.clutter.get(c as usize))
-                .map(|c| c.t_dc.rows),
-        };
-        let Some(cols) = cols else {
-            return bad(format!("probes: entry {k} names a missing source"));
-        };
-        if e.rows.len() as u64 != e.matrix.rows as u64 {
-            return bad(format!("probes: entry {k} matrix has the wrong size"));
-        }
-        check_matrix(
-            &e.matrix,
-            e.matrix.rows,
-            cols,
-            &format!("probes: entry {k}"),
-        )?;
-        if e.rows.iter().any(|&r| r as u64 >= rows_max) || e.rows.windows(2).any(|w| w[1] <= w[0]) {
-            return bad(format!(
-                "probes: entry {k} rows out of range or not ascending"
-            ));
-        }
-    }
-    Ok(())
-}
-
 impl Runtime {
     /// Takes the bundle and sizes every scratch buffer.
     ///
@@ -413,7 +229,7 @@ impl Runtime {
     /// Like [`Runtime::new`], but refuses a bundle whose sizes or indices are inconsistent
     /// (possible only for a bundle built by hand).
     pub fn try_new(bundle: Bundle) -> Result<Runtime, BundleError> {
-        check(&bundle)?;
+        bundle.validate()?;
         let n_texels = bundle.layout.n_texels();
         let mut coef_offset = Vec::with_capacity(bundle.blocks.len());
         let mut n_coef = 0;

@@ -600,6 +600,50 @@ impl Bundle {
     pub fn validate(&self) -> Result<(), BundleError> {
         let bad = |m: String| Err(BundleError::Invalid(m));
         let n_texels = self.layout.n_texels() as u64;
+        // What decoding guarantees by construction, re-checked for bundles built by hand.
+        let layout = &self.layout;
+        let n = layout.positions.len();
+        if layout.normals.len() != n || layout.albedo.len() != n || layout.texel_size.len() != n {
+            return bad(
+                "layout: positions, normals, albedo and texel sizes differ in length".into(),
+            );
+        }
+        let mut next = 0u64;
+        for surface in &layout.surfaces {
+            if surface.texel_offset as u64 != next {
+                return bad(format!(
+                    "layout: surface {} is not contiguous",
+                    surface.name
+                ));
+            }
+            next += surface.texel_count as u64;
+        }
+        if next != n as u64 {
+            return bad("layout: surfaces do not cover the texels".into());
+        }
+        let mut matrices: Vec<&Matrix> = Vec::new();
+        for s in &self.shapes {
+            matrices.extend([&s.u_b, &s.t_db]);
+            matrices.extend(s.openings.iter().map(|o| &o.u_r));
+        }
+        match &self.transport {
+            Some(TransportOps::Lightfield(e)) => matrices.extend(e.iter().map(|e| &e.matrix)),
+            Some(TransportOps::Traced(e)) => matrices.extend(e.iter().map(|e| &e.matrix)),
+            None => {}
+        }
+        if let Some(d) = &self.drt {
+            matrices.extend(d.clutter.iter().map(|c| &c.t_dc));
+            matrices.extend(d.entries.iter().map(|e| &e.matrix));
+        }
+        if let Some(p) = &self.probes {
+            matrices.extend(p.entries.iter().map(|e| &e.matrix));
+        }
+        if matrices
+            .iter()
+            .any(|m| m.data.len() as u64 != m.rows as u64 * m.cols as u64)
+        {
+            return bad("a matrix holds the wrong number of values".into());
+        }
         for (k, s) in self.shapes.iter().enumerate() {
             let n = s.u_b.rows;
             if s.t_db.cols != n || s.t_db.rows != s.u_b.cols {

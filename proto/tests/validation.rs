@@ -2,6 +2,8 @@
 //! exact text the CLI and the HTTP API show), the connectivity graph of valid scenes, and
 //! property tests that parsing never panics and that valid boxes always validate.
 
+#![allow(clippy::approx_constant)] // JSON fixtures spell out unit quaternions
+
 use std::fmt::Display;
 
 use lightfarm_proto::scene::{

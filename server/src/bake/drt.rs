@@ -82,6 +82,9 @@ fn clutter_spheres(scene: &Scene, g: &Geometry) -> Vec<Sphere> {
     out
 }
 
+/// Rows of one target, keyed by (source kind, source index) then global texel row.
+type RowsBySource = BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>>;
+
 /// A delta operator block in f64.
 pub struct DeltaBlock {
     pub rows: Vec<u32>,
@@ -268,8 +271,7 @@ pub fn build_drt(
             }
             let Some(b) = object.box_ else { return false };
             let e = 1e-6 * g.scale();
-            let inside_closed = (0..3).all(|k| p[k] >= b.min[k] - e && p[k] <= b.max[k] + e);
-            inside_closed
+            (0..3).all(|k| p[k] >= b.min[k] - e && p[k] <= b.max[k] + e)
         })
     };
     let inside_blocks = |p: [f64; 3]| {
@@ -333,8 +335,7 @@ pub fn build_drt(
         .collect();
 
     // Accumulate per target block: map[(kind, source)][row] = values.
-    let mut per_target: Vec<BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>>> =
-        (0..n_blocks).map(|_| BTreeMap::new()).collect();
+    let mut per_target: Vec<RowsBySource> = (0..n_blocks).map(|_| BTreeMap::new()).collect();
     let mut buried_scene: Vec<bool> = vec![false; g.texels.len()];
     for (&x, (occluded, reflected, clutter_hits, back_hits)) in block_texels.iter().zip(&scene_rows)
     {
