@@ -120,7 +120,7 @@ impl Default for Settings {
             seed: 0,
             clutter_basis: ClutterBasis::Prior,
             probe_spacing: 1.0,
-            clutter_importance: 0.5,
+            clutter_importance: 0.25,
             clutter_gather: ClutterGather::Exact,
         }
     }

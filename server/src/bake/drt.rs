@@ -36,7 +36,6 @@ use super::transport::MrtTransport;
 
 const PURPOSE_DRT_SCENE: u64 = 31;
 const PURPOSE_DRT_CLUTTER: u64 = 32;
-const PURPOSE_DRT_PICK: u64 = 33;
 
 /// Bounding spheres of every clutter object (boxes from their box, meshes from their triangles).
 fn clutter_spheres(scene: &Scene, g: &Geometry) -> Vec<Sphere> {
@@ -297,12 +296,11 @@ pub fn build_drt(
             let mut occluded: Vec<(u32, f64)> = Vec::new();
             let mut reflected: Vec<(u32, f64)> = Vec::new();
             let (mut clutter_hits, mut back_hits) = (0.0, 0.0);
-            let pick_key = stream_key(settings.seed, PURPOSE_DRT_PICK, x as u64);
             for i in 0..rays {
                 let (d, weight) = guided.sample(
                     texel.position,
                     texel.normal,
-                    sobol_2d(pick_key, i)[0],
+                    (i as f64 + 0.5) / rays as f64,
                     sobol_2d(key, i),
                 );
                 if weight == 0.0 {
