@@ -360,6 +360,8 @@ pub fn bake(
         })
     };
 
+    lap(&mut report, "probe volume");
+
     // The dense Hašan-style operator over the full geometry.
     let full = if options.full {
         progress.stage("dense operator", full_geometry.texels.len() as u64);
