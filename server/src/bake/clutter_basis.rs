@@ -18,7 +18,7 @@ use lightfarm_proto::scene::{Aabb, ClutterBasis, Opening, Scene};
 
 use super::geometry::Geometry;
 use super::low_rank::{truncated_svd, LowRankError};
-use super::sampling::{mix64, stream_key};
+use super::sampling::{halton_point_in, stream_key};
 use super::tracer::Tracer;
 
 /// An orthonormal basis over one clutter object's texels.
@@ -26,16 +26,6 @@ pub struct ClutterBasisOps {
     /// texels × m.
     pub basis: Mat<f64>,
     pub dropped_energy: f64,
-}
-
-fn halton(i: u64, base: u64) -> f64 {
-    let (mut f, mut r, mut i) = (1.0 / base as f64, 0.0, i);
-    while i > 0 {
-        r += f * (i % base) as f64;
-        i /= base;
-        f /= base as f64;
-    }
-    r
 }
 
 /// Blocks whose volume meets `aabb`, and their neighbours one opening away.
@@ -126,12 +116,7 @@ pub fn clutter_basis(
         acc += w;
         let end = (acc / total * count as f64).round() as usize;
         for i in start..end {
-            let mut p = [0.0; 3];
-            for (k, base) in [2u64, 3, 5].into_iter().enumerate() {
-                let shift = (mix64(key ^ k as u64) >> 11) as f64 / (1u64 << 53) as f64;
-                p[k] =
-                    v.min[k] + (halton(i as u64 + 1, base) + shift).fract() * (v.max[k] - v.min[k]);
-            }
+            let p = halton_point_in(v, i as u64, key);
             // Lights inside the clutter itself are not plausible.
             if !(0..3).all(|k| p[k] > aabb.min[k] && p[k] < aabb.max[k]) {
                 lights.push(p);

@@ -17,7 +17,7 @@ use faer::Mat;
 
 use super::geometry::Geometry;
 use super::low_rank::{truncated_svd, LowRankError};
-use super::sampling::{mix64, stream_key};
+use super::sampling::{halton_point_in, stream_key};
 use lightfarm_proto::scene::Aabb;
 use lightfarm_proto::Face;
 
@@ -31,29 +31,6 @@ pub struct LightingPrior {
     pub lights: Vec<[f64; 3]>,
     /// Energy fraction dropped, per face.
     pub dropped_energy: Vec<f64>,
-}
-
-fn radical_inverse(mut i: u64, base: u64) -> f64 {
-    let inv = 1.0 / base as f64;
-    let mut f = inv;
-    let mut r = 0.0;
-    while i > 0 {
-        r += f * (i % base) as f64;
-        i /= base;
-        f *= inv;
-    }
-    r
-}
-
-/// Quasi-random point `i` in a box (Halton 2,3,5 with a seeded Cranley–Patterson rotation).
-fn point_in(aabb: &Aabb, i: u64, key: u64) -> [f64; 3] {
-    let mut p = [0.0; 3];
-    for (k, base) in [2u64, 3, 5].into_iter().enumerate() {
-        let shift = (mix64(key ^ k as u64) >> 11) as f64 / (1u64 << 53) as f64;
-        let x = (radical_inverse(i + 1, base) + shift).fract();
-        p[k] = aabb.min[k] + x * (aabb.max[k] - aabb.min[k]);
-    }
-    p
 }
 
 /// Where prior lights go, in the shape's local frame (block spans `[0, extent]`).
@@ -106,13 +83,17 @@ pub fn prior_light_positions(
     let inner = volume.unwrap_or(block);
     boxes.push(inner);
     for i in 0..inside {
-        out.push(point_in(&inner, i as u64, stream_key(seed, 11, 0)));
+        out.push(halton_point_in(&inner, i as u64, stream_key(seed, 11, 0)));
     }
     let rest = count - inside;
     for (k, slab) in slabs.iter().enumerate() {
         let n = rest / slabs.len() + usize::from(k < rest % slabs.len());
         for i in 0..n {
-            out.push(point_in(slab, i as u64, stream_key(seed, 12, k as u64 + 1)));
+            out.push(halton_point_in(
+                slab,
+                i as u64,
+                stream_key(seed, 12, k as u64 + 1),
+            ));
         }
     }
     out

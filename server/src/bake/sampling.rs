@@ -21,6 +21,31 @@ pub fn stream_key(seed: u64, purpose: u64, stream: u64) -> u64 {
     mix64(mix64(seed ^ purpose.wrapping_mul(0x9e3779b97f4a7c15)) ^ stream)
 }
 
+/// Radical inverse of `i` in `base` (the Halton sequence's coordinate).
+pub fn radical_inverse(mut i: u64, base: u64) -> f64 {
+    let inv = 1.0 / base as f64;
+    let mut f = inv;
+    let mut r = 0.0;
+    while i > 0 {
+        r += f * (i % base) as f64;
+        i /= base;
+        f *= inv;
+    }
+    r
+}
+
+/// Quasi-random point `i` in a box: Halton (2, 3, 5) with a Cranley–Patterson rotation seeded
+/// by `key`.
+pub fn halton_point_in(aabb: &lightfarm_proto::scene::Aabb, i: u64, key: u64) -> [f64; 3] {
+    let mut p = [0.0; 3];
+    for (k, base) in [2u64, 3, 5].into_iter().enumerate() {
+        let shift = (mix64(key ^ k as u64) >> 11) as f64 / (1u64 << 53) as f64;
+        let x = (radical_inverse(i + 1, base) + shift).fract();
+        p[k] = aabb.min[k] + x * (aabb.max[k] - aabb.min[k]);
+    }
+    p
+}
+
 /// Laine–Karras style nested uniform scramble of a 32-bit reversed integer.
 fn owen_scramble(mut v: u32, seed: u32) -> u32 {
     v = v.reverse_bits();
