@@ -133,7 +133,7 @@ enum Seen {
     },
 }
 
-fn classify(g: &Geometry, tracer: &Tracer, hit: &Hit, clutter_of_texel: &[u32]) -> Seen {
+fn classify(g: &Geometry, tracer: &Tracer, hit: &Hit) -> Seen {
     match tracer.primitives()[hit.primitive as usize] {
         Primitive::Rect {
             surface: Some(s), ..
@@ -146,7 +146,6 @@ fn classify(g: &Geometry, tracer: &Tracer, hit: &Hit, clutter_of_texel: &[u32]) 
                 SurfaceOwner::Block { .. } => Seen::Nothing,
                 SurfaceOwner::ClutterBox { .. } => {
                     let t = g.texel_at(s, hit.point);
-                    let _ = clutter_of_texel;
                     Seen::Clutter {
                         texel: hit.front.then_some(t as u32),
                         back: !hit.front,
@@ -310,7 +309,7 @@ pub fn build_drt(
                 let Some(hit) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
                     continue;
                 };
-                if let Seen::Clutter { texel: k, back } = classify(g, &tracer, &hit, &block_of) {
+                if let Seen::Clutter { texel: k, back } = classify(g, &tracer, &hit) {
                     clutter_hits += w;
                     if back {
                         back_hits += w;
@@ -321,7 +320,7 @@ pub fn build_drt(
                     if let Some(behind) =
                         block_tracer.closest(texel.position, d, f64::INFINITY, &sign_b)
                     {
-                        if let Seen::Block(t) = classify(gb, &block_tracer, &behind, &block_of) {
+                        if let Seen::Block(t) = classify(gb, &block_tracer, &behind) {
                             occluded.push((t, w));
                         }
                     }
@@ -476,7 +475,7 @@ pub fn build_drt(
                 let Some(hit) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
                     continue;
                 };
-                match classify(g, &tracer, &hit, &block_of) {
+                match classify(g, &tracer, &hit) {
                     Seen::Block(t) => hits.push(t),
                     Seen::Clutter { texel: Some(k), .. } => hits.push(k),
                     Seen::Clutter { back: true, .. } => back += inv,
