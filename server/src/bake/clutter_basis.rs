@@ -17,6 +17,7 @@ use rayon::prelude::*;
 use lightfarm_proto::scene::{Aabb, ClutterBasis, Opening, Scene};
 
 use super::geometry::Geometry;
+use super::lighting_prior::unshadowed_pattern;
 use super::low_rank::{truncated_svd, LowRankError};
 use super::sampling::{halton_point_in, stream_key};
 use super::tracer::Tracer;
@@ -131,19 +132,11 @@ pub fn clutter_basis(
                 .clone()
                 .map(|t| {
                     let texel = &g.texels[t];
-                    let d = [
-                        l[0] - texel.position[0],
-                        l[1] - texel.position[1],
-                        l[2] - texel.position[2],
-                    ];
-                    let r2 = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).max(min_r2);
-                    let cos =
-                        (d[0] * texel.normal[0] + d[1] * texel.normal[1] + d[2] * texel.normal[2])
-                            / r2.sqrt();
-                    if cos <= 0.0 || tracer.occluded(texel.position, *l) {
-                        0.0
+                    let pattern = unshadowed_pattern(texel, *l, min_r2);
+                    if pattern > 0.0 && !tracer.occluded(texel.position, *l) {
+                        pattern
                     } else {
-                        cos / r2
+                        0.0
                     }
                 })
                 .collect();

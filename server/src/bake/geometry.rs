@@ -202,8 +202,9 @@ impl Geometry {
         start..self.texels.len()
     }
 
-    /// Builds the full scene: blocks, clutter (boxes with texels, meshes as triangles).
-    pub fn from_scene(scene: &Scene, scene_dir: &Path) -> Result<Geometry, GeometryError> {
+    /// The blocks alone (what MRT transport sees); block texels come first in every geometry
+    /// of a scene, so their indices agree with [`Geometry::from_scene`].
+    pub fn blocks_only(scene: &Scene) -> Geometry {
         let t = scene.settings.texels_per_face as usize;
         let mut g = Geometry::default();
         for (b, block) in scene.blocks.iter().enumerate() {
@@ -217,6 +218,13 @@ impl Geometry {
             );
             g.block_texels.push(range);
         }
+        g
+    }
+
+    /// Builds the full scene: blocks, clutter (boxes with texels, meshes as triangles).
+    pub fn from_scene(scene: &Scene, scene_dir: &Path) -> Result<Geometry, GeometryError> {
+        let t = scene.settings.texels_per_face as usize;
+        let mut g = Geometry::blocks_only(scene);
         for (c, clutter) in scene.clutter.iter().enumerate() {
             let start = g.texels.len();
             if let Some(aabb) = &clutter.box_ {

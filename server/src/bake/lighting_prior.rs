@@ -15,7 +15,7 @@
 
 use faer::Mat;
 
-use super::geometry::Geometry;
+use super::geometry::{Geometry, Texel};
 use super::low_rank::{truncated_svd, LowRankError};
 use super::sampling::{halton_point_in, stream_key};
 use lightfarm_proto::scene::Aabb;
@@ -112,20 +112,28 @@ pub fn light_pattern(
     let min_r2 = (1e-3 * extent.iter().cloned().fold(0.0, f64::max)).powi(2);
     let inside = (0..3).all(|k| light[k] >= 0.0 && light[k] <= extent[k]);
     for (t, texel) in geometry.texels.iter().enumerate() {
-        let d = [
-            light[0] - texel.position[0],
-            light[1] - texel.position[1],
-            light[2] - texel.position[2],
-        ];
-        let r2 = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).max(min_r2);
-        let cos =
-            (d[0] * texel.normal[0] + d[1] * texel.normal[1] + d[2] * texel.normal[2]) / r2.sqrt();
-        if cos <= 0.0 {
-            out[t] = 0.0;
-            continue;
-        }
-        let visible = inside || exits_through_opening(texel.position, light, extent, open);
-        out[t] = if visible { cos / r2 } else { 0.0 };
+        let unshadowed = unshadowed_pattern(texel, light, min_r2);
+        let visible = unshadowed > 0.0
+            && (inside || exits_through_opening(texel.position, light, extent, open));
+        out[t] = if visible { unshadowed } else { 0.0 };
+    }
+}
+
+/// Albedo-free, unshadowed direct pattern `max(cosθ, 0) / max(r², min_r2)` of a unit point light
+/// at `light` on `texel` (shared by the shape prior and the clutter prior).
+pub fn unshadowed_pattern(texel: &Texel, light: [f64; 3], min_r2: f64) -> f64 {
+    let d = [
+        light[0] - texel.position[0],
+        light[1] - texel.position[1],
+        light[2] - texel.position[2],
+    ];
+    let r2 = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).max(min_r2);
+    let cos =
+        (d[0] * texel.normal[0] + d[1] * texel.normal[1] + d[2] * texel.normal[2]) / r2.sqrt();
+    if cos <= 0.0 {
+        0.0
+    } else {
+        cos / r2
     }
 }
 

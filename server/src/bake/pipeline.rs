@@ -91,24 +91,6 @@ fn to_matrix(m: &Mat<f64>) -> Matrix {
     }
 }
 
-/// Geometry of the blocks alone (what MRT transport sees).
-pub fn blocks_geometry(scene: &Scene) -> Geometry {
-    let t = scene.settings.texels_per_face as usize;
-    let mut g = Geometry::default();
-    for (b, block) in scene.blocks.iter().enumerate() {
-        let range = g.add_block(
-            b,
-            &block.id,
-            &block.aabb(),
-            &block.closed_faces(),
-            |f| block.face_albedo(f),
-            t,
-        );
-        g.block_texels.push(range);
-    }
-    g
-}
-
 /// The bundle layout of a full geometry.
 pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
     let mut surfaces: Vec<SurfaceInfo> = Vec::new();
@@ -184,7 +166,7 @@ pub fn bake(
     };
     let settings = &scene.settings;
     let full_geometry = Geometry::from_scene(scene, scene_dir)?;
-    let block_geometry = blocks_geometry(scene);
+    let block_geometry = Geometry::blocks_only(scene);
     let openings = scene.openings()?;
     report.blocks = scene.blocks.len();
     report.texels = full_geometry.texels.len();
@@ -228,7 +210,7 @@ pub fn bake(
     }
     let texels_to_do: u64 = to_compute
         .iter()
-        .map(|i| unique_specs[*i].geometry().texels.len() as u64)
+        .map(|i| unique_specs[*i].n_texels() as u64)
         .sum();
     progress.stage("shape operators", texels_to_do);
     for i in to_compute {

@@ -138,6 +138,11 @@ impl ShapeSpec {
         h.finalize().to_hex()[..32].to_string()
     }
 
+    /// Texels of the shape: `T²` per closed face.
+    pub fn n_texels(&self) -> usize {
+        (6 - self.open.len()) * self.texels_per_face * self.texels_per_face
+    }
+
     pub fn closed(&self) -> Vec<Face> {
         Face::ALL
             .into_iter()

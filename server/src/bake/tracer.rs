@@ -188,23 +188,19 @@ impl Tracer {
         }
     }
 
-    fn facing(&self, primitive: &Primitive, d: [f64; 3]) -> (bool, [f64; 3]) {
+    /// Geometric normal of `primitive` facing against the ray direction `d`.
+    fn normal_facing(primitive: &Primitive, d: [f64; 3]) -> [f64; 3] {
         match primitive {
-            Primitive::Rect { axis, surface, .. } => {
+            Primitive::Rect { axis, .. } => {
                 let mut n = [0.0; 3];
                 n[*axis] = if d[*axis] > 0.0 { -1.0 } else { 1.0 };
-                // Lit side is known by the geometry's surface; `front` is decided by the caller
-                // through `Geometry`; here: front = the ray travels against the rect's lit normal.
-                (surface.is_some(), n)
+                n
             }
             Primitive::Triangle { v, .. } => {
-                let mut n = cross(sub(v[1], v[0]), sub(v[2], v[0]));
+                let n = cross(sub(v[1], v[0]), sub(v[2], v[0]));
                 let len = dot(n, n).sqrt();
-                n = n.map(|x| x / len);
-                if dot(n, d) > 0.0 {
-                    n = n.map(|x| -x);
-                }
-                (false, n)
+                let sign = if dot(n, d) > 0.0 { -1.0 } else { 1.0 };
+                n.map(|x| sign * x / len)
             }
         }
     }
@@ -249,13 +245,13 @@ impl Tracer {
         let prim = &self.primitives[index as usize];
         let t = self.intersect(prim, o, d, tmax * (1.0 + 1e-9) + self.epsilon)?;
         let point = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
-        let (has_surface, normal) = self.facing(prim, d);
+        let normal = Self::normal_facing(prim, d);
         let front = match prim {
             Primitive::Rect {
                 axis,
                 surface: Some(s),
                 ..
-            } => has_surface && d[*axis] * lit_normal_sign(*s) < 0.0,
+            } => d[*axis] * lit_normal_sign(*s) < 0.0,
             _ => false,
         };
         Some(Hit {
