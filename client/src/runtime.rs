@@ -37,8 +37,12 @@
 //! - `apply` and `apply_probes` are deterministic: the same direct light gives bit-identical
 //!   output every call, whatever was applied before (they share scratch but each refills what
 //!   it reads).
-//! - Scratch vectors are planar (channel-major: channel c of an n-vector at `c·n .. (c+1)·n`),
-//!   so every matrix row is one contiguous pass accumulating all three channels.
+//! - Scratch vectors are channel-planar (channel c of an n-vector at `c·n .. (c+1)·n`), so
+//!   every matrix row is one contiguous pass accumulating all three channels. Per-block scratch
+//!   (coefficients `b`, opening lightfields) is block-major, so each block's work writes only
+//!   its own ranges: blocks run independently, on one thread by default or on the rayon pool
+//!   with the `rayon` feature and [`Runtime::set_parallel`], with bit-identical results.
+//! - Block texel ranges are ascending and disjoint (checked by `Bundle::validate`).
 
 use lightfarm_proto::bundle::{
     Bundle, BundleError, DeltaSource, Matrix, ProbeVolume, TransportOps,
@@ -77,15 +81,21 @@ pub enum ApplyError {
     MissingProbes,
 }
 
-/// Reduced incoming lightfield of one opening of one block.
-#[derive(Clone, Copy, Debug)]
-struct Slot {
-    block: usize,
-    opening: usize,
-    /// Offset of its q coefficients in the lightfield scratch.
-    offset: usize,
-    /// Whether any transport entry feeds it (unfed slots are skipped).
-    fed: bool,
+/// Where one block's data sits in the block-major scratch vectors.
+#[derive(Clone, Copy, Debug, Default)]
+struct BlockSlots {
+    /// `b[coef_start .. coef_start + 3r]`: the block's r coefficients, channel-planar.
+    coef_start: usize,
+    rank: usize,
+    /// `lf[lf_start .. lf_end]`: the reduced lightfields of the block's openings.
+    lf_start: usize,
+    lf_end: usize,
+    /// `out[texel_start .. texel_end]`: the block's texels.
+    texel_start: usize,
+    texel_end: usize,
+    /// `entry_order[entries_start .. entries_end]`: transport entries that target the block.
+    entries_start: usize,
+    entries_end: usize,
 }
 
 /// Decoded bundle plus scratch, ready to apply every frame.
@@ -93,28 +103,29 @@ struct Slot {
 pub struct Runtime {
     bundle: Bundle,
     n_texels: usize,
-    /// Per block: offset of its r coefficients in `b`.
-    coef_offset: Vec<usize>,
-    /// Total coefficients over all blocks.
-    n_coef: usize,
-    /// Per (block, opening) of the lightfield transport, block-major.
-    slots: Vec<Slot>,
-    /// Per lightfield transport entry: its slot.
-    entry_slot: Vec<usize>,
-    /// Total lightfield coefficients over all slots.
-    n_lf: usize,
+    blocks: Vec<BlockSlots>,
+    /// Per opening of each block's shape, block-major: offset of its 3q lightfield values in
+    /// `lf` (channel-planar within the opening).
+    opening_lf: Vec<usize>,
+    /// Per block: index of its first opening in `opening_lf`.
+    first_opening: Vec<usize>,
+    /// Transport entry indices grouped by target block (stable: ascending within a block).
+    entry_order: Vec<u32>,
+    /// Per transport entry (lightfield): index of the target opening in `opening_lf`.
+    entry_opening: Vec<usize>,
     /// Scratch: direct radiance, planar, 3 × n_texels.
     ld: Vec<f32>,
-    /// Scratch: block coefficients, planar, 3 × n_coef.
+    /// Scratch: block coefficients, block-major, channel-planar within a block.
     b: Vec<f32>,
-    /// Scratch: reduced lightfield coefficients, planar, 3 × n_lf.
+    /// Scratch: reduced lightfield coefficients, block-major (see `opening_lf`).
     lf: Vec<f32>,
-    /// Per clutter object of the DRT section: offset of its m coefficients in `c`.
-    clutter_offset: Vec<usize>,
-    /// Total coefficients over all clutter objects (0 without a DRT section).
-    n_clutter_coef: usize,
-    /// Scratch: clutter coefficients, planar, 3 × n_clutter_coef.
+    /// Per clutter object of the DRT section: `(start, m)`, its coefficients at
+    /// `c[start .. start + 3m]`, channel-planar.
+    clutter_coef: Vec<(usize, usize)>,
+    /// Scratch: clutter coefficients.
     c: Vec<f32>,
+    /// Whether per-block work runs on the current rayon pool (feature `rayon`).
+    parallel: bool,
 }
 
 /// Row · x for three channels in one pass; `x[c]` must be at least as long as `row`.
@@ -163,6 +174,13 @@ fn planar(v: &[f32], stride: usize, offset: usize, len: usize) -> [&[f32]; 3] {
     ]
 }
 
+/// The first `len` values of each channel of a channel-planar group of `3 × width` values
+/// starting at `start` (a block's or clutter object's coefficients, an opening's lightfield).
+#[inline]
+fn group(v: &[f32], start: usize, width: usize, len: usize) -> [&[f32]; 3] {
+    planar(&v[start..start + 3 * width], width, 0, len)
+}
+
 /// `out[t] += M · x` for every row t of `m`.
 #[inline]
 fn add_matvec(out: &mut [[f32; 3]], m: &Matrix, x: [&[f32]; 3]) {
@@ -178,22 +196,37 @@ fn add_matvec(out: &mut [[f32; 3]], m: &Matrix, x: [&[f32]; 3]) {
     }
 }
 
-/// `dst[j] = M.row(j) · x` (per channel) for every row j of `m`, into the slots
-/// `[offset, offset + m.rows)` of the planar 3 × `stride` vector `dst`.
+/// `dst[c·width + j] = M.row(j) · x` (channel c) for every row j of `m`, into a channel-planar
+/// group of `3 × width` values (`width ≥ m.rows`).
 #[inline]
-fn set_matvec(dst: &mut [f32], stride: usize, offset: usize, m: &Matrix, x: [&[f32]; 3]) {
+fn set_matvec(dst: &mut [f32], width: usize, m: &Matrix, x: [&[f32]; 3]) {
     let (rows, cols) = (m.rows as usize, m.cols as usize);
     if cols == 0 {
         for ch in 0..3 {
-            dst[ch * stride + offset..ch * stride + offset + rows].fill(0.0);
+            dst[ch * width..ch * width + rows].fill(0.0);
         }
         return;
     }
     for (j, row) in m.data.chunks_exact(cols).enumerate() {
         let v = dot3(row, x);
-        dst[offset + j] = v[0];
-        dst[stride + offset + j] = v[1];
-        dst[2 * stride + offset + j] = v[2];
+        dst[j] = v[0];
+        dst[width + j] = v[1];
+        dst[2 * width + j] = v[2];
+    }
+}
+
+/// `dst[c·width + j] += M.row(j) · x` (channel c), like [`set_matvec`].
+#[inline]
+fn acc_matvec(dst: &mut [f32], width: usize, m: &Matrix, x: [&[f32]; 3]) {
+    let cols = m.cols as usize;
+    if cols == 0 {
+        return;
+    }
+    for (j, row) in m.data.chunks_exact(cols).enumerate() {
+        let v = dot3(row, x);
+        dst[j] += v[0];
+        dst[width + j] += v[1];
+        dst[2 * width + j] += v[2];
     }
 }
 
@@ -210,6 +243,71 @@ fn scatter_matvec(out: &mut [[f32; 3]], rows: &[u32], m: &Matrix, x: [&[f32]; 3]
         o[0] += v[0];
         o[1] += v[1];
         o[2] += v[2];
+    }
+}
+
+/// Runs `work(k, a_k, b_k)` for every block k in `lo..hi`, where `a_k`/`b_k` are block k's
+/// ranges of `a`/`b` (slices that start at global offsets `a_base`/`b_base`; the ranges come
+/// from `range_a`/`range_b`, ascending and disjoint). With `parallel`, halves of the block list
+/// run under `rayon::join`; each block's work is the same either way, so results are
+/// bit-identical at any thread count.
+#[allow(clippy::too_many_arguments)]
+fn for_each_block<A: Send, B: Send, F>(
+    lo: usize,
+    hi: usize,
+    (a, a_base): (&mut [A], usize),
+    (b, b_base): (&mut [B], usize),
+    range_a: &(impl Fn(usize) -> (usize, usize) + Sync),
+    range_b: &(impl Fn(usize) -> (usize, usize) + Sync),
+    parallel: bool,
+    work: &F,
+) where
+    F: Fn(usize, &mut [A], &mut [B]) + Sync,
+{
+    #[cfg(feature = "rayon")]
+    if parallel && hi - lo > 1 {
+        let mid = (lo + hi) / 2;
+        let (a_lo, a_hi) = a.split_at_mut(range_a(mid).0 - a_base);
+        let (b_lo, b_hi) = b.split_at_mut(range_b(mid).0 - b_base);
+        let a_mid = range_a(mid).0;
+        let b_mid = range_b(mid).0;
+        rayon::join(
+            || {
+                for_each_block(
+                    lo,
+                    mid,
+                    (a_lo, a_base),
+                    (b_lo, b_base),
+                    range_a,
+                    range_b,
+                    true,
+                    work,
+                )
+            },
+            || {
+                for_each_block(
+                    mid,
+                    hi,
+                    (a_hi, a_mid),
+                    (b_hi, b_mid),
+                    range_a,
+                    range_b,
+                    true,
+                    work,
+                )
+            },
+        );
+        return;
+    }
+    let _ = parallel;
+    for k in lo..hi {
+        let (a0, a1) = range_a(k);
+        let (b0, b1) = range_b(k);
+        work(
+            k,
+            &mut a[a0 - a_base..a1 - a_base],
+            &mut b[b0 - b_base..b1 - b_base],
+        );
     }
 }
 
@@ -231,67 +329,132 @@ impl Runtime {
     pub fn try_new(bundle: Bundle) -> Result<Runtime, BundleError> {
         bundle.validate()?;
         let n_texels = bundle.layout.n_texels();
-        let mut coef_offset = Vec::with_capacity(bundle.blocks.len());
-        let mut n_coef = 0;
-        for b in &bundle.blocks {
-            coef_offset.push(n_coef);
-            n_coef += bundle.shapes[b.shape as usize].u_b.cols as usize;
-        }
 
-        let (mut slots, mut entry_slot, mut n_lf) = (Vec::new(), Vec::new(), 0);
-        if let Some(TransportOps::Lightfield(entries)) = &bundle.transport {
-            // First slot of every block; a block has one slot per opening of its shape.
-            let mut first_slot = Vec::with_capacity(bundle.blocks.len());
-            for (bi, b) in bundle.blocks.iter().enumerate() {
-                first_slot.push(slots.len());
-                for (oi, o) in bundle.shapes[b.shape as usize].openings.iter().enumerate() {
-                    slots.push(Slot {
-                        block: bi,
-                        opening: oi,
-                        offset: n_lf,
-                        fed: false,
-                    });
-                    n_lf += o.u_r.cols as usize;
+        // Transport entries grouped by target block.
+        let targets: Vec<u32> = match &bundle.transport {
+            Some(TransportOps::Lightfield(e)) => e.iter().map(|e| e.target_block).collect(),
+            Some(TransportOps::Traced(e)) => e.iter().map(|e| e.target_block).collect(),
+            None => Vec::new(),
+        };
+        let mut entry_order: Vec<u32> = (0..targets.len() as u32).collect();
+        entry_order.sort_by_key(|&i| targets[i as usize]);
+
+        let (mut blocks, mut opening_lf, mut first_opening) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut n_coef, mut n_lf, mut next_entry) = (0, 0, 0);
+        for (k, blk) in bundle.blocks.iter().enumerate() {
+            let shape = &bundle.shapes[blk.shape as usize];
+            let rank = shape.u_b.cols as usize;
+            let lf_start = n_lf;
+            first_opening.push(opening_lf.len());
+            if matches!(bundle.transport, Some(TransportOps::Lightfield(_))) {
+                for o in &shape.openings {
+                    opening_lf.push(n_lf);
+                    n_lf += 3 * o.u_r.cols as usize;
                 }
             }
+            let entries_start = next_entry;
+            while next_entry < entry_order.len()
+                && targets[entry_order[next_entry] as usize] == k as u32
+            {
+                next_entry += 1;
+            }
+            let texel_start = blk.texel_offset as usize;
+            blocks.push(BlockSlots {
+                coef_start: n_coef,
+                rank,
+                lf_start,
+                lf_end: n_lf,
+                texel_start,
+                texel_end: texel_start + shape.u_b.rows as usize,
+                entries_start,
+                entries_end: next_entry,
+            });
+            n_coef += 3 * rank;
+        }
+        let mut entry_opening = Vec::new();
+        if let Some(TransportOps::Lightfield(entries)) = &bundle.transport {
             for e in entries {
-                let target = &bundle.blocks[e.target_block as usize];
-                let openings = &bundle.shapes[target.shape as usize].openings;
-                // `check` guarantees the opening exists.
+                let openings =
+                    &bundle.shapes[bundle.blocks[e.target_block as usize].shape as usize].openings;
+                // `validate` guarantees the opening exists.
                 let oi = openings
                     .iter()
                     .position(|o| o.face == e.target_face)
                     .unwrap_or(0);
-                let s = first_slot[e.target_block as usize] + oi;
-                slots[s].fed = true;
-                entry_slot.push(s);
+                entry_opening.push(first_opening[e.target_block as usize] + oi);
             }
         }
 
-        let (mut clutter_offset, mut n_clutter_coef) = (Vec::new(), 0);
+        let (mut clutter_coef, mut n_clutter_coef) = (Vec::new(), 0);
         if let Some(d) = &bundle.drt {
-            clutter_offset.reserve_exact(d.clutter.len());
             for c in &d.clutter {
-                clutter_offset.push(n_clutter_coef);
-                n_clutter_coef += c.t_dc.rows as usize;
+                clutter_coef.push((n_clutter_coef, c.t_dc.rows as usize));
+                n_clutter_coef += 3 * c.t_dc.rows as usize;
             }
         }
 
         Ok(Runtime {
             n_texels,
-            coef_offset,
-            n_coef,
-            slots,
-            entry_slot,
-            n_lf,
+            blocks,
+            opening_lf,
+            first_opening,
+            entry_order,
+            entry_opening,
             ld: vec![0.0; 3 * n_texels],
-            b: vec![0.0; 3 * n_coef],
-            lf: vec![0.0; 3 * n_lf],
-            clutter_offset,
-            n_clutter_coef,
-            c: vec![0.0; 3 * n_clutter_coef],
+            b: vec![0.0; n_coef],
+            lf: vec![0.0; n_lf],
+            clutter_coef,
+            c: vec![0.0; n_clutter_coef],
+            parallel: false,
             bundle,
         })
+    }
+
+    /// Runs the per-block work of [`Runtime::apply`] on the current rayon thread pool
+    /// (`rayon::ThreadPool::install` picks the pool). Results are bit-identical to the
+    /// single-thread path.
+    #[cfg(feature = "rayon")]
+    pub fn set_parallel(&mut self, parallel: bool) {
+        self.parallel = parallel;
+    }
+
+    /// Bytes of operator data one [`Runtime::apply`] with `method` reads (f32 values, indices
+    /// of sparse rows), for comparing frame time with memory bandwidth.
+    pub fn operator_bytes_per_frame(&self, method: Method) -> usize {
+        let b = &self.bundle;
+        let values = |m: &Matrix| 4 * m.data.len();
+        if method == Method::Full {
+            return b.full.as_ref().map_or(0, |f| 8 * f.values.len());
+        }
+        let mut bytes = 0;
+        for blk in &b.blocks {
+            let s = &b.shapes[blk.shape as usize];
+            bytes += values(&s.u_b) + values(&s.t_db);
+            if matches!(b.transport, Some(TransportOps::Lightfield(_))) {
+                bytes += s.openings.iter().map(|o| values(&o.u_r)).sum::<usize>();
+            }
+        }
+        match &b.transport {
+            Some(TransportOps::Lightfield(e)) => {
+                bytes += e.iter().map(|e| values(&e.matrix)).sum::<usize>()
+            }
+            Some(TransportOps::Traced(e)) => {
+                bytes += e.iter().map(|e| values(&e.matrix)).sum::<usize>()
+            }
+            None => {}
+        }
+        if method == Method::Drt {
+            if let Some(d) = &b.drt {
+                bytes += d.clutter.iter().map(|c| values(&c.t_dc)).sum::<usize>();
+                bytes += d
+                    .entries
+                    .iter()
+                    .map(|e| values(&e.matrix) + 4 * e.rows.len())
+                    .sum::<usize>();
+                bytes += d.direct_gather.as_ref().map_or(0, |g| 8 * g.values.len());
+            }
+        }
+        bytes
     }
 
     /// The bundle this runtime applies.
@@ -434,13 +597,12 @@ impl Runtime {
         let n = self.n_texels;
         let Runtime {
             bundle,
-            coef_offset,
-            n_coef,
+            blocks,
             ld,
             b,
+            parallel,
             ..
         } = self;
-        let n_coef = *n_coef;
 
         // Direct light, planar.
         let (ld0, rest) = ld.split_at_mut(n);
@@ -450,88 +612,104 @@ impl Runtime {
         }
 
         // 1. b_B = T_d→b · l_d^B.
-        for (blk, &co) in bundle.blocks.iter().zip(coef_offset.iter()) {
-            let t_db = &bundle.shapes[blk.shape as usize].t_db;
-            let x = planar(ld, n, blk.texel_offset as usize, t_db.cols as usize);
-            set_matvec(b, n_coef, co, t_db, x);
-        }
+        let ld: &[f32] = ld;
+        let coef_range = |k: usize| {
+            let s: &BlockSlots = &blocks[k];
+            (s.coef_start, s.coef_start + 3 * s.rank)
+        };
+        let no_range = |_: usize| (0, 0);
+        for_each_block(
+            0,
+            blocks.len(),
+            (b.as_mut_slice(), 0),
+            (&mut [][..], 0),
+            &coef_range,
+            &no_range,
+            *parallel,
+            &|k, b_k: &mut [f32], _: &mut [()]| {
+                let blk = &bundle.blocks[k];
+                let t_db = &bundle.shapes[blk.shape as usize].t_db;
+                let x = planar(ld, n, blk.texel_offset as usize, t_db.cols as usize);
+                set_matvec(b_k, blocks[k].rank, t_db, x);
+            },
+        );
     }
 
     /// MRT steps 2–3, after [`Runtime::project_blocks`]: writes `U_b b + transport`
-    /// (albedo-free) to block texels and 0 to every other texel.
+    /// (albedo-free) to block texels and 0 to every other texel. Each block's texels depend on
+    /// its own work only, so blocks run independently.
     fn mrt_albedo_free(&mut self, out: &mut [[f32; 3]]) {
+        out.fill([0.0; 3]);
         let Runtime {
             bundle,
-            coef_offset,
-            n_coef,
-            slots,
-            entry_slot,
-            n_lf,
+            blocks,
+            opening_lf,
+            first_opening,
+            entry_order,
+            entry_opening,
             b,
             lf,
+            parallel,
             ..
         } = self;
-        let (n_coef, n_lf) = (*n_coef, *n_lf);
-
-        // 2. l_ind^B = U_b · b_B (clutter texels stay 0).
-        out.fill([0.0; 3]);
-        for (blk, &co) in bundle.blocks.iter().zip(coef_offset.iter()) {
-            let shape = &bundle.shapes[blk.shape as usize];
-            let off = blk.texel_offset as usize;
-            let texels = shape.u_b.rows as usize;
-            add_matvec(
-                &mut out[off..off + texels],
-                &shape.u_b,
-                planar(b, n_coef, co, shape.u_b.cols as usize),
-            );
-        }
-
-        // 3. Inter-block transport.
-        match &bundle.transport {
-            Some(TransportOps::Traced(entries)) => {
-                for e in entries {
-                    let target = &bundle.blocks[e.target_block as usize];
-                    let off = target.texel_offset as usize;
-                    let rows = e.matrix.rows as usize;
-                    let co = coef_offset[e.source_block as usize];
-                    add_matvec(
-                        &mut out[off..off + rows],
-                        &e.matrix,
-                        planar(b, n_coef, co, e.matrix.cols as usize),
-                    );
-                }
-            }
-            Some(TransportOps::Lightfield(entries)) => {
-                lf.fill(0.0);
-                for (e, &s) in entries.iter().zip(entry_slot.iter()) {
-                    let lo = slots[s].offset;
-                    let co = coef_offset[e.source_block as usize];
-                    let cols = e.matrix.cols as usize;
-                    if cols == 0 {
-                        continue;
+        let b: &[f32] = b;
+        let coefficients = |k: usize, cols: usize| {
+            let s = &blocks[k];
+            group(b, s.coef_start, s.rank, cols)
+        };
+        let texel_range = |k: usize| (blocks[k].texel_start, blocks[k].texel_end);
+        let lf_range = |k: usize| (blocks[k].lf_start, blocks[k].lf_end);
+        for_each_block(
+            0,
+            blocks.len(),
+            (out, 0),
+            (lf.as_mut_slice(), 0),
+            &texel_range,
+            &lf_range,
+            *parallel,
+            &|k, out_k: &mut [[f32; 3]], lf_k: &mut [f32]| {
+                let slots = &blocks[k];
+                let blk = &bundle.blocks[k];
+                let shape = &bundle.shapes[blk.shape as usize];
+                // 2. l_ind^B = U_b · b_B.
+                add_matvec(out_k, &shape.u_b, coefficients(k, shape.u_b.cols as usize));
+                let targeting = &entry_order[slots.entries_start..slots.entries_end];
+                // 3. Inter-block transport into this block.
+                match &bundle.transport {
+                    Some(TransportOps::Traced(entries)) => {
+                        for &i in targeting {
+                            let e = &entries[i as usize];
+                            let x = coefficients(e.source_block as usize, e.matrix.cols as usize);
+                            add_matvec(&mut out_k[..e.matrix.rows as usize], &e.matrix, x);
+                        }
                     }
-                    let x = planar(b, n_coef, co, cols);
-                    for (j, row) in e.matrix.data.chunks_exact(cols).enumerate() {
-                        let v = dot3(row, x);
-                        lf[lo + j] += v[0];
-                        lf[n_lf + lo + j] += v[1];
-                        lf[2 * n_lf + lo + j] += v[2];
+                    Some(TransportOps::Lightfield(entries)) => {
+                        lf_k.fill(0.0);
+                        // Bit i: opening i of the shape receives light (openings past 63
+                        // are always applied; their lightfield is then just zero).
+                        let mut fed = 0u64;
+                        for &i in targeting {
+                            let e = &entries[i as usize];
+                            let opening = entry_opening[i as usize];
+                            let q = e.matrix.rows as usize;
+                            let start = opening_lf[opening] - slots.lf_start;
+                            let x = coefficients(e.source_block as usize, e.matrix.cols as usize);
+                            acc_matvec(&mut lf_k[start..start + 3 * q], q, &e.matrix, x);
+                            fed |= 1 << (opening - first_opening[k]).min(63);
+                        }
+                        for (oi, o) in shape.openings.iter().enumerate() {
+                            if oi < 63 && fed & (1 << oi) == 0 {
+                                continue;
+                            }
+                            let q = o.u_r.cols as usize;
+                            let start = opening_lf[first_opening[k] + oi] - slots.lf_start;
+                            add_matvec(out_k, &o.u_r, group(lf_k, start, q, q));
+                        }
                     }
+                    None => {}
                 }
-                for slot in slots.iter().filter(|s| s.fed) {
-                    let blk = &bundle.blocks[slot.block];
-                    let u_r = &bundle.shapes[blk.shape as usize].openings[slot.opening].u_r;
-                    let off = blk.texel_offset as usize;
-                    let texels = u_r.rows as usize;
-                    add_matvec(
-                        &mut out[off..off + texels],
-                        u_r,
-                        planar(lf, n_lf, slot.offset, u_r.cols as usize),
-                    );
-                }
-            }
-            None => {}
-        }
+            },
+        );
     }
 
     /// DRT step 2, after [`Runtime::project_blocks`] (which fills `ld`): projects direct light
@@ -541,19 +719,16 @@ impl Runtime {
         let Runtime {
             bundle,
             ld,
-            clutter_offset,
-            n_clutter_coef,
+            clutter_coef,
             c,
             ..
         } = self;
         let Some(drt) = &bundle.drt else { return };
-        let n_cc = *n_clutter_coef;
-
         // 2. c_j = t_dc · l_d^j.
-        for (clutter, &co) in drt.clutter.iter().zip(clutter_offset.iter()) {
+        for (clutter, &(start, m)) in drt.clutter.iter().zip(clutter_coef.iter()) {
             let t_dc = &clutter.t_dc;
             let x = planar(ld, n, clutter.texel_offset as usize, t_dc.cols as usize);
-            set_matvec(c, n_cc, co, t_dc, x);
+            set_matvec(&mut c[start..start + 3 * m], m, t_dc, x);
         }
     }
 
@@ -563,14 +738,13 @@ impl Runtime {
     fn source_coefficients(&self, source: DeltaSource, cols: usize) -> [&[f32]; 3] {
         match source {
             DeltaSource::Block(k) => {
-                planar(&self.b, self.n_coef, self.coef_offset[k as usize], cols)
+                let s = &self.blocks[k as usize];
+                group(&self.b, s.coef_start, s.rank, cols)
             }
-            DeltaSource::Clutter(j) => planar(
-                &self.c,
-                self.n_clutter_coef,
-                self.clutter_offset[j as usize],
-                cols,
-            ),
+            DeltaSource::Clutter(j) => {
+                let (start, m) = self.clutter_coef[j as usize];
+                group(&self.c, start, m, cols)
+            }
         }
     }
 
@@ -631,7 +805,8 @@ mod tests {
         BlockOps, ClutterOps, DeltaEntry, DrtOps, Layout, OpeningOps, PropEntry, ShapeOps,
         SparseRows, SurfaceInfo, TracedEntry,
     };
-    use lightfarm_proto::wire::checksum;
+    use lightfarm_proto::bundle::{BUNDLE_MAJOR, BUNDLE_MINOR};
+    use lightfarm_proto::container::write_container;
     use std::alloc::{GlobalAlloc, Layout as AllocLayout, System};
     use std::cell::Cell;
 
@@ -1831,31 +2006,10 @@ mod tests {
         assert!(Bundle::decode(&b.encode()).is_err());
     }
 
-    /// The 16-byte file header and every (kind, payload) section of an encoded bundle.
-    fn split_sections(bytes: &[u8]) -> (Vec<u8>, Vec<(u32, Vec<u8>)>) {
-        let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
-        let count = word(12);
-        let mut at = 16;
-        let mut sections = Vec::new();
-        for _ in 0..count {
-            let len = u64::from_le_bytes(bytes[at + 4..at + 12].try_into().unwrap()) as usize;
-            sections.push((word(at), bytes[at + 20..at + 20 + len].to_vec()));
-            at += 20 + len;
-        }
-        assert_eq!(at, bytes.len());
-        (bytes[..16].to_vec(), sections)
-    }
-
-    /// Inverse of [`split_sections`], with fresh lengths and checksums.
-    fn join_sections(header: &[u8], sections: &[(u32, Vec<u8>)]) -> Vec<u8> {
-        let mut out = header.to_vec();
-        for (kind, payload) in sections {
-            out.extend_from_slice(&kind.to_le_bytes());
-            out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-            out.extend_from_slice(&checksum(payload).to_le_bytes());
-            out.extend_from_slice(payload);
-        }
-        out
+    /// A container of raw (uncompressed) sections, with fresh lengths, checksums and table of
+    /// contents, so edits inside a payload reach the bundle's validation.
+    fn join_sections(sections: &[(u32, Vec<u8>)]) -> Vec<u8> {
+        write_container(BUNDLE_MAJOR, BUNDLE_MINOR, sections, 0).0
     }
 
     /// Decodes `bytes`; a decoded bundle must make a runtime, which must apply every method
@@ -1914,8 +2068,8 @@ mod tests {
     fn fuzz_bundle(rng: &mut Lcg, b: &Bundle, focus: u32) {
         let bytes = b.encode();
         assert!(decode_and_apply(&bytes));
-        let (header, sections) = split_sections(&bytes);
-        assert_eq!(join_sections(&header, &sections), bytes);
+        let sections = b.raw_sections();
+        assert!(decode_and_apply(&join_sections(&sections)));
         let focus_at = sections
             .iter()
             .position(|(kind, _)| *kind == focus)
@@ -1954,7 +2108,7 @@ mod tests {
             let at = rng.next_u32() as usize % payload.len();
             mutate(&mut payload[at], rng);
             tried += 1;
-            decoded += decode_and_apply(&join_sections(&header, &s)) as usize;
+            decoded += decode_and_apply(&join_sections(&s)) as usize;
         }
         // Sections truncated inside, length and checksum repaired.
         for k in 0..1000 {
@@ -1966,7 +2120,7 @@ mod tests {
             };
             let len = rng.next_u32() as usize % s[i].1.len();
             s[i].1.truncate(len);
-            decode_and_apply(&join_sections(&header, &s));
+            decode_and_apply(&join_sections(&s));
         }
         // Some repaired mutations (a changed value) still decode; many are refused.
         assert!(

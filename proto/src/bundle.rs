@@ -1,23 +1,27 @@
 //! The operator bundle: everything a client needs to turn direct light into indirect light.
 //!
-//! File layout (all little-endian): magic `LFBUNDLE`, major u16, minor u16, section count u32,
-//! then per section a header (kind u32, byte length u64, FNV-1a checksum u64) and its payload.
-//! Sections come in the order a client can use them: layout, shape operators, block instances,
-//! transport, then optional extras (the dense `full` operator). A reader skips section kinds it
-//! does not know (newer minor version); a newer major version is refused.
+//! The bytes are a [`crate::container`] (magic, version, compressed and checksummed sections,
+//! table of contents; specified in `docs/bundle-format.md`). Sections come in the order a client
+//! can use them: layout, shape operators, block instances and MRT transport light the scene;
+//! the DRT and probe sections add clutter and dynamic-object lighting; `full` (dense reference
+//! operator) comes last. A reader skips section kinds it does not know (newer minor version); a
+//! different major version is refused.
 //!
-//! Matrices are row-major f32. Shapes: `U_b` is texels × r, `T_d→b` is r × texels, `U_r` per
-//! opening is texels × q. Operators are albedo-free: the client multiplies the receiving texel's
-//! albedo in at the end (`l_ind = ρ ⊙ (U_b b + …)`).
+//! Operator matrices are row-major, stored in the codec [`EncodeOptions`] picks per matrix
+//! (f32, f16 or 8-bit, see [`crate::codec`]) and decoded to f32. Shapes: `U_b` is texels × r,
+//! `T_d→b` is r × texels, `U_r` per opening is texels × q. Operators are albedo-free: the client
+//! multiplies the receiving texel's albedo in at the end (`l_ind = ρ ⊙ (U_b b + …)`).
 //!
 //! Invariant: [`Bundle::decode`] returns `Ok` only for a bundle whose every index, size and value
 //! is consistent and finite, so the runtime can index without checks; it never panics.
 
-use crate::wire::{checksum, Reader, WireError, Writer};
+use crate::codec::{choose_codec, read_matrix, write_matrix, CodecPolicy, MatrixCodec};
+use crate::container::{read_sections, write_container, ContainerError, SectionInfo};
+use crate::wire::{Reader, WireError, Writer};
 
-pub const BUNDLE_MAGIC: &[u8; 8] = b"LFBUNDLE";
-pub const BUNDLE_MAJOR: u16 = 0;
-pub const BUNDLE_MINOR: u16 = 3;
+pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
+pub const BUNDLE_MAJOR: u16 = 1;
+pub const BUNDLE_MINOR: u16 = 0;
 
 /// Section kinds.
 pub mod section {
@@ -28,6 +32,34 @@ pub mod section {
     pub const FULL: u32 = 5;
     pub const DRT: u32 = 6;
     pub const PROBES: u32 = 7;
+}
+
+/// Report name of a section kind.
+pub fn section_name(kind: u32) -> &'static str {
+    match kind {
+        section::LAYOUT => "layout",
+        section::SHAPES => "shapes",
+        section::BLOCKS => "blocks",
+        section::TRANSPORT => "transport",
+        section::FULL => "full",
+        section::DRT => "drt",
+        section::PROBES => "probes",
+        _ => "unknown",
+    }
+}
+
+fn is_known_section(kind: u32) -> bool {
+    section_name(kind) != "unknown"
+}
+
+/// What [`Bundle::decode_prefix`] could use of a bundle still arriving.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PartialBundle {
+    pub bundle: Bundle,
+    /// Whether the whole bundle (through its table of contents) was there.
+    pub complete: bool,
+    /// Names of the sections decoded, in file order.
+    pub present: Vec<&'static str>,
 }
 
 /// A dense row-major f32 matrix.
@@ -50,21 +82,14 @@ impl Matrix {
         let c = self.cols as usize;
         &self.data[i * c..(i + 1) * c]
     }
-    fn write(&self, w: &mut Writer) {
-        w.u32(self.rows);
-        w.u32(self.cols);
-        w.f32s(&self.data);
+    fn write(&self, w: &mut Writer, enc: &mut MatrixEncoder) {
+        enc.write(w, self);
     }
     fn read(r: &mut Reader, what: &str) -> Result<Matrix, BundleError> {
-        let rows = r.u32()?;
-        let cols = r.u32()?;
-        let data = r.f32s()?;
-        if rows as u64 * cols as u64 != data.len() as u64 {
-            return Err(BundleError::Invalid(format!(
-                "{what}: {rows}×{cols} matrix holds {} values",
-                data.len()
-            )));
-        }
+        let (rows, cols, data, _codec) = read_matrix(r).map_err(|e| match e {
+            WireError::Invalid(m) => BundleError::Invalid(format!("{what}: {m}")),
+            e => BundleError::Wire(e),
+        })?;
         if let Some(k) = data.iter().position(|x| !x.is_finite()) {
             return Err(BundleError::Invalid(format!(
                 "{what}: value {k} is not finite"
@@ -72,6 +97,67 @@ impl Matrix {
         }
         Ok(Matrix { rows, cols, data })
     }
+}
+
+/// Picks each operator matrix's codec by the [`EncodeOptions`] and tallies what it chose.
+struct MatrixEncoder {
+    policy: CodecPolicy,
+    report: EncodeReport,
+}
+
+impl MatrixEncoder {
+    fn write(&mut self, w: &mut Writer, m: &Matrix) {
+        let (rows, cols) = (m.rows as usize, m.cols as usize);
+        let (codec, error) = choose_codec(&m.data, rows, cols, self.policy);
+        write_matrix(w, &m.data, rows, cols, codec);
+        let usage = self.report.codecs.entry(codec.name()).or_default();
+        usage.matrices += 1;
+        usage.values += (rows * cols) as u64;
+        usage.bytes += codec.value_bytes(rows, cols) as u64;
+        self.report.max_codec_error = self.report.max_codec_error.max(error);
+    }
+}
+
+/// How [`Bundle::encode_with`] stores a bundle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EncodeOptions {
+    /// Codec of every operator matrix (fixed, or chosen per matrix from an error budget).
+    pub codec: CodecPolicy,
+    /// zstd level for section payloads (0: store raw). A payload is stored raw whenever
+    /// compression would not shrink it.
+    pub zstd_level: i32,
+}
+
+impl Default for EncodeOptions {
+    /// Lossless: f32 operators, zstd level 3.
+    fn default() -> Self {
+        EncodeOptions {
+            codec: CodecPolicy::Fixed(MatrixCodec::F32),
+            zstd_level: 3,
+        }
+    }
+}
+
+/// How many operator values went into one codec.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CodecUsage {
+    pub matrices: u64,
+    pub values: u64,
+    /// Bytes of the values before compression.
+    pub bytes: u64,
+}
+
+/// What [`Bundle::encode_with`] wrote.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct EncodeReport {
+    /// Per section in file order: its name and sizes.
+    pub sections: Vec<(&'static str, SectionInfo)>,
+    /// Per codec name (`f32`, `f16`, `u8`).
+    pub codecs: std::collections::BTreeMap<&'static str, CodecUsage>,
+    /// Largest relative RMS error a codec added to one matrix.
+    pub max_codec_error: f64,
+    /// Bytes of the whole file.
+    pub total_bytes: u64,
 }
 
 /// A named surface and its texel range in the layout.
@@ -257,14 +343,8 @@ pub struct TexelGather {
 /// Why bytes are not a usable bundle.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum BundleError {
-    #[error("not a lightfarm bundle (bad magic)")]
-    Magic,
-    #[error(
-        "bundle major version {0} is newer than this reader ({BUNDLE_MAJOR}); update the client"
-    )]
-    Version(u16),
-    #[error("section {kind}: checksum mismatch (corrupt bundle)")]
-    Checksum { kind: u32 },
+    #[error(transparent)]
+    Container(#[from] ContainerError),
     #[error("bundle is missing its {0} section")]
     Missing(&'static str),
     #[error("bundle: {0}")]
@@ -405,42 +485,40 @@ impl Layout {
 }
 
 impl Bundle {
-    /// Encodes the bundle.
+    /// Encodes the bundle losslessly ([`EncodeOptions::default`]).
     pub fn encode(&self) -> Vec<u8> {
-        let sections = self.encode_sections();
-        let mut out = Writer::new();
-        out.bytes.extend_from_slice(BUNDLE_MAGIC);
-        out.bytes.extend_from_slice(&BUNDLE_MAJOR.to_le_bytes());
-        out.bytes.extend_from_slice(&BUNDLE_MINOR.to_le_bytes());
-        out.u32(sections.len() as u32);
-        for (kind, payload) in sections {
-            out.u32(kind);
-            out.u64(payload.len() as u64);
-            out.u64(checksum(&payload));
-            out.bytes.extend_from_slice(&payload);
-        }
-        out.bytes
+        self.encode_with(&EncodeOptions::default()).0
     }
 
-    /// Payload bytes per section kind, in file order (for size reports).
-    pub fn section_sizes(&self) -> Vec<(&'static str, usize)> {
-        let name = |k: u32| match k {
-            section::LAYOUT => "layout",
-            section::SHAPES => "shapes",
-            section::BLOCKS => "blocks",
-            section::TRANSPORT => "transport",
-            section::FULL => "full",
-            section::DRT => "drt",
-            section::PROBES => "probes",
-            _ => "unknown",
+    /// Encodes the bundle with the given codecs and compression.
+    pub fn encode_with(&self, options: &EncodeOptions) -> (Vec<u8>, EncodeReport) {
+        let mut enc = MatrixEncoder {
+            policy: options.codec,
+            report: EncodeReport::default(),
         };
-        self.encode_sections()
-            .iter()
-            .map(|(k, p)| (name(*k), p.len()))
-            .collect()
+        let sections = self.encode_sections(&mut enc);
+        let (bytes, infos) =
+            write_container(BUNDLE_MAJOR, BUNDLE_MINOR, &sections, options.zstd_level);
+        let mut report = enc.report;
+        report.sections = infos
+            .into_iter()
+            .map(|i| (section_name(i.kind), i))
+            .collect();
+        report.total_bytes = bytes.len() as u64;
+        (bytes, report)
     }
 
-    fn encode_sections(&self) -> Vec<(u32, Vec<u8>)> {
+    /// The uncompressed f32 payload of every section, in file order (what
+    /// [`write_container`] frames; for tools and tests that edit sections).
+    pub fn raw_sections(&self) -> Vec<(u32, Vec<u8>)> {
+        let mut enc = MatrixEncoder {
+            policy: CodecPolicy::Fixed(MatrixCodec::F32),
+            report: EncodeReport::default(),
+        };
+        self.encode_sections(&mut enc)
+    }
+
+    fn encode_sections(&self, enc: &mut MatrixEncoder) -> Vec<(u32, Vec<u8>)> {
         let mut sections: Vec<(u32, Vec<u8>)> = Vec::new();
         let mut w = Writer::new();
         self.layout.write(&mut w);
@@ -450,12 +528,12 @@ impl Bundle {
         w.u32(self.shapes.len() as u32);
         for s in &self.shapes {
             w.str(&s.key);
-            s.u_b.write(&mut w);
-            s.t_db.write(&mut w);
+            s.u_b.write(&mut w, enc);
+            s.t_db.write(&mut w, enc);
             w.u32(s.openings.len() as u32);
             for o in &s.openings {
                 w.u8(o.face);
-                o.u_r.write(&mut w);
+                o.u_r.write(&mut w, enc);
             }
         }
         sections.push((section::SHAPES, w.bytes));
@@ -479,7 +557,7 @@ impl Bundle {
                         w.u32(e.target_block);
                         w.u8(e.target_face);
                         w.u32(e.source_block);
-                        e.matrix.write(&mut w);
+                        e.matrix.write(&mut w, enc);
                     }
                 }
                 TransportOps::Traced(entries) => {
@@ -488,7 +566,7 @@ impl Bundle {
                     for e in entries {
                         w.u32(e.target_block);
                         w.u32(e.source_block);
-                        e.matrix.write(&mut w);
+                        e.matrix.write(&mut w, enc);
                     }
                 }
             }
@@ -500,9 +578,9 @@ impl Bundle {
             for c in &d.clutter {
                 w.str(&c.id);
                 w.u32(c.texel_offset);
-                c.t_dc.write(&mut w);
+                c.t_dc.write(&mut w, enc);
             }
-            write_entries(&mut w, &d.entries);
+            write_entries(&mut w, &d.entries, enc);
             w.u32s(&d.buried);
             match &d.direct_gather {
                 Some(g) => {
@@ -527,7 +605,7 @@ impl Bundle {
             }
             w.u32s(&p.slot);
             w.u32(p.n_probes);
-            write_entries(&mut w, &p.entries);
+            write_entries(&mut w, &p.entries, enc);
             sections.push((section::PROBES, w.bytes));
         }
         if let Some(f) = &self.full {
@@ -542,37 +620,36 @@ impl Bundle {
         sections
     }
 
-    /// Decodes and validates a bundle. Any byte string gives `Ok` or `Err`, never a panic.
+    /// Decodes and validates a whole bundle. Any byte string gives `Ok` or `Err`, never a
+    /// panic; a bundle cut short (no table of contents) is an error.
     pub fn decode(bytes: &[u8]) -> Result<Bundle, BundleError> {
-        let mut r = Reader::new(bytes);
-        if r.take(8).map_err(|_| BundleError::Magic)? != BUNDLE_MAGIC {
-            return Err(BundleError::Magic);
-        }
-        let major = u16::from_le_bytes(r.take(2)?.try_into().unwrap());
-        let _minor = u16::from_le_bytes(r.take(2)?.try_into().unwrap());
-        if major != BUNDLE_MAJOR {
-            return Err(BundleError::Version(major));
-        }
-        let n_sections = r.u32()?;
+        let sections = read_sections(bytes, BUNDLE_MAJOR, is_known_section, false)?;
+        Bundle::from_sections(sections.sections)
+    }
+
+    /// Decodes what has arrived of a bundle that is still streaming: every complete section
+    /// before the cut, validated together. Needs the layout, shape and block sections (the
+    /// first three); the MRT transport, DRT and probe sections are used when present.
+    pub fn decode_prefix(bytes: &[u8]) -> Result<PartialBundle, BundleError> {
+        let sections = read_sections(bytes, BUNDLE_MAJOR, is_known_section, true)?;
+        let present = sections
+            .sections
+            .iter()
+            .map(|(k, _)| section_name(*k))
+            .collect();
+        Ok(PartialBundle {
+            bundle: Bundle::from_sections(sections.sections)?,
+            complete: sections.complete,
+            present,
+        })
+    }
+
+    fn from_sections(sections: Vec<(u32, Vec<u8>)>) -> Result<Bundle, BundleError> {
         let (mut layout, mut shapes, mut blocks, mut transport, mut full, mut drt, mut probes) =
             (None, None, None, None, None, None, None);
-        for _ in 0..n_sections {
-            let kind = r.u32()?;
-            let len = r.u64()?;
-            let sum = r.u64()?;
-            if len > r.remaining() as u64 {
-                return Err(BundleError::Wire(WireError::Truncated {
-                    offset: r.position(),
-                    needed: len.min(usize::MAX as u64) as usize,
-                    available: r.remaining(),
-                }));
-            }
-            let payload = r.take(len as usize)?;
-            if checksum(payload) != sum {
-                return Err(BundleError::Checksum { kind });
-            }
+        for (kind, payload) in &sections {
             let mut p = Reader::new(payload);
-            match kind {
+            match *kind {
                 section::LAYOUT => layout = Some(Layout::read(&mut p)?),
                 section::SHAPES => shapes = Some(read_shapes(&mut p)?),
                 section::BLOCKS => blocks = Some(read_blocks(&mut p)?),
@@ -580,7 +657,14 @@ impl Bundle {
                 section::FULL => full = Some(read_full(&mut p)?),
                 section::DRT => drt = Some(read_drt(&mut p)?),
                 section::PROBES => probes = Some(read_probes(&mut p)?),
-                _ => {} // a newer minor version's section: skip
+                _ => {} // read_sections passes known kinds only
+            }
+            if p.remaining() != 0 {
+                return Err(BundleError::Invalid(format!(
+                    "{} section has {} trailing bytes",
+                    section_name(*kind),
+                    p.remaining()
+                )));
             }
         }
         let bundle = Bundle {
@@ -667,6 +751,7 @@ impl Bundle {
                 }
             }
         }
+        let mut next_free = 0u64;
         for b in &self.blocks {
             let Some(shape) = self.shapes.get(b.shape as usize) else {
                 return bad(format!("block {}: shape {} does not exist", b.id, b.shape));
@@ -674,6 +759,14 @@ impl Bundle {
             if b.texel_offset as u64 + shape.u_b.rows as u64 > n_texels {
                 return bad(format!("block {}: texel range past the layout", b.id));
             }
+            // Ascending, disjoint ranges: the runtime works on blocks independently.
+            if (b.texel_offset as u64) < next_free {
+                return bad(format!(
+                    "block {}: texel range overlaps or precedes the previous block's",
+                    b.id
+                ));
+            }
+            next_free = b.texel_offset as u64 + shape.u_b.rows as u64;
         }
         let block_shape = |i: u32| -> Option<&ShapeOps> {
             self.blocks
@@ -930,7 +1023,7 @@ fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
     })
 }
 
-fn write_entries(w: &mut Writer, entries: &[DeltaEntry]) {
+fn write_entries(w: &mut Writer, entries: &[DeltaEntry], enc: &mut MatrixEncoder) {
     w.u32(entries.len() as u32);
     for e in entries {
         w.u32s(&e.rows);
@@ -944,7 +1037,7 @@ fn write_entries(w: &mut Writer, entries: &[DeltaEntry]) {
                 w.u32(c);
             }
         }
-        e.matrix.write(w);
+        e.matrix.write(w, enc);
     }
 }
 

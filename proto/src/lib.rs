@@ -11,6 +11,8 @@
 //! Invariant: this crate does no light-transport math and no I/O beyond bytes and strings.
 
 pub mod bundle;
+pub mod codec;
+pub mod container;
 pub mod face;
 pub mod lights;
 pub mod result;

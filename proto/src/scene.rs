@@ -75,6 +75,17 @@ pub enum ClutterGather {
     Implicit,
 }
 
+/// How operator matrices are stored in the bundle (see `crate::codec`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum BundleCodec {
+    /// Per matrix, the smallest codec (8-bit, f16, f32) within `codec_error`.
+    Auto,
+    F32,
+    F16,
+    U8,
+}
+
 /// Bake settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -105,6 +116,12 @@ pub struct Settings {
     pub clutter_importance: f64,
     /// How clutter texels gather light from the scene.
     pub clutter_gather: ClutterGather,
+    /// How operator matrices are stored in the bundle.
+    pub bundle_codec: BundleCodec,
+    /// With `bundle_codec: auto`, the relative RMS error (‖Q(M) − M‖ / ‖M‖) a codec may add to
+    /// one operator matrix. The default keeps it well under the rank truncation's own error
+    /// (√tolerance ≈ 3% at the default tolerance).
+    pub codec_error: f64,
 }
 
 impl Default for Settings {
@@ -122,6 +139,8 @@ impl Default for Settings {
             probe_spacing: 1.0,
             clutter_importance: 0.25,
             clutter_gather: ClutterGather::Exact,
+            bundle_codec: BundleCodec::Auto,
+            codec_error: 0.01,
         }
     }
 }
@@ -695,6 +714,12 @@ impl Settings {
             return Err(invalid(
                 object,
                 format!("probe_spacing ({}) must be positive", self.probe_spacing),
+            ));
+        }
+        if !(self.codec_error > 0.0 && self.codec_error < 1.0) {
+            return Err(invalid(
+                object,
+                format!("codec_error ({}) must be in (0, 1)", self.codec_error),
             ));
         }
         if !(0.0..1.0).contains(&self.clutter_importance) {

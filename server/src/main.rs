@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::{Parser, Subcommand, ValueEnum};
 use lightfarm_client::Method;
-use lightfarm_proto::scene::Transport;
+use lightfarm_proto::scene::{BundleCodec, Transport};
 use lightfarm_server::cli;
 
 #[derive(Parser)]
@@ -31,6 +31,35 @@ enum TransportArg {
     Traced,
 }
 
+#[derive(Clone, Copy, ValueEnum)]
+enum CodecArg {
+    Auto,
+    F32,
+    F16,
+    U8,
+}
+
+impl From<CodecArg> for BundleCodec {
+    fn from(c: CodecArg) -> BundleCodec {
+        match c {
+            CodecArg::Auto => BundleCodec::Auto,
+            CodecArg::F32 => BundleCodec::F32,
+            CodecArg::F16 => BundleCodec::F16,
+            CodecArg::U8 => BundleCodec::U8,
+        }
+    }
+}
+
+impl From<MethodArg> for Method {
+    fn from(m: MethodArg) -> Method {
+        match m {
+            MethodArg::Full => Method::Full,
+            MethodArg::Mrt => Method::Mrt,
+            MethodArg::Drt => Method::Drt,
+        }
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Bake a scene into an operator bundle.
@@ -50,9 +79,28 @@ enum Command {
         /// Override the scene's inter-block transport.
         #[arg(long, value_enum)]
         transport: Option<TransportArg>,
+        /// Override the scene's bundle codec (auto: per operator from `codec_error`).
+        #[arg(long, value_enum)]
+        codec: Option<CodecArg>,
         #[arg(short, long)]
         quiet: bool,
     },
+    /// Time the client runtime: median frame of `--frames` applications, and the
+    /// memory-traffic bound.
+    FrameTime {
+        bundle: PathBuf,
+        #[arg(long)]
+        lights: PathBuf,
+        #[arg(long, value_enum, default_value = "drt")]
+        method: MethodArg,
+        #[arg(long, default_value_t = 1000)]
+        frames: usize,
+        /// Runtime threads (1: the single-thread path; more: the rayon path).
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+    },
+    /// Show what a bundle holds: sections, operators, ranks, values.
+    Inspect { bundle: PathBuf },
     /// Apply a bundle to a light set, as a game would.
     Eval {
         bundle: PathBuf,
@@ -97,6 +145,20 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Args::parse().command {
+        Command::Inspect { bundle } => cli::inspect::run(bundle),
+        Command::FrameTime {
+            bundle,
+            lights,
+            method,
+            frames,
+            threads,
+        } => cli::frame_time::run(cli::frame_time::FrameTimeArgs {
+            bundle,
+            lights,
+            method: method.into(),
+            frames,
+            threads,
+        }),
         Command::Bake {
             scene,
             out,
@@ -104,8 +166,10 @@ fn main() -> anyhow::Result<()> {
             no_cache,
             full,
             transport,
+            codec,
             quiet,
         } => cli::bake::run(cli::bake::BakeArgs {
+            codec: codec.map(Into::into),
             scene,
             out,
             cache: (!no_cache).then_some(cache),
@@ -121,19 +185,12 @@ fn main() -> anyhow::Result<()> {
             lights,
             method,
             out,
-        } => {
-            let method = match method {
-                MethodArg::Full => Method::Full,
-                MethodArg::Mrt => Method::Mrt,
-                MethodArg::Drt => Method::Drt,
-            };
-            cli::eval::run(cli::eval::EvalArgs {
-                bundle,
-                lights,
-                method,
-                out,
-            })
-        }
+        } => cli::eval::run(cli::eval::EvalArgs {
+            bundle,
+            lights,
+            method: method.into(),
+            out,
+        }),
         Command::Reference {
             scene,
             lights,

@@ -10,10 +10,12 @@
 //! - [`transport`]: inter-block transport (lightfield composition or traced).
 //! - [`reference`]: the brute-force one-bounce reference solver.
 //! - [`pipeline`]: scene → bundle; [`progress`]: how long work reports progress.
+//! - [`bundle_encoding`]: the codecs and compression a bundle is stored with.
 //!
 //! **Invariant:** nothing here imports axum, tokio or serde_json; everything is deterministic
 //! for a given scene and seed, whatever the thread count.
 
+pub mod bundle_encoding;
 pub mod clutter_basis;
 pub mod clutter_sampling;
 pub mod drt;

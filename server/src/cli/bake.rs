@@ -2,10 +2,11 @@
 
 use std::path::{Path, PathBuf};
 
-use lightfarm_proto::scene::{Scene, Transport};
+use lightfarm_proto::scene::{BundleCodec, Scene, Transport};
 
 use super::progress_bar::Bar;
 use super::{read_text, write_atomic};
+use crate::bake::bundle_encoding::encode_options;
 use crate::bake::pipeline::{bake, BakeOptions};
 use crate::bake::shape_cache::ShapeCache;
 
@@ -16,6 +17,8 @@ pub struct BakeArgs {
     pub cache: Option<PathBuf>,
     pub full: bool,
     pub transport: Option<Transport>,
+    /// Override `settings.bundle_codec`.
+    pub codec: Option<BundleCodec>,
     pub quiet: bool,
 }
 
@@ -41,7 +44,7 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
     let bar = Bar::new();
     let (bundle, mut report) = bake(&scene, &dir, &options, &bar)?;
     bar.finish();
-    let bytes = bundle.encode();
+    let (bytes, encoded) = bundle.encode_with(&encode_options(&scene.settings, args.codec));
     report.bundle_bytes = bytes.len();
     write_atomic(&args.out, &bytes)?;
     if !args.quiet {
@@ -66,15 +69,25 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
                 d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.clutter_ranks
             );
         }
-        let sizes: Vec<String> = bundle
-            .section_sizes()
+        let sizes: Vec<String> = encoded
+            .sections
             .iter()
-            .map(|(n, b)| format!("{n} {b}"))
+            .map(|(n, i)| format!("{n} {}/{}", i.stored_len, i.raw_len))
             .collect();
         eprintln!(
-            "sections (bytes): {}; probes: {}",
+            "sections (stored/raw bytes): {}; probes: {}",
             sizes.join(", "),
             report.probes
+        );
+        let codecs: Vec<String> = encoded
+            .codecs
+            .iter()
+            .map(|(n, u)| format!("{n} {} matrices {} values", u.matrices, u.values))
+            .collect();
+        eprintln!(
+            "codecs: {}; largest codec error {:.2e}",
+            codecs.join(", "),
+            encoded.max_codec_error
         );
         let stages: Vec<String> = report
             .stage_seconds

@@ -5,6 +5,8 @@
 pub mod bake;
 pub mod compare;
 pub mod eval;
+pub mod frame_time;
+pub mod inspect;
 pub mod progress_bar;
 pub mod reference;
 

@@ -1,0 +1,345 @@
+//! The bundle container: header, sections (each compressed and checksummed), table of contents.
+//!
+//! ```text
+//! file    := header section* end footer
+//! header  := "LFBUNDLE" major:u16 minor:u16
+//! section := kind:u32 flags:u32 stored_len:u64 raw_len:u64 checksum:u64 payload[stored_len]
+//! end     := a section of kind 0 whose payload is the table of contents:
+//!            count:u32 then per section (kind:u32 header_offset:u64 stored_len:u64 raw_len:u64)
+//! footer  := end_header_offset:u64 "LFBUNDLE"
+//! ```
+//! `flags` bit 0: the payload is zstd-compressed (`raw_len` bytes once decompressed); other bits
+//! are reserved and refused in sections this reader knows. `checksum` is FNV-1a over the stored
+//! (possibly compressed) payload, so corruption is caught before decompression.
+//!
+//! Sections are self-delimiting, so a reader can consume a bundle as it streams and use every
+//! complete section before the rest arrives ([`read_sections`] with `allow_truncated`); the
+//! table of contents at the end lets a random-access reader find sections without scanning.
+//!
+//! Invariant: reading never panics and never allocates more than the limit on a section's
+//! decompressed size ([`MAX_SECTION_BYTES`]) or the bytes actually present.
+
+use std::io::Read;
+
+use crate::wire::{checksum, Reader, WireError, Writer};
+
+pub const MAGIC: &[u8; 8] = b"LFBUNDLE";
+/// Kind of the closing table-of-contents section.
+pub const END: u32 = 0;
+const FLAG_ZSTD: u32 = 1;
+const HEADER_BYTES: u64 = 4 + 4 + 8 + 8 + 8;
+/// Largest decompressed section a reader accepts (1 GiB).
+pub const MAX_SECTION_BYTES: u64 = 1 << 30;
+
+/// Why bytes are not a well-formed container.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ContainerError {
+    #[error("not a lightfarm bundle (bad magic)")]
+    Magic,
+    #[error("bundle major version {found} is not the version this reader knows ({known}); update the client")]
+    Version { found: u16, known: u16 },
+    #[error("section {kind}: checksum mismatch (corrupt bundle)")]
+    Checksum { kind: u32 },
+    #[error("section {kind}: {reason}")]
+    Section { kind: u32, reason: String },
+    #[error("bundle ends before its table of contents (truncated)")]
+    Truncated,
+    #[error("bundle: {0}")]
+    Wire(#[from] WireError),
+}
+
+/// One section as stored: kind, whether zstd-compressed, raw and stored sizes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SectionInfo {
+    pub kind: u32,
+    pub compressed: bool,
+    pub raw_len: u64,
+    pub stored_len: u64,
+}
+
+/// Writes a container. `zstd_level` 0 stores payloads raw.
+pub fn write_container(
+    major: u16,
+    minor: u16,
+    sections: &[(u32, Vec<u8>)],
+    zstd_level: i32,
+) -> (Vec<u8>, Vec<SectionInfo>) {
+    let mut w = Writer::new();
+    w.bytes.extend_from_slice(MAGIC);
+    w.bytes.extend_from_slice(&major.to_le_bytes());
+    w.bytes.extend_from_slice(&minor.to_le_bytes());
+    let mut toc = Vec::with_capacity(sections.len());
+    let mut infos = Vec::with_capacity(sections.len());
+    for (kind, raw) in sections {
+        let offset = w.bytes.len() as u64;
+        let compressed = (zstd_level != 0)
+            .then(|| zstd::bulk::compress(raw, zstd_level).ok())
+            .flatten()
+            .filter(|c| c.len() < raw.len());
+        let (flags, stored): (u32, &[u8]) = match &compressed {
+            Some(c) => (FLAG_ZSTD, c),
+            None => (0, raw),
+        };
+        write_section(&mut w, *kind, flags, stored, raw.len() as u64);
+        toc.push((*kind, offset, stored.len() as u64, raw.len() as u64));
+        infos.push(SectionInfo {
+            kind: *kind,
+            compressed: flags & FLAG_ZSTD != 0,
+            raw_len: raw.len() as u64,
+            stored_len: stored.len() as u64,
+        });
+    }
+    let end_offset = w.bytes.len() as u64;
+    let mut t = Writer::new();
+    t.u32(toc.len() as u32);
+    for (kind, offset, stored, raw) in &toc {
+        t.u32(*kind);
+        t.u64(*offset);
+        t.u64(*stored);
+        t.u64(*raw);
+    }
+    write_section(&mut w, END, 0, &t.bytes, t.bytes.len() as u64);
+    w.u64(end_offset);
+    w.bytes.extend_from_slice(MAGIC);
+    (w.bytes, infos)
+}
+
+fn write_section(w: &mut Writer, kind: u32, flags: u32, stored: &[u8], raw_len: u64) {
+    w.u32(kind);
+    w.u32(flags);
+    w.u64(stored.len() as u64);
+    w.u64(raw_len);
+    w.u64(checksum(stored));
+    w.bytes.extend_from_slice(stored);
+}
+
+/// The sections read from a container, in file order, decompressed.
+#[derive(Debug, Default)]
+pub struct Sections {
+    pub minor: u16,
+    pub sections: Vec<(u32, Vec<u8>)>,
+    /// Whether the closing table of contents (and footer) was present and consistent.
+    pub complete: bool,
+}
+
+/// Reads a container. `known` says which section kinds to decompress (others are skipped
+/// unread, as a newer minor version's sections). With `allow_truncated`, a bundle cut anywhere
+/// after its header gives the complete sections before the cut and `complete == false`;
+/// without it, anything short of a full, consistent container is an error.
+pub fn read_sections(
+    bytes: &[u8],
+    major: u16,
+    known: impl Fn(u32) -> bool,
+    allow_truncated: bool,
+) -> Result<Sections, ContainerError> {
+    let mut r = Reader::new(bytes);
+    if r.take(8).map_err(|_| ContainerError::Magic)? != MAGIC {
+        return Err(ContainerError::Magic);
+    }
+    let found = u16::from_le_bytes(r.take(2)?.try_into().unwrap());
+    let minor = u16::from_le_bytes(r.take(2)?.try_into().unwrap());
+    if found != major {
+        return Err(ContainerError::Version {
+            found,
+            known: major,
+        });
+    }
+    let mut out = Sections {
+        minor,
+        ..Sections::default()
+    };
+    let mut offsets: Vec<(u32, u64, u64, u64)> = Vec::new();
+    loop {
+        let header_offset = r.position() as u64;
+        if (r.remaining() as u64) < HEADER_BYTES {
+            return truncated(out, allow_truncated);
+        }
+        let kind = r.u32()?;
+        let flags = r.u32()?;
+        let stored_len = r.u64()?;
+        let raw_len = r.u64()?;
+        let sum = r.u64()?;
+        if stored_len > r.remaining() as u64 {
+            return truncated(out, allow_truncated);
+        }
+        let stored = r.take(stored_len as usize)?;
+        if kind == END {
+            if r.remaining() < 16 {
+                return truncated(out, allow_truncated);
+            }
+            if flags != 0 || raw_len != stored_len {
+                return Err(ContainerError::Section {
+                    kind,
+                    reason: "table of contents has flags or a raw length".into(),
+                });
+            }
+            check_toc(stored, &offsets, sum, &mut r, header_offset)?;
+            out.complete = true;
+            return Ok(out);
+        }
+        offsets.push((kind, header_offset, stored_len, raw_len));
+        if !known(kind) {
+            continue;
+        }
+        if checksum(stored) != sum {
+            return Err(ContainerError::Checksum { kind });
+        }
+        let bad = |reason: String| ContainerError::Section { kind, reason };
+        if flags & !FLAG_ZSTD != 0 {
+            return Err(bad(format!("unknown flags {flags:#x}")));
+        }
+        if raw_len > MAX_SECTION_BYTES {
+            return Err(bad(format!(
+                "decompressed size {raw_len} exceeds the {MAX_SECTION_BYTES}-byte limit"
+            )));
+        }
+        let payload = if flags & FLAG_ZSTD != 0 {
+            decompress(stored, raw_len).map_err(bad)?
+        } else if raw_len != stored_len {
+            return Err(bad(format!(
+                "raw length {raw_len} differs from stored length {stored_len}"
+            )));
+        } else {
+            stored.to_vec()
+        };
+        out.sections.push((kind, payload));
+    }
+}
+
+fn truncated(out: Sections, allow: bool) -> Result<Sections, ContainerError> {
+    if allow {
+        Ok(out)
+    } else {
+        Err(ContainerError::Truncated)
+    }
+}
+
+/// Decompresses exactly `raw_len` bytes; allocation grows only with data actually produced.
+fn decompress(stored: &[u8], raw_len: u64) -> Result<Vec<u8>, String> {
+    let decoder = zstd::stream::read::Decoder::new(stored).map_err(|e| format!("zstd: {e}"))?;
+    let mut payload = Vec::new();
+    decoder
+        .take(raw_len + 1)
+        .read_to_end(&mut payload)
+        .map_err(|e| format!("zstd: {e}"))?;
+    if payload.len() as u64 != raw_len {
+        return Err(format!(
+            "decompresses to {} bytes, header says {raw_len}",
+            payload.len()
+        ));
+    }
+    Ok(payload)
+}
+
+/// Checks the table of contents against the sections read, and the footer after it.
+fn check_toc(
+    toc: &[u8],
+    seen: &[(u32, u64, u64, u64)],
+    sum: u64,
+    r: &mut Reader,
+    end_offset: u64,
+) -> Result<(), ContainerError> {
+    let bad = |reason: &str| ContainerError::Section {
+        kind: END,
+        reason: reason.into(),
+    };
+    if checksum(toc) != sum {
+        return Err(ContainerError::Checksum { kind: END });
+    }
+    let mut t = Reader::new(toc);
+    let n = t.u32()? as usize;
+    if n != seen.len() {
+        return Err(bad(
+            "table of contents lists a different number of sections",
+        ));
+    }
+    for expected in seen {
+        let entry = (t.u32()?, t.u64()?, t.u64()?, t.u64()?);
+        if entry != *expected {
+            return Err(bad("table of contents does not match the sections"));
+        }
+    }
+    if r.remaining() != 16 || r.u64()? != end_offset || r.take(8)? != MAGIC {
+        return Err(bad("footer missing or inconsistent"));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn sample() -> Vec<(u32, Vec<u8>)> {
+        vec![
+            (1, b"layout".repeat(100)),
+            (2, (0..=255u8).collect()),
+            (99, vec![7; 50]),
+        ]
+    }
+
+    #[test]
+    fn round_trip_compresses_what_shrinks_and_skips_unknown_kinds() {
+        let (bytes, infos) = write_container(1, 0, &sample(), 3);
+        assert!(infos[0].compressed && infos[0].stored_len < infos[0].raw_len);
+        assert!(!infos[1].compressed, "incompressible payload stored raw");
+        let s = read_sections(&bytes, 1, |k| k != 99, false).unwrap();
+        assert!(s.complete);
+        assert_eq!(s.sections, sample()[..2].to_vec());
+    }
+
+    #[test]
+    fn every_prefix_reads_as_its_complete_sections() {
+        let (bytes, _) = write_container(1, 0, &sample(), 3);
+        let mut last = 0;
+        for cut in 12..bytes.len() {
+            let s = read_sections(&bytes[..cut], 1, |_| true, true).unwrap();
+            assert!(!s.complete);
+            assert!(s.sections.len() >= last);
+            last = s.sections.len();
+            assert!(read_sections(&bytes[..cut], 1, |_| true, false).is_err());
+        }
+        assert_eq!(last, 3);
+    }
+
+    #[test]
+    fn other_major_and_flipped_bytes_are_errors() {
+        let (bytes, _) = write_container(1, 0, &sample(), 3);
+        assert_eq!(
+            read_sections(&bytes, 2, |_| true, false).unwrap_err(),
+            ContainerError::Version { found: 1, known: 2 }
+        );
+        for k in 12..bytes.len() {
+            let mut b = bytes.clone();
+            b[k] ^= 0x40;
+            assert!(
+                read_sections(&b, 1, |_| true, false).is_err(),
+                "flip at {k} went unnoticed"
+            );
+        }
+    }
+
+    #[test]
+    fn a_lying_raw_length_is_refused_without_allocating_it() {
+        let (mut bytes, _) = write_container(1, 0, &[(1, vec![0u8; 4096])], 3);
+        // raw_len sits at offset 12 + 4 + 4 + 8.
+        bytes[24..32].copy_from_slice(&(1u64 << 40).to_le_bytes());
+        let err = read_sections(&bytes, 1, |_| true, false).unwrap_err();
+        assert!(
+            matches!(err, ContainerError::Section { kind: 1, .. }),
+            "{err}"
+        );
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+        #[test]
+        fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..200)) {
+            let mut b = MAGIC.to_vec();
+            b.extend_from_slice(&[1, 0, 0, 0]);
+            b.extend_from_slice(&bytes);
+            let _ = read_sections(&b, 1, |_| true, true);
+            let _ = read_sections(&bytes, 1, |_| true, false);
+        }
+    }
+}

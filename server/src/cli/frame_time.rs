@@ -1,0 +1,131 @@
+//! `lightfarm frame-time BUNDLE --lights LIGHTS.json`: how long one frame of the client runtime
+//! takes (median over many frames), next to the memory-traffic bound.
+//!
+//! Direct light is computed once (the engine's job, not timed); each timed frame is one
+//! `Runtime::apply`. The bound is the operator bytes one frame reads divided by the read
+//! bandwidth measured here with a streaming sum over a buffer much larger than the caches: no
+//! implementation that reads every operator value once per frame can beat it.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Context;
+use lightfarm_client::{
+    direct_from_point_lights_averaged, Bundle, IndirectLight, Method, Occluders, Runtime,
+};
+use lightfarm_proto::lights::LightSet;
+
+use super::eval::DIRECT_SAMPLES_PER_EDGE;
+use super::read_text;
+
+/// Arguments of `frame-time`.
+pub struct FrameTimeArgs {
+    pub bundle: PathBuf,
+    pub lights: PathBuf,
+    pub method: Method,
+    pub frames: usize,
+    /// Threads of the runtime's rayon pool (1: the single-thread path).
+    pub threads: usize,
+}
+
+/// Frame-time figures.
+#[derive(Clone, Debug)]
+pub struct FrameTimes {
+    pub median_ms: f64,
+    pub p10_ms: f64,
+    pub p90_ms: f64,
+    pub operator_bytes: usize,
+}
+
+/// Times `frames` applications of `method` on `threads` threads.
+pub fn time_frames(
+    runtime: &mut Runtime,
+    direct: &lightfarm_client::DirectLight,
+    method: Method,
+    frames: usize,
+    threads: usize,
+) -> anyhow::Result<FrameTimes> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.max(1))
+        .build()?;
+    runtime.set_parallel(threads > 1);
+    let mut out = IndirectLight::default();
+    let mut times = Vec::with_capacity(frames);
+    pool.install(|| -> anyhow::Result<()> {
+        // Warm-up: caches, page faults, the output's allocation.
+        for _ in 0..frames.min(20) {
+            runtime.apply(method, direct, &mut out)?;
+        }
+        for _ in 0..frames {
+            let start = Instant::now();
+            runtime.apply(method, direct, &mut out)?;
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        Ok(())
+    })?;
+    runtime.set_parallel(false);
+    times.sort_by(f64::total_cmp);
+    let at = |q: f64| times[((times.len() - 1) as f64 * q).round() as usize];
+    Ok(FrameTimes {
+        median_ms: at(0.5),
+        p10_ms: at(0.1),
+        p90_ms: at(0.9),
+        operator_bytes: runtime.operator_bytes_per_frame(method),
+    })
+}
+
+/// Single-thread streaming read bandwidth (bytes/s) over a 256 MiB buffer, best of 5 passes.
+pub fn read_bandwidth() -> f64 {
+    let data = vec![1.0f32; 64 << 20];
+    let mut best = f64::INFINITY;
+    let mut sink = 0.0f32;
+    for _ in 0..5 {
+        let start = Instant::now();
+        let mut acc = [0.0f32; 8];
+        for chunk in data.chunks_exact(8) {
+            for k in 0..8 {
+                acc[k] += chunk[k];
+            }
+        }
+        sink += acc.iter().sum::<f32>();
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    std::hint::black_box(sink);
+    (data.len() * 4) as f64 / best
+}
+
+pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
+    let bytes = std::fs::read(&args.bundle)
+        .with_context(|| format!("cannot read {}", args.bundle.display()))?;
+    let bundle = Bundle::decode(&bytes).with_context(|| format!("{}", args.bundle.display()))?;
+    let lights = LightSet::from_json(&read_text(&args.lights)?)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.lights.display()))?;
+    let occluders = Occluders::from_layout(&bundle.layout);
+    let direct = direct_from_point_lights_averaged(
+        &bundle.layout,
+        &occluders,
+        &lights.lights,
+        DIRECT_SAMPLES_PER_EDGE,
+    );
+    let mut runtime = Runtime::try_new(bundle)?;
+    let method = if args.method == Method::Drt && !runtime.has_drt() {
+        Method::Mrt
+    } else {
+        args.method
+    };
+    let t = time_frames(&mut runtime, &direct, method, args.frames, args.threads)?;
+    let bandwidth = read_bandwidth();
+    let bound_ms = t.operator_bytes as f64 / bandwidth * 1e3;
+    println!(
+        "method={method:?} threads={} frames={} median_ms={:.4} p10_ms={:.4} p90_ms={:.4} \
+         operator_bytes={} read_bandwidth_gbs={:.2} bound_ms={bound_ms:.4}",
+        args.threads,
+        args.frames,
+        t.median_ms,
+        t.p10_ms,
+        t.p90_ms,
+        t.operator_bytes,
+        bandwidth / 1e9
+    );
+    Ok(())
+}

@@ -1,0 +1,96 @@
+//! `lightfarm inspect BUNDLE`: what a bundle holds, section by section and operator by
+//! operator (sizes, ranks, values), for people sizing a bake.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use lightfarm_proto::bundle::{Bundle, DeltaSource, Matrix, TransportOps};
+
+/// Values and count of a group of matrices.
+#[derive(Default)]
+struct Tally {
+    matrices: usize,
+    values: usize,
+}
+
+impl Tally {
+    fn add(&mut self, m: &Matrix) {
+        self.matrices += 1;
+        self.values += m.data.len();
+    }
+}
+
+pub fn run(path: PathBuf) -> anyhow::Result<()> {
+    let bytes = std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    let bundle = Bundle::decode(&bytes).with_context(|| format!("{}", path.display()))?;
+    println!(
+        "{}: {} bytes, {} texels, {} blocks, {} shapes",
+        path.display(),
+        bytes.len(),
+        bundle.layout.n_texels(),
+        bundle.blocks.len(),
+        bundle.shapes.len()
+    );
+    let (mut u_b, mut t_db, mut u_r) = (Tally::default(), Tally::default(), Tally::default());
+    for s in &bundle.shapes {
+        u_b.add(&s.u_b);
+        t_db.add(&s.t_db);
+        for o in &s.openings {
+            u_r.add(&o.u_r);
+        }
+        let q: Vec<u32> = s.openings.iter().map(|o| o.u_r.cols).collect();
+        println!(
+            "  shape {}: {} texels, rank {}, opening ranks {q:?}",
+            &s.key[..s.key.len().min(12)],
+            s.u_b.rows,
+            s.u_b.cols
+        );
+    }
+    let mut transport = Tally::default();
+    match &bundle.transport {
+        Some(TransportOps::Lightfield(e)) => e.iter().for_each(|e| transport.add(&e.matrix)),
+        Some(TransportOps::Traced(e)) => e.iter().for_each(|e| transport.add(&e.matrix)),
+        None => {}
+    }
+    let line = |name: &str, t: &Tally| {
+        println!(
+            "  {name:<28} {:>6} matrices {:>10} values",
+            t.matrices, t.values
+        )
+    };
+    line("U_b", &u_b);
+    line("T_d→b", &t_db);
+    line("U_r (openings)", &u_r);
+    line("transport", &transport);
+    if let Some(d) = &bundle.drt {
+        let mut t_dc = Tally::default();
+        d.clutter.iter().for_each(|c| t_dc.add(&c.t_dc));
+        let (mut from_block, mut from_clutter) = (Tally::default(), Tally::default());
+        for e in &d.entries {
+            match e.source {
+                DeltaSource::Block(_) => from_block.add(&e.matrix),
+                DeltaSource::Clutter(_) => from_clutter.add(&e.matrix),
+            }
+        }
+        line("T_d→c", &t_dc);
+        line("ΔU_b and C_b (from blocks)", &from_block);
+        line("ΔU_c (from clutter)", &from_clutter);
+        if let Some(g) = &d.direct_gather {
+            println!(
+                "  {:<28} {:>6} rows     {:>10} values",
+                "exact clutter gather",
+                g.rows.len(),
+                g.values.len()
+            );
+        }
+    }
+    if let Some(p) = &bundle.probes {
+        let mut probes = Tally::default();
+        p.entries.iter().for_each(|e| probes.add(&e.matrix));
+        line(&format!("probes ({})", p.n_probes), &probes);
+    }
+    if let Some(f) = &bundle.full {
+        println!("  {:<28} {:>17} values", "full (sparse)", f.values.len());
+    }
+    Ok(())
+}
