@@ -33,12 +33,15 @@
 //! - [`probes`]: the probe field ([`ProbeField`]: n_probes × 3 channels × 9 SH coefficients)
 //!   and [`irradiance_at`], trilinear probe interpolation and irradiance for any point and
 //!   normal (dynamic objects, clutter).
+//! - [`lightmap`]: per-texel radiance as an atlas image (8-bit sRGB for PNG, raw f16).
 //!
-//! Invariants: this crate depends only on `lightfarm-proto` and `thiserror`; it does no I/O;
+//! Invariants: this crate depends only on `lightfarm-proto`, `thiserror` and `half` (plus
+//! `rayon` with the `rayon` feature, for [`Runtime::set_parallel`]); it does no I/O;
 //! every per-texel vector is in layout order with one RGB value per layout texel; operators are
 //! albedo-free and the receiving texel's albedo is multiplied in last.
 
 pub mod direct;
+pub mod lightmap;
 pub mod occluders;
 pub mod probes;
 pub mod runtime;
@@ -46,6 +49,7 @@ pub mod runtime;
 pub use direct::{direct_from_point_lights, direct_from_point_lights_averaged, DirectLight};
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
+pub use lightmap::{auto_exposure, Atlas};
 pub use occluders::Occluders;
 pub use probes::{irradiance_at, ProbeField};
 pub use runtime::{ApplyError, IndirectLight, Method, Runtime};

@@ -110,6 +110,15 @@ enum Command {
         method: MethodArg,
         #[arg(short, long)]
         out: PathBuf,
+        /// Also write the indirect lightmap atlas as PNG (8-bit sRGB, auto exposure).
+        #[arg(long)]
+        png: Option<PathBuf>,
+        /// Also write the lit (direct + indirect) lightmap atlas as PNG.
+        #[arg(long)]
+        png_lit: Option<PathBuf>,
+        /// Also write the indirect lightmap atlas as raw f16 RGB (for engines).
+        #[arg(long)]
+        f16: Option<PathBuf>,
     },
     /// Brute-force one-bounce reference.
     Reference {
@@ -185,11 +194,19 @@ fn main() -> anyhow::Result<()> {
             lights,
             method,
             out,
+            png,
+            png_lit,
+            f16,
         } => cli::eval::run(cli::eval::EvalArgs {
             bundle,
             lights,
             method: method.into(),
             out,
+            lightmaps: cli::lightmap_files::LightmapFiles {
+                png_indirect: png,
+                png_lit,
+                f16_indirect: f16,
+            },
         }),
         Command::Reference {
             scene,

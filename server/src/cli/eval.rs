@@ -11,6 +11,7 @@ use lightfarm_client::{
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
 
+use super::lightmap_files::{write_lightmaps, LightmapFiles};
 use super::{read_text, write_json};
 
 /// Arguments of `eval`.
@@ -19,6 +20,7 @@ pub struct EvalArgs {
     pub lights: PathBuf,
     pub method: Method,
     pub out: PathBuf,
+    pub lightmaps: LightmapFiles,
 }
 
 /// Direct light is averaged over a 4×4 grid per texel before it enters the operators.
@@ -95,6 +97,14 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let bundle = Bundle::decode(&bytes).with_context(|| format!("{}", args.bundle.display()))?;
     let lights = LightSet::from_json(&read_text(&args.lights)?)
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.lights.display()))?;
+    let layout = bundle.layout.clone();
     let result = evaluate(bundle, &lights, args.method)?;
-    write_json(&args.out, &result)
+    write_json(&args.out, &result)?;
+    if !args.lightmaps.is_empty() {
+        eprintln!(
+            "lightmaps: {}",
+            write_lightmaps(&layout, &result, &args.lightmaps)?
+        );
+    }
+    Ok(())
 }

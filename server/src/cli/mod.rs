@@ -7,6 +7,7 @@ pub mod compare;
 pub mod eval;
 pub mod frame_time;
 pub mod inspect;
+pub mod lightmap_files;
 pub mod progress_bar;
 pub mod reference;
 
