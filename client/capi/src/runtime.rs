@@ -1,0 +1,209 @@
+//! The opaque `LfRuntime` and its lifecycle: load a bundle, query it, apply it every frame,
+//! free it.
+//!
+//! Invariants:
+//! - An [`LfRuntime`] exists only for bytes `Bundle::decode` and `Runtime::try_new` accepted.
+//! - Its direct and indirect scratch always hold exactly `texels` entries (sized in
+//!   [`lf_runtime_new`]), so [`lf_runtime_apply`] allocates nothing: it copies the caller's
+//!   direct light in, applies, and copies the indirect light out.
+//! - C only ever sees `LfRuntime*` from [`lf_runtime_new`] (a leaked `Box`), and
+//!   [`lf_runtime_free`] is the only place that box is dropped.
+
+use lightfarm_client::{DirectLight, IndirectLight, Occluders, Runtime};
+use lightfarm_proto::bundle::Bundle;
+
+use crate::boundary::{pointer_call, slice, slice_mut, status_call, value_call};
+use crate::method::LfMethod;
+use crate::status::CapiError;
+
+/// A loaded bundle ready to apply every frame (opaque to C).
+pub struct LfRuntime {
+    runtime: Runtime,
+    /// Shadow-ray geometry of the bundle, for direct light from point lights.
+    occluders: Occluders,
+    /// Scratch: the caller's direct light, one RGB value per texel.
+    direct: DirectLight,
+    /// Scratch: the indirect light `apply` writes, one RGB value per texel.
+    indirect: IndirectLight,
+}
+
+impl LfRuntime {
+    /// Decodes and validates `bytes` and sizes the per-frame scratch.
+    fn load(bytes: &[u8]) -> Result<LfRuntime, CapiError> {
+        let bundle = Bundle::decode(bytes)?;
+        let occluders = Occluders::from_layout(&bundle.layout);
+        let runtime = Runtime::try_new(bundle)?;
+        let n = runtime.n_texels();
+        Ok(LfRuntime {
+            runtime,
+            occluders,
+            direct: DirectLight {
+                radiance: vec![[0.0; 3]; n],
+            },
+            indirect: IndirectLight {
+                radiance: vec![[0.0; 3]; n],
+            },
+        })
+    }
+
+    /// The client runtime (its bundle holds the layout direct light is computed on).
+    pub(crate) fn runtime(&self) -> &Runtime {
+        &self.runtime
+    }
+
+    /// The shadow-ray geometry of the bundle.
+    pub(crate) fn occluders(&self) -> &Occluders {
+        &self.occluders
+    }
+
+    /// Floats in one RGB vector over every texel.
+    pub(crate) fn rgb_len(&self) -> usize {
+        3 * self.runtime.n_texels()
+    }
+}
+
+/// Fails unless `got` is the runtime's `3 x texels`.
+pub(crate) fn check_rgb_len(
+    rt: &LfRuntime,
+    what: &'static str,
+    got: usize,
+) -> Result<(), CapiError> {
+    let expected = rt.rgb_len();
+    if got == expected {
+        Ok(())
+    } else {
+        Err(CapiError::BadLength {
+            what,
+            expected,
+            got,
+        })
+    }
+}
+
+/// Loads a bundle (the bytes of an `.lfb` file; they are copied, so the caller may free them
+/// on return).
+///
+/// Returns a runtime to free with `lf_runtime_free`, or NULL when the bytes are not a usable
+/// bundle or `bytes` is NULL with `len > 0` (then `lf_last_error` says why).
+///
+/// # Safety
+/// `bytes` must be NULL or point to `len` readable bytes.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_new(bytes: *const u8, len: usize) -> *mut LfRuntime {
+    pointer_call("lf_runtime_new", || {
+        // SAFETY: the caller guarantees `len` readable bytes at a non-NULL `bytes`.
+        let bytes = unsafe { slice(bytes, len, "bytes") }?;
+        Ok(Box::into_raw(Box::new(LfRuntime::load(bytes)?)))
+    })
+}
+
+/// Frees a runtime; does nothing for NULL.
+///
+/// # Safety
+/// `rt` must be NULL or a pointer from `lf_runtime_new` not yet freed; it must not be used
+/// after this call.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_free(rt: *mut LfRuntime) {
+    value_call("lf_runtime_free", (), || {
+        if !rt.is_null() {
+            // SAFETY: `rt` came from `Box::into_raw` in `lf_runtime_new` and is freed once.
+            drop(unsafe { Box::from_raw(rt) });
+        }
+    })
+}
+
+/// Number of texels of the bundle's layout (an RGB vector is 3 x this many floats); 0 for NULL.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_texel_count(rt: *const LfRuntime) -> usize {
+    value_call("lf_runtime_texel_count", 0, || {
+        // SAFETY: NULL or live, per the contract.
+        unsafe { rt.as_ref() }.map_or(0, |rt| rt.runtime.n_texels())
+    })
+}
+
+/// Whether the bundle has DRT operators (a scene with clutter), so `LF_METHOD_DRT` applies;
+/// false for NULL.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_has_drt(rt: *const LfRuntime) -> bool {
+    value_call("lf_runtime_has_drt", false, || {
+        // SAFETY: NULL or live, per the contract.
+        unsafe { rt.as_ref() }.is_some_and(|rt| rt.runtime.has_drt())
+    })
+}
+
+/// Whether the bundle has the dense operator (baked with `--full`), so `LF_METHOD_FULL`
+/// applies; false for NULL.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_has_full(rt: *const LfRuntime) -> bool {
+    value_call("lf_runtime_has_full", false, || {
+        // SAFETY: NULL or live, per the contract.
+        unsafe { rt.as_ref() }.is_some_and(|rt| rt.runtime.has_full())
+    })
+}
+
+/// Turns direct light into indirect light with `method` (an `LfMethod`); allocates nothing.
+///
+/// `direct_rgb` and `out_rgb` hold `3 x texels` floats each (`direct_len`, `out_len` must be
+/// exactly that), texel-major RGB in layout order; direct light is outgoing radiance, as
+/// `lf_runtime_direct_from_point_lights` computes it. They may be the same buffer
+/// (direct light is read in full before anything is written).
+///
+/// Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, or a buffer with a non-zero
+/// length, is NULL), `LF_STATUS_BAD_METHOD`, `LF_STATUS_BAD_LENGTH`,
+/// `LF_STATUS_MISSING_OPERATOR` (see `lf_runtime_has_drt`, `lf_runtime_has_full`) or
+/// `LF_STATUS_PANIC`. `out_rgb` is written only on success.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread
+/// during the call. `direct_rgb` must be NULL or point to `direct_len` readable floats;
+/// `out_rgb` must be NULL or point to `out_len` writable floats; no other thread may write
+/// either during the call.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_apply(
+    rt: *mut LfRuntime,
+    method: i32,
+    direct_rgb: *const f32,
+    direct_len: usize,
+    out_rgb: *mut f32,
+    out_len: usize,
+) -> i32 {
+    status_call("lf_runtime_apply", || {
+        // SAFETY: NULL or live and unshared, per the contract.
+        let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
+        for (ptr, len, what) in [
+            (direct_rgb, direct_len, "direct_rgb"),
+            (out_rgb.cast_const(), out_len, "out_rgb"),
+        ] {
+            if ptr.is_null() && len > 0 {
+                return Err(CapiError::NullPointer(what));
+            }
+        }
+        let method = LfMethod::from_raw(method)?.method();
+        check_rgb_len(rt, "direct_rgb", direct_len)?;
+        check_rgb_len(rt, "out_rgb", out_len)?;
+        {
+            // SAFETY: `direct_len` readable floats, per the contract. The slice ends before
+            // `out_rgb` (which may be the same memory) is touched.
+            let direct = unsafe { slice(direct_rgb, direct_len, "direct_rgb") }?;
+            for (d, v) in rt.direct.radiance.iter_mut().zip(direct.chunks_exact(3)) {
+                *d = [v[0], v[1], v[2]];
+            }
+        }
+        rt.runtime.apply(method, &rt.direct, &mut rt.indirect)?;
+        // SAFETY: `out_len` writable floats, per the contract; no other slice is alive.
+        let out = unsafe { slice_mut(out_rgb, out_len, "out_rgb") }?;
+        for (o, v) in out.chunks_exact_mut(3).zip(&rt.indirect.radiance) {
+            o.copy_from_slice(v);
+        }
+        Ok(())
+    })
+}

@@ -1,0 +1,84 @@
+//! Status codes of the C ABI and the errors behind them.
+//!
+//! Invariants: [`LfStatus::Ok`] is 0 and every failure is negative, so C can test `< 0`; the
+//! values are part of the ABI and never change meaning (new codes get new numbers). Every
+//! [`CapiError`] maps to exactly one failure code through [`CapiError::status`], and its
+//! `Display` text is what [`crate::lf_last_error`] hands to C.
+
+use lightfarm_client::{ApplyError, BundleError};
+
+/// What an `lf_*` call returned (as `int32_t`).
+#[repr(i32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum LfStatus {
+    /// Success.
+    Ok = 0,
+    /// A required pointer argument was NULL.
+    NullPointer = -1,
+    /// A buffer length (in floats) is not `3 x texels`.
+    BadLength = -2,
+    /// The method is not one of `LfMethod`.
+    BadMethod = -3,
+    /// The bundle lacks the operators of the requested method (DRT without clutter, FULL
+    /// without `--full`).
+    MissingOperator = -4,
+    /// A light has a non-finite position or a negative or non-finite intensity.
+    InvalidLight = -5,
+    /// The bytes are not a usable bundle.
+    BadBundle = -6,
+    /// An internal panic was caught at the boundary (a bug in lightfarm).
+    Panic = -7,
+}
+
+/// Why an `lf_*` call failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CapiError {
+    #[error("{0} is NULL")]
+    NullPointer(&'static str),
+    #[error("{what} holds {got} floats but this bundle needs {expected} (3 per texel)")]
+    BadLength {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
+    #[error("unknown method {0}: use LF_METHOD_MRT, LF_METHOD_DRT or LF_METHOD_FULL")]
+    BadMethod(i32),
+    #[error(transparent)]
+    MissingOperator(ApplyError),
+    #[error("lights[{index}]: {reason}")]
+    InvalidLight { index: usize, reason: &'static str },
+    #[error("cannot load bundle: {0}")]
+    BadBundle(#[from] BundleError),
+    #[error("internal panic: {0}")]
+    Panic(String),
+}
+
+impl CapiError {
+    /// The (negative) code C sees for this error.
+    pub fn status(&self) -> LfStatus {
+        match self {
+            CapiError::NullPointer(_) => LfStatus::NullPointer,
+            CapiError::BadLength { .. } => LfStatus::BadLength,
+            CapiError::BadMethod(_) => LfStatus::BadMethod,
+            CapiError::MissingOperator(_) => LfStatus::MissingOperator,
+            CapiError::InvalidLight { .. } => LfStatus::InvalidLight,
+            CapiError::BadBundle(_) => LfStatus::BadBundle,
+            CapiError::Panic(_) => LfStatus::Panic,
+        }
+    }
+}
+
+impl From<ApplyError> for CapiError {
+    /// `DirectLength` cannot reach here (lengths are checked before `apply`), but is mapped
+    /// to `CapiError::BadLength` all the same.
+    fn from(e: ApplyError) -> CapiError {
+        match e {
+            ApplyError::DirectLength { expected, got } => CapiError::BadLength {
+                what: "direct light",
+                expected: 3 * expected,
+                got: 3 * got,
+            },
+            other => CapiError::MissingOperator(other),
+        }
+    }
+}

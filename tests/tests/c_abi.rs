@@ -1,0 +1,194 @@
+//! The C ABI end to end: bake the Cornell box, compile `client/capi/examples/apply.c` with the
+//! system C compiler against the `liblightfarm` shared library cargo built for this test, run it
+//! on the bundle and two lights, and check that its checksums equal the ones the Rust client
+//! computes through `Runtime::apply` on the same direct light.
+//!
+//! The library is found beside this test binary: `lightfarm-client-capi` is a dev-dependency
+//! of this crate, so cargo builds its cdylib into `target/<profile>/deps/` (and, when the capi
+//! package itself is built, copies it to `target/<profile>/`); the newest of the two is linked
+//! with an rpath, so the example runs without `LD_LIBRARY_PATH`.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use lightfarm_client::{
+    direct_from_point_lights_averaged, IndirectLight, Light, Method, Occluders, Runtime,
+};
+use lightfarm_proto::lights::LightKind;
+use lightfarm_proto::scene::Transport;
+use lightfarm_tests::*;
+
+/// Point lights as `[x, y, z, r, g, b]`: the Cornell box's lamp and a dimmer orange one.
+const LIGHTS: [[f32; 6]; 2] = [
+    [2.75, 5.2, 2.75, 10.0, 10.0, 10.0],
+    [1.2, 4.0, 4.4, 3.0, 1.5, 0.5],
+];
+
+/// A fresh scratch directory for this process.
+fn scratch_dir() -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lf-c-abi-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// The directory holding the newest `liblightfarm` shared library cargo built for this test.
+fn library_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let deps = exe.parent().unwrap();
+    let name = format!(
+        "{}lightfarm{}",
+        std::env::consts::DLL_PREFIX,
+        std::env::consts::DLL_SUFFIX
+    );
+    [deps, deps.parent().unwrap()]
+        .into_iter()
+        .filter_map(|dir| {
+            let modified = std::fs::metadata(dir.join(&name)).ok()?.modified().ok()?;
+            Some((modified, dir.to_path_buf()))
+        })
+        .max()
+        .map(|(_, dir)| dir)
+        .unwrap_or_else(|| {
+            panic!(
+                "no {name} beside {} or in its parent: build with `cargo test` so the \
+                 lightfarm-client-capi dev-dependency is built",
+                deps.display()
+            )
+        })
+}
+
+/// Compiles the C example into `dir`; returns the executable.
+fn compile_example(dir: &Path) -> PathBuf {
+    let capi = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../client/capi");
+    let lib_dir = library_dir();
+    let exe = dir.join("apply");
+    let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
+    let output = Command::new(&cc)
+        .args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-I"])
+        .arg(capi.join("include"))
+        .arg(capi.join("examples/apply.c"))
+        .arg("-L")
+        .arg(&lib_dir)
+        .arg("-llightfarm")
+        .arg(format!("-Wl,-rpath,{}", lib_dir.display()))
+        .arg("-o")
+        .arg(&exe)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run the C compiler `{cc}`: {e}"));
+    assert!(
+        output.status.success(),
+        "apply.c does not compile:\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    exe
+}
+
+/// The value of `key=` in the example's output line.
+fn field<'a>(line: &'a str, key: &str) -> &'a str {
+    line.split_whitespace()
+        .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('='))
+        .unwrap_or_else(|| panic!("no {key}= in {line:?}"))
+}
+
+fn number(line: &str, key: &str) -> f64 {
+    field(line, key).parse().unwrap()
+}
+
+fn assert_close(label: &str, c: f64, rust: f64) {
+    let rel = (c - rust).abs() / rust.abs().max(f64::MIN_POSITIVE);
+    assert!(
+        rel < 1e-5,
+        "{label}: C {c:e}, Rust {rust:e} (relative {rel:e})"
+    );
+}
+
+#[test]
+fn c_example_matches_the_rust_client() {
+    let dir = scratch_dir();
+    let (scene, _) = load_scene("cornell", 8, 256);
+    let (bytes, _) = bake_scene(&scene, &scene_dir("cornell"), Transport::Lightfield, false);
+    let bundle_path = dir.join("cornell.lfb");
+    std::fs::write(&bundle_path, &bytes).unwrap();
+    let lights_path = dir.join("lights.txt");
+    let text: String = LIGHTS
+        .iter()
+        .map(|l| format!("{} {} {} {} {} {}\n", l[0], l[1], l[2], l[3], l[4], l[5]))
+        .collect();
+    std::fs::write(&lights_path, format!("# x y z r g b\n{text}\n")).unwrap();
+
+    // The Rust client on the same input: the C side parses the same f32 values.
+    let bundle = lightfarm_client::decode(&bytes).unwrap();
+    let occluders = Occluders::from_layout(&bundle.layout);
+    let lights: Vec<Light> = LIGHTS
+        .iter()
+        .map(|l| Light {
+            kind: LightKind::Point,
+            position: [l[0], l[1], l[2]].map(f64::from),
+            intensity: [l[3], l[4], l[5]].map(f64::from),
+        })
+        .collect();
+    let direct = direct_from_point_lights_averaged(
+        &bundle.layout,
+        &occluders,
+        &lights,
+        lightfarm::LF_DIRECT_SAMPLES_PER_EDGE,
+    );
+    let mut runtime = Runtime::try_new(bundle).unwrap();
+    assert!(runtime.has_drt(), "the Cornell box has clutter");
+    let mut indirect = IndirectLight::default();
+    runtime.apply(Method::Drt, &direct, &mut indirect).unwrap();
+    let sum = |v: &[[f32; 3]]| v.iter().flatten().map(|&x| x as f64).sum::<f64>();
+    let max = indirect
+        .radiance
+        .iter()
+        .flatten()
+        .fold(f64::NEG_INFINITY, |m, &x| m.max(x as f64));
+
+    let exe = compile_example(&dir);
+    let output = Command::new(&exe)
+        .arg(&bundle_path)
+        .arg(&lights_path)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "apply failed: {}{stdout}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let line = stdout.lines().next().expect("one output line");
+    eprintln!("C example: {line}");
+    assert_eq!(
+        field(line, "texels").parse::<usize>().unwrap(),
+        runtime.n_texels()
+    );
+    assert_eq!(field(line, "method"), "drt");
+    assert!(sum(&indirect.radiance) > 0.0 && max > 0.0);
+    assert_close(
+        "checksum",
+        number(line, "checksum"),
+        sum(&indirect.radiance),
+    );
+    assert_close("max", number(line, "max"), max);
+    assert_close(
+        "direct_checksum",
+        number(line, "direct_checksum"),
+        sum(&direct.radiance),
+    );
+
+    // A file that is not a bundle: exit status 1 and the library's reason on stderr.
+    let garbage = dir.join("garbage.lfb");
+    std::fs::write(&garbage, b"not a bundle at all").unwrap();
+    let output = Command::new(&exe)
+        .arg(&garbage)
+        .arg(&lights_path)
+        .output()
+        .unwrap();
+    assert_eq!(output.status.code(), Some(1));
+    assert_eq!(
+        String::from_utf8_lossy(&output.stderr).trim(),
+        "error: lf_runtime_new: cannot load bundle: not a lightfarm bundle (bad magic)"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
