@@ -33,17 +33,25 @@
 //! - [`probes`]: the probe field ([`ProbeField`]: n_probes × 3 channels × 9 SH coefficients)
 //!   and [`irradiance_at`], trilinear probe interpolation and irradiance for any point and
 //!   normal (dynamic objects, clutter).
+//! - `fetch` (feature `fetch`, off by default; `fetch-tls` adds https): `BundleFetcher`, a
+//!   blocking HTTP download of a bundle at level load with an on-disk cache (`If-None-Match`),
+//!   resumed downloads (`Range`/`If-Range`) and [`decode`] before anything is cached.
 //!
-//! Invariants: this crate depends only on `lightfarm-proto` and `thiserror`; it does no I/O;
-//! every per-texel vector is in layout order with one RGB value per layout texel; operators are
-//! albedo-free and the receiving texel's albedo is multiplied in last.
+//! Invariants: without features this crate depends only on `lightfarm-proto` and `thiserror`
+//! and does no I/O (the `fetch` feature adds `ureq`, and HTTP plus its cache directory are its
+//! only I/O); every per-texel vector is in layout order with one RGB value per layout texel;
+//! operators are albedo-free and the receiving texel's albedo is multiplied in last.
 
 pub mod direct;
+#[cfg(feature = "fetch")]
+pub mod fetch;
 pub mod occluders;
 pub mod probes;
 pub mod runtime;
 
 pub use direct::{direct_from_point_lights, direct_from_point_lights_averaged, DirectLight};
+#[cfg(feature = "fetch")]
+pub use fetch::{BundleFetcher, FetchError, Fetched};
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use occluders::Occluders;
