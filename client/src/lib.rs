@@ -34,19 +34,27 @@
 //!   and [`irradiance_at`], trilinear probe interpolation and irradiance for any point and
 //!   normal (dynamic objects, clutter).
 //! - [`lightmap`]: per-texel radiance as an atlas image (8-bit sRGB for PNG, raw f16).
+//! - `fetch` (feature `fetch`, off by default; `fetch-tls` adds https): `BundleFetcher`, a
+//!   blocking HTTP download of a bundle at level load with an on-disk cache (`If-None-Match`),
+//!   resumed downloads (`Range`/`If-Range`) and [`decode`] before anything is cached.
 //!
-//! Invariants: this crate depends only on `lightfarm-proto`, `thiserror` and `half` (plus
-//! `rayon` with the `rayon` feature, for [`Runtime::set_parallel`]); it does no I/O;
-//! every per-texel vector is in layout order with one RGB value per layout texel; operators are
-//! albedo-free and the receiving texel's albedo is multiplied in last.
+//! Invariants: without features this crate depends only on `lightfarm-proto`, `thiserror` and
+//! `half` and does no I/O (feature `rayon` adds rayon for [`Runtime::set_parallel`]; `fetch`
+//! adds `ureq`, and HTTP plus its cache directory are its only I/O); every per-texel vector is
+//! in layout order with one RGB value per layout texel; operators are albedo-free and the
+//! receiving texel's albedo is multiplied in last.
 
 pub mod direct;
+#[cfg(feature = "fetch")]
+pub mod fetch;
 pub mod lightmap;
 pub mod occluders;
 pub mod probes;
 pub mod runtime;
 
 pub use direct::{direct_from_point_lights, direct_from_point_lights_averaged, DirectLight};
+#[cfg(feature = "fetch")]
+pub use fetch::{BundleFetcher, FetchError, Fetched};
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};
