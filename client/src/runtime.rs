@@ -131,10 +131,28 @@ pub struct Runtime {
 /// Row · x for three channels in one pass; `x[c]` must be at least as long as `row`.
 ///
 /// Eight independent partial sums per channel let the compiler keep them in vector registers
-/// (floating-point addition is not reassociated for us). The summation order is fixed, so the
-/// result is deterministic.
+/// (floating-point addition is not reassociated for us). The summation order is fixed by the
+/// code, not the instruction set, so the result is bit-identical whether it runs as AVX2 (chosen
+/// at run time where the CPU has it: one 8-wide register per channel) or as the portable build.
 #[inline]
 fn dot3(row: &[f32], x: [&[f32]; 3]) -> [f32; 3] {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked above); the function has no other contract.
+        return unsafe { dot3_avx2(row, x) };
+    }
+    dot3_lanes(row, x)
+}
+
+/// [`dot3_lanes`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn dot3_avx2(row: &[f32], x: [&[f32]; 3]) -> [f32; 3] {
+    dot3_lanes(row, x)
+}
+
+#[inline(always)]
+fn dot3_lanes(row: &[f32], x: [&[f32]; 3]) -> [f32; 3] {
     const LANES: usize = 8;
     let n = row.len();
     let (x0, x1, x2) = (&x[0][..n], &x[1][..n], &x[2][..n]);

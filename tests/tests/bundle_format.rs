@@ -255,3 +255,26 @@ fn mutated_real_bundles_never_panic() {
         try_bytes(&b);
     }
 }
+
+/// The cargo-fuzz seeds (`client/fuzz/corpus/decode`) are current bundles: a format change
+/// that forgets to regenerate them (`client/fuzz/make-seeds.sh`) fails here.
+#[test]
+fn fuzz_seeds_decode() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../client/fuzz/corpus/decode");
+    let mut seeds = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "lfb") {
+            let bytes = std::fs::read(&path).unwrap();
+            let bundle =
+                Bundle::decode(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            assert!(
+                bundle.drt.is_some(),
+                "{}: seeds cover the DRT section",
+                path.display()
+            );
+            seeds += 1;
+        }
+    }
+    assert!(seeds >= 4, "{seeds} seeds");
+}
