@@ -352,6 +352,7 @@ impl Runtime {
         let targets: Vec<u32> = match &bundle.transport {
             Some(TransportOps::Lightfield(e)) => e.iter().map(|e| e.target_block).collect(),
             Some(TransportOps::Traced(e)) => e.iter().map(|e| e.target_block).collect(),
+            Some(TransportOps::Compact(e)) => e.iter().map(|e| e.target_block).collect(),
             None => Vec::new(),
         };
         let mut entry_order: Vec<u32> = (0..targets.len() as u32).collect();
@@ -375,6 +376,13 @@ impl Runtime {
                 && targets[entry_order[next_entry] as usize] == k as u32
             {
                 next_entry += 1;
+            }
+            // Compact transport: scratch for the stacked source coefficients and Z's output.
+            if let Some(TransportOps::Compact(entries)) = &bundle.transport {
+                for &i in &entry_order[entries_start..next_entry] {
+                    let e = &entries[i as usize];
+                    n_lf += 3 * (e.z.cols as usize + e.z.rows as usize);
+                }
             }
             let texel_start = blk.texel_offset as usize;
             blocks.push(BlockSlots {
@@ -458,6 +466,9 @@ impl Runtime {
             }
             Some(TransportOps::Traced(e)) => {
                 bytes += e.iter().map(|e| values(&e.matrix)).sum::<usize>()
+            }
+            Some(TransportOps::Compact(e)) => {
+                bytes += e.iter().map(|e| values(&e.y) + values(&e.z)).sum::<usize>()
             }
             None => {}
         }
@@ -699,6 +710,30 @@ impl Runtime {
                             let e = &entries[i as usize];
                             let x = coefficients(e.source_block as usize, e.matrix.cols as usize);
                             add_matvec(&mut out_k[..e.matrix.rows as usize], &e.matrix, x);
+                        }
+                    }
+                    Some(TransportOps::Compact(entries)) => {
+                        let mut at = 0;
+                        for &i in targeting {
+                            let e = &entries[i as usize];
+                            let (width, k) = (e.z.cols as usize, e.z.rows as usize);
+                            let (x, rest) = lf_k[at..].split_at_mut(3 * width);
+                            // Stack the sources' coefficients, channel-planar.
+                            let mut col = 0;
+                            for &s in &e.sources {
+                                let src = &blocks[s as usize];
+                                let r = src.rank;
+                                for ch in 0..3 {
+                                    let from = src.coef_start + ch * r;
+                                    x[ch * width + col..ch * width + col + r]
+                                        .copy_from_slice(&b[from..from + r]);
+                                }
+                                col += r;
+                            }
+                            let z_out = &mut rest[..3 * k];
+                            set_matvec(z_out, k, &e.z, planar(x, width, 0, width));
+                            add_matvec(out_k, &e.y, planar(z_out, k, 0, k));
+                            at += 3 * (width + k);
                         }
                     }
                     Some(TransportOps::Lightfield(entries)) => {

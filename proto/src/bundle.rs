@@ -243,11 +243,25 @@ pub struct TracedEntry {
     pub matrix: Matrix,
 }
 
+/// Compacted transport into one block: `l_ind[target texels] += y · (z · [b_s for s in
+/// sources])`, the sources' coefficients stacked in `sources` order (ascending).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CompactEntry {
+    pub target_block: u32,
+    pub sources: Vec<u32>,
+    /// texels_target × k.
+    pub y: Matrix,
+    /// k × Σ r_source.
+    pub z: Matrix,
+}
+
 /// Inter-block transport.
 #[derive(Clone, Debug, PartialEq)]
 pub enum TransportOps {
     Lightfield(Vec<PropEntry>),
     Traced(Vec<TracedEntry>),
+    /// One low-rank operator per receiving block (entries ascending by target, one each).
+    Compact(Vec<CompactEntry>),
 }
 
 /// A sparse row-major matrix (CSR) over all texels: the dense one-bounce operator F.
@@ -569,6 +583,16 @@ impl Bundle {
                         e.matrix.write(&mut w, enc);
                     }
                 }
+                TransportOps::Compact(entries) => {
+                    w.u8(2);
+                    w.u32(entries.len() as u32);
+                    for e in entries {
+                        w.u32(e.target_block);
+                        w.u32s(&e.sources);
+                        e.y.write(&mut w, enc);
+                        e.z.write(&mut w, enc);
+                    }
+                }
             }
             sections.push((section::TRANSPORT, w.bytes));
         }
@@ -713,6 +737,7 @@ impl Bundle {
         match &self.transport {
             Some(TransportOps::Lightfield(e)) => matrices.extend(e.iter().map(|e| &e.matrix)),
             Some(TransportOps::Traced(e)) => matrices.extend(e.iter().map(|e| &e.matrix)),
+            Some(TransportOps::Compact(e)) => matrices.extend(e.iter().flat_map(|e| [&e.y, &e.z])),
             None => {}
         }
         if let Some(d) = &self.drt {
@@ -799,6 +824,36 @@ impl Bundle {
                     };
                     if e.matrix.rows != target.u_b.rows || e.matrix.cols != source.u_b.cols {
                         return bad("transport: traced matrix has the wrong size".into());
+                    }
+                }
+            }
+            Some(TransportOps::Compact(entries)) => {
+                for (k, e) in entries.iter().enumerate() {
+                    if k > 0 && entries[k - 1].target_block >= e.target_block {
+                        return bad("transport: compact entries not ascending by target".into());
+                    }
+                    let Some(target) = block_shape(e.target_block) else {
+                        return bad("transport: entry names a missing block".into());
+                    };
+                    if e.sources.windows(2).any(|w| w[1] <= w[0]) {
+                        return bad("transport: compact sources not ascending".into());
+                    }
+                    let mut width = 0u64;
+                    for s in &e.sources {
+                        let Some(source) = block_shape(*s) else {
+                            return bad("transport: entry names a missing block".into());
+                        };
+                        width += source.u_b.cols as u64;
+                    }
+                    if e.y.rows != target.u_b.rows
+                        || e.z.rows != e.y.cols
+                        || e.z.cols as u64 != width
+                        || e.y.cols > e.y.rows
+                    {
+                        return bad(format!(
+                            "transport: compact entry {k} has the wrong size (y {}×{}, z {}×{})",
+                            e.y.rows, e.y.cols, e.z.rows, e.z.cols
+                        ));
                     }
                 }
             }
@@ -975,6 +1030,18 @@ fn read_transport(r: &mut Reader) -> Result<TransportOps, BundleError> {
                 });
             }
             Ok(TransportOps::Traced(out))
+        }
+        2 => {
+            let mut out = Vec::with_capacity(n.min(r.remaining() / 30));
+            for _ in 0..n {
+                out.push(CompactEntry {
+                    target_block: r.u32()?,
+                    sources: r.u32s()?,
+                    y: Matrix::read(r, "transport y")?,
+                    z: Matrix::read(r, "transport z")?,
+                });
+            }
+            Ok(TransportOps::Compact(out))
         }
         k => Err(BundleError::Invalid(format!("transport: unknown kind {k}"))),
     }

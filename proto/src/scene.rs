@@ -116,6 +116,9 @@ pub struct Settings {
     pub clutter_importance: f64,
     /// How clutter texels gather light from the scene.
     pub clutter_gather: ClutterGather,
+    /// Ship inter-block transport as one low-rank operator per receiving block (rank from
+    /// `tolerance`) instead of the composed per-opening operators.
+    pub compact_transport: bool,
     /// How operator matrices are stored in the bundle.
     pub bundle_codec: BundleCodec,
     /// With `bundle_codec: auto`, the relative RMS error (‖Q(M) − M‖ / ‖M‖) a codec may add to
@@ -140,6 +143,7 @@ impl Default for Settings {
             probe_spacing: 1.0,
             clutter_importance: 0.25,
             clutter_gather: ClutterGather::Exact,
+            compact_transport: true,
             bundle_codec: BundleCodec::Auto,
             codec_error: 0.02,
         }

@@ -7,7 +7,8 @@
 //! - [`one_bounce`]: sparse one-bounce gather rows (traced transport, the dense operator).
 //! - [`lighting_prior`], [`low_rank`], [`lightfield`], [`shape`]: MRT shape operators.
 //! - [`shape_cache`]: content-addressed on-disk cache of shape operators.
-//! - [`transport`]: inter-block transport (lightfield composition or traced).
+//! - [`transport`]: inter-block transport (lightfield composition or traced);
+//!   [`transport_compaction`]: per target block, the low-rank form the runtime applies.
 //! - [`reference`]: the brute-force one-bounce reference solver.
 //! - [`pipeline`]: scene → bundle; [`progress`]: how long work reports progress.
 //! - [`bundle_encoding`]: the codecs and compression a bundle is stored with.
@@ -34,3 +35,4 @@ pub mod shape;
 pub mod shape_cache;
 pub mod tracer;
 pub mod transport;
+pub mod transport_compaction;

@@ -25,6 +25,7 @@ use super::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
 use super::shape_cache::{Lookup, ShapeCache};
 use super::tracer::Tracer;
 use super::transport::{lightfield_transport, traced_transport, MrtTransport, TransportStats};
+use super::transport_compaction::compact_transport;
 
 /// What to bake beyond the scene's own settings.
 #[derive(Clone, Debug, Default)]
@@ -65,6 +66,8 @@ pub enum BakeError {
     Shape(#[from] ShapeError),
     #[error("clutter operators: {0}")]
     Drt(String),
+    #[error("transport compaction: {0}")]
+    Transport(String),
     #[error("operator cache: {0}")]
     Cache(#[from] std::io::Error),
 }
@@ -255,29 +258,48 @@ pub fn bake(
             MrtTransport::Traced(blocks)
         }
     };
-    let transport = match &mrt {
-        MrtTransport::Lightfield(blocks) => TransportOps::Lightfield(
-            blocks
+    let transport = if settings.compact_transport {
+        let compact = compact_transport(&per_block, &mrt, settings.tolerance)
+            .map_err(|e| BakeError::Transport(e.to_string()))?;
+        report.transport.compact_ranks = compact.iter().map(|c| c.y.ncols()).collect();
+        TransportOps::Compact(
+            compact
                 .iter()
-                .map(|b| bundle::PropEntry {
-                    target_block: b.target_block as u32,
-                    target_face: b.target_face.index() as u8,
-                    source_block: b.source_block as u32,
-                    matrix: to_matrix(&b.matrix),
+                .map(|c| bundle::CompactEntry {
+                    target_block: c.target_block as u32,
+                    sources: c.sources.iter().map(|s| *s as u32).collect(),
+                    y: to_matrix(&c.y),
+                    z: to_matrix(&c.z),
                 })
                 .collect(),
-        ),
-        MrtTransport::Traced(blocks) => TransportOps::Traced(
-            blocks
-                .iter()
-                .map(|b| bundle::TracedEntry {
-                    target_block: b.target_block as u32,
-                    source_block: b.source_block as u32,
-                    matrix: to_matrix(&b.matrix),
-                })
-                .collect(),
-        ),
+        )
+    } else {
+        match &mrt {
+            MrtTransport::Lightfield(blocks) => TransportOps::Lightfield(
+                blocks
+                    .iter()
+                    .map(|b| bundle::PropEntry {
+                        target_block: b.target_block as u32,
+                        target_face: b.target_face.index() as u8,
+                        source_block: b.source_block as u32,
+                        matrix: to_matrix(&b.matrix),
+                    })
+                    .collect(),
+            ),
+            MrtTransport::Traced(blocks) => TransportOps::Traced(
+                blocks
+                    .iter()
+                    .map(|b| bundle::TracedEntry {
+                        target_block: b.target_block as u32,
+                        source_block: b.source_block as u32,
+                        matrix: to_matrix(&b.matrix),
+                    })
+                    .collect(),
+            ),
+        }
     };
+    // Opening operators are only applied by lightfield transport at run time.
+    let ship_openings = matches!(transport, TransportOps::Lightfield(_));
     lap(&mut report, "transport");
 
     // DRT: clutter operators.
@@ -388,6 +410,7 @@ pub fn bake(
                 openings: s
                     .openings
                     .iter()
+                    .filter(|_| ship_openings)
                     .map(|o| bundle::OpeningOps {
                         face: o.face.index() as u8,
                         u_r: to_matrix(&o.u_r),

@@ -54,6 +54,8 @@ pub struct TransportStats {
     /// Traced: pairs kept and dropped.
     pub pairs_kept: usize,
     pub pairs_dropped: usize,
+    /// Compacted transport: rank k of each receiving block's operator.
+    pub compact_ranks: Vec<usize>,
 }
 
 fn energy(m: &Mat<f64>) -> f64 {

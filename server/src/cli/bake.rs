@@ -60,8 +60,8 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
         );
         let t = &report.transport;
         eprintln!(
-            "transport: {} propagation steps ({} cut, max {} hops), {} traced pairs kept, {} dropped",
-            t.steps, t.cut, t.max_hops, t.pairs_kept, t.pairs_dropped
+            "transport: {} propagation steps ({} cut, max {} hops), {} traced pairs kept, {} dropped; compact ranks {:?}",
+            t.steps, t.cut, t.max_hops, t.pairs_kept, t.pairs_dropped, t.compact_ranks
         );
         if let Some(d) = &report.drt {
             eprintln!(

@@ -50,6 +50,10 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
     match &bundle.transport {
         Some(TransportOps::Lightfield(e)) => e.iter().for_each(|e| transport.add(&e.matrix)),
         Some(TransportOps::Traced(e)) => e.iter().for_each(|e| transport.add(&e.matrix)),
+        Some(TransportOps::Compact(e)) => e.iter().for_each(|e| {
+            transport.add(&e.y);
+            transport.add(&e.z);
+        }),
         None => {}
     }
     let line = |name: &str, t: &Tally| {
