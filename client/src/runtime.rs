@@ -855,8 +855,8 @@ mod tests {
     use crate::occluders::tests::Lcg;
     use crate::probes::irradiance_at;
     use lightfarm_proto::bundle::{
-        BlockOps, ClutterOps, DeltaEntry, DrtOps, Layout, OpeningOps, PropEntry, ShapeOps,
-        SparseRows, SurfaceInfo, TracedEntry,
+        BlockOps, ClutterOps, CompactEntry, DeltaEntry, DrtOps, Layout, OpeningOps, PropEntry,
+        ShapeOps, SparseRows, SurfaceInfo, TracedEntry,
     };
     use lightfarm_proto::bundle::{BUNDLE_MAJOR, BUNDLE_MINOR};
     use lightfarm_proto::container::write_container;
@@ -1293,6 +1293,26 @@ mod tests {
         )
     }
 
+    /// Compact transport: blocks 0 and 2 receive (block 1 none); k = 2 and 3.
+    fn compact(rng: &mut Lcg) -> TransportOps {
+        let texels = [4usize, 11, 4];
+        let entries = [(0u32, vec![1u32, 2], 2usize), (2, vec![0, 1, 2], 3)];
+        TransportOps::Compact(
+            entries
+                .iter()
+                .map(|(t, sources, k)| {
+                    let width = sources.iter().map(|s| R[*s as usize]).sum();
+                    CompactEntry {
+                        target_block: *t,
+                        sources: sources.clone(),
+                        y: matrix(rng, texels[*t as usize], *k),
+                        z: matrix(rng, *k, width),
+                    }
+                })
+                .collect(),
+        )
+    }
+
     fn lightfield(rng: &mut Lcg) -> TransportOps {
         // (target, face, q, source); two entries feed block a's +x opening.
         let entries = [
@@ -1419,6 +1439,27 @@ mod tests {
                     }
                 }
             }
+            Some(TransportOps::Compact(entries)) => {
+                for e in entries {
+                    let stacked: Vec<[f64; 3]> = e
+                        .sources
+                        .iter()
+                        .flat_map(|s| coefs[*s as usize].iter().copied())
+                        .collect();
+                    let z: Vec<[f64; 3]> = (0..e.z.rows as usize)
+                        .map(|k| {
+                            let mut v = [0.0; 3];
+                            for (j, x) in stacked.iter().enumerate() {
+                                for c in 0..3 {
+                                    v[c] += get(&e.z, k, j) * x[c];
+                                }
+                            }
+                            v
+                        })
+                        .collect();
+                    add(e.target_block, &e.y, &z);
+                }
+            }
             None => {}
         }
         out
@@ -1540,6 +1581,17 @@ mod tests {
     }
 
     #[test]
+    fn mrt_with_compact_transport_matches_reference() {
+        let mut rng = Lcg(13);
+        let t = compact(&mut rng);
+        let b = bundle(&mut rng, Some(t), false);
+        let ld = direct(&mut rng, 21);
+        let want = reference_mrt(&b, &ld.radiance);
+        let got = run(b, Method::Mrt, &ld);
+        assert_close(&got, &want);
+    }
+
+    #[test]
     fn mrt_with_lightfield_transport_matches_reference() {
         let mut rng = Lcg(12);
         let t = lightfield(&mut rng);
@@ -1635,7 +1687,12 @@ mod tests {
         let (mrt_drt, mrt_only): (&[Method], &[Method]) =
             (&[Method::Mrt, Method::Drt], &[Method::Mrt]);
         let mut cases = Vec::new();
-        for transport in [Some(traced(&mut rng)), Some(lightfield(&mut rng)), None] {
+        for transport in [
+            Some(traced(&mut rng)),
+            Some(lightfield(&mut rng)),
+            Some(compact(&mut rng)),
+            None,
+        ] {
             cases.push((bundle(&mut rng, transport, true), mrt_full));
         }
         for (lightfield, two_clutter) in [(false, false), (true, true)] {
@@ -1707,7 +1764,7 @@ mod tests {
     #[test]
     fn encode_decode_round_trip_gives_the_same_output() {
         let mut rng = Lcg(18);
-        for transport in [traced(&mut rng), lightfield(&mut rng)] {
+        for transport in [traced(&mut rng), lightfield(&mut rng), compact(&mut rng)] {
             let b = bundle(&mut rng, Some(transport), true);
             let decoded = Bundle::decode(&b.encode()).expect("hand-built bundle decodes");
             assert_eq!(decoded, b);

@@ -75,6 +75,18 @@ pub enum ClutterGather {
     Implicit,
 }
 
+/// When the bake includes the SH probe volume U_dyn.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum ProbeVolumeMode {
+    /// When the scene lists dynamic objects (the volume's readers at run time).
+    Auto,
+    /// Whenever the scene has clutter or dynamic objects (also shades clutter for the MRT
+    /// baseline, `eval --method mrt`).
+    Always,
+    Never,
+}
+
 /// How operator matrices are stored in the bundle (see `crate::codec`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "lowercase")]
@@ -109,9 +121,10 @@ pub struct Settings {
     pub seed: u64,
     /// Basis for direct light on clutter.
     pub clutter_basis: ClutterBasis,
-    /// Spacing (metres) of the SH probe volume U_dyn baked when the scene has clutter or
-    /// dynamic objects.
+    /// Spacing (metres) of the SH probe volume U_dyn.
     pub probe_spacing: f64,
+    /// When to bake the probe volume.
+    pub probe_volume: ProbeVolumeMode,
     /// Fraction of DRT gather rays aimed at clutter (importance sampling; 0 disables).
     pub clutter_importance: f64,
     /// How clutter texels gather light from the scene.
@@ -141,6 +154,7 @@ impl Default for Settings {
             seed: 0,
             clutter_basis: ClutterBasis::Prior,
             probe_spacing: 1.0,
+            probe_volume: ProbeVolumeMode::Auto,
             clutter_importance: 0.25,
             clutter_gather: ClutterGather::Exact,
             compact_transport: true,

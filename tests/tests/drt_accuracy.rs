@@ -182,6 +182,7 @@ fn probe_volume_shades_surfaces_close_to_the_reference_and_clutter_better_with_d
     let dir = scene_dir("cornell");
     let mut scene = room_with_box(8, 1024, ClutterBasis::Prior);
     scene.settings.probe_spacing = 0.5;
+    scene.settings.probe_volume = lightfarm_proto::scene::ProbeVolumeMode::Always;
     let lights = lights();
     let reference = not_buried(
         &reference_of(&scene, &dir, &lights, 8192),

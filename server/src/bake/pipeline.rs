@@ -14,7 +14,7 @@ use faer::Mat;
 use lightfarm_proto::bundle::{
     self, Bundle, Layout, Matrix, SparseRows, SurfaceInfo, TransportOps,
 };
-use lightfarm_proto::scene::{Scene, SceneError, Transport};
+use lightfarm_proto::scene::{ProbeVolumeMode, Scene, SceneError, Transport};
 
 use super::drt::{build_drt, DeltaBlock, DrtStats};
 use super::geometry::{Geometry, GeometryError, Primitive};
@@ -338,7 +338,12 @@ pub fn bake(
     lap(&mut report, "clutter operators");
 
     // U_dyn: the probe volume, when something will read it.
-    let probes = if scene.clutter.is_empty() && scene.dynamic.is_empty() {
+    let wanted = match settings.probe_volume {
+        ProbeVolumeMode::Auto => !scene.dynamic.is_empty(),
+        ProbeVolumeMode::Always => !(scene.clutter.is_empty() && scene.dynamic.is_empty()),
+        ProbeVolumeMode::Never => false,
+    };
+    let probes = if !wanted {
         None
     } else {
         let (clutter, projection_of): (&[_], Vec<Option<usize>>) = match &drt_ops {
