@@ -736,6 +736,7 @@ mod tests {
             full,
             drt: None,
             probes: None,
+            dnrt: None,
         }
     }
 
@@ -929,6 +930,7 @@ mod tests {
                 direct_gather: None,
             }),
             probes: None,
+            dnrt: None,
         }
     }
 

@@ -28,6 +28,7 @@ pub mod section {
     pub const FULL: u32 = 5;
     pub const DRT: u32 = 6;
     pub const PROBES: u32 = 7;
+    pub const DNRT: u32 = 8;
 }
 
 /// A dense row-major f32 matrix.
@@ -185,6 +186,8 @@ pub struct Bundle {
     pub drt: Option<DrtOps>,
     /// U_dyn: SH radiance probes from b and c, for dynamic objects (and MRT's clutter shading).
     pub probes: Option<ProbeVolume>,
+    /// DNRT transfer grids, one per dynamic object (`crate::dnrt_grid`).
+    pub dnrt: Option<Vec<crate::dnrt_grid::DnrtGrid>>,
 }
 
 /// A regular grid of SH radiance probes (`crate::sh` convention, 9 coefficients per channel).
@@ -432,6 +435,7 @@ impl Bundle {
             section::FULL => "full",
             section::DRT => "drt",
             section::PROBES => "probes",
+            section::DNRT => "dnrt",
             _ => "unknown",
         };
         self.encode_sections()
@@ -538,6 +542,14 @@ impl Bundle {
             w.f32s(&f.values);
             sections.push((section::FULL, w.bytes));
         }
+        if let Some(grids) = &self.dnrt {
+            let mut w = Writer::new();
+            w.u32(grids.len() as u32);
+            for g in grids {
+                g.write(&mut w);
+            }
+            sections.push((section::DNRT, w.bytes));
+        }
 
         sections
     }
@@ -556,6 +568,7 @@ impl Bundle {
         let n_sections = r.u32()?;
         let (mut layout, mut shapes, mut blocks, mut transport, mut full, mut drt, mut probes) =
             (None, None, None, None, None, None, None);
+        let mut dnrt = None;
         for _ in 0..n_sections {
             let kind = r.u32()?;
             let len = r.u64()?;
@@ -580,6 +593,7 @@ impl Bundle {
                 section::FULL => full = Some(read_full(&mut p)?),
                 section::DRT => drt = Some(read_drt(&mut p)?),
                 section::PROBES => probes = Some(read_probes(&mut p)?),
+                section::DNRT => dnrt = Some(read_dnrt(&mut p)?),
                 _ => {} // a newer minor version's section: skip
             }
         }
@@ -591,6 +605,7 @@ impl Bundle {
             full,
             drt,
             probes,
+            dnrt,
         };
         bundle.validate()?;
         Ok(bundle)
@@ -813,6 +828,14 @@ impl Bundle {
                 }
             }
         }
+        if let Some(grids) = &self.dnrt {
+            for (k, g) in grids.iter().enumerate() {
+                g.validate().map_err(|e| BundleError::Invalid(e.to_string()))?;
+                if grids[..k].iter().any(|o| o.object == g.object) {
+                    return bad(format!("dnrt: two grids for object \"{}\"", g.object));
+                }
+            }
+        }
         Ok(())
     }
 }
@@ -986,4 +1009,16 @@ fn read_probes(r: &mut Reader) -> Result<ProbeVolume, BundleError> {
         n_probes,
         entries,
     })
+}
+
+fn read_dnrt(r: &mut Reader) -> Result<Vec<crate::dnrt_grid::DnrtGrid>, BundleError> {
+    let n = r.u32()? as usize;
+    let mut grids = Vec::with_capacity(n.min(r.remaining()));
+    for _ in 0..n {
+        grids.push(
+            crate::dnrt_grid::DnrtGrid::read(r)
+                .map_err(|e| BundleError::Invalid(e.to_string()))?,
+        );
+    }
+    Ok(grids)
 }

@@ -409,6 +409,7 @@ pub fn bake(
         full,
         drt,
         probes,
+        dnrt: None,
     };
     lap(&mut report, "bundle");
     Ok((bundle, report))
