@@ -9,6 +9,7 @@
 //! - [`shape_cache`]: content-addressed on-disk cache of shape operators.
 //! - [`transport`]: inter-block transport (lightfield composition or traced).
 //! - [`reference`]: the brute-force one-bounce reference solver.
+//! - [`dnrt`], [`dnrt_cache`]: DNRT transfer grids of dynamic objects and their disk cache.
 //! - [`pipeline`]: scene → bundle; [`progress`]: how long work reports progress.
 //!
 //! **Invariant:** nothing here imports axum, tokio or serde_json; everything is deterministic
@@ -16,6 +17,8 @@
 
 pub mod clutter_basis;
 pub mod clutter_sampling;
+pub mod dnrt;
+pub mod dnrt_cache;
 pub mod drt;
 pub mod geometry;
 pub mod lightfield;
