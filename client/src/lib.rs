@@ -30,15 +30,19 @@
 //!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
 //!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator), and
 //!   [`Runtime::apply_probes`], the SH radiance of the bundle's probe volume.
+//! - [`dnrt`]: Deferred Neighbouring Radiance Transfer: a dynamic object's reflection and
+//!   occlusion on the receivers around it (G-buffer or lightmap texels), from its baked grid.
 //! - [`probes`]: the probe field ([`ProbeField`]: n_probes × 3 channels × 9 SH coefficients)
 //!   and [`irradiance_at`], trilinear probe interpolation and irradiance for any point and
 //!   normal (dynamic objects, clutter).
 //!
-//! Invariants: this crate depends only on `lightfarm-proto` and `thiserror`; it does no I/O;
+//! Invariants: this crate depends only on `lightfarm-proto` and `thiserror` (and `rayon` behind
+//! the optional `rayon` feature); it does no I/O;
 //! every per-texel vector is in layout order with one RGB value per layout texel; operators are
 //! albedo-free and the receiving texel's albedo is multiplied in last.
 
 pub mod direct;
+pub mod dnrt;
 pub mod occluders;
 pub mod probes;
 pub mod runtime;
@@ -47,7 +51,8 @@ pub use direct::{direct_from_point_lights, direct_from_point_lights_averaged, Di
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use occluders::Occluders;
-pub use probes::{irradiance_at, ProbeField};
+pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
+pub use probes::{irradiance_at, irradiance_sh_at, ProbeField};
 pub use runtime::{ApplyError, IndirectLight, Method, Runtime};
 
 /// Decodes and validates a bundle (`Bundle::decode`): `Ok` only for a bundle [`Runtime::new`]

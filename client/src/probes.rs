@@ -156,6 +156,21 @@ pub fn irradiance_at(
     })
 }
 
+/// The SH coefficients `c_lm = Â_l L_lm` of the irradiance `E(n) = Σ c_lm Y_lm(n)` per channel
+/// at `position` (radiance interpolated as in [`irradiance_at`]), e.g. the input of DNRT for a
+/// dynamic object at `position`. Zeros where [`irradiance_at`] gives zeros for lack of a probe.
+pub fn irradiance_sh_at(
+    volume: &ProbeVolume,
+    field: &ProbeField,
+    position: [f32; 3],
+) -> [[f32; SH_COEFFS]; CHANNELS] {
+    let Some(l) = interpolate(volume, field, position) else {
+        return [[0.0; SH_COEFFS]; CHANNELS];
+    };
+    let a = lightfarm_proto::sh::irradiance_weights();
+    l.map(|lc| std::array::from_fn(|k| (a[k] * lc[k]) as f32))
+}
+
 /// The interpolated radiance coefficients per channel at `position` (see [`irradiance_at`]),
 /// or `None` when there is no usable probe (or the volume or position is unusable).
 fn interpolate(
