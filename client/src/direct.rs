@@ -177,6 +177,44 @@ fn dominant_axis(n: [f32; 3]) -> usize {
     }
 }
 
+/// SH coefficients (per channel, `E(n) = Σ c_j Y_j(n)`, 9 per channel) of the direct irradiance
+/// the point lights give a small object at `position`: each visible light adds the clamped
+/// cosine lobe `I/r² · (n·ω)₊` toward it, whose coefficients are `Â_l · I/r² · Y_lm(ω)`
+/// (`lightfarm_proto::sh` convention). Visibility is a shadow ray from `position`; `r²` is
+/// clamped as for texels. Added to the probe field's irradiance this is the full irradiance an
+/// engine's light probe holds (the input of DNRT).
+pub fn point_light_irradiance_sh(
+    occluders: &Occluders,
+    lights: &[Light],
+    position: [f32; 3],
+) -> [[f32; lightfarm_proto::sh::SH_COEFFS]; 3] {
+    use lightfarm_proto::sh::{irradiance_weights, sh_basis, SH_COEFFS};
+    let mut out = [[0.0f64; SH_COEFFS]; 3];
+    let min_r2 = (R_MIN_REL * occluders.scale() as f64).powi(2);
+    let a = irradiance_weights();
+    for light in lights {
+        let LightKind::Point = light.kind;
+        let d: [f64; 3] = std::array::from_fn(|k| light.position[k] - position[k] as f64);
+        let dist2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        if !(dist2 > 0.0 && dist2.is_finite()) {
+            continue;
+        }
+        let target = light.position.map(|x| x as f32);
+        if occluders.occluded(position, target) {
+            continue;
+        }
+        let dist = dist2.sqrt();
+        let y = sh_basis(d.map(|x| x / dist));
+        let r2 = dist2.max(min_r2);
+        for (c, o) in out.iter_mut().enumerate() {
+            for k in 0..SH_COEFFS {
+                o[k] += a[k] * light.intensity[c] / r2 * y[k];
+            }
+        }
+    }
+    out.map(|c| c.map(|x| x as f32))
+}
+
 #[cfg(test)]
 #[allow(clippy::needless_range_loop)]
 mod tests {

@@ -167,13 +167,11 @@ impl<'a> DnrtInstance<'a> {
             return [0.0; 3];
         }
         let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        let n_len =
-            (normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]).sqrt();
+        let n_len = (normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]).sqrt();
         if !(dist > 0.0 && n_len > 0.0 && n_len.is_finite()) {
             return [0.0; 3];
         }
-        let lambert =
-            -(d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2]) / (dist * n_len);
+        let lambert = -(d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2]) / (dist * n_len);
         if !(lambert > 0.0) {
             return [0.0; 3];
         }
@@ -256,12 +254,7 @@ impl<'a> DnrtInstance<'a> {
             .for_each(|(k, chunk)| {
                 let s = k * CHUNK;
                 let e = s + chunk.len();
-                let _ = self.apply_gbuffer(
-                    &positions[s..e],
-                    &normals[s..e],
-                    &albedo[s..e],
-                    chunk,
-                );
+                let _ = self.apply_gbuffer(&positions[s..e], &normals[s..e], &albedo[s..e], chunk);
             });
         Ok(())
     }
@@ -310,9 +303,8 @@ mod tests {
                 }
             }
         }
-        g.data = lightfarm_proto::dnrt_grid::DnrtData::F32(
-            values.iter().map(|v| *v as f32).collect(),
-        );
+        g.data =
+            lightfarm_proto::dnrt_grid::DnrtData::F32(values.iter().map(|v| *v as f32).collect());
         g
     }
 
@@ -335,7 +327,11 @@ mod tests {
                             + 0.05 * x[2] as f64)
                 })
                 .sum();
-            assert!((m[ch] as f64 - want).abs() < 1e-5, "{ch}: {} vs {want}", m[ch]);
+            assert!(
+                (m[ch] as f64 - want).abs() < 1e-5,
+                "{ch}: {} vs {want}",
+                m[ch]
+            );
         }
         // Finite at the centre, inside the object, on the grid's edges and corners, on the
         // outer boundary and beyond, for any normal (including zero and NaN).
@@ -365,14 +361,20 @@ mod tests {
                 assert!(v.iter().all(|x| x.is_finite()), "{d:?} {n:?}: {v:?}");
             }
         }
-        assert_eq!(inst.shade([f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0; 3]), [0.0; 3]);
+        assert_eq!(
+            inst.shade([f32::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0; 3]),
+            [0.0; 3]
+        );
         // Beyond the outer cube nothing, at its boundary zero, continuous across the inner one.
         let facing = [-1.0, 0.0, 0.0];
         let at = |r: f32| inst.shade([centre[0] + r, centre[1], centre[2]], facing, [1.0; 3]);
         assert_eq!(at(2.0 * o), [0.0; 3]);
         assert!(at(o)[0].abs() < 1e-7);
         let (a, b) = (at(e * 0.9999), at(e * 1.0001));
-        assert!((a[0] - b[0]).abs() < 1e-3 * a[0].abs().max(1e-6), "{a:?} {b:?}");
+        assert!(
+            (a[0] - b[0]).abs() < 1e-3 * a[0].abs().max(1e-6),
+            "{a:?} {b:?}"
+        );
         // Inverse-square shape: s(2E) = (1/4 − 1/4·(E/E_o)²…) with E_o = 2E gives 0 at 2E,
         // and at 1.5E: ((1/1.5)² − 1/4) / (3/4).
         let s15 = at(1.5 * e)[0] / at(e)[0];
@@ -401,7 +403,10 @@ mod tests {
                 assert_eq!(o[ch], 1.0 + v[ch]);
             }
         }
-        assert!(out.iter().any(|o| o[0] != 1.0), "some receivers must be affected");
+        assert!(
+            out.iter().any(|o| o[0] != 1.0),
+            "some receivers must be affected"
+        );
         let layout = Layout {
             positions: positions.clone(),
             normals: normals.clone(),

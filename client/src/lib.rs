@@ -47,11 +47,14 @@ pub mod occluders;
 pub mod probes;
 pub mod runtime;
 
-pub use direct::{direct_from_point_lights, direct_from_point_lights_averaged, DirectLight};
+pub use direct::{
+    direct_from_point_lights, direct_from_point_lights_averaged, point_light_irradiance_sh,
+    DirectLight,
+};
+pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use occluders::Occluders;
-pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
 pub use probes::{irradiance_at, irradiance_sh_at, ProbeField};
 pub use runtime::{ApplyError, IndirectLight, Method, Runtime};
 

@@ -830,7 +830,8 @@ impl Bundle {
         }
         if let Some(grids) = &self.dnrt {
             for (k, g) in grids.iter().enumerate() {
-                g.validate().map_err(|e| BundleError::Invalid(e.to_string()))?;
+                g.validate()
+                    .map_err(|e| BundleError::Invalid(e.to_string()))?;
                 if grids[..k].iter().any(|o| o.object == g.object) {
                     return bad(format!("dnrt: two grids for object \"{}\"", g.object));
                 }
@@ -1016,8 +1017,7 @@ fn read_dnrt(r: &mut Reader) -> Result<Vec<crate::dnrt_grid::DnrtGrid>, BundleEr
     let mut grids = Vec::with_capacity(n.min(r.remaining()));
     for _ in 0..n {
         grids.push(
-            crate::dnrt_grid::DnrtGrid::read(r)
-                .map_err(|e| BundleError::Invalid(e.to_string()))?,
+            crate::dnrt_grid::DnrtGrid::read(r).map_err(|e| BundleError::Invalid(e.to_string()))?,
         );
     }
     Ok(grids)

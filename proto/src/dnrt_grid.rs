@@ -279,10 +279,7 @@ impl DnrtGrid {
     /// Checks the invariant of the module doc.
     pub fn validate(&self) -> Result<(), DnrtGridError> {
         if !(2..=256).contains(&self.resolution) {
-            return Err(self.invalid(format!(
-                "resolution {} is not in 2..=256",
-                self.resolution
-            )));
+            return Err(self.invalid(format!("resolution {} is not in 2..=256", self.resolution)));
         }
         if self.n_sh != 4 && self.n_sh != 9 {
             return Err(self.invalid(format!("n_sh {} is not 4 or 9", self.n_sh)));
@@ -308,10 +305,7 @@ impl DnrtGrid {
         }
         let expected = self.n_points() as u64 * self.values_per_point() as u64;
         if self.data.len() as u64 != expected {
-            return Err(self.invalid(format!(
-                "{} values, expected {expected}",
-                self.data.len()
-            )));
+            return Err(self.invalid(format!("{} values, expected {expected}", self.data.len())));
         }
         let finite = match &self.data {
             DnrtData::U8(_) => true,

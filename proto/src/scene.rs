@@ -758,7 +758,10 @@ impl Settings {
             ));
         }
         if d.sh != 4 && d.sh != 9 {
-            return Err(invalid(object, format!("dnrt.sh ({}) must be 4 or 9", d.sh)));
+            return Err(invalid(
+                object,
+                format!("dnrt.sh ({}) must be 4 or 9", d.sh),
+            ));
         }
         if !(d.extent.is_finite() && d.extent > 0.0)
             || !(d.outer_extent.is_finite() && d.outer_extent >= d.extent)

@@ -236,7 +236,12 @@ mod tests {
             ShRotation::new(&r).apply(&mut c);
             ShRotation::new(&transpose(&r)).apply(&mut c);
             for k in 0..SH_COEFFS {
-                assert!((c[k] - COEFFS[k]).abs() < 1e-12, "{k}: {} vs {}", c[k], COEFFS[k]);
+                assert!(
+                    (c[k] - COEFFS[k]).abs() < 1e-12,
+                    "{k}: {} vs {}",
+                    c[k],
+                    COEFFS[k]
+                );
             }
             // Order 1 alone (4 coefficients) round-trips too and keeps its length.
             let mut c4 = [COEFFS[0], COEFFS[1], COEFFS[2], COEFFS[3]];

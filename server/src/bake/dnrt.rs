@@ -206,9 +206,7 @@ pub fn dnrt_values(
     for p in 0..points.len() {
         for rho in albedo {
             for j in 0..n_sh {
-                values.push(
-                    rho * coeffs.reflection[p * n_sh + j] - coeffs.occlusion[p * n_sh + j],
-                );
+                values.push(rho * coeffs.reflection[p * n_sh + j] - coeffs.occlusion[p * n_sh + j]);
             }
         }
     }
@@ -326,8 +324,8 @@ mod tests {
     /// sphere where `n_s·a = −(s sin²θ + cosθ √(1 − s² sin²θ))`; with `x = s cosθ` the
     /// integral reduces to `∫ x² √(x² − (s² − 1)) dx`, which is elementary.
     fn sphere_band1_integral(s: f64) -> f64 {
-        let inner = s * (s * s + 1.0) / 8.0
-            - (s * s - 1.0).powi(2) / 16.0 * ((s + 1.0) / (s - 1.0)).ln();
+        let inner =
+            s * (s * s + 1.0) / 8.0 - (s * s - 1.0).powi(2) / 16.0 * ((s + 1.0) / (s - 1.0)).ln();
         -2.0 * PI * (1.0 / (4.0 * s.powi(3)) + inner / s.powi(3))
     }
 
@@ -433,7 +431,10 @@ mod tests {
         );
         for (k, v) in one.iter().enumerate() {
             let [lo, hi] = lightfarm_proto::dnrt_grid::analytic_range(k % 9);
-            assert!(v.is_finite() && *v >= lo - 1e-12 && *v <= hi + 1e-12, "{k}: {v}");
+            assert!(
+                v.is_finite() && *v >= lo - 1e-12 && *v <= hi + 1e-12,
+                "{k}: {v}"
+            );
         }
     }
 }

@@ -19,8 +19,8 @@ use lightfarm_proto::scene::{Scene, SceneError, Transform, Transport};
 use super::dnrt::bake_dnrt_grid;
 use super::dnrt_cache::{dnrt_key, DnrtCache, DnrtLookup};
 use super::drt::{build_drt, DeltaBlock, DrtStats};
-use super::mesh::load_mesh;
 use super::geometry::{Geometry, GeometryError, Primitive};
+use super::mesh::load_mesh;
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
 use super::probe_volume::build_probe_volume;
 use super::progress::Progress;
@@ -366,7 +366,12 @@ pub fn bake(
                 &Transform::default(),
             )
             .map_err(GeometryError::from)?;
-            let key = dnrt_key(&mesh.triangles, object.albedo, &settings.dnrt, settings.seed);
+            let key = dnrt_key(
+                &mesh.triangles,
+                object.albedo,
+                &settings.dnrt,
+                settings.seed,
+            );
             let start = Instant::now();
             let grid = match cache.as_ref().map(|c| c.get(&key, &object.id)) {
                 Some(DnrtLookup::Hit(grid)) => *grid,
