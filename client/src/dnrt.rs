@@ -18,7 +18,9 @@
 //! Invariants: [`DnrtInstance::shade`] never panics and returns finite values for finite
 //! inputs, including receivers inside the object, at its centre or exactly on a grid edge; a
 //! non-finite position or a zero normal adds nothing. The grid is decoded to f32 once
-//! ([`DnrtVolume::new`]); applying allocates nothing.
+//! ([`DnrtVolume::new`]); [`DnrtInstance::new`] (once per object and frame) contracts it with
+//! `c_j` into 3 values per grid point (`resolution³ · 3` f32, `resolution³ · 3 · n_sh`
+//! multiply-adds); applying to receivers allocates nothing.
 
 use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::dnrt_grid::{DnrtGrid, DnrtGridError};
@@ -62,48 +64,6 @@ impl DnrtVolume {
     pub fn object(&self) -> &str {
         &self.grid.object
     }
-
-    /// `Σ_j c[ch][j] M_j` per channel at object-frame `x` inside the inner cube (clamped).
-    fn transfer(&self, x: [f32; 3], c: &[[f32; SH_COEFFS]; 3]) -> [f32; 3] {
-        let g = &self.grid;
-        let n = g.resolution as usize;
-        let n_sh = g.n_sh as usize;
-        let per_point = 3 * n_sh;
-        let mut i0 = [0usize; 3];
-        let mut t = [0f32; 3];
-        for a in 0..3 {
-            let gc = g.grid_coordinate(x[a] - g.centre[a]);
-            // NaN-safe: a NaN coordinate becomes 0 through the clamp of `as`.
-            let base = (gc.floor() as usize).min(n - 2);
-            i0[a] = base;
-            t[a] = (gc - base as f32).clamp(0.0, 1.0);
-        }
-        let mut out = [0f32; 3];
-        for corner in 0..8 {
-            let mut w = 1.0f32;
-            let mut p = [0usize; 3];
-            for a in 0..3 {
-                if corner >> a & 1 == 1 {
-                    p[a] = i0[a] + 1;
-                    w *= t[a];
-                } else {
-                    p[a] = i0[a];
-                    w *= 1.0 - t[a];
-                }
-            }
-            if w == 0.0 {
-                continue;
-            }
-            let at = ((p[2] * n + p[1]) * n + p[0]) * per_point;
-            let m = &self.values[at..at + per_point];
-            for (ch, o) in out.iter_mut().enumerate() {
-                let row = &m[ch * n_sh..(ch + 1) * n_sh];
-                let dot: f32 = row.iter().zip(&c[ch][..n_sh]).map(|(a, b)| a * b).sum();
-                *o += w * dot;
-            }
-        }
-        out
-    }
 }
 
 /// One posed object with this frame's lighting, ready to shade receivers.
@@ -115,6 +75,9 @@ pub struct DnrtInstance<'a> {
     centre_world: [f32; 3],
     /// Irradiance SH per channel in the object frame.
     c: [[f32; SH_COEFFS]; 3],
+    /// Per grid point and channel, `Σ_j c_j m_j` (point-major): contracted once per frame, so a
+    /// receiver interpolates 3 values per corner whatever the SH count.
+    contracted: Vec<f32>,
 }
 
 impl<'a> DnrtInstance<'a> {
@@ -138,12 +101,60 @@ impl<'a> DnrtInstance<'a> {
         });
         let centre = volume.grid.centre.map(|x| x as f64);
         let rc = mul_vec(&r, centre);
+        let n_sh = volume.grid.n_sh as usize;
+        let contracted = volume
+            .values
+            .chunks_exact(n_sh)
+            .enumerate()
+            .map(|(k, m)| {
+                let cc = &c[k % 3][..n_sh];
+                m.iter().zip(cc).map(|(a, b)| a * b).sum()
+            })
+            .collect();
         DnrtInstance {
             volume,
             to_object: rt.map(|row| row.map(|x| x as f32)),
             centre_world: std::array::from_fn(|k| (rc[k] + translation[k]) as f32),
             c,
+            contracted,
         }
+    }
+
+    /// `Σ_j c[ch][j] M_j` per channel at object-frame `x` inside the inner cube (clamped),
+    /// trilinear over the 8 surrounding grid points.
+    #[inline]
+    fn transfer(&self, x: [f32; 3]) -> [f32; 3] {
+        let g = &self.volume.grid;
+        let n = g.resolution as usize;
+        let mut i0 = [0usize; 3];
+        let mut t = [0f32; 3];
+        for a in 0..3 {
+            let gc = g.grid_coordinate(x[a] - g.centre[a]);
+            // A NaN coordinate becomes 0 through `as`; the base corner is at most n − 2.
+            let base = (gc.floor() as usize).min(n - 2);
+            i0[a] = base;
+            t[a] = (gc - base as f32).clamp(0.0, 1.0);
+        }
+        let base = ((i0[2] * n + i0[1]) * n + i0[0]) * 3;
+        let (sx, sy, sz) = (3, 3 * n, 3 * n * n);
+        let v = &self.contracted;
+        let mut out = [0f32; 3];
+        for (ch, o) in out.iter_mut().enumerate() {
+            let at = |off: usize| v[base + off + ch];
+            let x00 = at(0) + t[0] * (at(sx) - at(0));
+            let x10 = at(sy) + t[0] * (at(sy + sx) - at(sy));
+            let x01 = at(sz) + t[0] * (at(sz + sx) - at(sz));
+            let x11 = at(sz + sy) + t[0] * (at(sz + sy + sx) - at(sz + sy));
+            let y0 = x00 + t[1] * (x10 - x00);
+            let y1 = x01 + t[1] * (x11 - x01);
+            *o = y0 + t[2] * (y1 - y0);
+        }
+        out
+    }
+
+    /// This frame's irradiance SH per channel, rotated into the object frame.
+    pub fn irradiance_object_frame(&self) -> &[[f32; SH_COEFFS]; 3] {
+        &self.c
     }
 
     /// The object's bounding-sphere centre in the world (where to sample its irradiance).
@@ -193,7 +204,7 @@ impl<'a> DnrtInstance<'a> {
             return [0.0; 3];
         }
         let local: [f32; 3] = std::array::from_fn(|k| sample[k] + g.centre[k]);
-        let m = self.volume.transfer(local, &self.c);
+        let m = self.transfer(local);
         let k = lambert * fade;
         [0, 1, 2].map(|ch| albedo[ch] * k * m[ch])
     }
@@ -317,7 +328,7 @@ mod tests {
         let centre = inst.centre_world();
         // Exact inside the inner cube.
         let x = [0.37f32, -0.81, 1.2];
-        let m = volume.transfer(std::array::from_fn(|k| x[k] + grid.centre[k]), &inst.c);
+        let m = inst.transfer(std::array::from_fn(|k| x[k] + grid.centre[k]));
         for ch in 0..3 {
             let want: f64 = (0..9)
                 .map(|s| {
