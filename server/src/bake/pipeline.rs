@@ -55,7 +55,8 @@ pub struct BakeReport {
     pub bundle_bytes: usize,
     pub drt: Option<DrtStats>,
     pub probes: usize,
-    /// Per dynamic object: (id, seconds to bake its DNRT grid or 0 from the cache, grid bytes).
+    /// Per dynamic object: (id, seconds to bake its DNRT grid or read it from the cache, grid
+    /// data bytes).
     pub dnrt: Vec<(String, f64, usize)>,
 }
 
