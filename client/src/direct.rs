@@ -329,4 +329,47 @@ mod tests {
         let out = direct_from_point_lights(&layout, &Occluders::from_layout(&layout), &[]);
         assert_eq!(out.radiance, vec![[0.0; 3]; 3]);
     }
+
+    /// The SH of a point light's irradiance are the projection of `I/r² (n·ω)₊` over normals
+    /// n (Funk–Hecke gives `Â_l Y_lm(ω)`), here checked by numerical projection; a shadowed
+    /// light adds nothing.
+    #[test]
+    fn point_light_irradiance_sh_is_the_projected_clamped_cosine() {
+        use lightfarm_proto::sh::sh_basis;
+        let layout = floor(&[[1.0, 1.0, 0.0]]);
+        let occluders = Occluders::from_layout(&layout);
+        let p = [1.5f32, 2.0, 1.0];
+        let l = light([2.5, 2.5, 3.0], [4.0, 2.0, 1.0]);
+        let c = point_light_irradiance_sh(&occluders, &[l.clone()], p);
+        let d: [f64; 3] = std::array::from_fn(|k| l.position[k] - p[k] as f64);
+        let r2 = d.iter().map(|x| x * x).sum::<f64>();
+        let w = d.map(|x| x / r2.sqrt());
+        let n_pts = 40000;
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let mut proj = [0.0f64; 9];
+        for i in 0..n_pts {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n_pts as f64;
+            let s = (1.0 - z * z).sqrt();
+            let phi = golden * i as f64;
+            let n = [s * phi.cos(), s * phi.sin(), z];
+            let e = (n[0] * w[0] + n[1] * w[1] + n[2] * w[2]).max(0.0) / r2;
+            let y = sh_basis(n);
+            for k in 0..9 {
+                proj[k] += e * y[k] * 4.0 * std::f64::consts::PI / n_pts as f64;
+            }
+        }
+        for ch in 0..3 {
+            for k in 0..9 {
+                let want = proj[k] * l.intensity[ch];
+                assert!(
+                    (c[ch][k] as f64 - want).abs() < 2e-3 * l.intensity[ch] / r2,
+                    "{ch} {k}: {} vs {want}",
+                    c[ch][k]
+                );
+            }
+        }
+        // Below the floor the light is hidden by it.
+        let hidden = point_light_irradiance_sh(&occluders, &[l], [1.5, 2.0, -1.0]);
+        assert_eq!(hidden, [[0.0; 9]; 3]);
+    }
 }
