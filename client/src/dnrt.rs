@@ -11,6 +11,8 @@
 //! inner cube's value on the same ray from the centre (at `x · E/r`) is faded with the inverse
 //! square of the distance, shifted to reach zero at the outer cube:
 //! `s = ((E/r)² − (E/E_o)²) / (1 − (E/E_o)²)`; beyond the outer cube nothing is added.
+//! With a convolution grid (Appendix A) `(n_o·n)₊ Σ_j c_j M_j` is replaced by
+//! `Σ_t (Σ_j c_j G_jt) Y_t(n)` at the receiver's own normal (object frame).
 //!
 //! Frames and units: poses map the object frame to the world (`x_world = R x_obj + t`, R from
 //! the pose quaternion `[x, y, z, w]`); metres; output in the radiance units of `c_j`.
@@ -19,11 +21,11 @@
 //! inputs, including receivers inside the object, at its centre or exactly on a grid edge; a
 //! non-finite position or a zero normal adds nothing. The grid is decoded to f32 once
 //! ([`DnrtVolume::new`]); [`DnrtInstance::new`] (once per object and frame) contracts it with
-//! `c_j` into 3 values per grid point (`resolution³ · 3` f32, `resolution³ · 3 · n_sh`
-//! multiply-adds); applying to receivers allocates nothing.
+//! `c_j` into 3 values per grid point (3 · n_sh with convolution; one multiply-add per stored
+//! value); applying to receivers allocates nothing.
 
 use lightfarm_proto::bundle::Layout;
-use lightfarm_proto::dnrt_grid::{DnrtGrid, DnrtGridError};
+use lightfarm_proto::dnrt_grid::{DnrtGrid, DnrtGridError, DnrtNormals};
 use lightfarm_proto::sh::SH_COEFFS;
 use lightfarm_proto::sh_rotation::{mul_vec, quaternion_matrix, transpose, ShRotation};
 
@@ -75,9 +77,12 @@ pub struct DnrtInstance<'a> {
     centre_world: [f32; 3],
     /// Irradiance SH per channel in the object frame.
     c: [[f32; SH_COEFFS]; 3],
-    /// Per grid point and channel, `Σ_j c_j m_j` (point-major): contracted once per frame, so a
-    /// receiver interpolates 3 values per corner whatever the SH count.
+    /// Per grid point and channel, `Σ_j c_j m_j` (1 value), or with convolution `Σ_j c_j G_jt`
+    /// for every t (n_sh values): contracted once per frame, point-major.
     contracted: Vec<f32>,
+    /// Values per channel in `contracted`.
+    out_terms: usize,
+    convolution: bool,
 }
 
 impl<'a> DnrtInstance<'a> {
@@ -102,28 +107,33 @@ impl<'a> DnrtInstance<'a> {
         let centre = volume.grid.centre.map(|x| x as f64);
         let rc = mul_vec(&r, centre);
         let n_sh = volume.grid.n_sh as usize;
-        let contracted = volume
-            .values
-            .chunks_exact(n_sh)
-            .enumerate()
-            .map(|(k, m)| {
-                let cc = &c[k % 3][..n_sh];
-                m.iter().zip(cc).map(|(a, b)| a * b).sum()
-            })
-            .collect();
+        let convolution = volume.grid.normals == DnrtNormals::Convolution;
+        let out_terms = if convolution { n_sh } else { 1 };
+        let terms = volume.grid.terms();
+        let mut contracted = Vec::with_capacity(volume.values.len() / terms * out_terms);
+        for (k, m) in volume.values.chunks_exact(terms).enumerate() {
+            let cc = &c[k % 3][..n_sh];
+            for t in 0..out_terms {
+                // Term (j, t) sits at j · out_terms + t (out_terms = 1: the SH index j).
+                contracted.push((0..n_sh).map(|j| cc[j] * m[j * out_terms + t]).sum());
+            }
+        }
         DnrtInstance {
             volume,
             to_object: rt.map(|row| row.map(|x| x as f32)),
             centre_world: std::array::from_fn(|k| (rc[k] + translation[k]) as f32),
             c,
             contracted,
+            out_terms,
+            convolution,
         }
     }
 
-    /// `Σ_j c[ch][j] M_j` per channel at object-frame `x` inside the inner cube (clamped),
-    /// trilinear over the 8 surrounding grid points.
+    /// Per channel, the contracted values (`Σ_j c_j M_j`: 1, or `Σ_j c_j G_jt` for each t
+    /// with convolution) at object-frame `x` inside the inner cube (clamped), trilinear over
+    /// the 8 surrounding grid points.
     #[inline]
-    fn transfer(&self, x: [f32; 3]) -> [f32; 3] {
+    fn transfer(&self, x: [f32; 3]) -> [[f32; SH_COEFFS]; 3] {
         let g = &self.volume.grid;
         let n = g.resolution as usize;
         let mut i0 = [0usize; 3];
@@ -135,19 +145,22 @@ impl<'a> DnrtInstance<'a> {
             i0[a] = base;
             t[a] = (gc - base as f32).clamp(0.0, 1.0);
         }
-        let base = ((i0[2] * n + i0[1]) * n + i0[0]) * 3;
-        let (sx, sy, sz) = (3, 3 * n, 3 * n * n);
-        let v = &self.contracted;
-        let mut out = [0f32; 3];
-        for (ch, o) in out.iter_mut().enumerate() {
-            let at = |off: usize| v[base + off + ch];
-            let x00 = at(0) + t[0] * (at(sx) - at(0));
-            let x10 = at(sy) + t[0] * (at(sy + sx) - at(sy));
-            let x01 = at(sz) + t[0] * (at(sz + sx) - at(sz));
-            let x11 = at(sz + sy) + t[0] * (at(sz + sy + sx) - at(sz + sy));
-            let y0 = x00 + t[1] * (x10 - x00);
-            let y1 = x01 + t[1] * (x11 - x01);
-            *o = y0 + t[2] * (y1 - y0);
+        let k = self.out_terms;
+        let per_point = 3 * k;
+        let base = ((i0[2] * n + i0[1]) * n + i0[0]) * per_point;
+        let mut out = [[0f32; SH_COEFFS]; 3];
+        for corner in 0..8usize {
+            let (cx, cy, cz) = (corner & 1, corner >> 1 & 1, corner >> 2 & 1);
+            let w = (if cx == 1 { t[0] } else { 1.0 - t[0] })
+                * (if cy == 1 { t[1] } else { 1.0 - t[1] })
+                * (if cz == 1 { t[2] } else { 1.0 - t[2] });
+            let at = base + ((cz * n + cy) * n + cx) * per_point;
+            let v = &self.contracted[at..at + per_point];
+            for (ch, o) in out.iter_mut().enumerate() {
+                for (oi, vi) in o[..k].iter_mut().zip(&v[ch * k..(ch + 1) * k]) {
+                    *oi += w * vi;
+                }
+            }
         }
         out
     }
@@ -182,7 +195,12 @@ impl<'a> DnrtInstance<'a> {
         if !(dist > 0.0 && n_len > 0.0 && n_len.is_finite()) {
             return [0.0; 3];
         }
-        let lambert = -(d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2]) / (dist * n_len);
+        // Intermediate normal: (n_o·n)₊; with convolution the cosine lobe is in the grid.
+        let lambert = if self.convolution {
+            1.0
+        } else {
+            -(d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2]) / (dist * n_len)
+        };
         if !(lambert > 0.0) {
             return [0.0; 3];
         }
@@ -206,7 +224,18 @@ impl<'a> DnrtInstance<'a> {
         let local: [f32; 3] = std::array::from_fn(|k| sample[k] + g.centre[k]);
         let m = self.transfer(local);
         let k = lambert * fade;
-        [0, 1, 2].map(|ch| albedo[ch] * k * m[ch])
+        if self.convolution {
+            // Σ_t v_t Y_t(n) at the receiver's normal, in the object frame.
+            let nw = normal.map(|v| (v / n_len) as f64);
+            let no: [f64; 3] =
+                std::array::from_fn(|i| (0..3).map(|j| self.to_object[i][j] as f64 * nw[j]).sum());
+            let y = lightfarm_proto::sh::sh_basis(no);
+            return [0, 1, 2].map(|ch| {
+                let v: f32 = (0..self.out_terms).map(|t| m[ch][t] * y[t] as f32).sum();
+                albedo[ch] * k * v
+            });
+        }
+        [0, 1, 2].map(|ch| albedo[ch] * k * m[ch][0])
     }
 
     fn check(&self, what: &'static str, expected: usize, got: usize) -> Result<(), DnrtError> {
@@ -293,6 +322,7 @@ mod tests {
             n,
             n_sh,
             placement,
+            DnrtNormals::Intermediate,
             DnrtCodec::F32,
             vec![[0.0, 0.0]; n_sh as usize],
             &[],
@@ -339,9 +369,9 @@ mod tests {
                 })
                 .sum();
             assert!(
-                (m[ch] as f64 - want).abs() < 1e-5,
+                (m[ch][0] as f64 - want).abs() < 1e-5,
                 "{ch}: {} vs {want}",
-                m[ch]
+                m[ch][0]
             );
         }
         // Finite at the centre, inside the object, on the grid's edges and corners, on the
@@ -431,5 +461,49 @@ mod tests {
             .apply_gbuffer(&positions, &normals[..3], &albedo, &mut out)
             .unwrap_err();
         assert!(err.to_string().contains("\"probe\""), "{err}");
+    }
+
+    /// With a convolution grid the receiver's own normal selects the value, in the object
+    /// frame: a grid whose only term is `G_{0,3}` (band 0 in, `Y_11 ∝ x` out), posed rotated
+    /// 90° about z (object x → world y), gives `ρ c_0 G Y_11` to a receiver facing world +y,
+    /// and nothing to one facing world +x; no `(n_o·n)₊` factor applies.
+    #[test]
+    fn convolution_grids_use_the_receiver_normal_in_the_object_frame() {
+        let n = 3usize;
+        let mut values = vec![0.0f64; n * n * n * 3 * 16];
+        for (k, v) in values.iter_mut().enumerate() {
+            if k % 16 == 3 {
+                *v = 0.25;
+            }
+        }
+        let grid = DnrtGrid::encode_values(
+            "conv",
+            [0.0; 3],
+            0.5,
+            1.5,
+            3.0,
+            n as u32,
+            4,
+            DnrtPlacement::Regular,
+            DnrtNormals::Convolution,
+            DnrtCodec::F32,
+            vec![[0.0, 0.25]; 16],
+            &values,
+        );
+        let volume = DnrtVolume::new(&grid).unwrap();
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        let mut c = [[0.0f32; 9]; 3];
+        c[0][0] = 2.0;
+        c[1][0] = 1.0;
+        let inst = DnrtInstance::new(&volume, [1.0, 0.0, 0.0], [0.0, 0.0, h, h], c);
+        // A receiver 0.4 m from the centre along world +y, facing +y (away from the object).
+        let p = [1.0, 0.4, 0.0];
+        let up = inst.shade(p, [0.0, 1.0, 0.0], [0.5; 3]);
+        let y11 = 0.488_602_5f32;
+        assert!((up[0] - 0.5 * 2.0 * 0.25 * y11).abs() < 1e-5, "{up:?}");
+        assert!((up[1] - 0.5 * 1.0 * 0.25 * y11).abs() < 1e-5, "{up:?}");
+        assert_eq!(up[2], 0.0);
+        let side = inst.shade(p, [1.0, 0.0, 0.0], [0.5; 3]);
+        assert!(side.iter().all(|v| v.abs() < 1e-6), "{side:?}");
     }
 }

@@ -11,7 +11,9 @@
 //! `m_j` is in radiance per unit irradiance coefficient: `L = ρ (n_o·n)₊ Σ_j c_j m_j` with
 //! `c_j` the SH coefficients of the irradiance `E(n) = Σ_j c_j Y_j(n)` in the object frame.
 //!
-//! Value layout: `((point · 3) + channel) · n_sh + j`, point `= (k · n + j) · n + i`.
+//! Value layout: `((point · 3) + channel) · terms + term`, point `= (k · n + j) · n + i`;
+//! a term is the SH index j (`terms = n_sh`), or with [`DnrtNormals::Convolution`] (Appendix A)
+//! the pair `j · n_sh + t` (`terms = n_sh²`).
 //!
 //! Analytic bounds (paper Table 1 in our units): `m_0 ∈ [−Y_0/π, 0]` and, for `j ≥ 1`,
 //! `|m_j| ≤ 2 max|Y_j| / π`, because `∫_D cos θ dω ≤ π`, the `1/π²` of eq. 8 and 13, and
@@ -20,7 +22,7 @@
 //!
 //! Invariant: a grid that passed [`DnrtGrid::validate`] (every [`DnrtGrid::read`] runs it) has
 //! resolution ≥ 2, `n_sh ∈ {4, 9}`, finite positive extents with outer ≥ inner, finite ordered
-//! ranges, exactly `resolution³ · 3 · n_sh` values and only finite ones.
+//! ranges, exactly `resolution³ · 3 · terms` values and only finite ones.
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -51,6 +53,20 @@ pub enum DnrtPlacement {
     /// Denser near the object (Appendix B.1): `offset = E · u·|u|` for evenly spaced
     /// `u ∈ [−1, 1]`.
     Quadratic,
+}
+
+/// How the receiver's normal enters (paper §4.1.4 or Appendix A).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum DnrtNormals {
+    /// The paper's intermediate normal: `m_j` is integrated about `n_o` (towards the centre)
+    /// and the client scales by `(n_o·n)₊`. One term per SH index.
+    #[default]
+    Intermediate,
+    /// Appendix A: per SH index j, the SH projection over directions of the transfer function
+    /// convolved with the clamped cosine, `G_jt = Â_t ∫_D f_j(ω) Y_t(ω) dω`; the client
+    /// evaluates `Σ_t (Σ_j c_j G_jt) Y_t(n)` at the receiver's own normal. `n_sh²` terms.
+    Convolution,
 }
 
 /// The stored values.
@@ -95,7 +111,8 @@ pub struct DnrtGrid {
     /// 4 (order 1) or 9 (order 2).
     pub n_sh: u32,
     pub placement: DnrtPlacement,
-    /// Per SH coefficient `[lo, hi]`: the u8 dequantisation range (for f16/f32: the data's
+    pub normals: DnrtNormals,
+    /// Per term (SH index j, or pair `j · n_sh + t` with [`DnrtNormals::Convolution`]) `[lo, hi]`: the u8 dequantisation range (for f16/f32: the data's
     /// range, informative).
     pub ranges: Vec<[f32; 2]>,
     pub data: DnrtData,
@@ -134,18 +151,41 @@ pub fn analytic_range(j: usize) -> [f64; 2] {
     }
 }
 
+/// The analytic range of a convolved term `G_jt` ([`DnrtNormals::Convolution`]):
+/// `|G_jt| ≤ Â_t · max|Y_t| · 2 max|Y_j| · 4π/π²` (the integrand of `f_j` is at most
+/// `2 max|Y_j|/π²` over at most 4π sr).
+pub fn analytic_range_convolved(j: usize, t: usize) -> [f64; 2] {
+    let a = crate::sh::irradiance_weights()[t];
+    let b = a * MAX_ABS_BASIS[t] * 2.0 * MAX_ABS_BASIS[j] * 4.0 / std::f64::consts::PI;
+    [-b, b]
+}
+
+/// The analytic range of term `k` of `terms(n_sh, normals)`.
+pub fn analytic_term_range(k: usize, n_sh: usize, normals: DnrtNormals) -> [f64; 2] {
+    match normals {
+        DnrtNormals::Intermediate => analytic_range(k),
+        DnrtNormals::Convolution => analytic_range_convolved(k / n_sh, k % n_sh),
+    }
+}
+
 /// Per SH coefficient, the range of `values` (layout of the module doc), widened to a
 /// non-empty interval and clamped to the analytic range.
 pub fn fitted_ranges(values: &[f64], n_sh: usize) -> Vec<[f32; 2]> {
-    (0..n_sh)
+    fitted_term_ranges(values, n_sh, DnrtNormals::Intermediate)
+}
+
+/// [`fitted_ranges`] for any normal mode (one range per term, within its analytic range).
+pub fn fitted_term_ranges(values: &[f64], n_sh: usize, normals: DnrtNormals) -> Vec<[f32; 2]> {
+    let n_terms = terms(n_sh, normals);
+    (0..n_terms)
         .map(|j| {
             let mut lo = f64::INFINITY;
             let mut hi = f64::NEG_INFINITY;
-            for v in values.iter().skip(j).step_by(n_sh) {
+            for v in values.iter().skip(j).step_by(n_terms) {
                 lo = lo.min(*v);
                 hi = hi.max(*v);
             }
-            let [a_lo, a_hi] = analytic_range(j);
+            let [a_lo, a_hi] = analytic_term_range(j, n_sh, normals);
             if lo > hi {
                 return [0.0, 0.0];
             }
@@ -174,9 +214,14 @@ impl DnrtGrid {
         (self.resolution as usize).pow(3)
     }
 
-    /// Values per grid point (`3 · n_sh`).
+    /// Values per channel of a grid point: `n_sh`, or `n_sh²` with convolution.
+    pub fn terms(&self) -> usize {
+        terms(self.n_sh as usize, self.normals)
+    }
+
+    /// Values per grid point (`3 · terms`).
     pub fn values_per_point(&self) -> usize {
-        3 * self.n_sh as usize
+        3 * self.terms()
     }
 
     /// Offset (metres, object frame) of grid index `i` from the centre along one axis.
@@ -214,11 +259,12 @@ impl DnrtGrid {
         resolution: u32,
         n_sh: u32,
         placement: DnrtPlacement,
+        normals: DnrtNormals,
         codec: DnrtCodec,
         ranges: Vec<[f32; 2]>,
         values: &[f64],
     ) -> DnrtGrid {
-        let n_sh_us = n_sh as usize;
+        let n_sh_us = terms(n_sh as usize, normals);
         let data = match codec {
             DnrtCodec::U8 => DnrtData::U8(
                 values
@@ -241,6 +287,7 @@ impl DnrtGrid {
             resolution,
             n_sh,
             placement,
+            normals,
             ranges,
             data,
         }
@@ -248,7 +295,7 @@ impl DnrtGrid {
 
     /// Every value decoded to f32, in the layout of the module doc.
     pub fn values(&self) -> Vec<f32> {
-        let n_sh = self.n_sh as usize;
+        let n_sh = self.terms();
         match &self.data {
             DnrtData::U8(v) => v
                 .iter()
@@ -295,13 +342,13 @@ impl DnrtGrid {
                 "centre, radius and extents must be finite, positive and outer ≥ inner".into(),
             ));
         }
-        if self.ranges.len() != self.n_sh as usize
+        if self.ranges.len() != self.terms()
             || self
                 .ranges
                 .iter()
                 .any(|[lo, hi]| !(lo.is_finite() && hi.is_finite() && lo <= hi))
         {
-            return Err(self.invalid("ranges: one finite [lo, hi] per SH coefficient".into()));
+            return Err(self.invalid("ranges: one finite [lo, hi] per term".into()));
         }
         let expected = self.n_points() as u64 * self.values_per_point() as u64;
         if self.data.len() as u64 != expected {
@@ -332,6 +379,10 @@ impl DnrtGrid {
         w.u8(match self.placement {
             DnrtPlacement::Regular => 0,
             DnrtPlacement::Quadratic => 1,
+        });
+        w.u8(match self.normals {
+            DnrtNormals::Intermediate => 0,
+            DnrtNormals::Convolution => 1,
         });
         let flat: Vec<f32> = self.ranges.iter().flatten().copied().collect();
         w.f32s(&flat);
@@ -373,6 +424,11 @@ impl DnrtGrid {
             1 => DnrtPlacement::Quadratic,
             p => return Err(invalid(format!("unknown placement {p}"))),
         };
+        let normals = match r.u8()? {
+            0 => DnrtNormals::Intermediate,
+            1 => DnrtNormals::Convolution,
+            p => return Err(invalid(format!("unknown normal mode {p}"))),
+        };
         let flat = r.f32s()?;
         if flat.len() % 2 != 0 {
             return Err(invalid("odd number of range bounds".into()));
@@ -411,11 +467,20 @@ impl DnrtGrid {
             resolution,
             n_sh,
             placement,
+            normals,
             ranges,
             data,
         };
         grid.validate()?;
         Ok(grid)
+    }
+}
+
+/// Values per channel of a grid point for `n_sh` coefficients and `normals`.
+pub fn terms(n_sh: usize, normals: DnrtNormals) -> usize {
+    match normals {
+        DnrtNormals::Intermediate => n_sh,
+        DnrtNormals::Convolution => n_sh * n_sh,
     }
 }
 
@@ -453,6 +518,7 @@ mod tests {
             n,
             n_sh as u32,
             placement,
+            DnrtNormals::Intermediate,
             codec,
             ranges,
             &values,

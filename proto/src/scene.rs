@@ -128,6 +128,8 @@ pub struct DnrtSettings {
     pub codec: crate::dnrt_grid::DnrtCodec,
     /// Grid point placement (regular, or quadratic as Appendix B.1).
     pub placement: crate::dnrt_grid::DnrtPlacement,
+    /// Receiver normals: the paper's intermediate normal, or SH convolution (Appendix A).
+    pub normals: crate::dnrt_grid::DnrtNormals,
 }
 
 impl Default for DnrtSettings {
@@ -140,6 +142,7 @@ impl Default for DnrtSettings {
             rays: 256,
             codec: crate::dnrt_grid::DnrtCodec::U8,
             placement: crate::dnrt_grid::DnrtPlacement::Regular,
+            normals: crate::dnrt_grid::DnrtNormals::Intermediate,
         }
     }
 }

@@ -17,23 +17,30 @@
 //! cosine-weighted over the hemisphere of `n_o`. Each ray carries the weight
 //! `(cosθ/π) / pdf`, so `∫ f cos dω = π · mean(weight · f)`.
 //!
+//! Appendix A ([`DnrtNormals::Convolution`]): instead of integrating about `n_o`, each transfer
+//! function `f_j(ω) = (ρ Y_j(n_s) − Y_j(ω))/π²` on `D` is projected onto SH over directions
+//! and convolved with the clamped cosine: `G_jt = Â_t ∫_D f_j Y_t dω`, so a receiver of any
+//! normal n gets `ρ Σ_t (Σ_j c_j G_jt) Y_t(n)` (order-2 band limit of the cosine lobe).
+//!
 //! Invariants: every random number is a pure function of (seed, purpose, grid point, ray
 //! index); points run in parallel with rayon but each depends only on its own stream, so a
 //! grid is bit-identical at any thread count. f64 throughout; the grid is quantised last.
 
 use rayon::prelude::*;
 
-use lightfarm_proto::dnrt_grid::{fitted_ranges, placement_offset, DnrtGrid};
+use lightfarm_proto::dnrt_grid::{fitted_term_ranges, placement_offset, DnrtGrid, DnrtNormals};
 use lightfarm_proto::scene::DnrtSettings;
-use lightfarm_proto::sh::sh_basis;
+use lightfarm_proto::sh::{irradiance_weights, sh_basis};
 
 use super::clutter_sampling::{ClutterGuidedSampler, Sphere};
 use super::geometry::Primitive;
 use super::mesh::{dot, sub};
+use super::probe_volume::sample_uniform_sphere;
 use super::sampling::{sobol_2d, stream_key};
 use super::tracer::Tracer;
 
 const PURPOSE_DNRT: u64 = 51;
+const PURPOSE_DNRT_CONVOLVED: u64 = 52;
 
 /// A bounding sphere (object frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -142,6 +149,90 @@ pub fn transfer_at_points(
     out
 }
 
+/// Appendix A: per point, SH index j (irradiance) and t (direction), the albedo-free
+/// `R_jt = ∫_D Y_j(n_s) Y_t(ω) / π² dω` and `O_jt = ∫_D Y_j(ω) Y_t(ω) / π² dω` over all
+/// directions that hit the object (no cosine: the receiver's clamped cosine is applied at
+/// runtime by convolution). Layout `point · n_sh² + j · n_sh + t`. Rays: uniform in the
+/// bounding sphere's cone where it is narrow, else uniform over the whole sphere (near the
+/// object it can cover more than a hemisphere).
+pub fn convolved_transfer_at_points(
+    tracer: &Tracer,
+    sphere: BoundingSphere,
+    points: &[[f64; 3]],
+    n_sh: usize,
+    rays: u32,
+    seed: u64,
+) -> TransferCoefficients {
+    let pi = std::f64::consts::PI;
+    let radius = sphere.radius * (1.0 + 1e-6) + tracer.epsilon;
+    let sampler = ClutterGuidedSampler {
+        spheres: vec![Sphere {
+            center: sphere.centre,
+            radius,
+        }],
+        alpha: 1.0,
+    };
+    let nn = n_sh * n_sh;
+    let per_point: Vec<(Vec<f64>, Vec<f64>)> = points
+        .par_iter()
+        .enumerate()
+        .map(|(p, x)| {
+            let to_centre = sub(sphere.centre, *x);
+            let dist = dot(to_centre, to_centre).sqrt();
+            // Narrow cone (the sampler's own criterion): sample it; otherwise the sphere.
+            let cone = dist > radius && radius / dist < (1.0f64 - 0.81).sqrt();
+            let n_o = if dist > 0.0 {
+                to_centre.map(|c| c / dist)
+            } else {
+                [0.0, 1.0, 0.0]
+            };
+            let key = stream_key(seed, PURPOSE_DNRT_CONVOLVED, p as u64);
+            let mut reflection = vec![0.0; nn];
+            let mut occlusion = vec![0.0; nn];
+            for i in 0..rays {
+                let u = sobol_2d(key, i);
+                // 1 / pdf of the direction.
+                let (w, inv_pdf) = if cone {
+                    let (w, weight) = sampler.sample(*x, n_o, (i as f64 + 0.5) / rays as f64, u);
+                    let cos = dot(w, n_o);
+                    if weight <= 0.0 || cos <= 0.0 {
+                        continue;
+                    }
+                    (w, weight * pi / cos)
+                } else {
+                    (sample_uniform_sphere(u), 4.0 * pi)
+                };
+                let Some(hit) = tracer.closest(*x, w, f64::INFINITY, &|_| 1.0) else {
+                    continue;
+                };
+                let y_surface = sh_basis(hit.normal);
+                let y_direction = sh_basis(w);
+                for j in 0..n_sh {
+                    for t in 0..n_sh {
+                        reflection[j * n_sh + t] += inv_pdf * y_surface[j] * y_direction[t];
+                        occlusion[j * n_sh + t] += inv_pdf * y_direction[j] * y_direction[t];
+                    }
+                }
+            }
+            let scale = 1.0 / (pi * pi * rays as f64);
+            (
+                reflection.into_iter().map(|v| v * scale).collect(),
+                occlusion.into_iter().map(|v| v * scale).collect(),
+            )
+        })
+        .collect();
+    let mut out = TransferCoefficients {
+        n_sh,
+        reflection: Vec::with_capacity(points.len() * nn),
+        occlusion: Vec::with_capacity(points.len() * nn),
+    };
+    for (t, k) in per_point {
+        out.reflection.extend(t);
+        out.occlusion.extend(k);
+    }
+    out
+}
+
 /// A tracer over an object's triangles alone.
 pub fn object_tracer(triangles: &[[[f64; 3]; 3]]) -> Tracer {
     let primitives: Vec<Primitive> = triangles
@@ -201,12 +292,31 @@ pub fn dnrt_values(
     let tracer = object_tracer(triangles);
     let points = grid_points(settings, sphere);
     let n_sh = settings.sh as usize;
-    let coeffs = transfer_at_points(&tracer, sphere, &points, n_sh, settings.rays, seed);
-    let mut values = Vec::with_capacity(points.len() * 3 * n_sh);
+    let (coeffs, terms, weight): (_, usize, Vec<f64>) = match settings.normals {
+        DnrtNormals::Intermediate => (
+            transfer_at_points(&tracer, sphere, &points, n_sh, settings.rays, seed),
+            n_sh,
+            vec![1.0; n_sh],
+        ),
+        // G_jt = Â_t (ρ R_jt − O_jt): the clamped-cosine convolution (Funk–Hecke).
+        DnrtNormals::Convolution => {
+            let a = irradiance_weights();
+            (
+                convolved_transfer_at_points(&tracer, sphere, &points, n_sh, settings.rays, seed),
+                n_sh * n_sh,
+                (0..n_sh * n_sh).map(|k| a[k % n_sh]).collect(),
+            )
+        }
+    };
+    let mut values = Vec::with_capacity(points.len() * 3 * terms);
     for p in 0..points.len() {
         for rho in albedo {
-            for j in 0..n_sh {
-                values.push(rho * coeffs.reflection[p * n_sh + j] - coeffs.occlusion[p * n_sh + j]);
+            for k in 0..terms {
+                let (t, o) = (
+                    coeffs.reflection[p * terms + k],
+                    coeffs.occlusion[p * terms + k],
+                );
+                values.push(weight[k] * (rho * t - o));
             }
         }
     }
@@ -231,8 +341,9 @@ pub fn encode_grid(object: &str, baked: &DnrtValues, settings: &DnrtSettings) ->
         settings.resolution,
         settings.sh,
         settings.placement,
+        settings.normals,
         settings.codec,
-        fitted_ranges(&baked.values, n_sh),
+        fitted_term_ranges(&baked.values, n_sh, settings.normals),
         &baked.values,
     )
 }
@@ -435,6 +546,46 @@ mod tests {
                 v.is_finite() && *v >= lo - 1e-12 && *v <= hi + 1e-12,
                 "{k}: {v}"
             );
+        }
+    }
+
+    /// Appendix A's direction projection of the occlusion has closed forms for a sphere:
+    /// `O_00 = Y_0² Ω / π²` with `Ω = 2π(1 − cos α)`, and `O_0t = Y_0 Y_1 (a·e_t) π sin²α / π²`
+    /// for band 1; checked near (whole-sphere sampling) and far (cone sampling).
+    #[test]
+    fn convolved_occlusion_matches_closed_forms_near_and_far() {
+        let r = 0.5;
+        let tris = icosphere([0.0; 3], r, 5);
+        let tracer = object_tracer(&tris);
+        let sphere = bounding_sphere(&tris);
+        for (s, d) in [(1.5, [0.0, 0.6, 0.8]), (5.0, [-0.48, 0.6, 0.64])] {
+            let p = d.map(|x| s * r * x);
+            let a = d.map(|x: f64| -x);
+            let sin2 = 1.0 / (s * s);
+            let cos = (1.0 - sin2).sqrt();
+            let got = convolved_transfer_at_points(&tracer, sphere, &[p], 4, 1 << 15, 11);
+            let o00 = Y0 * Y0 * 2.0 * PI * (1.0 - cos) / (PI * PI);
+            let axis = [a[1], a[2], a[0]];
+            assert!(
+                (got.occlusion[0] - o00).abs() < 0.01 * o00,
+                "s = {s}: O_00 {} vs {o00}",
+                got.occlusion[0]
+            );
+            for t in 1..4 {
+                let want = Y0 * Y1 * axis[t - 1] * PI * sin2 / (PI * PI);
+                assert!(
+                    (got.occlusion[t] - want).abs() < 0.01 * o00,
+                    "s = {s}: O_0{t} {} vs {want}",
+                    got.occlusion[t]
+                );
+            }
+            // Symmetry of the occlusion in (j, t).
+            for j in 0..4 {
+                for t in 0..4 {
+                    let (x, y) = (got.occlusion[j * 4 + t], got.occlusion[t * 4 + j]);
+                    assert!((x - y).abs() < 1e-12, "{j} {t}");
+                }
+            }
         }
     }
 }

@@ -11,7 +11,7 @@ use std::fs;
 use std::io::Write;
 use std::path::PathBuf;
 
-use lightfarm_proto::dnrt_grid::{DnrtCodec, DnrtGrid, DnrtPlacement};
+use lightfarm_proto::dnrt_grid::{DnrtCodec, DnrtGrid, DnrtNormals, DnrtPlacement};
 use lightfarm_proto::scene::DnrtSettings;
 use lightfarm_proto::wire::{checksum, Reader, Writer};
 
@@ -47,6 +47,10 @@ pub fn dnrt_key(
     h.update(&[match settings.placement {
         DnrtPlacement::Regular => 0u8,
         DnrtPlacement::Quadratic => 1,
+    }]);
+    h.update(&[match settings.normals {
+        DnrtNormals::Intermediate => 0u8,
+        DnrtNormals::Convolution => 1,
     }]);
     h.update(&seed.to_le_bytes());
     h.finalize().to_hex().to_string()
