@@ -149,6 +149,22 @@ impl<'a> DnrtInstance<'a> {
         let per_point = 3 * k;
         let base = ((i0[2] * n + i0[1]) * n + i0[0]) * per_point;
         let mut out = [[0f32; SH_COEFFS]; 3];
+        if k == 1 {
+            // Intermediate normal: one value per channel, nested lerps.
+            let (sx, sy, sz) = (3, 3 * n, 3 * n * n);
+            let v = &self.contracted[base..base + sz + sy + sx + 3];
+            for (ch, o) in out.iter_mut().enumerate() {
+                let at = |off: usize| v[off + ch];
+                let x00 = at(0) + t[0] * (at(sx) - at(0));
+                let x10 = at(sy) + t[0] * (at(sy + sx) - at(sy));
+                let x01 = at(sz) + t[0] * (at(sz + sx) - at(sz));
+                let x11 = at(sz + sy) + t[0] * (at(sz + sy + sx) - at(sz + sy));
+                let y0 = x00 + t[1] * (x10 - x00);
+                let y1 = x01 + t[1] * (x11 - x01);
+                o[0] = y0 + t[2] * (y1 - y0);
+            }
+            return out;
+        }
         for corner in 0..8usize {
             let (cx, cy, cz) = (corner & 1, corner >> 1 & 1, corner >> 2 & 1);
             let w = (if cx == 1 { t[0] } else { 1.0 - t[0] })
