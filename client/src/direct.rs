@@ -340,7 +340,7 @@ mod tests {
         let occluders = Occluders::from_layout(&layout);
         let p = [1.5f32, 2.0, 1.0];
         let l = light([2.5, 2.5, 3.0], [4.0, 2.0, 1.0]);
-        let c = point_light_irradiance_sh(&occluders, &[l.clone()], p);
+        let c = point_light_irradiance_sh(&occluders, std::slice::from_ref(&l), p);
         let d: [f64; 3] = std::array::from_fn(|k| l.position[k] - p[k] as f64);
         let r2 = d.iter().map(|x| x * x).sum::<f64>();
         let w = d.map(|x| x / r2.sqrt());

@@ -202,8 +202,7 @@ impl<'a> DnrtInstance<'a> {
             self.to_object[i][0] * d[0] + self.to_object[i][1] * d[1] + self.to_object[i][2] * d[2]
         });
         let r = x[0].abs().max(x[1].abs()).max(x[2].abs());
-        // `!(r <= outer)` also rejects NaN.
-        if !(r <= g.outer_half_extent) {
+        if r.is_nan() || r > g.outer_half_extent {
             return [0.0; 3];
         }
         let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
@@ -217,7 +216,7 @@ impl<'a> DnrtInstance<'a> {
         } else {
             -(d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2]) / (dist * n_len)
         };
-        if !(lambert > 0.0) {
+        if lambert.is_nan() || lambert <= 0.0 {
             return [0.0; 3];
         }
         let inner = g.inner_half_extent;
@@ -322,6 +321,7 @@ impl<'a> DnrtInstance<'a> {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use lightfarm_proto::dnrt_grid::{DnrtCodec, DnrtPlacement};

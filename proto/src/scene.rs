@@ -766,9 +766,9 @@ impl Settings {
                 format!("dnrt.sh ({}) must be 4 or 9", d.sh),
             ));
         }
-        if !(d.extent.is_finite() && d.extent > 0.0)
-            || !(d.outer_extent.is_finite() && d.outer_extent >= d.extent)
-        {
+        let extent_ok = d.extent.is_finite() && d.extent > 0.0;
+        let outer_ok = d.outer_extent.is_finite() && d.outer_extent >= d.extent;
+        if !extent_ok || !outer_ok {
             return Err(invalid(
                 object,
                 format!(

@@ -310,13 +310,11 @@ pub fn dnrt_values(
     };
     let mut values = Vec::with_capacity(points.len() * 3 * terms);
     for p in 0..points.len() {
+        let span = p * terms..(p + 1) * terms;
+        let (t, o) = (&coeffs.reflection[span.clone()], &coeffs.occlusion[span]);
         for rho in albedo {
-            for k in 0..terms {
-                let (t, o) = (
-                    coeffs.reflection[p * terms + k],
-                    coeffs.occlusion[p * terms + k],
-                );
-                values.push(weight[k] * (rho * t - o));
+            for ((w, t), o) in weight.iter().zip(t).zip(o) {
+                values.push(w * (rho * t - o));
             }
         }
     }
@@ -423,6 +421,7 @@ pub fn icosphere(c: [f64; 3], r: f64, subdivisions: u32) -> Vec<[[f64; 3]; 3]> {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use std::f64::consts::PI;
