@@ -30,6 +30,8 @@
 //!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
 //!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator), and
 //!   [`Runtime::apply_probes`], the SH radiance of the bundle's probe volume.
+//! - [`dnrt`]: Deferred Neighbouring Radiance Transfer: a dynamic object's reflection and
+//!   occlusion on the receivers around it (G-buffer or lightmap texels), from its baked grid.
 //! - [`probes`]: the probe field ([`ProbeField`]: n_probes × 3 channels × 9 SH coefficients)
 //!   and [`irradiance_at`], trilinear probe interpolation and irradiance for any point and
 //!   normal (dynamic objects, clutter).
@@ -45,6 +47,7 @@
 //! receiving texel's albedo is multiplied in last.
 
 pub mod direct;
+pub mod dnrt;
 #[cfg(feature = "fetch")]
 pub mod fetch;
 pub mod lightmap;
@@ -52,14 +55,18 @@ pub mod occluders;
 pub mod probes;
 pub mod runtime;
 
-pub use direct::{direct_from_point_lights, direct_from_point_lights_averaged, DirectLight};
+pub use direct::{
+    direct_from_point_lights, direct_from_point_lights_averaged, point_light_irradiance_sh,
+    DirectLight,
+};
+pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
 #[cfg(feature = "fetch")]
 pub use fetch::{BundleFetcher, FetchError, Fetched};
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};
 pub use occluders::Occluders;
-pub use probes::{irradiance_at, ProbeField};
+pub use probes::{irradiance_at, irradiance_sh_at, ProbeField};
 pub use runtime::{ApplyError, IndirectLight, Method, Runtime};
 
 /// Decodes and validates a bundle (`Bundle::decode`): `Ok` only for a bundle [`Runtime::new`]

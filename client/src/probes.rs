@@ -156,6 +156,21 @@ pub fn irradiance_at(
     })
 }
 
+/// The SH coefficients `c_lm = Â_l L_lm` of the irradiance `E(n) = Σ c_lm Y_lm(n)` per channel
+/// at `position` (radiance interpolated as in [`irradiance_at`]), e.g. the input of DNRT for a
+/// dynamic object at `position`. Zeros where [`irradiance_at`] gives zeros for lack of a probe.
+pub fn irradiance_sh_at(
+    volume: &ProbeVolume,
+    field: &ProbeField,
+    position: [f32; 3],
+) -> [[f32; SH_COEFFS]; CHANNELS] {
+    let Some(l) = interpolate(volume, field, position) else {
+        return [[0.0; SH_COEFFS]; CHANNELS];
+    };
+    let a = lightfarm_proto::sh::irradiance_weights();
+    l.map(|lc| std::array::from_fn(|k| (a[k] * lc[k]) as f32))
+}
+
 /// The interpolated radiance coefficients per channel at `position` (see [`irradiance_at`]),
 /// or `None` when there is no usable probe (or the volume or position is unusable).
 fn interpolate(
@@ -321,6 +336,41 @@ mod tests {
         let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
         let l = field.probe_f64(probe);
         l.map(|lc| irradiance(&lc, n.map(|x| x / len)).max(0.0) as f32)
+    }
+
+    /// The irradiance SH evaluated at a normal equals `irradiance_at` wherever that is
+    /// positive (same interpolation, same convolution), at probes and between them.
+    #[test]
+    fn irradiance_sh_agrees_with_irradiance_at() {
+        let vol = volume([2, 2, 2], (0..8).collect());
+        let f = field(8, |p, c, k| {
+            if k == 0 {
+                3.0 + p as f32 + c as f32
+            } else {
+                0.3 * ((p * 7 + c * 3 + k) % 5) as f32 - 0.6
+            }
+        });
+        for g in [[0.0, 0.0, 0.0], [0.3, 0.7, 0.5], [1.0, 1.0, 0.2]] {
+            let x = at(g);
+            let c = irradiance_sh_at(&vol, &f, x);
+            for n in normals().into_iter().take(5) {
+                let nn = n.map(|v| v as f64);
+                let len = (nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]).sqrt();
+                let y = lightfarm_proto::sh::sh_basis(nn.map(|v| v / len));
+                let e = irradiance_at(&vol, &f, x, n);
+                for ch in 0..3 {
+                    let from_sh: f64 = (0..9).map(|k| c[ch][k] as f64 * y[k]).sum();
+                    let want = e[ch] as f64;
+                    assert!(
+                        (from_sh.max(0.0) - want).abs() < 1e-4 * want.max(1.0),
+                        "{g:?} {n:?} {ch}: {from_sh} vs {want}"
+                    );
+                }
+            }
+        }
+        // No probe: zeros.
+        let empty = volume([2, 2, 2], vec![u32::MAX; 8]);
+        assert_eq!(irradiance_sh_at(&empty, &f, at([0.5; 3])), [[0.0; 9]; 3]);
     }
 
     #[test]

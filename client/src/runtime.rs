@@ -964,6 +964,7 @@ mod tests {
             full,
             drt: None,
             probes: None,
+            dnrt: None,
         }
     }
 
@@ -1157,6 +1158,7 @@ mod tests {
                 direct_gather: None,
             }),
             probes: None,
+            dnrt: None,
         }
     }
 

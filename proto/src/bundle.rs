@@ -32,6 +32,7 @@ pub mod section {
     pub const FULL: u32 = 5;
     pub const DRT: u32 = 6;
     pub const PROBES: u32 = 7;
+    pub const DNRT: u32 = 8;
 }
 
 /// Report name of a section kind.
@@ -44,6 +45,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::FULL => "full",
         section::DRT => "drt",
         section::PROBES => "probes",
+        section::DNRT => "dnrt",
         _ => "unknown",
     }
 }
@@ -285,6 +287,8 @@ pub struct Bundle {
     pub drt: Option<DrtOps>,
     /// U_dyn: SH radiance probes from b and c, for dynamic objects (and MRT's clutter shading).
     pub probes: Option<ProbeVolume>,
+    /// DNRT transfer grids, one per dynamic object (`crate::dnrt_grid`).
+    pub dnrt: Option<Vec<crate::dnrt_grid::DnrtGrid>>,
 }
 
 /// A regular grid of SH radiance probes (`crate::sh` convention, 9 coefficients per channel).
@@ -632,6 +636,14 @@ impl Bundle {
             write_entries(&mut w, &p.entries, enc);
             sections.push((section::PROBES, w.bytes));
         }
+        if let Some(grids) = &self.dnrt {
+            let mut w = Writer::new();
+            w.u32(grids.len() as u32);
+            for g in grids {
+                g.write(&mut w);
+            }
+            sections.push((section::DNRT, w.bytes));
+        }
         if let Some(f) = &self.full {
             let mut w = Writer::new();
             w.u32(f.n);
@@ -671,6 +683,7 @@ impl Bundle {
     fn from_sections(sections: Vec<(u32, Vec<u8>)>) -> Result<Bundle, BundleError> {
         let (mut layout, mut shapes, mut blocks, mut transport, mut full, mut drt, mut probes) =
             (None, None, None, None, None, None, None);
+        let mut dnrt = None;
         for (kind, payload) in &sections {
             let mut p = Reader::new(payload);
             match *kind {
@@ -681,6 +694,7 @@ impl Bundle {
                 section::FULL => full = Some(read_full(&mut p)?),
                 section::DRT => drt = Some(read_drt(&mut p)?),
                 section::PROBES => probes = Some(read_probes(&mut p)?),
+                section::DNRT => dnrt = Some(read_dnrt(&mut p)?),
                 _ => {} // read_sections passes known kinds only
             }
             if p.remaining() != 0 {
@@ -699,6 +713,7 @@ impl Bundle {
             full,
             drt,
             probes,
+            dnrt,
         };
         bundle.validate()?;
         Ok(bundle)
@@ -961,6 +976,15 @@ impl Bundle {
                 }
             }
         }
+        if let Some(grids) = &self.dnrt {
+            for (k, g) in grids.iter().enumerate() {
+                g.validate()
+                    .map_err(|e| BundleError::Invalid(e.to_string()))?;
+                if grids[..k].iter().any(|o| o.object == g.object) {
+                    return bad(format!("dnrt: two grids for object \"{}\"", g.object));
+                }
+            }
+        }
         Ok(())
     }
 }
@@ -1146,4 +1170,15 @@ fn read_probes(r: &mut Reader) -> Result<ProbeVolume, BundleError> {
         n_probes,
         entries,
     })
+}
+
+fn read_dnrt(r: &mut Reader) -> Result<Vec<crate::dnrt_grid::DnrtGrid>, BundleError> {
+    let n = r.u32()? as usize;
+    let mut grids = Vec::with_capacity(n.min(r.remaining()));
+    for _ in 0..n {
+        grids.push(
+            crate::dnrt_grid::DnrtGrid::read(r).map_err(|e| BundleError::Invalid(e.to_string()))?,
+        );
+    }
+    Ok(grids)
 }

@@ -139,6 +139,46 @@ pub struct Settings {
     /// (√tolerance ≈ 3% at the default tolerance); on the maze it adds 0.3% relative L2 to the
     /// indirect light, a tenth of the method's own error, for a bundle 3.8× smaller than f32.
     pub codec_error: f64,
+    /// DNRT grids of dynamic objects (paper 003).
+    pub dnrt: DnrtSettings,
+}
+
+/// How the DNRT grid of every dynamic object is baked and stored (paper 003 §5.1).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct DnrtSettings {
+    /// Grid points along each axis (16, 32 or 64 in the paper's terms; any of 2..=128).
+    pub resolution: u32,
+    /// SH coefficients per channel: 4 (order 1) or 9 (order 2).
+    pub sh: u32,
+    /// Half-size of the inner cube the grid spans, in bounding-sphere radii.
+    pub extent: f64,
+    /// Half-size of the outer cube where the effect fades out, in bounding-sphere radii
+    /// (≥ `extent`).
+    pub outer_extent: f64,
+    /// Monte Carlo rays per grid point.
+    pub rays: u32,
+    /// Storage of the coefficients.
+    pub codec: crate::dnrt_grid::DnrtCodec,
+    /// Grid point placement (regular, or quadratic as Appendix B.1).
+    pub placement: crate::dnrt_grid::DnrtPlacement,
+    /// Receiver normals: the paper's intermediate normal, or SH convolution (Appendix A).
+    pub normals: crate::dnrt_grid::DnrtNormals,
+}
+
+impl Default for DnrtSettings {
+    fn default() -> Self {
+        DnrtSettings {
+            resolution: 32,
+            sh: 9,
+            extent: 3.0,
+            outer_extent: 6.0,
+            rays: 256,
+            codec: crate::dnrt_grid::DnrtCodec::U8,
+            placement: crate::dnrt_grid::DnrtPlacement::Regular,
+            normals: crate::dnrt_grid::DnrtNormals::Intermediate,
+        }
+    }
 }
 
 impl Default for Settings {
@@ -160,6 +200,7 @@ impl Default for Settings {
             compact_transport: true,
             bundle_codec: BundleCodec::Auto,
             codec_error: 0.02,
+            dnrt: DnrtSettings::default(),
         }
     }
 }
@@ -754,6 +795,36 @@ impl Settings {
             return Err(invalid(
                 object,
                 format!("prior_lights ({}) must be in 1..=65536", self.prior_lights),
+            ));
+        }
+        let d = &self.dnrt;
+        if !(2..=128).contains(&d.resolution) {
+            return Err(invalid(
+                object,
+                format!("dnrt.resolution ({}) must be in 2..=128", d.resolution),
+            ));
+        }
+        if d.sh != 4 && d.sh != 9 {
+            return Err(invalid(
+                object,
+                format!("dnrt.sh ({}) must be 4 or 9", d.sh),
+            ));
+        }
+        let extent_ok = d.extent.is_finite() && d.extent > 0.0;
+        let outer_ok = d.outer_extent.is_finite() && d.outer_extent >= d.extent;
+        if !extent_ok || !outer_ok {
+            return Err(invalid(
+                object,
+                format!(
+                    "dnrt.extent ({}) must be positive and dnrt.outer_extent ({}) at least as large",
+                    d.extent, d.outer_extent
+                ),
+            ));
+        }
+        if !(1..=1 << 20).contains(&d.rays) {
+            return Err(invalid(
+                object,
+                format!("dnrt.rays ({}) must be in 1..=1048576", d.rays),
             ));
         }
         Ok(())

@@ -210,3 +210,24 @@ fn corridor() {
         Some(scene.blocks[0].id.as_str())
     );
 }
+
+#[test]
+fn ball_corridor() {
+    let (scene, lights) = load("ball_corridor");
+    assert_eq!(scene.blocks.len(), 2);
+    assert_eq!(scene.connections().unwrap().len(), 1);
+    assert_eq!(void_openings(&scene), 0);
+    assert!(scene.clutter.is_empty());
+    assert_eq!(scene.dynamic.len(), 1);
+    let ball = &scene.dynamic[0];
+    assert_eq!(ball.id, "red_ball");
+    assert!(ball.albedo[0] > 4.0 * ball.albedo[1], "the ball is red");
+    assert!(scene_dir("ball_corridor").join(&ball.mesh).is_file());
+    assert_lights_inside("ball_corridor", &scene, &lights);
+    // The ball (radius 0.35 m) is posed clear of the floor and the -z wall, close to both.
+    assert_eq!(lights.poses.len(), 1);
+    let t = lights.poses[0].translation;
+    assert_eq!(lights.poses[0].id, "red_ball");
+    assert!(t[1] - 0.35 > 0.0 && t[1] - 0.35 < 0.2, "gap to the floor");
+    assert!(t[2] - 0.35 > 0.0 && t[2] - 0.35 < 0.2, "gap to the wall");
+}

@@ -55,6 +55,7 @@ fn bundle_bytes(seed: u32) -> Vec<u8> {
         full: None,
         drt: None,
         probes: None,
+        dnrt: None,
     };
     // Stored raw (no zstd) so the body is large enough to cut mid-transfer.
     let (bytes, _) = bundle.encode_with(&lightfarm_proto::bundle::EncodeOptions {

@@ -54,6 +54,7 @@ fn two_texel_bundle() -> Vec<u8> {
         full: None,
         drt: None,
         probes: None,
+        dnrt: None,
     };
     bundle.encode()
 }

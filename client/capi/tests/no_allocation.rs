@@ -75,6 +75,7 @@ fn bundle(n: usize) -> Vec<u8> {
         full: None,
         drt: None,
         probes: None,
+        dnrt: None,
     }
     .encode()
 }

@@ -10,6 +10,7 @@
 //! - [`transport`]: inter-block transport (lightfield composition or traced);
 //!   [`transport_compaction`]: per target block, the low-rank form the runtime applies.
 //! - [`reference`]: the brute-force one-bounce reference solver.
+//! - [`dnrt`], [`dnrt_cache`]: DNRT transfer grids of dynamic objects and their disk cache.
 //! - [`pipeline`]: scene → bundle; [`progress`]: how long work reports progress.
 //! - [`bundle_encoding`]: the codecs and compression a bundle is stored with.
 //!
@@ -19,6 +20,8 @@
 pub mod bundle_encoding;
 pub mod clutter_basis;
 pub mod clutter_sampling;
+pub mod dnrt;
+pub mod dnrt_cache;
 pub mod drt;
 pub mod geometry;
 pub mod lightfield;

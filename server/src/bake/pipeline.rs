@@ -14,10 +14,13 @@ use faer::Mat;
 use lightfarm_proto::bundle::{
     self, Bundle, Layout, Matrix, SparseRows, SurfaceInfo, TransportOps,
 };
-use lightfarm_proto::scene::{ProbeVolumeMode, Scene, SceneError, Transport};
+use lightfarm_proto::scene::{ProbeVolumeMode, Scene, SceneError, Transform, Transport};
 
+use super::dnrt::bake_dnrt_grid;
+use super::dnrt_cache::{dnrt_key, DnrtCache, DnrtLookup};
 use super::drt::{build_drt, DeltaBlock, DrtStats};
 use super::geometry::{Geometry, GeometryError, Primitive};
+use super::mesh::load_mesh;
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
 use super::probe_volume::build_probe_volume;
 use super::progress::Progress;
@@ -53,6 +56,9 @@ pub struct BakeReport {
     pub bundle_bytes: usize,
     pub drt: Option<DrtStats>,
     pub probes: usize,
+    /// Per dynamic object: (id, seconds to bake its DNRT grid or read it from the cache, grid
+    /// data bytes).
+    pub dnrt: Vec<(String, f64, usize)>,
 }
 
 /// Why a bake failed.
@@ -371,6 +377,57 @@ pub fn bake(
 
     lap(&mut report, "probe volume");
 
+    // DNRT grids: one per dynamic object, content-cached (they depend on the object alone).
+    let dnrt = if scene.dynamic.is_empty() {
+        None
+    } else {
+        let cache = match &options.cache {
+            Some(c) => Some(DnrtCache::open(c.dir())?),
+            None => None,
+        };
+        let mut grids = Vec::new();
+        for object in &scene.dynamic {
+            let mesh = load_mesh(
+                &format!("dynamic \"{}\"", object.id),
+                scene_dir,
+                &object.mesh,
+                &Transform::default(),
+            )
+            .map_err(GeometryError::from)?;
+            let key = dnrt_key(
+                &mesh.triangles,
+                object.albedo,
+                &settings.dnrt,
+                settings.seed,
+            );
+            let start = Instant::now();
+            let grid = match cache.as_ref().map(|c| c.get(&key, &object.id)) {
+                Some(DnrtLookup::Hit(grid)) => *grid,
+                _ => {
+                    let grid = bake_dnrt_grid(
+                        &object.id,
+                        &mesh.triangles,
+                        object.albedo,
+                        &settings.dnrt,
+                        settings.seed,
+                    );
+                    if let Some(c) = &cache {
+                        c.put(&key, &grid)?;
+                    }
+                    grid
+                }
+            };
+            report.dnrt.push((
+                object.id.clone(),
+                start.elapsed().as_secs_f64(),
+                grid.data_bytes(),
+            ));
+            grids.push(grid);
+        }
+        Some(grids)
+    };
+    lap(&mut report, "dnrt grids");
+
     // The dense Hašan-style operator over the full geometry.
     let full = if options.full {
         progress.stage("dense operator", full_geometry.texels.len() as u64);
@@ -437,6 +494,7 @@ pub fn bake(
         full,
         drt,
         probes,
+        dnrt,
     };
     lap(&mut report, "bundle");
     Ok((bundle, report))

@@ -69,6 +69,9 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
                 d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.clutter_ranks
             );
         }
+        for (id, seconds, bytes) in &report.dnrt {
+            eprintln!("dnrt: \"{id}\" grid {bytes} bytes in {seconds:.3}s (bake or cache lookup)");
+        }
         let sizes: Vec<String> = encoded
             .sections
             .iter()

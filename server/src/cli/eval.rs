@@ -1,14 +1,17 @@
 //! `lightfarm eval OUT.lfb --lights LIGHTS.json [--method full|mrt] -o RESULT.json`: apply a
 //! bundle through the client crate, exactly as a game would, and write per-texel radiance.
+//! Dynamic objects listed in `poses` add their DNRT reflection and occlusion to `indirect`.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
 use lightfarm_client::{
-    direct_from_point_lights, direct_from_point_lights_averaged, irradiance_at, Bundle,
-    DirectLight, IndirectLight, Method, Occluders, ProbeField, Runtime,
+    direct_from_point_lights, direct_from_point_lights_averaged, irradiance_at, irradiance_sh_at,
+    point_light_irradiance_sh, Bundle, DirectLight, DnrtInstance, DnrtVolume, IndirectLight,
+    Method, Occluders, ProbeField, Runtime,
 };
 use lightfarm_proto::lights::LightSet;
+use lightfarm_proto::lights::Pose;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
 
 use super::lightmap_files::{write_lightmaps, LightmapFiles};
@@ -63,6 +66,7 @@ pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Re
                 .collect(),
         );
     }
+    let dnrt = dnrt_delta(&mut runtime, &averaged, &occluders, lights)?;
     let layout = &runtime.bundle().layout;
     let mut texels = Vec::with_capacity(layout.n_texels());
     for surface in &layout.surfaces {
@@ -81,14 +85,61 @@ pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Re
                 normal: f(layout.normals[t]),
                 albedo: f(layout.albedo[t]),
                 direct: f(direct.radiance[t]),
-                indirect: match (&probe_lit, is_clutter) {
-                    (Some(lit), true) => f(lit[t]),
-                    _ => f(indirect.radiance[t]),
+                indirect: {
+                    let base = match (&probe_lit, is_clutter) {
+                        (Some(lit), true) => lit[t],
+                        _ => indirect.radiance[t],
+                    };
+                    let add = dnrt.as_ref().map_or([0.0; 3], |d| d[t]);
+                    f([0, 1, 2].map(|c| base[c] + add[c]))
                 },
             });
         }
     }
     Ok(ResultFile { texels })
+}
+
+/// DNRT (paper 003) for every posed dynamic object: per texel, the light the objects add and
+/// take away. Each object's irradiance at its centre is what a light probe there would hold:
+/// the probe volume's (light from direct-lit surfaces) plus the point lights' direct light.
+/// `None` when there are no poses; an error when a pose names an object without a grid.
+pub fn dnrt_delta(
+    runtime: &mut Runtime,
+    direct: &DirectLight,
+    occluders: &Occluders,
+    lights: &LightSet,
+) -> anyhow::Result<Option<Vec<[f32; 3]>>> {
+    let poses: &[Pose] = &lights.poses;
+    if poses.is_empty() {
+        return Ok(None);
+    }
+    let mut field = ProbeField::default();
+    runtime.apply_probes(direct, &mut field)?;
+    let bundle = runtime.bundle();
+    let volume = bundle
+        .probes
+        .as_ref()
+        .expect("apply_probes checked the probe volume");
+    let grids = bundle.dnrt.as_deref().unwrap_or(&[]);
+    let mut out = vec![[0.0f32; 3]; bundle.layout.n_texels()];
+    for pose in poses {
+        let grid = grids.iter().find(|g| g.object == pose.id).ok_or_else(|| {
+            anyhow::anyhow!("pose \"{}\": the bundle has no DNRT grid for it", pose.id)
+        })?;
+        let dnrt = DnrtVolume::new(grid)?;
+        let at = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, [[0.0; 9]; 3]);
+        let centre = at.centre_world();
+        let mut c = irradiance_sh_at(volume, &field, centre);
+        let lit = point_light_irradiance_sh(occluders, &lights.lights, centre);
+        for (cc, lc) in c.iter_mut().zip(&lit) {
+            for (a, b) in cc.iter_mut().zip(lc) {
+                *a += b;
+            }
+        }
+        let instance = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, c);
+        instance.apply_texels(&bundle.layout, &mut out)?;
+    }
+    Ok(Some(out))
 }
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {

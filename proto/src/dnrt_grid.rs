@@ -1,0 +1,620 @@
+//! The on-wire DNRT grid of one dynamic object (paper 003 §5.1): transfer coefficients
+//! `m_j = t_j − k_j` per RGB channel and SH index at the points of a grid around the object,
+//! with the codecs the paper stores them in (8-bit with per-coefficient ranges) and f16 / f32.
+//!
+//! Frames and units: the grid lives in the object's own frame (the mesh file's coordinates,
+//! metres). `centre` and `radius` are the object's bounding sphere. The grid spans the inner
+//! cube `centre ± inner_half_extent` on every axis with `resolution` points per axis; point
+//! `(i, j, k)` sits at `centre + (offset(i), offset(j), offset(k))` where `offset` depends on
+//! the [`DnrtPlacement`] ([`DnrtGrid::offset`]). Beyond the inner cube and up to the outer cube
+//! `centre ± outer_half_extent` the client fades the inner boundary's value to zero (§5.2.2).
+//! `m_j` is in radiance per unit irradiance coefficient: `L = ρ (n_o·n)₊ Σ_j c_j m_j` with
+//! `c_j` the SH coefficients of the irradiance `E(n) = Σ_j c_j Y_j(n)` in the object frame.
+//!
+//! Value layout: `((point · 3) + channel) · terms + term`, point `= (k · n + j) · n + i`;
+//! a term is the SH index j (`terms = n_sh`), or with [`DnrtNormals::Convolution`] (Appendix A)
+//! the pair `j · n_sh + t` (`terms = n_sh²`).
+//!
+//! Analytic bounds (paper Table 1 in our units): `m_0 ∈ [−Y_0/π, 0]` and, for `j ≥ 1`,
+//! `|m_j| ≤ 2 max|Y_j| / π`, because `∫_D cos θ dω ≤ π`, the `1/π²` of eq. 8 and 13, and
+//! `ρ < 1` (so `t_0 ≤ k_0`). The paper's Table 1 is the same bound without the `1/π`
+//! (its irradiance is pre-divided by π).
+//!
+//! Invariant: a grid that passed [`DnrtGrid::validate`] (every [`DnrtGrid::read`] runs it) has
+//! resolution ≥ 2, `n_sh ∈ {4, 9}`, finite positive extents with outer ≥ inner, finite ordered
+//! ranges, exactly `resolution³ · 3 · terms` values and only finite ones.
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::half::{f16_from_f32, f32_from_f16};
+use crate::wire::{Reader, WireError, Writer};
+
+/// How the coefficients are stored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum DnrtCodec {
+    /// One byte per value, dequantised per SH coefficient as `lo + q/255 · (hi − lo)`.
+    #[default]
+    U8,
+    /// IEEE binary16.
+    F16,
+    /// f32 (the unquantised baseline).
+    F32,
+}
+
+/// Where the grid points sit along each axis.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum DnrtPlacement {
+    /// Evenly spaced (the paper).
+    #[default]
+    Regular,
+    /// Denser near the object (Appendix B.1): `offset = E · u·|u|` for evenly spaced
+    /// `u ∈ [−1, 1]`.
+    Quadratic,
+}
+
+/// How the receiver's normal enters (paper §4.1.4 or Appendix A).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum DnrtNormals {
+    /// The paper's intermediate normal: `m_j` is integrated about `n_o` (towards the centre)
+    /// and the client scales by `(n_o·n)₊`. One term per SH index.
+    #[default]
+    Intermediate,
+    /// Appendix A: per SH index j, the SH projection over directions of the transfer function
+    /// convolved with the clamped cosine, `G_jt = Â_t ∫_D f_j(ω) Y_t(ω) dω`; the client
+    /// evaluates `Σ_t (Σ_j c_j G_jt) Y_t(n)` at the receiver's own normal. `n_sh²` terms.
+    Convolution,
+}
+
+/// The stored values.
+#[derive(Clone, Debug, PartialEq)]
+pub enum DnrtData {
+    U8(Vec<u8>),
+    F16(Vec<u16>),
+    F32(Vec<f32>),
+}
+
+impl DnrtData {
+    pub fn len(&self) -> usize {
+        match self {
+            DnrtData::U8(v) => v.len(),
+            DnrtData::F16(v) => v.len(),
+            DnrtData::F32(v) => v.len(),
+        }
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    fn codec(&self) -> DnrtCodec {
+        match self {
+            DnrtData::U8(_) => DnrtCodec::U8,
+            DnrtData::F16(_) => DnrtCodec::F16,
+            DnrtData::F32(_) => DnrtCodec::F32,
+        }
+    }
+}
+
+/// One object's grid (see the module doc).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DnrtGrid {
+    /// The dynamic object's id.
+    pub object: String,
+    /// Bounding-sphere centre, object frame (metres).
+    pub centre: [f32; 3],
+    pub radius: f32,
+    pub inner_half_extent: f32,
+    pub outer_half_extent: f32,
+    pub resolution: u32,
+    /// 4 (order 1) or 9 (order 2).
+    pub n_sh: u32,
+    pub placement: DnrtPlacement,
+    pub normals: DnrtNormals,
+    /// Per term (SH index j, or pair `j · n_sh + t` with [`DnrtNormals::Convolution`]) `[lo, hi]`: the u8 dequantisation range (for f16/f32: the data's
+    /// range, informative).
+    pub ranges: Vec<[f32; 2]>,
+    pub data: DnrtData,
+}
+
+/// Why a grid is unusable.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DnrtGridError {
+    #[error("DNRT grid of \"{object}\": {message}")]
+    Invalid { object: String, message: String },
+    #[error("DNRT grid: {0}")]
+    Wire(#[from] WireError),
+}
+
+/// The largest `|Y_j|` over the sphere, per SH index (Sloan order).
+pub const MAX_ABS_BASIS: [f64; 9] = [
+    0.282_094_791_773_878_1,
+    0.488_602_511_902_919_9,
+    0.488_602_511_902_919_9,
+    0.488_602_511_902_919_9,
+    0.546_274_215_296_039_6,
+    0.546_274_215_296_039_6,
+    0.630_783_130_505_040_1,
+    0.546_274_215_296_039_6,
+    0.546_274_215_296_039_6,
+];
+
+/// The analytic range of `m_j` (module doc; paper Table 1 divided by π).
+pub fn analytic_range(j: usize) -> [f64; 2] {
+    let pi = std::f64::consts::PI;
+    if j == 0 {
+        [-MAX_ABS_BASIS[0] / pi, 0.0]
+    } else {
+        let b = 2.0 * MAX_ABS_BASIS[j] / pi;
+        [-b, b]
+    }
+}
+
+/// The analytic range of a convolved term `G_jt` ([`DnrtNormals::Convolution`]):
+/// `|G_jt| ≤ Â_t · max|Y_t| · 2 max|Y_j| · 4π/π²` (the integrand of `f_j` is at most
+/// `2 max|Y_j|/π²` over at most 4π sr).
+pub fn analytic_range_convolved(j: usize, t: usize) -> [f64; 2] {
+    let a = crate::sh::irradiance_weights()[t];
+    let b = a * MAX_ABS_BASIS[t] * 2.0 * MAX_ABS_BASIS[j] * 4.0 / std::f64::consts::PI;
+    [-b, b]
+}
+
+/// The analytic range of term `k` of `terms(n_sh, normals)`.
+pub fn analytic_term_range(k: usize, n_sh: usize, normals: DnrtNormals) -> [f64; 2] {
+    match normals {
+        DnrtNormals::Intermediate => analytic_range(k),
+        DnrtNormals::Convolution => analytic_range_convolved(k / n_sh, k % n_sh),
+    }
+}
+
+/// Per SH coefficient, the range of `values` (layout of the module doc), widened to a
+/// non-empty interval and clamped to the analytic range.
+pub fn fitted_ranges(values: &[f64], n_sh: usize) -> Vec<[f32; 2]> {
+    fitted_term_ranges(values, n_sh, DnrtNormals::Intermediate)
+}
+
+/// [`fitted_ranges`] for any normal mode (one range per term, within its analytic range).
+pub fn fitted_term_ranges(values: &[f64], n_sh: usize, normals: DnrtNormals) -> Vec<[f32; 2]> {
+    let n_terms = terms(n_sh, normals);
+    (0..n_terms)
+        .map(|j| {
+            let mut lo = f64::INFINITY;
+            let mut hi = f64::NEG_INFINITY;
+            for v in values.iter().skip(j).step_by(n_terms) {
+                lo = lo.min(*v);
+                hi = hi.max(*v);
+            }
+            let [a_lo, a_hi] = analytic_term_range(j, n_sh, normals);
+            if lo > hi {
+                return [0.0, 0.0];
+            }
+            [lo.max(a_lo) as f32, hi.min(a_hi) as f32]
+        })
+        .collect()
+}
+
+/// Quantises `v` to a byte in `range`.
+pub fn quantise_u8(v: f64, range: [f32; 2]) -> u8 {
+    let (lo, hi) = (range[0] as f64, range[1] as f64);
+    if hi <= lo {
+        return 0;
+    }
+    ((v - lo) / (hi - lo) * 255.0).round().clamp(0.0, 255.0) as u8
+}
+
+/// The value a byte stands for in `range`.
+pub fn dequantise_u8(q: u8, range: [f32; 2]) -> f32 {
+    range[0] + (q as f32 / 255.0) * (range[1] - range[0])
+}
+
+impl DnrtGrid {
+    /// Number of grid points (`resolution³`).
+    pub fn n_points(&self) -> usize {
+        (self.resolution as usize).pow(3)
+    }
+
+    /// Values per channel of a grid point: `n_sh`, or `n_sh²` with convolution.
+    pub fn terms(&self) -> usize {
+        terms(self.n_sh as usize, self.normals)
+    }
+
+    /// Values per grid point (`3 · terms`).
+    pub fn values_per_point(&self) -> usize {
+        3 * self.terms()
+    }
+
+    /// Offset (metres, object frame) of grid index `i` from the centre along one axis.
+    pub fn offset(&self, i: usize) -> f64 {
+        placement_offset(
+            self.placement,
+            self.inner_half_extent as f64,
+            self.resolution as usize,
+            i,
+        )
+    }
+
+    /// Continuous grid coordinate (0 ..= resolution − 1) of an offset from the centre along one
+    /// axis, clamped to the grid; the inverse of [`DnrtGrid::offset`].
+    pub fn grid_coordinate(&self, offset: f32) -> f32 {
+        let e = self.inner_half_extent;
+        let last = (self.resolution - 1) as f32;
+        let u = (offset / e).clamp(-1.0, 1.0);
+        let u = match self.placement {
+            DnrtPlacement::Regular => u,
+            DnrtPlacement::Quadratic => u.signum() * u.abs().sqrt(),
+        };
+        ((u + 1.0) * 0.5 * last).clamp(0.0, last)
+    }
+
+    /// Builds a grid from unquantised values (layout of the module doc) in `codec`. For
+    /// [`DnrtCodec::U8`], `ranges` are the dequantisation ranges (e.g. [`fitted_ranges`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn encode_values(
+        object: &str,
+        centre: [f32; 3],
+        radius: f32,
+        inner_half_extent: f32,
+        outer_half_extent: f32,
+        resolution: u32,
+        n_sh: u32,
+        placement: DnrtPlacement,
+        normals: DnrtNormals,
+        codec: DnrtCodec,
+        ranges: Vec<[f32; 2]>,
+        values: &[f64],
+    ) -> DnrtGrid {
+        let n_sh_us = terms(n_sh as usize, normals);
+        let data = match codec {
+            DnrtCodec::U8 => DnrtData::U8(
+                values
+                    .iter()
+                    .enumerate()
+                    .map(|(k, v)| quantise_u8(*v, ranges[k % n_sh_us]))
+                    .collect(),
+            ),
+            DnrtCodec::F16 => {
+                DnrtData::F16(values.iter().map(|v| f16_from_f32(*v as f32)).collect())
+            }
+            DnrtCodec::F32 => DnrtData::F32(values.iter().map(|v| *v as f32).collect()),
+        };
+        DnrtGrid {
+            object: object.to_string(),
+            centre,
+            radius,
+            inner_half_extent,
+            outer_half_extent,
+            resolution,
+            n_sh,
+            placement,
+            normals,
+            ranges,
+            data,
+        }
+    }
+
+    /// Every value decoded to f32, in the layout of the module doc.
+    pub fn values(&self) -> Vec<f32> {
+        let n_sh = self.terms();
+        match &self.data {
+            DnrtData::U8(v) => v
+                .iter()
+                .enumerate()
+                .map(|(k, q)| dequantise_u8(*q, self.ranges[k % n_sh]))
+                .collect(),
+            DnrtData::F16(v) => v.iter().map(|h| f32_from_f16(*h)).collect(),
+            DnrtData::F32(v) => v.clone(),
+        }
+    }
+
+    /// Bytes of the stored values (what the grid costs in memory at its codec).
+    pub fn data_bytes(&self) -> usize {
+        match &self.data {
+            DnrtData::U8(v) => v.len(),
+            DnrtData::F16(v) => 2 * v.len(),
+            DnrtData::F32(v) => 4 * v.len(),
+        }
+    }
+
+    fn invalid(&self, message: String) -> DnrtGridError {
+        DnrtGridError::Invalid {
+            object: self.object.clone(),
+            message,
+        }
+    }
+
+    /// Checks the invariant of the module doc.
+    pub fn validate(&self) -> Result<(), DnrtGridError> {
+        if !(2..=256).contains(&self.resolution) {
+            return Err(self.invalid(format!("resolution {} is not in 2..=256", self.resolution)));
+        }
+        if self.n_sh != 4 && self.n_sh != 9 {
+            return Err(self.invalid(format!("n_sh {} is not 4 or 9", self.n_sh)));
+        }
+        let positive = |x: f32| x.is_finite() && x > 0.0;
+        if !self.centre.iter().all(|x| x.is_finite())
+            || !positive(self.radius)
+            || !positive(self.inner_half_extent)
+            || !positive(self.outer_half_extent)
+            || self.outer_half_extent < self.inner_half_extent
+        {
+            return Err(self.invalid(
+                "centre, radius and extents must be finite, positive and outer ≥ inner".into(),
+            ));
+        }
+        if self.ranges.len() != self.terms()
+            || self
+                .ranges
+                .iter()
+                .any(|[lo, hi]| !(lo.is_finite() && hi.is_finite() && lo <= hi))
+        {
+            return Err(self.invalid("ranges: one finite [lo, hi] per term".into()));
+        }
+        let expected = self.n_points() as u64 * self.values_per_point() as u64;
+        if self.data.len() as u64 != expected {
+            return Err(self.invalid(format!("{} values, expected {expected}", self.data.len())));
+        }
+        let finite = match &self.data {
+            DnrtData::U8(_) => true,
+            DnrtData::F16(v) => v.iter().all(|h| h & 0x7c00 != 0x7c00),
+            DnrtData::F32(v) => v.iter().all(|x| x.is_finite()),
+        };
+        if !finite {
+            return Err(self.invalid("a value is not finite".into()));
+        }
+        Ok(())
+    }
+
+    /// Appends the grid's bytes.
+    pub fn write(&self, w: &mut Writer) {
+        w.str(&self.object);
+        for x in self.centre {
+            w.f32(x);
+        }
+        w.f32(self.radius);
+        w.f32(self.inner_half_extent);
+        w.f32(self.outer_half_extent);
+        w.u32(self.resolution);
+        w.u32(self.n_sh);
+        w.u8(match self.placement {
+            DnrtPlacement::Regular => 0,
+            DnrtPlacement::Quadratic => 1,
+        });
+        w.u8(match self.normals {
+            DnrtNormals::Intermediate => 0,
+            DnrtNormals::Convolution => 1,
+        });
+        let flat: Vec<f32> = self.ranges.iter().flatten().copied().collect();
+        w.f32s(&flat);
+        w.u8(match self.data.codec() {
+            DnrtCodec::U8 => 0,
+            DnrtCodec::F16 => 1,
+            DnrtCodec::F32 => 2,
+        });
+        match &self.data {
+            DnrtData::U8(v) => {
+                w.u64(v.len() as u64);
+                w.bytes.extend_from_slice(v);
+            }
+            DnrtData::F16(v) => {
+                w.u64(v.len() as u64);
+                for h in v {
+                    w.bytes.extend_from_slice(&h.to_le_bytes());
+                }
+            }
+            DnrtData::F32(v) => w.f32s(v),
+        }
+    }
+
+    /// Reads and validates one grid.
+    pub fn read(r: &mut Reader) -> Result<DnrtGrid, DnrtGridError> {
+        let object = r.str()?;
+        let centre = [r.f32()?, r.f32()?, r.f32()?];
+        let radius = r.f32()?;
+        let inner_half_extent = r.f32()?;
+        let outer_half_extent = r.f32()?;
+        let resolution = r.u32()?;
+        let n_sh = r.u32()?;
+        let invalid = |message: String| DnrtGridError::Invalid {
+            object: object.clone(),
+            message,
+        };
+        let placement = match r.u8()? {
+            0 => DnrtPlacement::Regular,
+            1 => DnrtPlacement::Quadratic,
+            p => return Err(invalid(format!("unknown placement {p}"))),
+        };
+        let normals = match r.u8()? {
+            0 => DnrtNormals::Intermediate,
+            1 => DnrtNormals::Convolution,
+            p => return Err(invalid(format!("unknown normal mode {p}"))),
+        };
+        let flat = r.f32s()?;
+        if flat.len() % 2 != 0 {
+            return Err(invalid("odd number of range bounds".into()));
+        }
+        let ranges = flat.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        let codec = r.u8()?;
+        let data = match codec {
+            0 => {
+                let n = r.u64()?;
+                let bytes = r.take(usize::try_from(n).unwrap_or(usize::MAX))?;
+                DnrtData::U8(bytes.to_vec())
+            }
+            1 => {
+                let n = r.u64()?;
+                let len = usize::try_from(n)
+                    .ok()
+                    .and_then(|n| n.checked_mul(2))
+                    .unwrap_or(usize::MAX);
+                let bytes = r.take(len)?;
+                DnrtData::F16(
+                    bytes
+                        .chunks_exact(2)
+                        .map(|c| u16::from_le_bytes([c[0], c[1]]))
+                        .collect(),
+                )
+            }
+            2 => DnrtData::F32(r.f32s()?),
+            c => return Err(invalid(format!("unknown codec {c}"))),
+        };
+        let grid = DnrtGrid {
+            object,
+            centre,
+            radius,
+            inner_half_extent,
+            outer_half_extent,
+            resolution,
+            n_sh,
+            placement,
+            normals,
+            ranges,
+            data,
+        };
+        grid.validate()?;
+        Ok(grid)
+    }
+}
+
+/// Values per channel of a grid point for `n_sh` coefficients and `normals`.
+pub fn terms(n_sh: usize, normals: DnrtNormals) -> usize {
+    match normals {
+        DnrtNormals::Intermediate => n_sh,
+        DnrtNormals::Convolution => n_sh * n_sh,
+    }
+}
+
+/// Offset of grid index `i` of `n` from the centre for half-extent `e` (see [`DnrtPlacement`]).
+pub fn placement_offset(placement: DnrtPlacement, e: f64, n: usize, i: usize) -> f64 {
+    let u = -1.0 + 2.0 * i as f64 / (n.max(2) - 1) as f64;
+    match placement {
+        DnrtPlacement::Regular => e * u,
+        DnrtPlacement::Quadratic => e * u * u.abs(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(codec: DnrtCodec, placement: DnrtPlacement) -> (DnrtGrid, Vec<f64>) {
+        let n = 3u32;
+        let n_sh = 4usize;
+        let count = 27 * 3 * n_sh;
+        let values: Vec<f64> = (0..count)
+            .map(|k| {
+                let j = k % n_sh;
+                let [lo, hi] = analytic_range(j);
+                lo + (hi - lo) * ((k * 37 % 101) as f64 / 100.0)
+            })
+            .collect();
+        let ranges = fitted_ranges(&values, n_sh);
+        let g = DnrtGrid::encode_values(
+            "ball",
+            [0.1, 0.2, 0.3],
+            0.5,
+            1.5,
+            3.0,
+            n,
+            n_sh as u32,
+            placement,
+            DnrtNormals::Intermediate,
+            codec,
+            ranges,
+            &values,
+        );
+        (g, values)
+    }
+
+    #[test]
+    fn every_codec_round_trips_through_bytes_within_its_precision() {
+        for codec in [DnrtCodec::U8, DnrtCodec::F16, DnrtCodec::F32] {
+            let (g, values) = grid(codec, DnrtPlacement::Regular);
+            let mut w = Writer::new();
+            g.write(&mut w);
+            let back = DnrtGrid::read(&mut Reader::new(&w.bytes)).unwrap();
+            assert_eq!(back, g);
+            let decoded = back.values();
+            for (k, (v, d)) in values.iter().zip(&decoded).enumerate() {
+                let [lo, hi] = g.ranges[k % 4];
+                let tol = match codec {
+                    DnrtCodec::U8 => 0.5 * (hi - lo) as f64 / 255.0 + 1e-6,
+                    DnrtCodec::F16 => v.abs() * 4.9e-4 + 1e-7,
+                    DnrtCodec::F32 => v.abs() * 1e-7,
+                };
+                assert!((v - *d as f64).abs() <= tol, "{codec:?} {k}: {v} vs {d}");
+            }
+            // Truncated bytes are an error, never a panic.
+            for cut in [0, 5, w.bytes.len() / 2, w.bytes.len() - 1] {
+                assert!(DnrtGrid::read(&mut Reader::new(&w.bytes[..cut])).is_err());
+            }
+        }
+    }
+
+    /// Values inside the analytic bounds quantise to bytes whose dequantised values stay inside
+    /// the same bounds, within half a quantisation step of the input.
+    #[test]
+    fn u8_quantisation_stays_within_the_table_1_bounds() {
+        for j in 0..9 {
+            let range = analytic_range(j);
+            let r32 = [range[0] as f32, range[1] as f32];
+            let step = (range[1] - range[0]) / 255.0;
+            for k in 0..=1000 {
+                let v = range[0] + (range[1] - range[0]) * k as f64 / 1000.0;
+                let back = dequantise_u8(quantise_u8(v, r32), r32) as f64;
+                assert!(back >= range[0] - 1e-7 && back <= range[1] + 1e-7);
+                assert!((back - v).abs() <= 0.5 * step + 1e-7, "{j}: {v} -> {back}");
+            }
+            // Out-of-range values are clamped to the bounds.
+            let over = dequantise_u8(quantise_u8(range[1] + 1.0, r32), r32) as f64;
+            assert!((over - range[1]).abs() < 1e-7);
+        }
+        // Table 1 of the paper is our bound times π; for j = 4, 5, 7 it takes twice the
+        // basis constant (1.0925) where max|Y_j| is half of it, so ours is tighter there.
+        let table1 = [
+            0.2820, 0.9772, 0.9772, 0.9772, 2.1850, 2.1850, 1.2615, 2.1850, 1.0925,
+        ];
+        for (j, t) in table1.iter().enumerate() {
+            let ours = (analytic_range(j)[1] - analytic_range(j)[0]) * std::f64::consts::PI;
+            let paper = if j == 0 { *t } else { 2.0 * t };
+            if [4, 5, 7].contains(&j) {
+                assert!((2.0 * ours - paper).abs() < 2e-3, "{j}: {ours} vs {paper}");
+            } else {
+                assert!((ours - paper).abs() < 1e-3, "{j}: {ours} vs {paper}");
+            }
+        }
+    }
+
+    #[test]
+    fn grid_coordinates_invert_offsets_for_both_placements() {
+        for placement in [DnrtPlacement::Regular, DnrtPlacement::Quadratic] {
+            let (mut g, _) = grid(DnrtCodec::F32, placement);
+            g.resolution = 7;
+            for i in 0..7 {
+                let c = g.grid_coordinate(g.offset(i) as f32);
+                assert!((c - i as f32).abs() < 1e-4, "{placement:?} {i}: {c}");
+            }
+            // Outside the inner cube the coordinate clamps to the edge.
+            assert_eq!(g.grid_coordinate(100.0), 6.0);
+            assert_eq!(g.grid_coordinate(-100.0), 0.0);
+        }
+    }
+
+    #[test]
+    fn inconsistent_grids_are_refused_naming_the_object() {
+        let (g, _) = grid(DnrtCodec::U8, DnrtPlacement::Regular);
+        let mut bad = g.clone();
+        bad.n_sh = 5;
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("\"ball\""), "{e}");
+        let mut bad = g.clone();
+        bad.outer_half_extent = 1.0;
+        assert!(bad.validate().is_err());
+        let mut bad = g.clone();
+        bad.data = DnrtData::U8(vec![0; 3]);
+        assert!(bad.validate().is_err());
+        let mut bad = g;
+        bad.data = DnrtData::F32(vec![f32::NAN; 27 * 12]);
+        assert!(bad.validate().is_err());
+    }
+}

@@ -1,0 +1,143 @@
+//! DNRT against brute force on `scenes/ball_corridor`: the change a posed red ball makes to
+//! indirect light (reference with the ball minus reference without) is reproduced by the
+//! bundle's DNRT grid applied through `eval` (with poses minus without), on the texels within
+//! two ball radii of its centre. Measured figures for other settings are in
+//! `tests/data/dnrt_accuracy.md`.
+
+use lightfarm_client::Method;
+use lightfarm_proto::lights::LightSet;
+use lightfarm_proto::result::ResultFile;
+use lightfarm_proto::scene::Transport;
+use lightfarm_tests::*;
+
+/// Per channel, (DNRT delta, reference delta) of the texels within `radius` of `centre`.
+fn deltas_near(
+    ours_with: &ResultFile,
+    ours_without: &ResultFile,
+    ref_with: &ResultFile,
+    ref_without: &ResultFile,
+    centre: [f64; 3],
+    radius: f64,
+) -> Vec<([f64; 3], [f64; 3])> {
+    let key = |t: &lightfarm_proto::result::TexelRecord| (t.surface.clone(), t.index);
+    let index = |r: &ResultFile| -> std::collections::HashMap<_, [f64; 3]> {
+        r.texels.iter().map(|t| (key(t), t.indirect)).collect()
+    };
+    let (ow, oo, ro) = (index(ours_with), index(ours_without), index(ref_without));
+    ref_with
+        .texels
+        .iter()
+        .filter(|t| {
+            let d: f64 = (0..3).map(|k| (t.position[k] - centre[k]).powi(2)).sum();
+            d.sqrt() <= radius
+        })
+        .map(|t| {
+            let k = key(t);
+            (
+                std::array::from_fn(|c| ow[&k][c] - oo[&k][c]),
+                std::array::from_fn(|c| t.indirect[c] - ro[&k][c]),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
+    let (mut scene, lights) = load_scene("ball_corridor", 16, 256);
+    scene.settings.dnrt.resolution = 16;
+    scene.settings.dnrt.rays = 128;
+    let dir = scene_dir("ball_corridor");
+    let (bundle, report) = bake_scene(&scene, &dir, Transport::Lightfield, false);
+    assert_eq!(report.dnrt.len(), 1);
+    assert_eq!(
+        report.dnrt[0].2,
+        16 * 16 * 16 * 3 * 9,
+        "u8: one byte per value"
+    );
+    let without = LightSet {
+        poses: vec![],
+        ..lights.clone()
+    };
+    let ours_with = apply(&bundle, &lights, Method::Mrt);
+    let ours_without = apply(&bundle, &without, Method::Mrt);
+    let ref_with = reference_of(&scene, &dir, &lights, 4096);
+    let ref_without = reference_of(&scene, &dir, &without, 4096);
+    let pose = &lights.poses[0];
+    let radius = 0.35;
+    let near = deltas_near(
+        &ours_with,
+        &ours_without,
+        &ref_with,
+        &ref_without,
+        pose.translation,
+        2.0 * radius,
+    );
+    assert!(near.len() >= 20, "{} texels near the ball", near.len());
+    let (mut num, mut den) = (0.0, 0.0);
+    for (ours, truth) in &near {
+        for c in 0..3 {
+            num += (ours[c] - truth[c]).powi(2);
+            den += truth[c].powi(2);
+        }
+    }
+    let rel = (num / den).sqrt();
+    eprintln!(
+        "DNRT delta near the ball: relative L2 {rel:.4} over {} texels",
+        near.len()
+    );
+    assert!(rel < 0.4, "relative L2 {rel}");
+    // The ball darkens its surroundings (occlusion wins) and tints them red: less is taken
+    // from red than from green, in the reference and in DNRT.
+    let mean = |ours: bool, c: usize| {
+        let pick = |x: &([f64; 3], [f64; 3])| if ours { x.0[c] } else { x.1[c] };
+        near.iter().map(pick).sum::<f64>() / near.len() as f64
+    };
+    let (ours_r, ours_g) = (mean(true, 0), mean(true, 1));
+    let (ref_r, ref_g) = (mean(false, 0), mean(false, 1));
+    assert!(ref_g < 0.0 && ours_g < 0.0, "ref {ref_g}, ours {ours_g}");
+    assert!(
+        ref_r > ref_g && ours_r > ours_g,
+        "ref {ref_r} vs {ref_g}, ours {ours_r} vs {ours_g}"
+    );
+    // Far from the ball (beyond its outer volume) DNRT changes nothing.
+    let outer = scene.settings.dnrt.outer_extent * radius * 3f64.sqrt();
+    let far = deltas_near(
+        &ours_with,
+        &ours_without,
+        &ref_with,
+        &ref_without,
+        pose.translation,
+        1e9,
+    );
+    let far_changed = ours_with
+        .texels
+        .iter()
+        .zip(&far)
+        .filter(|(t, _)| {
+            let d: f64 = (0..3)
+                .map(|k| (t.position[k] - pose.translation[k]).powi(2))
+                .sum();
+            d.sqrt() > outer
+        })
+        .filter(|(_, (ours, _))| ours.iter().any(|x| *x != 0.0))
+        .count();
+    assert_eq!(far_changed, 0);
+    assert!(ours_with
+        .texels
+        .iter()
+        .all(|t| t.indirect.iter().all(|x| x.is_finite())));
+}
+
+#[test]
+fn a_pose_without_a_grid_is_an_error_naming_it() {
+    let (mut scene, lights) = load_scene("ball_corridor", 4, 32);
+    scene.settings.dnrt.resolution = 4;
+    scene.settings.dnrt.rays = 16;
+    let dir = scene_dir("ball_corridor");
+    let (bundle, _) = bake_scene(&scene, &dir, Transport::Lightfield, false);
+    let mut wrong = lights.clone();
+    wrong.poses[0].id = "blue_cube".into();
+    let bundle = lightfarm_client::decode(&bundle).expect("decode");
+    let err = lightfarm_server::cli::eval::evaluate(bundle, &wrong, Method::Mrt).unwrap_err();
+    assert!(err.to_string().contains("\"blue_cube\""), "{err}");
+}
