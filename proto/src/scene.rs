@@ -18,6 +18,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::face::Face;
 
+/// Most grid points the probe volume may have (`settings.probe_spacing` over the blocks'
+/// bounds); the bake allocates a slot per point.
+pub const MAX_PROBE_GRID_POINTS: u64 = 1 << 22;
+
 /// The only format string this version reads.
 pub const SCENE_FORMAT: &str = "lightfarm.scene/1";
 
@@ -554,6 +558,39 @@ impl Scene {
         }
         self.check_block_overlaps()?;
         self.openings()?;
+        self.check_probe_grid()?;
+        Ok(())
+    }
+
+    /// Grid points of the probe volume U_dyn (`ceil(extent / probe_spacing)` per axis over the
+    /// blocks' bounds, at least 1), as the bake lays it out.
+    pub fn probe_grid_dims(&self) -> [f64; 3] {
+        let b = self.bounds();
+        [0, 1, 2].map(|k| {
+            ((b.max[k] - b.min[k]) / self.settings.probe_spacing)
+                .ceil()
+                .max(1.0)
+        })
+    }
+
+    /// The probe volume is baked when the scene has clutter or dynamic objects; refuse a grid
+    /// too large to allocate (1 m spacing over a 10 km level is 10¹² grid points).
+    fn check_probe_grid(&self) -> Result<(), SceneError> {
+        if self.clutter.is_empty() && self.dynamic.is_empty() {
+            return Ok(());
+        }
+        let dims = self.probe_grid_dims();
+        let points = dims[0] * dims[1] * dims[2];
+        if points > MAX_PROBE_GRID_POINTS as f64 {
+            return Err(invalid(
+                "settings",
+                format!(
+                    "probe_spacing ({}) gives a {}×{}×{} probe grid over the blocks, more than \
+                     {MAX_PROBE_GRID_POINTS} points; raise probe_spacing",
+                    self.settings.probe_spacing, dims[0], dims[1], dims[2]
+                ),
+            ));
+        }
         Ok(())
     }
 

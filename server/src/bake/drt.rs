@@ -381,9 +381,16 @@ pub fn build_drt(
     // Inpainting (§5) of buried block texels, face by face.
     for (target, map) in per_target.iter_mut().enumerate() {
         let range = g.block_texels[target].clone();
+        // Every source whose MRT transport reaches the target, not only those with delta rows:
+        // a buried texel must cancel light arriving from neighbouring blocks too (a room
+        // wholly inside a clutter box still receives MRT light through its openings).
         let mut sources: Vec<(u8, u32)> = map.keys().copied().collect();
-        if !sources.contains(&(0, target as u32)) {
-            sources.push((0, target as u32));
+        for b in 0..n_blocks {
+            let key = (0, b as u32);
+            let reaches = b == target || mrt.row(shapes, target, b, 0).is_some();
+            if reaches && !sources.contains(&key) {
+                sources.push(key);
+            }
         }
         for s in g
             .surfaces
