@@ -159,8 +159,10 @@ fn clutter_enclosing_its_block() {
     assert!(lit_annex > 0.0);
     // Before the fix in drt.rs (inpainting cancels every source's transport) the room held
     // 0.27 of the annex's brightest indirect light, through its opening.
-    // measured 1.0e-7 (f32 round-off of MRT minus MRT); bound 1e-5
-    assert!(lit_room <= 1e-5 * lit_annex, "buried room lit: {lit_room}");
+    // With lightfield transport: measured 1.0e-7 (f32 round-off of MRT minus MRT). With the
+    // default compact transport the cancellation is built from the uncompacted transport, so
+    // the residual is the compaction's own error: measured 6.0e-3 of the annex; bound 1e-2.
+    assert!(lit_room <= 1e-2 * lit_annex, "buried room lit: {lit_room}");
 }
 
 const PYRAMID: &str = "v 1.5 0.3 1.5\nv 2.5 0.3 1.5\nv 2.5 0.3 2.5\nv 1.5 0.3 2.5\nv 2.0 1.5 2.0\n\
