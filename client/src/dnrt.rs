@@ -266,6 +266,19 @@ impl<'a> DnrtInstance<'a> {
         }
     }
 
+    /// Every G-buffer slice has the positions' length.
+    fn check_gbuffer(
+        &self,
+        n: usize,
+        normals: &[[f32; 3]],
+        albedo: &[[f32; 3]],
+        out: &[[f32; 3]],
+    ) -> Result<(), DnrtError> {
+        self.check("normals", n, normals.len())?;
+        self.check("albedo", n, albedo.len())?;
+        self.check("out", n, out.len())
+    }
+
     /// Adds the object's effect to every pixel of a G-buffer (`positions`, `normals`, `albedo`
     /// and `out` of equal length; world frame).
     pub fn apply_gbuffer(
@@ -275,10 +288,7 @@ impl<'a> DnrtInstance<'a> {
         albedo: &[[f32; 3]],
         out: &mut [[f32; 3]],
     ) -> Result<(), DnrtError> {
-        let n = positions.len();
-        self.check("normals", n, normals.len())?;
-        self.check("albedo", n, albedo.len())?;
-        self.check("out", n, out.len())?;
+        self.check_gbuffer(positions.len(), normals, albedo, out)?;
         for (((p, nn), a), o) in positions.iter().zip(normals).zip(albedo).zip(out) {
             let v = self.shade(*p, *nn, *a);
             for ch in 0..3 {
@@ -299,10 +309,7 @@ impl<'a> DnrtInstance<'a> {
         out: &mut [[f32; 3]],
     ) -> Result<(), DnrtError> {
         use rayon::prelude::*;
-        let n = positions.len();
-        self.check("normals", n, normals.len())?;
-        self.check("albedo", n, albedo.len())?;
-        self.check("out", n, out.len())?;
+        self.check_gbuffer(positions.len(), normals, albedo, out)?;
         const CHUNK: usize = 4096;
         out.par_chunks_mut(CHUNK)
             .enumerate()

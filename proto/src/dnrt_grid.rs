@@ -27,7 +27,6 @@
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use crate::half::{f16_from_f32, f32_from_f16};
 use crate::wire::{Reader, WireError, Writer};
 
 /// How the coefficients are stored.
@@ -273,9 +272,12 @@ impl DnrtGrid {
                     .map(|(k, v)| quantise_u8(*v, ranges[k % n_sh_us]))
                     .collect(),
             ),
-            DnrtCodec::F16 => {
-                DnrtData::F16(values.iter().map(|v| f16_from_f32(*v as f32)).collect())
-            }
+            DnrtCodec::F16 => DnrtData::F16(
+                values
+                    .iter()
+                    .map(|v| half::f16::from_f32(*v as f32).to_bits())
+                    .collect(),
+            ),
             DnrtCodec::F32 => DnrtData::F32(values.iter().map(|v| *v as f32).collect()),
         };
         DnrtGrid {
@@ -302,7 +304,10 @@ impl DnrtGrid {
                 .enumerate()
                 .map(|(k, q)| dequantise_u8(*q, self.ranges[k % n_sh]))
                 .collect(),
-            DnrtData::F16(v) => v.iter().map(|h| f32_from_f16(*h)).collect(),
+            DnrtData::F16(v) => v
+                .iter()
+                .map(|h| half::f16::from_bits(*h).to_f32())
+                .collect(),
             DnrtData::F32(v) => v.clone(),
         }
     }

@@ -9,7 +9,6 @@
 //! - [`wire`]: the little-endian encoding the bundle and the operator cache share.
 //! - [`dnrt_grid`]: one dynamic object's DNRT transfer grid (codecs, ranges, placement).
 //! - [`sh`], [`sh_rotation`]: the SH convention and rotation of SH coefficients.
-//! - [`half`]: binary16 ↔ f32.
 //!
 //! Invariant: this crate does no light-transport math and no I/O beyond bytes and strings.
 
@@ -18,7 +17,6 @@ pub mod codec;
 pub mod container;
 pub mod dnrt_grid;
 pub mod face;
-pub mod half;
 pub mod lights;
 pub mod result;
 pub mod scene;

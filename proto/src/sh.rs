@@ -45,10 +45,11 @@ pub fn irradiance(l: &[f64; SH_COEFFS], n: [f64; 3]) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn sphere_points(n: usize) -> Vec<[f64; 3]> {
+    /// Deterministic, nearly uniform directions (also used by `sh_rotation`'s tests).
+    pub(crate) fn sphere_points(n: usize) -> Vec<[f64; 3]> {
         // Fibonacci sphere: nearly uniform, deterministic.
         let golden = PI * (3.0 - 5f64.sqrt());
         (0..n)

@@ -147,19 +147,8 @@ impl ShRotation {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sh::tests::sphere_points;
     use std::f64::consts::PI;
-
-    fn sphere_points(n: usize) -> Vec<[f64; 3]> {
-        let golden = PI * (3.0 - 5f64.sqrt());
-        (0..n)
-            .map(|i| {
-                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-                let r = (1.0 - z * z).sqrt();
-                let phi = golden * i as f64;
-                [r * phi.cos(), r * phi.sin(), z]
-            })
-            .collect()
-    }
 
     fn eval(c: &[f64; SH_COEFFS], d: [f64; 3]) -> f64 {
         let y = sh_basis(d);

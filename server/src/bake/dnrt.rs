@@ -137,16 +137,7 @@ pub fn transfer_at_points(
             )
         })
         .collect();
-    let mut out = TransferCoefficients {
-        n_sh,
-        reflection: Vec::with_capacity(points.len() * n_sh),
-        occlusion: Vec::with_capacity(points.len() * n_sh),
-    };
-    for (t, k) in per_point {
-        out.reflection.extend(t);
-        out.occlusion.extend(k);
-    }
-    out
+    concatenate_points(n_sh, per_point)
 }
 
 /// Appendix A: per point, SH index j (irradiance) and t (direction), the albedo-free
@@ -221,16 +212,24 @@ pub fn convolved_transfer_at_points(
             )
         })
         .collect();
-    let mut out = TransferCoefficients {
+    concatenate_points(n_sh, per_point)
+}
+
+/// Per-point (reflection, occlusion) coefficient runs, concatenated in point order.
+fn concatenate_points(n_sh: usize, per_point: Vec<(Vec<f64>, Vec<f64>)>) -> TransferCoefficients {
+    let (reflection, occlusion) =
+        per_point
+            .into_iter()
+            .fold((Vec::new(), Vec::new()), |(mut r, mut o), (t, k)| {
+                r.extend(t);
+                o.extend(k);
+                (r, o)
+            });
+    TransferCoefficients {
         n_sh,
-        reflection: Vec::with_capacity(points.len() * nn),
-        occlusion: Vec::with_capacity(points.len() * nn),
-    };
-    for (t, k) in per_point {
-        out.reflection.extend(t);
-        out.occlusion.extend(k);
+        reflection,
+        occlusion,
     }
-    out
 }
 
 /// A tracer over an object's triangles alone.
