@@ -56,6 +56,7 @@ pub struct BundleFetcher {
     cache_dir: PathBuf,
     timeout: Duration,
     agent: ureq::Agent,
+    bearer: Option<String>,
 }
 
 /// A bundle's bytes as fetched. They passed [`crate::decode`] when they were stored.
@@ -149,7 +150,15 @@ impl BundleFetcher {
             cache_dir: cache_dir.into(),
             timeout: DEFAULT_TIMEOUT,
             agent: agent(DEFAULT_TIMEOUT),
+            bearer: None,
         }
+    }
+
+    /// Sends `Authorization: Bearer <token>` with every request (a `lightfarm serve` with
+    /// teams).
+    pub fn with_bearer_token(mut self, token: impl Into<String>) -> BundleFetcher {
+        self.bearer = Some(token.into());
+        self
     }
 
     /// The longest wait for any one step: connecting, sending the request, the response
@@ -209,6 +218,9 @@ impl BundleFetcher {
         part: Option<Part>,
     ) -> Result<Outcome, FetchError> {
         let mut request = self.agent.get(url).header("Accept-Encoding", "identity");
+        if let Some(token) = &self.bearer {
+            request = request.header("Authorization", format!("Bearer {token}"));
+        }
         if let Some(etag) = cached.as_ref().and_then(|c| c.etag.as_deref()) {
             request = request.header("If-None-Match", etag);
         }
@@ -445,7 +457,7 @@ impl Files {
     }
 }
 
-fn agent(timeout: Duration) -> ureq::Agent {
+pub(crate) fn agent(timeout: Duration) -> ureq::Agent {
     ureq::Agent::config_builder()
         .http_status_as_error(false)
         .user_agent(concat!("lightfarm-client/", env!("CARGO_PKG_VERSION")))

@@ -39,10 +39,12 @@
 //! - `fetch` (feature `fetch`, off by default; `fetch-tls` adds https): `BundleFetcher`, a
 //!   blocking HTTP download of a bundle at level load with an on-disk cache (`If-None-Match`),
 //!   resumed downloads (`Range`/`If-Range`) and [`decode`] before anything is cached.
+//! - `service` (feature `fetch`): `ServiceClient`, the bake service's `/v1` API for editor
+//!   plugins and CI (upload assets and scenes, submit and watch bakes, cancel).
 //!
 //! Invariants: without features this crate depends only on `lightfarm-proto`, `thiserror` and
 //! `half` and does no I/O (feature `rayon` adds rayon for [`Runtime::set_parallel`]; `fetch`
-//! adds `ureq`, and HTTP plus its cache directory are its only I/O); every per-texel vector is
+//! adds `ureq`, `serde` and `serde_json`, and HTTP plus its cache directory are its only I/O); every per-texel vector is
 //! in layout order with one RGB value per layout texel; operators are albedo-free and the
 //! receiving texel's albedo is multiplied in last.
 
@@ -54,6 +56,8 @@ pub mod lightmap;
 pub mod occluders;
 pub mod probes;
 pub mod runtime;
+#[cfg(feature = "fetch")]
+pub mod service;
 
 pub use direct::{
     direct_from_point_lights, direct_from_point_lights_averaged, point_light_irradiance_sh,
@@ -68,6 +72,8 @@ pub use lightmap::{auto_exposure, Atlas};
 pub use occluders::Occluders;
 pub use probes::{irradiance_at, irradiance_sh_at, ProbeField};
 pub use runtime::{ApplyError, IndirectLight, Method, Runtime};
+#[cfg(feature = "fetch")]
+pub use service::{ServiceClient, ServiceError};
 
 /// Decodes and validates a bundle (`Bundle::decode`): `Ok` only for a bundle [`Runtime::new`]
 /// accepts; never panics.

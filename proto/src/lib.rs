@@ -1,6 +1,7 @@
 //! The lightfarm contract: what crosses a crate or process boundary.
 //!
 //! # Layout
+//! - [`api`]: the bake service's HTTP API types (`/v1`).
 //! - [`scene`]: the scene description `lightfarm.scene/1`, its validation and JSON Schema.
 //! - [`lights`]: LIGHTS.json (point lights, dynamic-object poses).
 //! - [`result`]: RESULT.json (per-texel direct and indirect radiance) and `compare`.
@@ -12,6 +13,7 @@
 //!
 //! Invariant: this crate does no light-transport math and no I/O beyond bytes and strings.
 
+pub mod api;
 pub mod bundle;
 pub mod codec;
 pub mod container;

@@ -1,8 +1,12 @@
-//! lightfarm server: the bake engine ([`bake`]) and the command-line front end ([`cli`]).
+//! lightfarm server: the bake engine ([`bake`]), the bake service ([`service`]) and the
+//! command-line front end ([`cli`]).
 //!
 //! # Layout
 //! - [`bake`]: light transport (no HTTP, no async).
+//! - [`service`]: `lightfarm serve`, the HTTP API over a job queue and a blob store (no light
+//!   transport: it calls [`bake::pipeline::bake`]).
 //! - [`cli`]: the `lightfarm` subcommands; `main.rs` only parses arguments and calls these.
 
 pub mod bake;
 pub mod cli;
+pub mod service;

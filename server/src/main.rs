@@ -146,11 +146,27 @@ enum Command {
     },
     /// Print the JSON Schema of the scene description.
     Schema,
+    /// Run the bake service (HTTP API; in-process workers, on-disk store under --data).
+    Serve {
+        /// Listen address [default: 127.0.0.1:8080, or the config file's `addr`]. Without
+        /// --config only loopback addresses are accepted.
+        #[arg(long)]
+        addr: Option<std::net::SocketAddr>,
+        /// Data directory [default: ./lightfarm-data, or the config file's `data`].
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// TOML file with [[teams]] tokens and [limits].
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "warn,lightfarm_server::service=info".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     match Args::parse().command {
@@ -232,6 +248,9 @@ fn main() -> anyhow::Result<()> {
             scene,
             near_clutter,
         }),
+        Command::Serve { addr, data, config } => {
+            cli::serve::run(cli::serve::ServeArgs { addr, data, config })
+        }
         Command::Schema => {
             println!(
                 "{}",

@@ -10,6 +10,7 @@ pub mod inspect;
 pub mod lightmap_files;
 pub mod progress_bar;
 pub mod reference;
+pub mod serve;
 
 use std::path::Path;
 

@@ -1,0 +1,112 @@
+//! The embedded [`BakeExecutor`]: loads a job's canonical scene and its assets from the store,
+//! lays the assets out as files in a scratch directory, runs [`crate::bake::pipeline::bake`] with
+//! the shared shape-operator cache, and encodes the bundle with the scene's codec settings.
+//!
+//! Invariants: runs on a runner thread inside the worker pool (never on the async runtime); the
+//! bundle bytes are exactly those `lightfarm bake` writes for the same scene and settings; the
+//! scratch directory is removed whatever the outcome (also when the bake unwinds on cancel).
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use lightfarm_proto::scene::Scene;
+
+use super::job_progress::JobProgress;
+use super::jobs::{BakeExecutor, BakeOutput};
+use super::scene_inputs::{apply_overrides, asset_hash};
+use super::store::{BlobKind, BlobStore};
+use crate::bake::bundle_encoding::encode_options;
+use crate::bake::pipeline::{bake, BakeOptions};
+use crate::bake::shape_cache::ShapeCache;
+
+/// Bakes in this process.
+pub struct PipelineExecutor {
+    store: Arc<dyn BlobStore>,
+    operator_cache: PathBuf,
+    scratch: PathBuf,
+    counter: AtomicU64,
+}
+
+impl PipelineExecutor {
+    pub fn new(store: Arc<dyn BlobStore>, operator_cache: &Path, scratch: &Path) -> Self {
+        let _ = std::fs::remove_dir_all(scratch);
+        PipelineExecutor {
+            store,
+            operator_cache: operator_cache.to_path_buf(),
+            scratch: scratch.to_path_buf(),
+            counter: AtomicU64::new(0),
+        }
+    }
+}
+
+/// Removes a directory when dropped (also during an unwind).
+struct ScratchDir(PathBuf);
+
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+impl BakeExecutor for PipelineExecutor {
+    fn run(
+        &self,
+        scene_id: &str,
+        settings: &serde_json::Value,
+        progress: &JobProgress,
+    ) -> Result<BakeOutput, String> {
+        let bytes = self
+            .store
+            .get(BlobKind::Scene, scene_id)
+            .map_err(|e| e.to_string())?
+            .ok_or_else(|| {
+                format!("scene {scene_id} is no longer in the store; upload it again")
+            })?;
+        let text = std::str::from_utf8(&bytes).map_err(|e| format!("scene {scene_id}: {e}"))?;
+        let scene = Scene::from_json(text).map_err(|e| e.to_string())?;
+        let scene = apply_overrides(&scene, settings)?;
+
+        let dir = ScratchDir(self.scratch.join(format!(
+            "{}-{}",
+            &scene_id[..16],
+            self.counter.fetch_add(1, Ordering::Relaxed)
+        )));
+        std::fs::create_dir_all(&dir.0).map_err(|e| format!("scratch directory: {e}"))?;
+        let mut meshes: Vec<&String> = scene
+            .clutter
+            .iter()
+            .filter_map(|c| c.mesh.as_ref())
+            .collect();
+        meshes.extend(scene.dynamic.iter().map(|d| &d.mesh));
+        for file in meshes {
+            let hash = asset_hash(file).ok_or_else(|| format!("mesh {file:?} is not an asset"))?;
+            let asset = self
+                .store
+                .get(BlobKind::Asset, hash)
+                .map_err(|e| e.to_string())?
+                .ok_or_else(|| {
+                    format!("asset {hash} is no longer in the store; upload it again")
+                })?;
+            std::fs::write(dir.0.join(file), asset.as_slice())
+                .map_err(|e| format!("scratch directory: {e}"))?;
+        }
+
+        let cache = ShapeCache::open(&self.operator_cache)
+            .map_err(|e| format!("operator cache {}: {e}", self.operator_cache.display()))?;
+        let options = BakeOptions {
+            cache: Some(cache),
+            ..BakeOptions::default()
+        };
+        let (bundle, report) =
+            bake(&scene, &dir.0, &options, progress).map_err(|e| e.to_string())?;
+        let (bytes, _) = bundle.encode_with(&encode_options(&scene.settings, None));
+        Ok(BakeOutput {
+            bundle: bytes,
+            stage_seconds: report.stage_seconds,
+            shape_keys: bundle.shapes.iter().map(|s| s.key.clone()).collect(),
+            shapes_from_cache: report.shapes_from_cache as u64,
+            shapes_computed: report.shapes_computed as u64,
+        })
+    }
+}

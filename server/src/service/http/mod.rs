@@ -1,0 +1,118 @@
+//! The HTTP layer: routes, shared state and the tower middleware (request ids, tracing,
+//! timeouts, body limits). Handlers translate between HTTP and the [`JobQueue`]/[`BlobStore`]
+//! traits; they do no light-transport work and run file and CPU work with `spawn_blocking`.
+//!
+//! # Layout
+//! - [`auth`]: the calling team; [`error`]: the error response.
+//! - [`assets`], [`scenes`], [`bakes`], [`events`], [`bundles`]: the `/v1` resources.
+//! - [`ops`]: health, readiness, metrics, shapes; [`openapi`]: `/openapi.json`.
+
+pub mod assets;
+pub mod auth;
+pub mod bakes;
+pub mod bundles;
+pub mod error;
+pub mod events;
+pub mod openapi;
+pub mod ops;
+pub mod scenes;
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::extract::DefaultBodyLimit;
+use axum::http::{HeaderName, Request, StatusCode};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use tokio::sync::watch;
+use tower_http::request_id::{
+    MakeRequestId, PropagateRequestIdLayer, RequestId, SetRequestIdLayer,
+};
+use tower_http::timeout::TimeoutLayer;
+use tower_http::trace::TraceLayer;
+
+use super::config::ServiceConfig;
+use super::jobs::JobQueue;
+use super::store::BlobStore;
+
+/// What every handler can reach.
+#[derive(Clone)]
+pub struct AppState {
+    pub config: Arc<ServiceConfig>,
+    pub store: Arc<dyn BlobStore>,
+    pub jobs: Arc<dyn JobQueue>,
+    pub operator_cache: PathBuf,
+    pub ready: Arc<AtomicBool>,
+    /// Becomes true when the server begins to shut down.
+    pub shutdown: watch::Receiver<bool>,
+}
+
+/// Request ids `<process start>-<counter>`, unique per process.
+#[derive(Clone)]
+struct SequentialRequestId {
+    prefix: Arc<str>,
+    next: Arc<AtomicU64>,
+}
+
+impl MakeRequestId for SequentialRequestId {
+    fn make_request_id<B>(&mut self, _: &Request<B>) -> Option<RequestId> {
+        let n = self.next.fetch_add(1, Ordering::Relaxed);
+        format!("{}-{n}", self.prefix)
+            .parse()
+            .ok()
+            .map(RequestId::new)
+    }
+}
+
+const REQUEST_ID: HeaderName = HeaderName::from_static("x-request-id");
+
+/// The whole API.
+pub fn router(state: AppState) -> Router {
+    let limits = &state.config.limits;
+    let started = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    let ids = SequentialRequestId {
+        prefix: format!("{started:x}").into(),
+        next: Arc::new(AtomicU64::new(1)),
+    };
+    let api = Router::new()
+        .route("/v1/assets", post(assets::upload_asset))
+        .route("/v1/scenes", post(scenes::create_scene))
+        .route("/v1/bakes", post(bakes::submit_bake))
+        .route(
+            "/v1/bakes/{id}",
+            get(bakes::bake_status).delete(bakes::cancel_bake),
+        )
+        .route("/v1/bakes/{id}/events", get(events::bake_events))
+        .route("/v1/bundles/{hash}", get(bundles::get_bundle))
+        .route("/v1/shapes", get(ops::list_shapes))
+        .route("/healthz", get(ops::healthz))
+        .route("/readyz", get(ops::readyz))
+        .route("/metrics", get(ops::metrics))
+        .route(
+            "/openapi.json",
+            get(|| async { Json(openapi::openapi_json()) }),
+        )
+        .layer(DefaultBodyLimit::max(limits.max_body_bytes));
+    api.with_state(state.clone())
+        .layer(TimeoutLayer::with_status_code(
+            StatusCode::REQUEST_TIMEOUT,
+            Duration::from_secs(limits.request_timeout_seconds),
+        ))
+        .layer(PropagateRequestIdLayer::new(REQUEST_ID))
+        .layer(
+            TraceLayer::new_for_http().make_span_with(|request: &Request<_>| {
+                let id = request
+                    .headers()
+                    .get(REQUEST_ID)
+                    .and_then(|v| v.to_str().ok())
+                    .unwrap_or("-");
+                tracing::info_span!("request", id, method = %request.method(), uri = %request.uri())
+            }),
+        )
+        .layer(SetRequestIdLayer::new(REQUEST_ID, ids))
+}
