@@ -14,6 +14,9 @@
 //! - The name is the checksum: every read re-hashes the bytes; a blob that no longer matches its
 //!   name (disk damage, a stray write) is deleted, counted and reported as absent, so the caller
 //!   recomputes it. Nothing that fails the check is ever served.
+//! - Recently read blobs are kept in memory, verified, up to [`HOT_BYTES`]: the store is
+//!   immutable per name, so a verified copy stays right, and a popular bundle is neither re-read
+//!   nor re-hashed per download.
 //! - The store is trimmed least-recently-used (reads and writes count as use; the order survives
 //!   restarts through file modification times) to a byte budget; pinned blobs (inputs of queued
 //!   or running bakes) are never trimmed.
@@ -25,6 +28,9 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::SystemTime;
+
+/// Bytes of verified blobs kept in memory.
+pub const HOT_BYTES: u64 = 256 << 20;
 
 /// What a blob is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -106,6 +112,54 @@ struct Entry {
     last_use: u128,
 }
 
+/// Verified blobs in memory, least recently used evicted first.
+#[derive(Default)]
+struct Hot {
+    blobs: HashMap<(BlobKind, String), (Arc<Vec<u8>>, u64)>,
+    bytes: u64,
+    clock: u64,
+}
+
+impl Hot {
+    fn get(&mut self, key: &(BlobKind, String)) -> Option<Arc<Vec<u8>>> {
+        self.clock += 1;
+        let clock = self.clock;
+        self.blobs.get_mut(key).map(|(b, used)| {
+            *used = clock;
+            b.clone()
+        })
+    }
+
+    fn insert(&mut self, key: (BlobKind, String), blob: Arc<Vec<u8>>) {
+        let len = blob.len() as u64;
+        if len > HOT_BYTES / 4 {
+            return;
+        }
+        while self.bytes + len > HOT_BYTES {
+            let Some(oldest) = self
+                .blobs
+                .iter()
+                .min_by_key(|(_, (_, used))| *used)
+                .map(|(k, _)| k.clone())
+            else {
+                break;
+            };
+            self.remove(&oldest);
+        }
+        self.clock += 1;
+        if let Some((old, _)) = self.blobs.insert(key, (blob, self.clock)) {
+            self.bytes -= old.len() as u64;
+        }
+        self.bytes += len;
+    }
+
+    fn remove(&mut self, key: &(BlobKind, String)) {
+        if let Some((b, _)) = self.blobs.remove(key) {
+            self.bytes -= b.len() as u64;
+        }
+    }
+}
+
 #[derive(Default)]
 struct Index {
     entries: HashMap<(BlobKind, String), Entry>,
@@ -118,6 +172,7 @@ pub struct DiskStore {
     root: PathBuf,
     budget: u64,
     index: Mutex<Index>,
+    hot: Mutex<Hot>,
     corrupt_dropped: AtomicU64,
     trimmed: AtomicU64,
     tmp_counter: AtomicU64,
@@ -169,6 +224,7 @@ impl DiskStore {
             root: root.to_path_buf(),
             budget,
             index: Mutex::new(index),
+            hot: Mutex::new(Hot::default()),
             corrupt_dropped: AtomicU64::new(0),
             trimmed: AtomicU64::new(0),
             tmp_counter: AtomicU64::new(0),
@@ -211,6 +267,7 @@ impl DiskStore {
     }
 
     fn forget(&self, kind: BlobKind, hash: &str) {
+        self.hot.lock().unwrap().remove(&(kind, hash.to_string()));
         let mut index = self.index.lock().unwrap();
         if let Some(e) = index.entries.remove(&(kind, hash.to_string())) {
             index.total -= e.bytes;
@@ -235,6 +292,7 @@ impl DiskStore {
                 break;
             }
             if fs::remove_file(self.blob_path(kind, &hash)).is_ok() {
+                self.hot.lock().unwrap().remove(&(kind, hash.clone()));
                 index.entries.remove(&(kind, hash.clone()));
                 index.total -= e.bytes;
                 self.trimmed.fetch_add(1, Ordering::Relaxed);
@@ -293,6 +351,15 @@ impl BlobStore for DiskStore {
         if !is_hash(hash) {
             return Ok(None);
         }
+        let key = (kind, hash.to_string());
+        if let Some(blob) = self.hot.lock().unwrap().get(&key) {
+            let mut index = self.index.lock().unwrap();
+            if let Some(e) = index.entries.get_mut(&key) {
+                // Recency in memory only: the file's time is refreshed on disk reads.
+                e.last_use = now_nanos();
+                return Ok(Some(blob));
+            }
+        }
         let path = self.blob_path(kind, hash);
         let bytes = match fs::read(&path) {
             Ok(b) => b,
@@ -314,7 +381,9 @@ impl BlobStore for DiskStore {
             return Ok(None);
         }
         self.touch(kind, hash);
-        Ok(Some(Arc::new(bytes)))
+        let blob = Arc::new(bytes);
+        self.hot.lock().unwrap().insert(key, blob.clone());
+        Ok(Some(blob))
     }
 
     fn contains(&self, kind: BlobKind, hash: &str) -> bool {

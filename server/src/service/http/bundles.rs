@@ -24,6 +24,15 @@ use super::error::{blocking, ApiFailure};
 use super::AppState;
 use crate::service::store::BlobKind;
 
+/// A stored blob as a response body without copying it.
+struct SharedBlob(std::sync::Arc<Vec<u8>>);
+
+impl AsRef<[u8]> for SharedBlob {
+    fn as_ref(&self) -> &[u8] {
+        self.0.as_slice()
+    }
+}
+
 /// zstd level for the encoded representation.
 const TRANSFER_ZSTD_LEVEL: i32 = 3;
 
@@ -179,7 +188,8 @@ pub async fn get_bundle(
                 header::CONTENT_RANGE,
                 HeaderValue::from_str(&format!("bytes {start}-{end}/{len}")).expect("ascii"),
             );
-            let part = bytes[start as usize..=end as usize].to_vec();
+            let part =
+                bytes::Bytes::from_owner(SharedBlob(bytes)).slice(start as usize..=end as usize);
             Ok((StatusCode::PARTIAL_CONTENT, out, Body::from(part)).into_response())
         }
         RangeRequest::Unsatisfiable => {
@@ -203,7 +213,7 @@ pub async fn get_bundle(
             })
             .await?;
             if encoded.len() >= bytes.len() {
-                let body = Body::from(std::sync::Arc::unwrap_or_clone(bytes));
+                let body = Body::from(bytes::Bytes::from_owner(SharedBlob(bytes)));
                 return Ok((StatusCode::OK, out, body).into_response());
             }
             out.insert(
@@ -214,7 +224,7 @@ pub async fn get_bundle(
             Ok((StatusCode::OK, out, Body::from(encoded)).into_response())
         }
         RangeRequest::Whole => {
-            let body = Body::from(std::sync::Arc::unwrap_or_clone(bytes));
+            let body = Body::from(bytes::Bytes::from_owner(SharedBlob(bytes)));
             Ok((StatusCode::OK, out, body).into_response())
         }
     }
