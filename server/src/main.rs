@@ -146,7 +146,8 @@ enum Command {
     },
     /// Print the JSON Schema of the scene description.
     Schema,
-    /// Run the bake service (HTTP API; in-process workers, on-disk store under --data).
+    /// Run the bake service (HTTP API; in-process workers, on-disk store under --data; with
+    /// --farm, a stateless replica of a bake farm on NATS JetStream).
     Serve {
         /// Listen address [default: 127.0.0.1:8080, or the config file's `addr`]. Without
         /// --config only loopback addresses are accepted.
@@ -158,6 +159,22 @@ enum Command {
         /// TOML file with [[teams]] tokens and [limits].
         #[arg(long)]
         config: Option<PathBuf>,
+        /// NATS server of a bake farm (`nats://HOST:PORT`): jobs and blobs live in JetStream and
+        /// bakes run on `lightfarm worker`s.
+        #[arg(long)]
+        farm: Option<String>,
+    },
+    /// Run a bake-farm worker: pulls bake units from NATS JetStream and runs them.
+    Worker {
+        /// NATS server of the farm (`nats://HOST:PORT`).
+        #[arg(long)]
+        farm: String,
+        /// Local operator cache and scratch directory.
+        #[arg(long, default_value = "lightfarm-worker")]
+        cache: PathBuf,
+        /// Threads for unit work (0: one per core).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
     },
 }
 
@@ -248,9 +265,26 @@ fn main() -> anyhow::Result<()> {
             scene,
             near_clutter,
         }),
-        Command::Serve { addr, data, config } => {
-            cli::serve::run(cli::serve::ServeArgs { addr, data, config })
-        }
+        Command::Serve {
+            addr,
+            data,
+            config,
+            farm,
+        } => cli::serve::run(cli::serve::ServeArgs {
+            addr,
+            data,
+            config,
+            farm,
+        }),
+        Command::Worker {
+            farm,
+            cache,
+            threads,
+        } => cli::worker::run(cli::worker::WorkerArgs {
+            farm,
+            cache,
+            threads,
+        }),
         Command::Schema => {
             println!(
                 "{}",

@@ -39,3 +39,4 @@ pub mod shape_cache;
 pub mod tracer;
 pub mod transport;
 pub mod transport_compaction;
+pub mod units;

@@ -11,6 +11,7 @@ pub mod lightmap_files;
 pub mod progress_bar;
 pub mod reference;
 pub mod serve;
+pub mod worker;
 
 use std::path::Path;
 

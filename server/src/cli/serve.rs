@@ -1,5 +1,5 @@
 //! `lightfarm serve`: the bake service on embedded defaults (in-process worker pool, on-disk
-//! store under the data directory). Builds the tokio runtime here; everything else is in
+//! store under the data directory), or with `--farm` a stateless replica of a bake farm. Builds the tokio runtime here; everything else is in
 //! [`crate::service`].
 
 use std::net::SocketAddr;
@@ -12,6 +12,8 @@ pub struct ServeArgs {
     pub addr: Option<SocketAddr>,
     pub data: Option<PathBuf>,
     pub config: Option<PathBuf>,
+    /// `nats://HOST:PORT`: serve as a stateless replica of a bake farm.
+    pub farm: Option<String>,
 }
 
 /// Runs until SIGINT or SIGTERM.
@@ -28,6 +30,9 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     }
     if let Some(data) = args.data {
         config.data = data;
+    }
+    if let Some(farm) = args.farm {
+        config.farm = Some(farm);
     }
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()

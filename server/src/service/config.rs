@@ -91,6 +91,7 @@ struct TeamEntry {
 struct ConfigFile {
     addr: Option<String>,
     data: Option<PathBuf>,
+    farm: Option<String>,
     #[serde(default)]
     limits: Limits,
     #[serde(default)]
@@ -113,6 +114,9 @@ pub struct ServiceConfig {
     pub limits: Limits,
     /// Empty: open mode (every request is team [`LOCAL_TEAM`], no token needed).
     pub teams: Vec<Team>,
+    /// `nats://HOST:PORT` of a bake farm: jobs and blobs live in NATS JetStream and bakes run on
+    /// `lightfarm worker`s ([`super::farm`]). `None`: the embedded queue and store.
+    pub farm: Option<String>,
 }
 
 impl ServiceConfig {
@@ -123,6 +127,7 @@ impl ServiceConfig {
             data,
             limits: Limits::default(),
             teams: Vec::new(),
+            farm: None,
         }
     }
 
@@ -213,6 +218,7 @@ impl ServiceConfig {
             data: file.data.unwrap_or_else(|| PathBuf::from(DEFAULT_DATA)),
             limits: file.limits,
             teams,
+            farm: file.farm,
         })
     }
 

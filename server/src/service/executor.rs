@@ -41,7 +41,7 @@ impl PipelineExecutor {
 }
 
 /// Removes a directory when dropped (also during an unwind).
-struct ScratchDir(PathBuf);
+pub struct ScratchDir(pub PathBuf);
 
 impl Drop for ScratchDir {
     fn drop(&mut self) {
@@ -56,41 +56,12 @@ impl BakeExecutor for PipelineExecutor {
         settings: &serde_json::Value,
         progress: &JobProgress,
     ) -> Result<BakeOutput, String> {
-        let bytes = self
-            .store
-            .get(BlobKind::Scene, scene_id)
-            .map_err(|e| e.to_string())?
-            .ok_or_else(|| {
-                format!("scene {scene_id} is no longer in the store; upload it again")
-            })?;
-        let text = std::str::from_utf8(&bytes).map_err(|e| format!("scene {scene_id}: {e}"))?;
-        let scene = Scene::from_json(text).map_err(|e| e.to_string())?;
-        let scene = apply_overrides(&scene, settings)?;
-
-        let dir = ScratchDir(self.scratch.join(format!(
+        let dir = self.scratch.join(format!(
             "{}-{}",
             &scene_id[..16],
             self.counter.fetch_add(1, Ordering::Relaxed)
-        )));
-        std::fs::create_dir_all(&dir.0).map_err(|e| format!("scratch directory: {e}"))?;
-        let mut meshes: Vec<&String> = scene
-            .clutter
-            .iter()
-            .filter_map(|c| c.mesh.as_ref())
-            .collect();
-        meshes.extend(scene.dynamic.iter().map(|d| &d.mesh));
-        for file in meshes {
-            let hash = asset_hash(file).ok_or_else(|| format!("mesh {file:?} is not an asset"))?;
-            let asset = self
-                .store
-                .get(BlobKind::Asset, hash)
-                .map_err(|e| e.to_string())?
-                .ok_or_else(|| {
-                    format!("asset {hash} is no longer in the store; upload it again")
-                })?;
-            std::fs::write(dir.0.join(file), asset.as_slice())
-                .map_err(|e| format!("scratch directory: {e}"))?;
-        }
+        ));
+        let (scene, dir) = prepare_scene(self.store.as_ref(), scene_id, settings, &dir)?;
 
         let cache = ShapeCache::open(&self.operator_cache)
             .map_err(|e| format!("operator cache {}: {e}", self.operator_cache.display()))?;
@@ -100,13 +71,56 @@ impl BakeExecutor for PipelineExecutor {
         };
         let (bundle, report) =
             bake(&scene, &dir.0, &options, progress).map_err(|e| e.to_string())?;
-        let (bytes, _) = bundle.encode_with(&encode_options(&scene.settings, None));
         Ok(BakeOutput {
-            bundle: bytes,
+            bundle: encode_bundle(&scene, &bundle),
             stage_seconds: report.stage_seconds,
             shape_keys: bundle.shapes.iter().map(|s| s.key.clone()).collect(),
             shapes_from_cache: report.shapes_from_cache as u64,
             shapes_computed: report.shapes_computed as u64,
         })
     }
+}
+
+/// Loads the canonical scene `scene_id` from the store, applies the settings overrides, and lays
+/// its mesh assets out as files in `dir` (created; removed when the returned guard drops), under
+/// the names the canonical scene gives them. Shared by the embedded executor and the farm's
+/// workers, so both bake the same scene from the same files.
+pub fn prepare_scene(
+    store: &dyn BlobStore,
+    scene_id: &str,
+    settings: &serde_json::Value,
+    dir: &Path,
+) -> Result<(Scene, ScratchDir), String> {
+    let bytes = store
+        .get(BlobKind::Scene, scene_id)
+        .map_err(|e| e.to_string())?
+        .ok_or_else(|| format!("scene {scene_id} is no longer in the store; upload it again"))?;
+    let text = std::str::from_utf8(&bytes).map_err(|e| format!("scene {scene_id}: {e}"))?;
+    let scene = Scene::from_json(text).map_err(|e| e.to_string())?;
+    let scene = apply_overrides(&scene, settings)?;
+
+    let dir = ScratchDir(dir.to_path_buf());
+    std::fs::create_dir_all(&dir.0).map_err(|e| format!("scratch directory: {e}"))?;
+    let mut meshes: Vec<&String> = scene
+        .clutter
+        .iter()
+        .filter_map(|c| c.mesh.as_ref())
+        .collect();
+    meshes.extend(scene.dynamic.iter().map(|d| &d.mesh));
+    for file in meshes {
+        let hash = asset_hash(file).ok_or_else(|| format!("mesh {file:?} is not an asset"))?;
+        let asset = store
+            .get(BlobKind::Asset, hash)
+            .map_err(|e| e.to_string())?
+            .ok_or_else(|| format!("asset {hash} is no longer in the store; upload it again"))?;
+        std::fs::write(dir.0.join(file), asset.as_slice())
+            .map_err(|e| format!("scratch directory: {e}"))?;
+    }
+    Ok((scene, dir))
+}
+
+/// The bundle's bytes as the service stores them: encoded with the scene's codec settings,
+/// exactly as `lightfarm bake` writes them.
+pub fn encode_bundle(scene: &Scene, bundle: &lightfarm_proto::bundle::Bundle) -> Vec<u8> {
+    bundle.encode_with(&encode_options(&scene.settings, None)).0
 }

@@ -108,7 +108,7 @@ pub trait JobQueue: Send + Sync + 'static {
 
 /// A job as persisted.
 #[derive(Clone, Debug, Serialize, Deserialize)]
-pub(super) struct JobRecord {
+pub struct JobRecord {
     pub id: String,
     pub scene: String,
     pub settings: serde_json::Value,
@@ -171,7 +171,7 @@ impl JobRecord {
         }
     }
 
-    fn state_event(&self) -> BakeEvent {
+    pub(super) fn state_event(&self) -> BakeEvent {
         BakeEvent::State {
             state: self.state,
             error: self.error.clone(),
@@ -180,7 +180,7 @@ impl JobRecord {
     }
 }
 
-pub(super) fn unix_now() -> f64 {
+pub(crate) fn unix_now() -> f64 {
     SystemTime::now()
         .duration_since(SystemTime::UNIX_EPOCH)
         .map(|d| d.as_secs_f64())

@@ -20,6 +20,7 @@
 
 pub mod config;
 pub mod executor;
+pub mod farm;
 pub mod http;
 pub mod job_progress;
 pub mod jobs;
@@ -69,32 +70,11 @@ pub async fn start(config: ServiceConfig) -> anyhow::Result<RunningService> {
     let data = config.data.clone();
     std::fs::create_dir_all(&data)
         .map_err(|e| anyhow::anyhow!("data directory {}: {e}", data.display()))?;
-    let store: Arc<dyn BlobStore> =
-        Arc::new(DiskStore::open(&data, config.limits.store_budget_bytes)?);
     let operator_cache = data.join("operators");
-    let threads = match config.limits.worker_threads {
-        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
-        n => n,
+    let (store, jobs) = match &config.farm {
+        Some(url) => farm_backend(url, &config).await?,
+        None => embedded_backend(&config)?,
     };
-    let pool = Arc::new(
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .thread_name(|i| format!("bake-worker-{i}"))
-            .build()?,
-    );
-    let executor = Arc::new(PipelineExecutor::new(
-        store.clone(),
-        &operator_cache,
-        &data.join("work"),
-    ));
-    let jobs: Arc<dyn JobQueue> = Arc::new(LocalJobs::open(
-        &data.join("jobs"),
-        config.limits.queue_capacity,
-        config.limits.concurrent_bakes,
-        pool,
-        store.clone(),
-        executor,
-    )?);
     let listener = tokio::net::TcpListener::bind(config.addr).await?;
     let addr = listener.local_addr()?;
     let (stop, stopped) = watch::channel(false);
@@ -122,6 +102,54 @@ pub async fn start(config: ServiceConfig) -> anyhow::Result<RunningService> {
         server,
         jobs,
     })
+}
+
+/// The embedded store and job queue under the data directory.
+fn embedded_backend(
+    config: &ServiceConfig,
+) -> anyhow::Result<(Arc<dyn BlobStore>, Arc<dyn JobQueue>)> {
+    let data = &config.data;
+    let store: Arc<dyn BlobStore> =
+        Arc::new(DiskStore::open(data, config.limits.store_budget_bytes)?);
+    let threads = match config.limits.worker_threads {
+        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
+        n => n,
+    };
+    let pool = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("bake-worker-{i}"))
+            .build()?,
+    );
+    let executor = Arc::new(PipelineExecutor::new(
+        store.clone(),
+        &data.join("operators"),
+        &data.join("work"),
+    ));
+    let jobs: Arc<dyn JobQueue> = Arc::new(LocalJobs::open(
+        &data.join("jobs"),
+        config.limits.queue_capacity,
+        config.limits.concurrent_bakes,
+        pool,
+        store.clone(),
+        executor,
+    )?);
+    Ok((store, jobs))
+}
+
+/// The farm's store and job queue in NATS JetStream (this process keeps no state).
+async fn farm_backend(
+    url: &str,
+    config: &ServiceConfig,
+) -> anyhow::Result<(Arc<dyn BlobStore>, Arc<dyn JobQueue>)> {
+    let connection = Arc::new(farm::connection::Farm::connect(url).await?);
+    let store = Arc::new(farm::blob_store::FarmStore::new(connection.clone()));
+    let jobs: Arc<dyn JobQueue> = Arc::new(farm::queue::FarmJobs::new(
+        connection,
+        store.clone(),
+        config.limits.queue_capacity,
+    ));
+    Ok((store, jobs))
 }
 
 /// Serves until SIGINT or SIGTERM, then shuts down gracefully.

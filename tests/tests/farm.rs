@@ -1,0 +1,318 @@
+//! End-to-end tests of the bake farm (`lightfarm serve --farm`, `lightfarm worker --farm`) on a
+//! real NATS JetStream server: one `nats-server` on a free loopback port, two serve replicas and
+//! three workers as processes (the crate's `lightfarm-test-server` binary, which is `lightfarm
+//! serve` and, with `worker` first, `lightfarm worker`).
+//!
+//! `farm_survives_a_dead_worker_and_a_restarted_replica`: the maze with its pillars is baked
+//! through replica A while replica B streams the events; a worker is SIGKILLed while it runs a
+//! unit (JetStream delivers the unit again to another worker), replica A is SIGKILLed and
+//! restarted mid-bake; the bundle is byte-identical to the embedded bake. Then a second bake is
+//! cancelled on replica B and the workers stop its units.
+//!
+//! Skipped (passing, with a message) only when the `nats-server` binary is absent; `.ci/run`
+//! installs it, so CI always runs it.
+
+use std::io::{BufRead, BufReader};
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use lightfarm_client::ServiceClient;
+use lightfarm_proto::api::{BakeEvent, JobState};
+use lightfarm_proto::scene::Scene;
+use lightfarm_server::bake::bundle_encoding::encode_options;
+use lightfarm_server::bake::pipeline::{bake, BakeOptions};
+use lightfarm_server::bake::progress::NoProgress;
+use lightfarm_tests::scene_dir;
+use serde_json::json;
+
+const TEST_SERVER: &str = env!("CARGO_BIN_EXE_lightfarm-test-server");
+/// Longest wait for anything in these tests (a bound, not a timing assertion).
+const PATIENCE: Duration = Duration::from_secs(240);
+
+fn nats_server() -> Option<PathBuf> {
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    std::env::split_paths(&path)
+        .chain([
+            "/usr/sbin".into(),
+            "/usr/local/bin".into(),
+            "/usr/bin".into(),
+        ])
+        .map(|dir| dir.join("nats-server"))
+        .find(|p| p.is_file())
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// Kills the child when dropped.
+struct Process(Child);
+
+impl Drop for Process {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn start_nats(binary: &Path, dir: &Path) -> (Process, String) {
+    let port = free_port();
+    let child = Command::new(binary)
+        .args(["-js", "-a", "127.0.0.1", "-p", &port.to_string(), "-sd"])
+        .arg(dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(Instant::now() < deadline, "nats-server did not listen");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    (Process(child), format!("nats://127.0.0.1:{port}"))
+}
+
+/// A `lightfarm serve --farm` replica.
+struct Replica {
+    process: Process,
+    addr: String,
+}
+
+impl Replica {
+    fn start(farm: &str, data: &Path) -> Replica {
+        let mut child = Command::new(TEST_SERVER)
+            .args(["--addr", "127.0.0.1:0", "--farm", farm, "--data"])
+            .arg(data)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let addr = line
+            .trim()
+            .strip_prefix("lightfarm: listening on ")
+            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+            .to_string();
+        Replica {
+            process: Process(child),
+            addr,
+        }
+    }
+
+    fn client(&self) -> ServiceClient {
+        ServiceClient::new(&self.addr)
+    }
+
+    fn kill9(self) {
+        drop(self.process); // SIGKILL on unix, then reaped
+    }
+}
+
+/// What a worker printed, with the worker's index.
+struct Line {
+    worker: usize,
+    text: String,
+    at: Instant,
+}
+
+fn start_worker(farm: &str, cache: &Path, index: usize, lines: mpsc::Sender<Line>) -> Process {
+    let mut child = Command::new(TEST_SERVER)
+        .args(["worker", "--farm", farm, "--threads", "1", "--cache"])
+        .arg(cache)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    std::thread::spawn(move || {
+        for text in BufReader::new(stdout).lines().map_while(Result::ok) {
+            let _ = lines.send(Line {
+                worker: index,
+                text,
+                at: Instant::now(),
+            });
+        }
+    });
+    Process(child)
+}
+
+/// Waits for the first line matching `wanted`.
+fn wait_line(lines: &mpsc::Receiver<Line>, wanted: impl Fn(&Line) -> bool) -> Line {
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let line = lines
+            .recv_timeout(left)
+            .expect("no matching worker line in time");
+        if wanted(&line) {
+            return line;
+        }
+    }
+}
+
+/// `(job, unit)` of a "started unit" line.
+fn started_unit(text: &str) -> Option<(String, String)> {
+    let rest = text.split_once(": started unit ")?.1;
+    let (unit, rest) = rest.split_once(" of job ")?;
+    let job = rest.split_whitespace().next()?;
+    Some((job.to_string(), unit.to_string()))
+}
+
+fn maze_settings(rays: u32) -> serde_json::Value {
+    json!({"texels_per_face": 4, "rays_per_texel": rays})
+}
+
+/// The embedded bake of the maze with the same settings, encoded as the service does.
+fn embedded_bundle(rays: u32) -> Vec<u8> {
+    let dir = scene_dir("maze");
+    let mut scene =
+        Scene::from_json(&std::fs::read_to_string(dir.join("scene.json")).unwrap()).unwrap();
+    scene.settings.texels_per_face = 4;
+    scene.settings.rays_per_texel = rays;
+    let (bundle, _) = bake(&scene, &dir, &BakeOptions::default(), &NoProgress).unwrap();
+    bundle.encode_with(&encode_options(&scene.settings, None)).0
+}
+
+#[test]
+fn farm_survives_a_dead_worker_and_a_restarted_replica() {
+    let Some(nats) = nats_server() else {
+        eprintln!(
+            "SKIPPED: the nats-server binary is not installed (apt-get install nats-server; \
+             .ci/run installs it)"
+        );
+        return;
+    };
+    let root = std::env::temp_dir().join(format!("lightfarm-farm-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    let (_nats, url) = start_nats(&nats, &root.join("nats"));
+
+    let replica_a = Replica::start(&url, &root.join("a"));
+    let replica_b = Replica::start(&url, &root.join("b"));
+    let (line_sender, lines) = mpsc::channel();
+    let mut workers: Vec<Option<Process>> = (0..3)
+        .map(|i| {
+            Some(start_worker(
+                &url,
+                &root.join(format!("worker-{i}")),
+                i,
+                line_sender.clone(),
+            ))
+        })
+        .collect();
+    for _ in 0..3 {
+        wait_line(&lines, |l| l.text.contains(": ready"));
+    }
+
+    let scene_text = std::fs::read_to_string(scene_dir("maze").join("scene.json")).unwrap();
+    let scene = replica_a.client().create_scene(&scene_text).unwrap();
+    let submitted = replica_a
+        .client()
+        .submit_bake(&scene.id, maze_settings(64))
+        .unwrap();
+    assert!(!submitted.cached);
+
+    // Replica B watches the bake it did not take.
+    let watcher = {
+        let client = replica_b.client();
+        let id = submitted.id.clone();
+        std::thread::spawn(move || client.events(&id).unwrap().collect::<Vec<BakeEvent>>())
+    };
+
+    // A worker dies in the middle of a unit: another one takes the unit again.
+    let first = wait_line(&lines, |l| started_unit(&l.text).is_some());
+    let (job, unit) = started_unit(&first.text).unwrap();
+    assert_eq!(job, submitted.id);
+    workers[first.worker].take(); // SIGKILL
+    let killed_at = Instant::now();
+    let again = wait_line(&lines, |l| {
+        started_unit(&l.text).is_some_and(|(j, u)| j == job && u == unit)
+    });
+    assert_ne!(again.worker, first.worker);
+    eprintln!(
+        "unit {unit} delivered again {:.1} s after its worker was killed",
+        again.at.saturating_duration_since(killed_at).as_secs_f64()
+    );
+
+    // Replica A dies and comes back mid-bake: the job lives in the farm, not in the replica.
+    replica_a.kill9();
+    let replica_a = Replica::start(&url, &root.join("a"));
+    let status = replica_a.client().bake_status(&submitted.id).unwrap();
+    assert_eq!(status.id, submitted.id);
+    let done = replica_a.client().wait(&submitted.id, PATIENCE).unwrap();
+    assert_eq!(done.state, JobState::Succeeded, "{:?}", done.error);
+    let hash = done.bundle.clone().unwrap();
+
+    let events = watcher.join().unwrap();
+    assert!(
+        events
+            .iter()
+            .any(|e| matches!(e, BakeEvent::Stage { stage, .. } if stage.starts_with("units"))),
+        "{events:?}"
+    );
+    let Some(BakeEvent::State {
+        state: JobState::Succeeded,
+        bundle: Some(streamed),
+        ..
+    }) = events.last()
+    else {
+        panic!(
+            "replica B's stream did not end with success: {:?}",
+            events.last()
+        );
+    };
+    assert_eq!(streamed, &hash);
+
+    // The farm's bundle, fetched from the other replica, is the embedded bake's, byte for byte.
+    let fetched = replica_b
+        .client()
+        .fetcher(root.join("client-cache"))
+        .fetch(&replica_b.client().bundle_url(&hash))
+        .unwrap();
+    assert!(
+        fetched.bytes == embedded_bundle(64),
+        "the farm's bundle differs from the embedded bake"
+    );
+
+    // The same bake again is answered from the finished job, on either replica.
+    let again = replica_b
+        .client()
+        .submit_bake(&scene.id, maze_settings(64))
+        .unwrap();
+    assert!(again.cached);
+    assert_eq!(again.bundle.as_deref(), Some(hash.as_str()));
+
+    // Cancel on replica B stops a bake submitted on replica A, units included.
+    let second = replica_a
+        .client()
+        .submit_bake(&scene.id, maze_settings(16384))
+        .unwrap();
+    let running = wait_line(&lines, |l| {
+        started_unit(&l.text).is_some_and(|(j, _)| j == second.id)
+    });
+    let cancelled = replica_b.client().cancel_bake(&second.id).unwrap();
+    assert_eq!(cancelled.state, JobState::Cancelled);
+    wait_line(&lines, |l| {
+        l.worker == running.worker
+            && l.text.contains(": cancelled unit ")
+            && l.text.contains(&second.id)
+    });
+    let status = replica_a.client().bake_status(&second.id).unwrap();
+    assert_eq!(status.state, JobState::Cancelled);
+    assert!(status.bundle.is_none());
+
+    drop(workers);
+    drop(replica_a);
+    drop(replica_b);
+    let _ = std::fs::remove_dir_all(&root);
+}
