@@ -43,14 +43,28 @@ async fn key_value(js: &jetstream::Context, bucket: &str) -> Result<kv::Store, F
     if let Ok(store) = js.get_key_value(bucket).await {
         return Ok(store);
     }
-    js.create_key_value(kv::Config {
-        bucket: bucket.to_string(),
-        history: 1,
+    // The bucket's stream as `create_key_value` would make it. Not through `create_key_value`
+    // itself: it first reads the account info, whose 2.9-server form async-nats 0.51 does not
+    // parse.
+    js.get_or_create_stream(stream::Config {
+        name: format!("KV_{bucket}"),
+        subjects: vec![format!("$KV.{bucket}.>")],
+        max_messages_per_subject: 1,
+        max_message_size: -1,
         storage: stream::StorageType::File,
+        allow_rollup: true,
+        deny_delete: true,
+        allow_direct: true,
+        num_replicas: 1,
+        discard: stream::DiscardPolicy::New,
+        duplicate_window: Duration::from_secs(120),
         ..Default::default()
     })
     .await
-    .map_err(|e| FarmError::nats(format!("KV bucket {bucket}"), e))
+    .map_err(|e| FarmError::nats(format!("KV bucket {bucket}"), e))?;
+    js.get_key_value(bucket)
+        .await
+        .map_err(|e| FarmError::nats(format!("KV bucket {bucket}"), e))
 }
 
 async fn objects(
