@@ -39,4 +39,3 @@ pub mod shape_cache;
 pub mod tracer;
 pub mod transport;
 pub mod transport_compaction;
-pub mod units;
