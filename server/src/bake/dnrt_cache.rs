@@ -83,6 +83,11 @@ impl DnrtCache {
         self.dir.join(format!("{key}.lfdnrt"))
     }
 
+    /// Where the grid with this key lives, relative to the operator cache directory.
+    pub fn relative_path(key: &str) -> PathBuf {
+        PathBuf::from("dnrt").join(format!("{key}.lfdnrt"))
+    }
+
     /// The cached grid under `key`, renamed to `object`.
     pub fn get(&self, key: &str, object: &str) -> DnrtLookup {
         let path = self.path(key);
