@@ -19,8 +19,9 @@ DEFAULT_VARIANTS = [
     '64 4 u8 regular intermediate 256', '16 9 u8 regular intermediate 256',
     '32 9 u8 regular intermediate 256', '64 9 u8 regular intermediate 256',
     '32 9 f16 regular intermediate 256', '32 9 f32 regular intermediate 256',
-    '32 9 u8 quadratic intermediate 256', '32 9 u8 regular convolution 256',
-    '32 4 u8 regular convolution 256',
+    '32 4 f32 regular intermediate 256', '32 9 u8 quadratic intermediate 256',
+    '32 9 u8 regular intermediate 1024', '16 9 u8 regular convolution 256',
+    '32 9 u8 regular convolution 256', '32 4 u8 regular convolution 256',
 ]
 
 

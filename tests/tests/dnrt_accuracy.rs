@@ -51,8 +51,8 @@ fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
     assert_eq!(report.dnrt.len(), 1);
     assert_eq!(
         report.dnrt[0].2,
-        16 * 16 * 16 * 3 * 9,
-        "u8: one byte per value"
+        16 * 16 * 16 * 4 * 9,
+        "u8: one byte per value (t_j in R, G, B and k_j)"
     );
     let without = LightSet {
         poses: vec![],

@@ -9,10 +9,15 @@ use std::path::{Path, PathBuf};
 
 use lightfarm_proto::scene::Transform;
 
+use super::mesh_albedo::{texture_from_gltf, MeshAlbedo, TriangleAlbedo};
+
 /// A triangle mesh in world coordinates (metres).
 #[derive(Clone, Debug, Default)]
 pub struct TriangleMesh {
     pub triangles: Vec<[[f64; 3]; 3]>,
+    /// The surface colours a glTF carries (base colour factor, `COLOR_0`, base-colour
+    /// texture), aligned with `triangles`; empty for OBJ files.
+    pub albedo: MeshAlbedo,
     /// Zero-area triangles that were dropped.
     pub dropped_degenerate: usize,
 }
@@ -28,6 +33,8 @@ pub enum MeshError {
     },
     #[error("{object}: triangle {triangle} has a non-finite vertex")]
     NonFinite { object: String, triangle: usize },
+    #[error("{object}: triangle {triangle} has a non-finite colour or texture coordinate")]
+    NonFiniteColour { object: String, triangle: usize },
     #[error("{object}: mesh has {count} triangles, more than the limit of {limit}")]
     TooLarge {
         object: String,
@@ -55,7 +62,8 @@ pub fn load_mesh(
         message,
     };
     let lower = relative.to_ascii_lowercase();
-    let raw: Vec<[[f64; 3]; 3]> = if lower.ends_with(".obj") {
+    let mut textures = Vec::new();
+    let raw: Vec<([[f64; 3]; 3], Option<TriangleAlbedo>)> = if lower.ends_with(".obj") {
         let (models, _) = tobj::load_obj(
             &path,
             &tobj::LoadOptions {
@@ -83,12 +91,13 @@ pub fn load_mesh(
                 {
                     return Err(read_err("face index out of range".into()));
                 }
-                tris.push([vertex(idx[0]), vertex(idx[1]), vertex(idx[2])]);
+                tris.push(([vertex(idx[0]), vertex(idx[1]), vertex(idx[2])], None));
             }
         }
         tris
     } else {
-        let (doc, buffers, _) = gltf::import(&path).map_err(|e| read_err(e.to_string()))?;
+        let (doc, buffers, images) = gltf::import(&path).map_err(|e| read_err(e.to_string()))?;
+        textures = images.iter().map(texture_from_gltf).collect();
         let mut tris = Vec::new();
         let scene = doc.default_scene().or_else(|| doc.scenes().next());
         let Some(scene) = scene else {
@@ -114,13 +123,59 @@ pub fn load_mesh(
                         Some(i) => i.into_u32().collect(),
                         None => (0..pos.len() as u32).collect(),
                     };
+                    // Base colour: factor × COLOR_0 × texture (at TEXCOORD_n).
+                    let pbr = prim.material().pbr_metallic_roughness();
+                    let factor = pbr.base_color_factor().map(|x| x as f64);
+                    let colours: Option<Vec<[f64; 3]>> = reader
+                        .read_colors(0)
+                        .map(|c| c.into_rgb_f32().map(|v| v.map(|x| x as f64)).collect());
+                    let texture = pbr.base_color_texture().and_then(|info| {
+                        let uv: Vec<[f64; 2]> = reader
+                            .read_tex_coords(info.tex_coord())?
+                            .into_f32()
+                            .map(|v| v.map(|x| x as f64))
+                            .collect();
+                        Some((uv, info.texture().source().index() as u32))
+                    });
+                    let coloured = colours.is_some()
+                        || texture.is_some()
+                        || factor[..3].iter().any(|x| *x != 1.0);
                     for idx in indices.chunks_exact(3) {
                         let get = |i: u32| {
                             pos.get(i as usize)
                                 .copied()
                                 .ok_or_else(|| read_err("index out of range".into()))
                         };
-                        tris.push([get(idx[0])?, get(idx[1])?, get(idx[2])?]);
+                        let tri = [get(idx[0])?, get(idx[1])?, get(idx[2])?];
+                        let albedo = if coloured {
+                            let colour = |i: u32| -> Result<[f64; 3], MeshError> {
+                                let c = match &colours {
+                                    Some(c) => *c.get(i as usize).ok_or_else(|| {
+                                        read_err("COLOR_0 index out of range".into())
+                                    })?,
+                                    None => [1.0; 3],
+                                };
+                                Ok(std::array::from_fn(|k| factor[k] * c[k]))
+                            };
+                            let texture = match &texture {
+                                Some((uv, image)) => {
+                                    let at = |i: u32| {
+                                        uv.get(i as usize).copied().ok_or_else(|| {
+                                            read_err("TEXCOORD index out of range".into())
+                                        })
+                                    };
+                                    Some(([at(idx[0])?, at(idx[1])?, at(idx[2])?], *image))
+                                }
+                                None => None,
+                            };
+                            Some(TriangleAlbedo {
+                                vertex: [colour(idx[0])?, colour(idx[1])?, colour(idx[2])?],
+                                texture,
+                            })
+                        } else {
+                            None
+                        };
+                        tris.push((tri, albedo));
                     }
                 }
             }
@@ -136,7 +191,21 @@ pub fn load_mesh(
         });
     }
     let mut mesh = TriangleMesh::default();
-    for (k, tri) in raw.into_iter().enumerate() {
+    mesh.albedo.textures = textures;
+    for (k, (tri, albedo)) in raw.into_iter().enumerate() {
+        if albedo.as_ref().is_some_and(|a| {
+            a.vertex.iter().flatten().any(|x| !x.is_finite())
+                || a.texture
+                    .iter()
+                    .flat_map(|t| t.0)
+                    .flatten()
+                    .any(|x| !x.is_finite())
+        }) {
+            return Err(MeshError::NonFiniteColour {
+                object: object.to_string(),
+                triangle: k,
+            });
+        }
         if tri.iter().flatten().any(|x| !x.is_finite()) {
             return Err(MeshError::NonFinite {
                 object: object.to_string(),
@@ -149,6 +218,10 @@ pub fn load_mesh(
             continue;
         }
         mesh.triangles.push(world);
+        mesh.albedo.triangles.push(albedo.map(|a| TriangleAlbedo {
+            vertex: a.vertex.map(|v| v.map(|x| x.clamp(0.0, 1.0))),
+            ..a
+        }));
     }
     if mesh.triangles.is_empty() {
         return Err(MeshError::Empty {

@@ -21,6 +21,7 @@ use super::dnrt_cache::{dnrt_key, DnrtCache, DnrtLookup};
 use super::drt::{build_drt, DeltaBlock, DrtStats};
 use super::geometry::{Geometry, GeometryError, Primitive};
 use super::mesh::load_mesh;
+use super::mesh_albedo::SurfaceAlbedo;
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
 use super::probe_volume::build_probe_volume;
 use super::progress::Progress;
@@ -397,6 +398,7 @@ pub fn bake(
             let key = dnrt_key(
                 &mesh.triangles,
                 object.albedo,
+                &mesh.albedo,
                 &settings.dnrt,
                 settings.seed,
             );
@@ -404,10 +406,19 @@ pub fn bake(
             let grid = match cache.as_ref().map(|c| c.get(&key, &object.id)) {
                 Some(DnrtLookup::Hit(grid)) => *grid,
                 _ => {
+                    // The mesh's own colours where it has them, the object's albedo elsewhere.
+                    let albedo = if mesh.albedo.is_empty() {
+                        SurfaceAlbedo::Uniform(object.albedo)
+                    } else {
+                        SurfaceAlbedo::Mesh {
+                            albedo: &mesh.albedo,
+                            fallback: object.albedo,
+                        }
+                    };
                     let grid = bake_dnrt_grid(
                         &object.id,
                         &mesh.triangles,
-                        object.albedo,
+                        albedo,
                         &settings.dnrt,
                         settings.seed,
                     );
