@@ -323,4 +323,89 @@ mod tests {
             load_mesh("clutter \"x\"", &dir, "missing.obj", &Transform::default()).unwrap_err();
         assert!(missing.to_string().contains("missing.obj"), "{missing}");
     }
+
+    /// A PNG (8-bit RGB, stored deflate block) of `w × h` pixels, row-major from the top.
+    fn png(w: u32, h: u32, rgb: &[[u8; 3]]) -> Vec<u8> {
+        fn crc32(bytes: &[u8]) -> u32 {
+            let mut c = 0xffff_ffffu32;
+            for b in bytes {
+                c ^= *b as u32;
+                for _ in 0..8 {
+                    c = if c & 1 != 0 {
+                        0xedb8_8320 ^ (c >> 1)
+                    } else {
+                        c >> 1
+                    };
+                }
+            }
+            !c
+        }
+        let mut raw = Vec::new();
+        for row in rgb.chunks_exact(w as usize) {
+            raw.push(0u8); // filter: none
+            raw.extend(row.iter().flatten());
+        }
+        let (mut a, mut b) = (1u32, 0u32);
+        for x in &raw {
+            a = (a + *x as u32) % 65521;
+            b = (b + a) % 65521;
+        }
+        let mut z = vec![0x78, 0x01, 0x01];
+        z.extend((raw.len() as u16).to_le_bytes());
+        z.extend((!(raw.len() as u16)).to_le_bytes());
+        z.extend(&raw);
+        z.extend(((b << 16) | a).to_be_bytes());
+        let mut ihdr = Vec::new();
+        ihdr.extend(w.to_be_bytes());
+        ihdr.extend(h.to_be_bytes());
+        ihdr.extend([8, 2, 0, 0, 0]);
+        let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+        for (kind, data) in [(b"IHDR", ihdr), (b"IDAT", z), (b"IEND", Vec::new())] {
+            out.extend((data.len() as u32).to_be_bytes());
+            let mut chunk = kind.to_vec();
+            chunk.extend(&data);
+            out.extend(&chunk);
+            out.extend(crc32(&chunk).to_be_bytes());
+        }
+        out
+    }
+
+    /// A glTF triangle with a base-colour factor and an sRGB texture: the albedo at a hit is
+    /// the factor times the decoded (linear) texel at the interpolated TEXCOORD_0.
+    #[test]
+    fn gltf_base_colour_texture_and_factor_give_the_hit_albedo() {
+        let dir = std::env::temp_dir().join(format!("lf-mesh-tex-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("tex.png"),
+            png(2, 1, &[[188, 94, 0], [255, 255, 255]]),
+        )
+        .unwrap();
+        let pos: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        // Every vertex at u = 0.25 (the first texel's centre).
+        let uv: [[f32; 2]; 3] = [[0.25, 0.5]; 3];
+        let mut bin = Vec::new();
+        for v in pos.iter().flatten().chain(uv.iter().flatten()) {
+            bin.extend(v.to_le_bytes());
+        }
+        std::fs::write(dir.join("tri.bin"), &bin).unwrap();
+        let json = r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
+"meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_0":1},"material":0}]}],
+"materials":[{"pbrMetallicRoughness":{"baseColorFactor":[0.5,1.0,1.0,1.0],"baseColorTexture":{"index":0}}}],
+"textures":[{"source":0}],"images":[{"uri":"tex.png"}],
+"buffers":[{"uri":"tri.bin","byteLength":60}],
+"bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":36},{"buffer":0,"byteOffset":36,"byteLength":24}],
+"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]},
+{"bufferView":1,"componentType":5126,"count":3,"type":"VEC2"}]}"#;
+        std::fs::write(dir.join("tri.gltf"), json).unwrap();
+        let mesh = load_mesh("dynamic \"tri\"", &dir, "tri.gltf", &Transform::default()).unwrap();
+        assert_eq!(mesh.albedo.textures.len(), 1);
+        let a = mesh.albedo.at(0, [0.2, 0.3, 0.5], [0.9; 3]);
+        let lin = |x: f64| ((x / 255.0 + 0.055) / 1.055).powf(2.4);
+        let want = [0.5 * lin(188.0), lin(94.0), 0.0];
+        for c in 0..3 {
+            assert!((a[c] - want[c]).abs() < 1e-4, "{a:?} vs {want:?}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
