@@ -101,12 +101,13 @@ fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
     eprintln!(
         "mean delta (r, g): DNRT ({ours_r:.4}, {ours_g:.4}), reference ({ref_r:.4}, {ref_g:.4})"
     );
-    // The occlusion's strength: with the hidden radiance (Appendix B.2) DNRT takes away 0.90 of
-    // what the reference loses (the rest is mostly the ball's shadow on the walls' direct light,
-    // which DNRT does not model); E/π with the point light hidden took 1.16, E/π without it 0.72.
+    // The occlusion's strength: with the hidden radiance (Appendix B.2) DNRT takes away 0.84 of
+    // what the reference loses here (0.90 in dnrt_diagnose, at the texels themselves; the rest is
+    // mostly the ball's shadow on the walls' direct light, which DNRT does not model). Hiding
+    // E/π with the point light in it took 1.16 there, E/π without it 0.72.
     let ratio = ours_g / ref_g;
     assert!(
-        (0.8..1.05).contains(&ratio),
+        (0.75..1.05).contains(&ratio),
         "DNRT / reference mean delta (green) {ratio}"
     );
     assert!(ref_g < 0.0 && ours_g < 0.0, "ref {ref_g}, ours {ours_g}");
