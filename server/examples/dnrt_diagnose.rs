@@ -20,6 +20,8 @@
 //! centre is computed by brute force (uniform rays on the scene without the object) and,
 //! when a bundle is given, compared with what `eval` samples from its probe volume.
 
+#![allow(clippy::needless_range_loop)]
+
 use std::f64::consts::PI;
 use std::path::Path;
 

@@ -169,7 +169,7 @@ pub fn barycentric(v: &[[f64; 3]; 3], p: [f64; 3]) -> [f64; 3] {
     let (d11, d12, d22) = (dot(e1, e1), dot(e1, e2), dot(e2, e2));
     let (d1, d2) = (dot(d, e1), dot(d, e2));
     let den = d11 * d22 - d12 * d12;
-    if !(den > 0.0) {
+    if den.is_nan() || den <= 0.0 {
         return [1.0 / 3.0; 3];
     }
     let b1 = ((d22 * d1 - d12 * d2) / den).clamp(0.0, 1.0);
