@@ -38,6 +38,8 @@ use lightfarm_server::bake::sampling::{sample_cosine_hemisphere, sobol_2d, strea
 use lightfarm_server::bake::tracer::Tracer;
 
 type Rgb = [f64; 3];
+/// SH coefficients per channel.
+type Sh = [[f64; 9]; 3];
 
 fn albedo_of(t: &Tracer, prim: u32) -> Rgb {
     match t.primitives()[prim as usize] {
@@ -233,7 +235,7 @@ fn main() -> anyhow::Result<()> {
     let scale = |c: &[[f64; 9]; 3], w: &[[f64; 9]; 3]| -> [[f64; 9]; 3] {
         std::array::from_fn(|ch| std::array::from_fn(|k| c[ch][k] * w[ch][k]))
     };
-    let variants: Vec<(&str, [[f64; 9]; 3], [[f64; 9]; 3])> = vec![
+    let variants: Vec<(&str, Sh, Sh)> = vec![
         ("probe c, irradiance AR (eval)", c_sum, c_sum),
         ("split c, irradiance AR", c_dir, c_env),
         ("probe c, radiance AR (B.2)", c_sum, scale(&c_sum, &w_rad)),
