@@ -303,7 +303,8 @@ impl Geometry {
         Ok(g)
     }
 
-    /// Adds dynamic objects at the given poses (geometry only).
+    /// Adds dynamic objects at the given poses (geometry only; each triangle's albedo is the
+    /// mesh's own colour at its centroid where it has one, else the object's albedo).
     pub fn add_posed_dynamic(
         &mut self,
         scene: &Scene,
@@ -325,7 +326,13 @@ impl Geometry {
                 &object.mesh,
                 &transform,
             )?;
-            self.add_triangles(&mesh.triangles, object.albedo);
+            // The mesh's own colours (vertex colours, base-colour texture) at each
+            // triangle's centroid: the reference's triangles carry one albedo each.
+            for (k, tri) in mesh.triangles.iter().enumerate() {
+                let albedo = mesh.albedo.at(k, [1.0 / 3.0; 3], object.albedo);
+                self.primitives
+                    .push(Primitive::Triangle { v: *tri, albedo });
+            }
         }
         Ok(())
     }

@@ -29,6 +29,7 @@ pub mod lightfield;
 pub mod lighting_prior;
 pub mod low_rank;
 pub mod mesh;
+pub mod mesh_albedo;
 pub mod one_bounce;
 pub mod pipeline;
 pub mod probe_volume;

@@ -22,6 +22,7 @@ use super::drt::{build_drt, DeltaBlock, DrtStats};
 use super::drt_rays::DrtRayCache;
 use super::geometry::{Geometry, GeometryError, Primitive};
 use super::mesh::load_mesh;
+use super::mesh_albedo::SurfaceAlbedo;
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
 use super::probe_volume::build_probe_volume;
 use super::progress::Progress;
@@ -267,16 +268,26 @@ pub fn dnrt_grid(
     let key = dnrt_key(
         &mesh.triangles,
         object.albedo,
+        &mesh.albedo,
         &settings.dnrt,
         settings.seed,
     );
     if let Some(DnrtLookup::Hit(grid)) = cache.map(|c| c.get(&key, &object.id)) {
         return Ok(*grid);
     }
+    // The mesh's own colours where it has them, the object's albedo elsewhere.
+    let albedo = if mesh.albedo.is_empty() {
+        SurfaceAlbedo::Uniform(object.albedo)
+    } else {
+        SurfaceAlbedo::Mesh {
+            albedo: &mesh.albedo,
+            fallback: object.albedo,
+        }
+    };
     let grid = bake_dnrt_grid(
         &object.id,
         &mesh.triangles,
-        object.albedo,
+        albedo,
         &settings.dnrt,
         settings.seed,
     );

@@ -172,6 +172,7 @@ fn outputs(scene: &Scene, scene_dir: &Path, unit: &BakeUnit) -> Result<Vec<PathB
             let key = dnrt_key(
                 &mesh.triangles,
                 object.albedo,
+                &mesh.albedo,
                 &scene.settings.dnrt,
                 scene.settings.seed,
             );
