@@ -8,7 +8,10 @@ bakes the scene with those DNRT settings, applies its lights with and without th
 `lightfarm eval`, and prints the relative L2 of the DNRT delta (eval with − eval without)
 against the reference delta (reference with − reference without, `--rays` per texel) on the
 texels within two ball radii of the ball's centre, plus the grid bytes and bake seconds the
-bake reports. Indirect light only. Defaults reproduce tests/data/dnrt_accuracy.md.
+bake reports (the bake runs without a warm cache only the first time: the cache under --out is
+keyed by content, so delete it to time bakes again). Each variant's bundle stays in --out
+(b_<variant>.lfb) for the dnrt_apply_time example. Indirect light only. Defaults reproduce
+tests/data/dnrt_accuracy.md.
 """
 import argparse, json, math, os, re, subprocess
 
@@ -19,8 +22,9 @@ DEFAULT_VARIANTS = [
     '64 4 u8 regular intermediate 256', '16 9 u8 regular intermediate 256',
     '32 9 u8 regular intermediate 256', '64 9 u8 regular intermediate 256',
     '32 9 f16 regular intermediate 256', '32 9 f32 regular intermediate 256',
-    '32 9 u8 quadratic intermediate 256', '32 9 u8 regular convolution 256',
-    '32 4 u8 regular convolution 256',
+    '32 4 f32 regular intermediate 256', '32 9 u8 quadratic intermediate 256',
+    '32 9 u8 regular intermediate 1024', '16 9 u8 regular convolution 256',
+    '32 9 u8 regular convolution 256', '32 4 u8 regular convolution 256',
 ]
 
 
@@ -57,14 +61,15 @@ def main():
             'normals': normals, 'rays': int(rays)}}
         # Keep the mesh path valid: write the variant next to the scene's own files.
         path = os.path.join(SCENE, '.variant.json')
+        bundle = out('b_' + '_'.join(v.split()) + '.lfb')
         json.dump(s, open(path, 'w'))
         try:
-            bake = run('bake', path, '-o', out('b.lfb'), '--cache', out('cache'))
+            bake = run('bake', path, '-o', bundle, '--cache', out('cache'))
         finally:
             os.remove(path)
         m = re.search(r'dnrt: "\S+" grid (\d+) bytes in ([0-9.]+)s', bake.stderr)
-        run('eval', out('b.lfb'), '--lights', with_lights, '-o', out('eval_with.json'))
-        run('eval', out('b.lfb'), '--lights', out('noposes.json'), '-o', out('eval_without.json'))
+        run('eval', bundle, '--lights', with_lights, '-o', out('eval_with.json'))
+        run('eval', bundle, '--lights', out('noposes.json'), '-o', out('eval_without.json'))
         ew, eo = load(out('eval_with.json')), load(out('eval_without.json'))
         num = den = 0.0
         n = 0

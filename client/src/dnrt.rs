@@ -2,30 +2,34 @@
 //! (occlusion) the receivers around it, per frame, from its baked transfer grid.
 //!
 //! For a receiver at `x` with unit normal `n` and albedo `ρ`:
-//! `L += ρ (n_o·n)₊ · s(x) · Σ_j c_j M_j(x)` per channel (eq. 16), where `n_o` points from `x` to
-//! the object's bounding-sphere centre, `c_j` are the SH coefficients of the irradiance at the
-//! object (world frame, e.g. [`crate::irradiance_sh_at`] on the probe field, or the engine's
-//! own probes) rotated into the object's frame ([`lightfarm_proto::sh_rotation`]), and `M_j` is
-//! the grid interpolated trilinearly at `x` in the object frame. Inside the inner cube `s = 1`;
+//! `L += ρ (n_o·n)₊ · s(x) · (Σ_j c_j T_j(x) − π Σ_j l_j K_j(x))` per channel (eq. 16 with
+//! reflection and occlusion apart), where `n_o` points from `x` to the object's bounding-sphere
+//! centre, `c_j` are the SH coefficients of the irradiance the object reflects (world frame:
+//! everything that lights it, point lights included, e.g. the engine's light probe),
+//! `l_j` those of the radiance it hides (the surfaces around it, without point lights: e.g.
+//! [`crate::radiance_sh_at`] on the probe field; the paper's anti-radiance `E/π` is
+//! `l_j = c_j/π`), both rotated into the object's frame ([`lightfarm_proto::sh_rotation`]), and
+//! `T_j`, `K_j` the grid interpolated trilinearly at `x` in the object frame. Inside the inner cube `s = 1`;
 //! between the inner and the outer cube (half-sizes `E` and `E_o`, box norm `‖x − c‖∞ = r`) the
 //! inner cube's value on the same ray from the centre (at `x · E/r`) is faded with the inverse
 //! square of the distance, shifted to reach zero at the outer cube:
 //! `s = ((E/r)² − (E/E_o)²) / (1 − (E/E_o)²)`; beyond the outer cube nothing is added.
-//! With a convolution grid (Appendix A) `(n_o·n)₊ Σ_j c_j M_j` is replaced by
-//! `Σ_t (Σ_j c_j G_jt) Y_t(n)` at the receiver's own normal (object frame).
+//! With a convolution grid (Appendix A) `(n_o·n)₊ (…)` is replaced by
+//! `Σ_t (Σ_j c_j T_jt − π Σ_j l_j K_jt) Y_t(n)` at the receiver's own normal (object frame).
 //!
 //! Frames and units: poses map the object frame to the world (`x_world = R x_obj + t`, R from
-//! the pose quaternion `[x, y, z, w]`); metres; output in the radiance units of `c_j`.
+//! the pose quaternion `[x, y, z, w]`); metres; output in the radiance units of `c_j`/π and
+//! `l_j`.
 //!
 //! Invariants: [`DnrtInstance::shade`] never panics and returns finite values for finite
 //! inputs, including receivers inside the object, at its centre or exactly on a grid edge; a
 //! non-finite position or a zero normal adds nothing. The grid is decoded to f32 once
 //! ([`DnrtVolume::new`]); [`DnrtInstance::new`] (once per object and frame) contracts it with
-//! `c_j` into 3 values per grid point (3 · n_sh with convolution; one multiply-add per stored
-//! value); applying to receivers allocates nothing.
+//! `c_j` and `l_j` into 3 values per grid point (3 · n_sh with convolution; one or two
+//! multiply-adds per stored value); applying to receivers allocates nothing.
 
 use lightfarm_proto::bundle::Layout;
-use lightfarm_proto::dnrt_grid::{DnrtGrid, DnrtGridError, DnrtNormals};
+use lightfarm_proto::dnrt_grid::{DnrtGrid, DnrtGridError, DnrtNormals, SLOTS};
 use lightfarm_proto::sh::SH_COEFFS;
 use lightfarm_proto::sh_rotation::{mul_vec, quaternion_matrix, transpose, ShRotation};
 
@@ -77,8 +81,8 @@ pub struct DnrtInstance<'a> {
     centre_world: [f32; 3],
     /// Irradiance SH per channel in the object frame.
     c: [[f32; SH_COEFFS]; 3],
-    /// Per grid point and channel, `Σ_j c_j m_j` (1 value), or with convolution `Σ_j c_j G_jt`
-    /// for every t (n_sh values): contracted once per frame, point-major.
+    /// Per grid point and channel, `Σ_j c_j t_j − π Σ_j l_j k_j` (1 value), or with
+    /// convolution the same per t (n_sh values): contracted once per frame, point-major.
     contracted: Vec<f32>,
     /// Values per channel in `contracted`.
     out_terms: usize,
@@ -87,35 +91,50 @@ pub struct DnrtInstance<'a> {
 
 impl<'a> DnrtInstance<'a> {
     /// `volume` posed at `translation` / `rotation` (quaternion `[x, y, z, w]`) under the
-    /// world-frame irradiance coefficients `irradiance` (per channel, `E(n) = Σ c_j Y_j(n)`;
-    /// coefficients beyond the grid's SH count are ignored).
+    /// world-frame irradiance coefficients `irradiance` the object reflects (per channel,
+    /// `E(n) = Σ c_j Y_j(n)`) and radiance coefficients `hidden` of what it hides
+    /// (`L(ω) = Σ l_j Y_j(ω)`, ω the direction looked in); coefficients beyond the grid's SH
+    /// count are ignored.
     pub fn new(
         volume: &'a DnrtVolume,
         translation: [f64; 3],
         rotation: [f64; 4],
         irradiance: [[f32; SH_COEFFS]; 3],
+        hidden: [[f32; SH_COEFFS]; 3],
     ) -> DnrtInstance<'a> {
         let r = quaternion_matrix(rotation);
         let rt = transpose(&r);
         // Object-frame coefficients of g(ω_obj) = E(R ω_obj) = E((Rᵀ)ᵀ ω_obj).
         let sh_rotation = ShRotation::new(&rt);
-        let c = irradiance.map(|cc| {
-            let mut v = cc.map(|x| x as f64);
-            sh_rotation.apply(&mut v);
-            v.map(|x| x as f32)
-        });
+        let rotate = |f: [[f32; SH_COEFFS]; 3], scale: f64| {
+            f.map(|cc| {
+                let mut v = cc.map(|x| x as f64 * scale);
+                sh_rotation.apply(&mut v);
+                v.map(|x| x as f32)
+            })
+        };
+        let c = rotate(irradiance, 1.0);
+        let l = rotate(hidden, std::f64::consts::PI);
         let centre = volume.grid.centre.map(|x| x as f64);
         let rc = mul_vec(&r, centre);
         let n_sh = volume.grid.n_sh as usize;
         let convolution = volume.grid.normals == DnrtNormals::Convolution;
         let out_terms = if convolution { n_sh } else { 1 };
         let terms = volume.grid.terms();
-        let mut contracted = Vec::with_capacity(volume.values.len() / terms * out_terms);
-        for (k, m) in volume.values.chunks_exact(terms).enumerate() {
-            let cc = &c[k % 3][..n_sh];
-            for t in 0..out_terms {
-                // Term (j, t) sits at j · out_terms + t (out_terms = 1: the SH index j).
-                contracted.push((0..n_sh).map(|j| cc[j] * m[j * out_terms + t]).sum());
+        let mut contracted =
+            Vec::with_capacity(volume.values.len() / (SLOTS * terms) * 3 * out_terms);
+        for point in volume.values.chunks_exact(SLOTS * terms) {
+            let k = &point[3 * terms..];
+            for (ch, t_ch) in point[..3 * terms].chunks_exact(terms).enumerate() {
+                let (cc, ll) = (&c[ch][..n_sh], &l[ch][..n_sh]);
+                for t in 0..out_terms {
+                    // Term (j, t) sits at j · out_terms + t (out_terms = 1: the SH index j).
+                    contracted.push(
+                        (0..n_sh)
+                            .map(|j| cc[j] * t_ch[j * out_terms + t] - ll[j] * k[j * out_terms + t])
+                            .sum(),
+                    );
+                }
             }
         }
         DnrtInstance {
@@ -333,8 +352,12 @@ mod tests {
     use super::*;
     use lightfarm_proto::dnrt_grid::{DnrtCodec, DnrtPlacement};
 
-    /// A grid whose `m_j` is an affine function of the object-frame position, so trilinear
-    /// interpolation reproduces it exactly.
+    /// A grid whose `t_j` and `k_j` are affine functions of the object-frame position, so
+    /// trilinear interpolation reproduces them exactly.
+    fn affine(slot: usize, s: usize, x: [f64; 3]) -> f64 {
+        (0.01 * (1 + s + slot) as f64) * (1.0 + 0.2 * x[0] - 0.1 * x[1]) + 0.05 * x[2]
+    }
+
     fn affine_grid(n: u32, n_sh: u32, placement: DnrtPlacement) -> DnrtGrid {
         let mut g = DnrtGrid::encode_values(
             "probe",
@@ -347,7 +370,7 @@ mod tests {
             placement,
             DnrtNormals::Intermediate,
             DnrtCodec::F32,
-            vec![[0.0, 0.0]; n_sh as usize],
+            vec![[0.0, 0.0]; 2 * n_sh as usize],
             &[],
         );
         let nn = n as usize;
@@ -356,12 +379,9 @@ mod tests {
             for j in 0..nn {
                 for i in 0..nn {
                     let x = [g.offset(i), g.offset(j), g.offset(k)];
-                    for ch in 0..3 {
+                    for ch in 0..4 {
                         for s in 0..n_sh as usize {
-                            values.push(
-                                (0.01 * (1 + s + ch) as f64) * (1.0 + 0.2 * x[0] - 0.1 * x[1])
-                                    + 0.05 * x[2],
-                            );
+                            values.push(affine(ch, s, x));
                         }
                     }
                 }
@@ -377,18 +397,18 @@ mod tests {
         let grid = affine_grid(5, 9, DnrtPlacement::Regular);
         let volume = DnrtVolume::new(&grid).unwrap();
         let c = [[1.0; 9], [0.5; 9], [0.25; 9]];
-        let inst = DnrtInstance::new(&volume, [2.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0], c);
+        let l = [[0.1; 9], [0.2; 9], [0.3; 9]];
+        let inst = DnrtInstance::new(&volume, [2.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0], c, l);
         let centre = inst.centre_world();
-        // Exact inside the inner cube.
+        // Exact inside the inner cube: Σ c_j t_j − π Σ l_j k_j (identity rotation).
         let x = [0.37f32, -0.81, 1.2];
         let m = inst.transfer(std::array::from_fn(|k| x[k] + grid.centre[k]));
+        let xd = x.map(|v| v as f64);
         for ch in 0..3 {
             let want: f64 = (0..9)
                 .map(|s| {
-                    inst.c[ch][s] as f64
-                        * ((0.01 * (1 + s + ch) as f64)
-                            * (1.0 + 0.2 * x[0] as f64 - 0.1 * x[1] as f64)
-                            + 0.05 * x[2] as f64)
+                    inst.c[ch][s] as f64 * affine(ch, s, xd)
+                        - std::f64::consts::PI * l[ch][s] as f64 * affine(3, s, xd)
                 })
                 .sum();
             assert!(
@@ -451,7 +471,13 @@ mod tests {
     fn gbuffer_and_texel_paths_agree_and_lengths_are_checked() {
         let grid = affine_grid(4, 4, DnrtPlacement::Quadratic);
         let volume = DnrtVolume::new(&grid).unwrap();
-        let inst = DnrtInstance::new(&volume, [0.0; 3], [0.0, 0.38, 0.0, 0.92], [[0.3; 9]; 3]);
+        let inst = DnrtInstance::new(
+            &volume,
+            [0.0; 3],
+            [0.0, 0.38, 0.0, 0.92],
+            [[0.3; 9]; 3],
+            [[0.05; 9]; 3],
+        );
         let positions: Vec<[f32; 3]> = (0..50)
             .map(|i| [0.05 * i as f32 - 1.0, 0.3, 0.02 * i as f32])
             .collect();
@@ -493,9 +519,10 @@ mod tests {
     #[test]
     fn convolution_grids_use_the_receiver_normal_in_the_object_frame() {
         let n = 3usize;
-        let mut values = vec![0.0f64; n * n * n * 3 * 16];
+        // Reflection slots only (the occlusion slot, every 4th run of 16, stays zero).
+        let mut values = vec![0.0f64; n * n * n * 4 * 16];
         for (k, v) in values.iter_mut().enumerate() {
-            if k % 16 == 3 {
+            if k % 16 == 3 && (k / 16) % 4 != 3 {
                 *v = 0.25;
             }
         }
@@ -510,7 +537,7 @@ mod tests {
             DnrtPlacement::Regular,
             DnrtNormals::Convolution,
             DnrtCodec::F32,
-            vec![[0.0, 0.25]; 16],
+            vec![[0.0, 0.25]; 32],
             &values,
         );
         let volume = DnrtVolume::new(&grid).unwrap();
@@ -518,7 +545,7 @@ mod tests {
         let mut c = [[0.0f32; 9]; 3];
         c[0][0] = 2.0;
         c[1][0] = 1.0;
-        let inst = DnrtInstance::new(&volume, [1.0, 0.0, 0.0], [0.0, 0.0, h, h], c);
+        let inst = DnrtInstance::new(&volume, [1.0, 0.0, 0.0], [0.0, 0.0, h, h], c, [[0.0; 9]; 3]);
         // A receiver 0.4 m from the centre along world +y, facing +y (away from the object).
         let p = [1.0, 0.4, 0.0];
         let up = inst.shade(p, [0.0, 1.0, 0.0], [0.5; 3]);

@@ -70,7 +70,7 @@ pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};
 pub use occluders::Occluders;
-pub use probes::{irradiance_at, irradiance_sh_at, ProbeField};
+pub use probes::{irradiance_at, irradiance_sh_at, radiance_sh_at, ProbeField};
 pub use runtime::{ApplyError, IndirectLight, Method, Runtime};
 #[cfg(feature = "fetch")]
 pub use service::{ServiceClient, ServiceError};

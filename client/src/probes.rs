@@ -156,6 +156,21 @@ pub fn irradiance_at(
     })
 }
 
+/// The SH coefficients `L_lm` of the incident radiance `L(ω) = Σ L_lm Y_lm(ω)` (ω the
+/// direction looked in) per channel at `position`, interpolated as in [`irradiance_at`]: the
+/// radiance of the surfaces around a dynamic object, which DNRT's occlusion hides. Zeros where
+/// there is no usable probe.
+pub fn radiance_sh_at(
+    volume: &ProbeVolume,
+    field: &ProbeField,
+    position: [f32; 3],
+) -> [[f32; SH_COEFFS]; CHANNELS] {
+    let Some(l) = interpolate(volume, field, position) else {
+        return [[0.0; SH_COEFFS]; CHANNELS];
+    };
+    l.map(|lc| lc.map(|x| x as f32))
+}
+
 /// The SH coefficients `c_lm = Â_l L_lm` of the irradiance `E(n) = Σ c_lm Y_lm(n)` per channel
 /// at `position` (radiance interpolated as in [`irradiance_at`]), e.g. the input of DNRT for a
 /// dynamic object at `position`. Zeros where [`irradiance_at`] gives zeros for lack of a probe.

@@ -144,6 +144,9 @@ pub enum BakeEvent {
     },
     /// A stage began with `total` work items.
     Stage { stage: String, total: u64 },
+    /// The first `bytes` bytes of the bundle are final and can be read from
+    /// `GET /v1/bakes/{id}/bundle` (the sections named; later ones follow as they finish).
+    Sections { sections: Vec<String>, bytes: u64 },
     /// Progress within the current stage.
     Progress {
         stage: String,
@@ -160,6 +163,7 @@ impl BakeEvent {
         match self {
             BakeEvent::State { .. } => "state",
             BakeEvent::Stage { .. } => "stage",
+            BakeEvent::Sections { .. } => "sections",
             BakeEvent::Progress { .. } => "progress",
         }
     }

@@ -21,7 +21,7 @@ use crate::wire::{Reader, WireError, Writer};
 
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 pub const BUNDLE_MAJOR: u16 = 1;
-pub const BUNDLE_MINOR: u16 = 0;
+pub const BUNDLE_MINOR: u16 = 1;
 
 /// Section kinds.
 pub mod section {
@@ -32,7 +32,9 @@ pub mod section {
     pub const FULL: u32 = 5;
     pub const DRT: u32 = 6;
     pub const PROBES: u32 = 7;
-    pub const DNRT: u32 = 8;
+    /// DNRT grids with `t_j` and `k_j` apart (minor 1). Kind 8 held the paper's `m_j` (minor 0)
+    /// and is no longer read: such a bundle decodes without grids.
+    pub const DNRT: u32 = 9;
 }
 
 /// Report name of a section kind.

@@ -104,6 +104,17 @@ pub fn write_container(
     (w.bytes, infos)
 }
 
+/// Where the closing table of contents starts in a complete container (from its footer): the
+/// bytes before it are the header and every section, i.e. what a streaming reader can use.
+pub fn sections_end(bytes: &[u8]) -> Option<usize> {
+    let n = bytes.len();
+    if n < 16 + 8 || &bytes[n - 8..] != MAGIC {
+        return None;
+    }
+    let end = u64::from_le_bytes(bytes[n - 16..n - 8].try_into().ok()?);
+    (end >= 12 && end <= (n - 16) as u64).then_some(end as usize)
+}
+
 fn write_section(w: &mut Writer, kind: u32, flags: u32, stored: &[u8], raw_len: u64) {
     w.u32(kind);
     w.u32(flags);

@@ -1,6 +1,16 @@
-//! The on-wire DNRT grid of one dynamic object (paper 003 §5.1): transfer coefficients
-//! `m_j = t_j − k_j` per RGB channel and SH index at the points of a grid around the object,
-//! with the codecs the paper stores them in (8-bit with per-coefficient ranges) and f16 / f32.
+//! The on-wire DNRT grid of one dynamic object (paper 003 §5.1): the reflection coefficients
+//! `t_j` per RGB channel and the occlusion coefficients `k_j` (one set: they do not depend on
+//! the albedo) per SH index at the points of a grid around the object, with the codecs the
+//! paper stores them in (8-bit with per-coefficient ranges) and f16 / f32.
+//!
+//! The paper stores `m_j = t_j − k_j`, which ties what the object reflects and what it hides to
+//! one set of coefficients `c_j`. They differ: the object reflects all the light it receives
+//! (point lights included), but hides only the radiance of the surfaces behind it (a point
+//! light it hides is its direct shadow, which is not indirect light). Keeping `k_j` apart costs
+//! one value per SH index and point (4 instead of 3 per term: +33%) and lets the client
+//! contract `Σ_j c_j t_j − π Σ_j l_j k_j` with the irradiance `c_j` the object reflects and the
+//! radiance `l_j` it hides (Appendix B.2's radiance instead of eq. 12's `E/π`; measured in
+//! `tests/data/dnrt_accuracy.md`).
 //!
 //! Frames and units: the grid lives in the object's own frame (the mesh file's coordinates,
 //! metres). `centre` and `radius` are the object's bounding sphere. The grid spans the inner
@@ -8,21 +18,23 @@
 //! `(i, j, k)` sits at `centre + (offset(i), offset(j), offset(k))` where `offset` depends on
 //! the [`DnrtPlacement`] ([`DnrtGrid::offset`]). Beyond the inner cube and up to the outer cube
 //! `centre ± outer_half_extent` the client fades the inner boundary's value to zero (§5.2.2).
-//! `m_j` is in radiance per unit irradiance coefficient: `L = ρ (n_o·n)₊ Σ_j c_j m_j` with
-//! `c_j` the SH coefficients of the irradiance `E(n) = Σ_j c_j Y_j(n)` in the object frame.
+//! `t_j` and `k_j` are in radiance per unit coefficient: `L = ρ (n_o·n)₊ (Σ_j c_j t_j −
+//! π Σ_j l_j k_j)` with `c_j` the SH coefficients of the irradiance `E(n) = Σ_j c_j Y_j(n)` and
+//! `l_j` those of the hidden radiance `L(ω) = Σ_j l_j Y_j(ω)`, in the object frame.
 //!
-//! Value layout: `((point · 3) + channel) · terms + term`, point `= (k · n + j) · n + i`;
-//! a term is the SH index j (`terms = n_sh`), or with [`DnrtNormals::Convolution`] (Appendix A)
-//! the pair `j · n_sh + t` (`terms = n_sh²`).
+//! Value layout: `((point · 4) + slot) · terms + term`, point `= (k · n + j) · n + i`, slots
+//! 0–2 `t_j` in R, G, B and slot 3 `k_j`; a term is the SH index j (`terms = n_sh`), or with
+//! [`DnrtNormals::Convolution`] (Appendix A) the pair `j · n_sh + t` (`terms = n_sh²`).
+//! `ranges` has `2 · terms` entries: the reflection slots' ranges, then the occlusion slot's.
 //!
-//! Analytic bounds (paper Table 1 in our units): `m_0 ∈ [−Y_0/π, 0]` and, for `j ≥ 1`,
-//! `|m_j| ≤ 2 max|Y_j| / π`, because `∫_D cos θ dω ≤ π`, the `1/π²` of eq. 8 and 13, and
-//! `ρ < 1` (so `t_0 ≤ k_0`). The paper's Table 1 is the same bound without the `1/π`
-//! (its irradiance is pre-divided by π).
+//! Analytic bounds (paper Table 1 in our units): `t_0, k_0 ∈ [0, Y_0/π]` and, for `j ≥ 1`,
+//! `|t_j|, |k_j| ≤ max|Y_j| / π`, because `∫_D cos θ dω ≤ π`, the `1/π²` of eq. 8 and 13, and
+//! `ρ ≤ 1`; so `m_j = t_j − k_j` lies in `[−Y_0/π, Y_0/π]` and `±2 max|Y_j|/π`, the paper's
+//! Table 1 without its `1/π` (its irradiance is pre-divided by π).
 //!
 //! Invariant: a grid that passed [`DnrtGrid::validate`] (every [`DnrtGrid::read`] runs it) has
 //! resolution ≥ 2, `n_sh ∈ {4, 9}`, finite positive extents with outer ≥ inner, finite ordered
-//! ranges, exactly `resolution³ · 3 · terms` values and only finite ones.
+//! ranges, exactly `resolution³ · 4 · terms` values and only finite ones.
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -139,36 +151,52 @@ pub const MAX_ABS_BASIS: [f64; 9] = [
     0.546_274_215_296_039_6,
 ];
 
-/// The analytic range of `m_j` (module doc; paper Table 1 divided by π).
+/// Values stored per grid point and term: `t_j` in R, G, B and `k_j`.
+pub const SLOTS: usize = 4;
+
+/// The analytic range of `t_j` and of `k_j` (module doc; paper Table 1 divided by π).
 pub fn analytic_range(j: usize) -> [f64; 2] {
     let pi = std::f64::consts::PI;
     if j == 0 {
-        [-MAX_ABS_BASIS[0] / pi, 0.0]
+        [0.0, MAX_ABS_BASIS[0] / pi]
     } else {
-        let b = 2.0 * MAX_ABS_BASIS[j] / pi;
+        let b = MAX_ABS_BASIS[j] / pi;
         [-b, b]
     }
 }
 
-/// The analytic range of a convolved term `G_jt` ([`DnrtNormals::Convolution`]):
-/// `|G_jt| ≤ Â_t · max|Y_t| · 2 max|Y_j| · 4π/π²` (the integrand of `f_j` is at most
-/// `2 max|Y_j|/π²` over at most 4π sr).
+/// The analytic range of a convolved term ([`DnrtNormals::Convolution`]), reflection
+/// `Â_t ∫_D ρ Y_j(n_s) Y_t(ω)/π² dω` or occlusion `Â_t ∫_D Y_j(ω) Y_t(ω)/π² dω`:
+/// at most `Â_t · max|Y_t| · max|Y_j| · 4π/π²` (at most 4π sr).
 pub fn analytic_range_convolved(j: usize, t: usize) -> [f64; 2] {
     let a = crate::sh::irradiance_weights()[t];
-    let b = a * MAX_ABS_BASIS[t] * 2.0 * MAX_ABS_BASIS[j] * 4.0 / std::f64::consts::PI;
+    let b = a * MAX_ABS_BASIS[t] * MAX_ABS_BASIS[j] * 4.0 / std::f64::consts::PI;
     [-b, b]
 }
 
-/// The analytic range of term `k` of `terms(n_sh, normals)`.
+/// The analytic range of range index `k` (`0..2 · terms`: reflection, then occlusion) of
+/// `terms(n_sh, normals)`.
 pub fn analytic_term_range(k: usize, n_sh: usize, normals: DnrtNormals) -> [f64; 2] {
+    let k = k % terms(n_sh, normals);
     match normals {
         DnrtNormals::Intermediate => analytic_range(k),
         DnrtNormals::Convolution => analytic_range_convolved(k / n_sh, k % n_sh),
     }
 }
 
-/// Per SH coefficient, the range of `values` (layout of the module doc), widened to a
-/// non-empty interval and clamped to the analytic range.
+/// The index into `ranges` of value `k` (layout of the module doc) for `terms` terms.
+#[inline]
+pub fn range_index(k: usize, terms: usize) -> usize {
+    let term = k % terms;
+    if (k / terms) % SLOTS == SLOTS - 1 {
+        terms + term
+    } else {
+        term
+    }
+}
+
+/// Per SH coefficient (reflection, then occlusion), the range of `values` (layout of the
+/// module doc), clamped to the analytic range.
 pub fn fitted_ranges(values: &[f64], n_sh: usize) -> Vec<[f32; 2]> {
     fitted_term_ranges(values, n_sh, DnrtNormals::Intermediate)
 }
@@ -176,19 +204,20 @@ pub fn fitted_ranges(values: &[f64], n_sh: usize) -> Vec<[f32; 2]> {
 /// [`fitted_ranges`] for any normal mode (one range per term, within its analytic range).
 pub fn fitted_term_ranges(values: &[f64], n_sh: usize, normals: DnrtNormals) -> Vec<[f32; 2]> {
     let n_terms = terms(n_sh, normals);
-    (0..n_terms)
-        .map(|j| {
-            let mut lo = f64::INFINITY;
-            let mut hi = f64::NEG_INFINITY;
-            for v in values.iter().skip(j).step_by(n_terms) {
-                lo = lo.min(*v);
-                hi = hi.max(*v);
-            }
-            let [a_lo, a_hi] = analytic_term_range(j, n_sh, normals);
-            if lo > hi {
+    let mut lo = vec![f64::INFINITY; 2 * n_terms];
+    let mut hi = vec![f64::NEG_INFINITY; 2 * n_terms];
+    for (k, v) in values.iter().enumerate() {
+        let r = range_index(k, n_terms);
+        lo[r] = lo[r].min(*v);
+        hi[r] = hi[r].max(*v);
+    }
+    (0..2 * n_terms)
+        .map(|r| {
+            let [a_lo, a_hi] = analytic_term_range(r, n_sh, normals);
+            if lo[r] > hi[r] {
                 return [0.0, 0.0];
             }
-            [lo.max(a_lo) as f32, hi.min(a_hi) as f32]
+            [lo[r].max(a_lo) as f32, hi[r].min(a_hi) as f32]
         })
         .collect()
 }
@@ -218,9 +247,9 @@ impl DnrtGrid {
         terms(self.n_sh as usize, self.normals)
     }
 
-    /// Values per grid point (`3 · terms`).
+    /// Values per grid point (`4 · terms`: [`SLOTS`]).
     pub fn values_per_point(&self) -> usize {
-        3 * self.terms()
+        SLOTS * self.terms()
     }
 
     /// Offset (metres, object frame) of grid index `i` from the centre along one axis.
@@ -269,7 +298,7 @@ impl DnrtGrid {
                 values
                     .iter()
                     .enumerate()
-                    .map(|(k, v)| quantise_u8(*v, ranges[k % n_sh_us]))
+                    .map(|(k, v)| quantise_u8(*v, ranges[range_index(k, n_sh_us)]))
                     .collect(),
             ),
             DnrtCodec::F16 => DnrtData::F16(
@@ -302,7 +331,7 @@ impl DnrtGrid {
             DnrtData::U8(v) => v
                 .iter()
                 .enumerate()
-                .map(|(k, q)| dequantise_u8(*q, self.ranges[k % n_sh]))
+                .map(|(k, q)| dequantise_u8(*q, self.ranges[range_index(k, n_sh)]))
                 .collect(),
             DnrtData::F16(v) => v
                 .iter()
@@ -347,13 +376,13 @@ impl DnrtGrid {
                 "centre, radius and extents must be finite, positive and outer ≥ inner".into(),
             ));
         }
-        if self.ranges.len() != self.terms()
+        if self.ranges.len() != 2 * self.terms()
             || self
                 .ranges
                 .iter()
                 .any(|[lo, hi]| !(lo.is_finite() && hi.is_finite() && lo <= hi))
         {
-            return Err(self.invalid("ranges: one finite [lo, hi] per term".into()));
+            return Err(self.invalid("ranges: two finite [lo, hi] per term".into()));
         }
         let expected = self.n_points() as u64 * self.values_per_point() as u64;
         if self.data.len() as u64 != expected {
@@ -505,7 +534,7 @@ mod tests {
     fn grid(codec: DnrtCodec, placement: DnrtPlacement) -> (DnrtGrid, Vec<f64>) {
         let n = 3u32;
         let n_sh = 4usize;
-        let count = 27 * 3 * n_sh;
+        let count = 27 * SLOTS * n_sh;
         let values: Vec<f64> = (0..count)
             .map(|k| {
                 let j = k % n_sh;
@@ -541,7 +570,7 @@ mod tests {
             assert_eq!(back, g);
             let decoded = back.values();
             for (k, (v, d)) in values.iter().zip(&decoded).enumerate() {
-                let [lo, hi] = g.ranges[k % 4];
+                let [lo, hi] = g.ranges[range_index(k, 4)];
                 let tol = match codec {
                     DnrtCodec::U8 => 0.5 * (hi - lo) as f64 / 255.0 + 1e-6,
                     DnrtCodec::F16 => v.abs() * 4.9e-4 + 1e-7,
@@ -574,13 +603,17 @@ mod tests {
             let over = dequantise_u8(quantise_u8(range[1] + 1.0, r32), r32) as f64;
             assert!((over - range[1]).abs() < 1e-7);
         }
-        // Table 1 of the paper is our bound times π; for j = 4, 5, 7 it takes twice the
-        // basis constant (1.0925) where max|Y_j| is half of it, so ours is tighter there.
+        // Table 1 of the paper (the range of m_j = t_j − k_j) is our bound on m_j times π; for
+        // j = 4, 5, 7 it takes twice the basis constant (1.0925) where max|Y_j| is half of
+        // it, so ours is tighter there.
         let table1 = [
             0.2820, 0.9772, 0.9772, 0.9772, 2.1850, 2.1850, 1.2615, 2.1850, 1.0925,
         ];
         for (j, t) in table1.iter().enumerate() {
-            let ours = (analytic_range(j)[1] - analytic_range(j)[0]) * std::f64::consts::PI;
+            // m_j = t_j − k_j ∈ [t_lo − k_hi, t_hi − k_lo] for j ≥ 1, and m_0 ∈ [−k_0, 0]
+            // (ρ ≤ 1 and Y_0 is constant, so t_0 ≤ k_0).
+            let [lo, hi] = analytic_range(j);
+            let ours = if j == 0 { hi } else { 2.0 * (hi - lo) } * std::f64::consts::PI;
             let paper = if j == 0 { *t } else { 2.0 * t };
             if [4, 5, 7].contains(&j) {
                 assert!((2.0 * ours - paper).abs() < 2e-3, "{j}: {ours} vs {paper}");
@@ -619,7 +652,7 @@ mod tests {
         bad.data = DnrtData::U8(vec![0; 3]);
         assert!(bad.validate().is_err());
         let mut bad = g;
-        bad.data = DnrtData::F32(vec![f32::NAN; 27 * 12]);
+        bad.data = DnrtData::F32(vec![f32::NAN; 27 * 16]);
         assert!(bad.validate().is_err());
     }
 }

@@ -44,13 +44,13 @@ fn main() {
         (0..15)
             .map(|_| {
                 let t = Instant::now();
-                let i = DnrtInstance::new(&volume, pose.0, pose.1, c);
+                let i = DnrtInstance::new(&volume, pose.0, pose.1, c, c);
                 std::hint::black_box(&i);
                 t.elapsed().as_secs_f64() * 1e3
             })
             .collect(),
     );
-    let instance = DnrtInstance::new(&volume, pose.0, pose.1, c);
+    let instance = DnrtInstance::new(&volume, pose.0, pose.1, c, c);
     let (w, h) = (1366usize, 768usize);
     let mut positions = Vec::with_capacity(w * h);
     for j in 0..h {

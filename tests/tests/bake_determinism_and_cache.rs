@@ -66,3 +66,147 @@ fn second_bake_reuses_every_shape_and_corrupt_entries_are_recomputed() {
     );
     let _ = std::fs::remove_dir_all(&cache_dir);
 }
+
+/// Incremental rebake: after one pillar moves, the DRT ray passes trace only the texels that
+/// could see it (old or new place) and reuse the rest from the cache, and the bundle is
+/// byte-identical to a bake without any cache. A corrupt ray-cache entry is dropped and traced
+/// again, with the same bytes.
+#[test]
+fn moving_one_pillar_retraces_its_neighbourhood_only_and_matches_a_fresh_bake() {
+    let (scene, _) = load_scene("maze", 4, 64);
+    let dir = scene_dir("maze");
+    let cache_dir = std::env::temp_dir().join(format!("lf-drt-cache-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&cache_dir);
+    let options = BakeOptions {
+        cache: Some(ShapeCache::open(&cache_dir).unwrap()),
+        full: false,
+        transport: Some(Transport::Lightfield),
+    };
+    let (_, first) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+    let d1 = first.drt.unwrap();
+    assert_eq!(d1.reused_texels, 0);
+    let total = d1.traced_texels;
+
+    let mut moved = scene.clone();
+    let pillar = moved
+        .clutter
+        .iter_mut()
+        .find(|c| c.id == "pillar_n_b")
+        .unwrap();
+    let b = pillar.box_.as_mut().unwrap();
+    b.min[0] += 0.5;
+    b.max[0] += 0.5;
+    let (incremental, second) = bake(&moved, &dir, &options, &NoProgress).unwrap();
+    let d2 = second.drt.unwrap();
+    eprintln!(
+        "one pillar moved: {} of {total} texels traced again, {} reused",
+        d2.traced_texels, d2.reused_texels
+    );
+    assert_eq!(d2.traced_texels + d2.reused_texels, total);
+    assert_eq!(second.shapes_computed, 0);
+    assert!(
+        d2.reused_texels * 3 > total * 2,
+        "only {} of {total} texels reused",
+        d2.reused_texels
+    );
+    let (fresh, _) = bake_scene(&moved, &dir, Transport::Lightfield, false);
+    assert!(
+        incremental.encode() == fresh,
+        "the incremental bake differs from a fresh one"
+    );
+
+    // Corrupt every ray-cache entry: all are dropped, traced again, same bytes.
+    for entry in std::fs::read_dir(cache_dir.join("drt")).unwrap() {
+        let path = entry.unwrap().path();
+        let mut bytes = std::fs::read(&path).unwrap();
+        let mid = bytes.len() / 2;
+        bytes[mid] ^= 0x40;
+        std::fs::write(&path, &bytes).unwrap();
+    }
+    let (again, third) = bake(&moved, &dir, &options, &NoProgress).unwrap();
+    assert_eq!(third.drt.unwrap().reused_texels, 0);
+    assert!(again.encode() == fresh);
+    let _ = std::fs::remove_dir_all(&cache_dir);
+}
+
+/// The farm's units: running every unit of the plan (in any order within a phase, each into the
+/// shared cache directory), then the ordinary bake over that cache, computes nothing more and
+/// gives the bundle of a bake in one piece. A unit run twice leaves identical files.
+#[test]
+fn units_then_assembly_give_the_bundle_of_one_piece() {
+    use lightfarm_server::bake::units::{plan, run_unit, unit_inputs, BakeUnit};
+    for name in ["maze", "ball_corridor"] {
+        let (mut scene, _) = load_scene(name, 4, 32);
+        scene.settings.dnrt.resolution = 6;
+        scene.settings.dnrt.rays = 64;
+        let dir = scene_dir(name);
+        let cache_dir =
+            std::env::temp_dir().join(format!("lf-units-test-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&cache_dir);
+        let cache = ShapeCache::open(&cache_dir).unwrap();
+        let phases = plan(&scene, &dir).unwrap();
+        let mut written = Vec::new();
+        for phase in &phases {
+            // Reverse order: units of a phase do not depend on each other.
+            for unit in phase.iter().rev() {
+                assert_eq!(BakeUnit::parse(&unit.name()).as_ref(), Some(unit));
+                let inputs = unit_inputs(&scene, &dir, unit).unwrap();
+                let files = run_unit(&scene, &dir, &cache, unit, &NoProgress).unwrap();
+                assert!(!files.is_empty(), "{name}: {} wrote nothing", unit.name());
+                for f in &files {
+                    assert!(
+                        cache_dir.join(f).is_file(),
+                        "{name}: {} missing",
+                        f.display()
+                    );
+                    if !matches!(unit, BakeUnit::Transport) {
+                        assert!(
+                            inputs.contains(f),
+                            "{name}: {} not among inputs",
+                            f.display()
+                        );
+                    }
+                }
+                written.extend(files);
+            }
+        }
+        // A unit run again writes the same bytes.
+        let again = &phases[0][phases[0].len() - 1];
+        let before: Vec<Vec<u8>> = written
+            .iter()
+            .map(|f| std::fs::read(cache_dir.join(f)).unwrap())
+            .collect();
+        run_unit(&scene, &dir, &cache, again, &NoProgress).unwrap();
+        for (f, bytes) in written.iter().zip(&before) {
+            assert!(&std::fs::read(cache_dir.join(f)).unwrap() == bytes);
+        }
+        let options = BakeOptions {
+            cache: Some(cache),
+            full: false,
+            transport: None,
+        };
+        let (assembled, report) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+        assert_eq!(report.shapes_computed, 0, "{name}");
+        assert!(report.transport_from_cache, "{name}");
+        if let Some(d) = &report.drt {
+            assert_eq!(d.traced_texels, 0, "{name}: assembly traced DRT rays");
+        }
+        let fresh = bake(
+            &scene,
+            &dir,
+            &BakeOptions {
+                cache: None,
+                full: false,
+                transport: None,
+            },
+            &NoProgress,
+        )
+        .unwrap()
+        .0;
+        assert!(
+            assembled.encode() == fresh.encode(),
+            "{name}: assembled bundle differs from a bake in one piece"
+        );
+        let _ = std::fs::remove_dir_all(&cache_dir);
+    }
+}

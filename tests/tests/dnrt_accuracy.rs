@@ -51,8 +51,8 @@ fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
     assert_eq!(report.dnrt.len(), 1);
     assert_eq!(
         report.dnrt[0].2,
-        16 * 16 * 16 * 3 * 9,
-        "u8: one byte per value"
+        16 * 16 * 16 * 4 * 9,
+        "u8: one byte per value (t_j in R, G, B and k_j)"
     );
     let without = LightSet {
         poses: vec![],
@@ -85,7 +85,11 @@ fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
         "DNRT delta near the ball: relative L2 {rel:.4} over {} texels",
         near.len()
     );
-    assert!(rel < 0.4, "relative L2 {rel}");
+    // Measured 0.245 here (16³, 9 SH, 128 rays per point, reference 4096 rays; 0.212–0.216 at
+    // 256 rays against a 16384-ray reference in tests/data/dnrt_accuracy.md). Tightened from
+    // 0.4 after reflection and occlusion got the light each involves (it was 0.24–0.27 with
+    // cancelling errors); the margin covers seed and platform changes of the Monte Carlo runs.
+    assert!(rel < 0.28, "relative L2 {rel}");
     // The ball darkens its surroundings (occlusion wins) and tints them red: less is taken
     // from red than from green, in the reference and in DNRT.
     let mean = |ours: bool, c: usize| {
@@ -94,6 +98,18 @@ fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
     };
     let (ours_r, ours_g) = (mean(true, 0), mean(true, 1));
     let (ref_r, ref_g) = (mean(false, 0), mean(false, 1));
+    eprintln!(
+        "mean delta (r, g): DNRT ({ours_r:.4}, {ours_g:.4}), reference ({ref_r:.4}, {ref_g:.4})"
+    );
+    // The occlusion's strength: with the hidden radiance (Appendix B.2) DNRT takes away 0.84 of
+    // what the reference loses here (0.90 in dnrt_diagnose, at the texels themselves; the rest is
+    // mostly the ball's shadow on the walls' direct light, which DNRT does not model). Hiding
+    // E/π with the point light in it took 1.16 there, E/π without it 0.72.
+    let ratio = ours_g / ref_g;
+    assert!(
+        (0.75..1.05).contains(&ratio),
+        "DNRT / reference mean delta (green) {ratio}"
+    );
     assert!(ref_g < 0.0 && ours_g < 0.0, "ref {ref_g}, ours {ours_g}");
     assert!(
         ref_r > ref_g && ours_r > ours_g,

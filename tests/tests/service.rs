@@ -555,3 +555,99 @@ fn corrupt_stored_bundle_is_dropped_and_rebaked() {
     drop(server);
     let _ = std::fs::remove_dir_all(&data);
 }
+
+#[test]
+fn bundle_streams_mrt_sections_before_drt() {
+    let data = data_dir("stream");
+    let server = Server::start(&data, None);
+    let client = server.client();
+    let scene = client.create_scene(&scene_text("maze")).unwrap().id;
+    let job = client
+        .submit_bake(&scene, json!({"texels_per_face": 6, "rays_per_texel": 128}))
+        .unwrap()
+        .id;
+    // The first announcement of final sections: the MRT part, before the clutter operators.
+    let (sections, prefix_len) = client
+        .events(&job)
+        .unwrap()
+        .find_map(|e| match e {
+            BakeEvent::Sections { sections, bytes } => Some((sections, bytes)),
+            _ => None,
+        })
+        .expect("a sections event");
+    assert!(sections.contains(&"transport".to_string()), "{sections:?}");
+    assert!(!sections.contains(&"drt".to_string()), "{sections:?}");
+    let agent: ureq::Agent = ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .build()
+        .into();
+    let response = agent
+        .get(format!("{}/v1/bakes/{job}/bundle", server.addr))
+        .call()
+        .unwrap();
+    assert_eq!(response.status().as_u16(), 200);
+    let mut reader = response.into_body().into_reader();
+    let mut prefix = vec![0u8; prefix_len as usize];
+    std::io::Read::read_exact(&mut reader, &mut prefix).unwrap();
+    let partial = lightfarm_proto::bundle::Bundle::decode_prefix(&prefix).unwrap();
+    assert!(!partial.complete);
+    assert!(partial.bundle.transport.is_some());
+    assert!(partial.bundle.drt.is_none());
+    // The MRT part alone already makes a client runtime.
+    let runtime = lightfarm_client::Runtime::new(partial.bundle);
+    drop(runtime);
+    // The rest arrives when the bake ends; the whole is the stored bundle.
+    let mut rest = Vec::new();
+    std::io::Read::read_to_end(&mut reader, &mut rest).unwrap();
+    prefix.extend_from_slice(&rest);
+    let status = wait(&client, &job);
+    let stored = client
+        .fetcher(data.join("cache"))
+        .fetch(&client.bundle_url(status.bundle.as_ref().unwrap()))
+        .unwrap();
+    assert!(
+        prefix == stored.bytes,
+        "streamed bytes differ from the stored bundle"
+    );
+    assert!(decode(&prefix).unwrap().drt.is_some());
+    drop(server);
+    let _ = std::fs::remove_dir_all(&data);
+}
+
+#[test]
+fn sigterm_drains_and_exits_cleanly() {
+    let data = data_dir("sigterm");
+    let mut server = Server::start(&data, None);
+    let client = server.client();
+    let scene = client.create_scene(&scene_text("cornell")).unwrap().id;
+    let job = client.submit_bake(&scene, fast_settings()).unwrap().id;
+    wait(&client, &job);
+    // An open event stream must not hold the shutdown up.
+    let events = client.events(&job).unwrap();
+    let status = Command::new("kill")
+        .args(["-TERM", &server.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let start = Instant::now();
+    let exit = loop {
+        if let Some(exit) = server.child.try_wait().unwrap() {
+            break exit;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "server did not exit"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(exit.success(), "{exit:?}");
+    assert!(events.count() <= 2);
+    // Restarted on the same data, the finished bake is still there.
+    let server = Server::spawn(data.clone(), None);
+    assert_eq!(
+        server.client().bake_status(&job).unwrap().state,
+        JobState::Succeeded
+    );
+    drop(server);
+    let _ = std::fs::remove_dir_all(&data);
+}

@@ -4,6 +4,9 @@
 //! subtending the clutter objects' bounding spheres (in turn), split deterministically. Each ray carries the weight `(cosθ/π) / p_mix(ω) / N` (balance heuristic), so the
 //! estimate of any cosine-weighted average stays unbiased while many more rays reach small or
 //! distant clutter — the only rays the delta operators need. `α = 0` is plain cosine sampling.
+//! Which spheres a texel aims at is a pure function of the texel and the spheres
+//! ([`ClutterGuidedSampler::guide_spheres`]), so a texel's rays change only when a sphere it
+//! aims at changes (what incremental rebakes test).
 //!
 //! Invariant: `sample` is a pure function of its inputs (no hidden state).
 
@@ -46,19 +49,42 @@ fn cone_pdf(cos_max: f64) -> f64 {
     1.0 / (2.0 * PI * (1.0 - cos_max))
 }
 
+/// The cone from a point to one bounding sphere: `(cos of its half-angle, unit axis)`.
+pub type Cone = (f64, [f64; 3]);
+
 impl ClutterGuidedSampler {
-    /// Cones worth aiming at from `x`: spheres that do not contain `x` and subtend less than
-    /// `acos(MIN_CONE_COS)`. Wider cones gain nothing over cosine sampling and would cost the
-    /// texel its stratification.
-    fn usable(&self, x: [f64; 3]) -> Vec<(f64, [f64; 3])> {
-        self.spheres
-            .iter()
-            .map(|s| cone_cos(x, s))
-            .filter(|(cos_max, _)| *cos_max > MIN_CONE_COS)
+    /// Spheres worth aiming at from `x` with normal `n`, as indices into `spheres` in order:
+    /// not containing `x`, subtending less than `acos(MIN_CONE_COS)` (wider cones gain nothing
+    /// over cosine sampling and would cost the texel its stratification), not wholly below the
+    /// tangent plane, and passing `may_reach` (the caller's conservative visibility test).
+    pub fn guide_spheres(
+        &self,
+        x: [f64; 3],
+        n: [f64; 3],
+        may_reach: &dyn Fn(&Sphere) -> bool,
+    ) -> Vec<usize> {
+        if self.alpha <= 0.0 {
+            return Vec::new();
+        }
+        (0..self.spheres.len())
+            .filter(|&i| {
+                let s = &self.spheres[i];
+                cone_cos(x, s).0 > MIN_CONE_COS
+                    && dot(sub(s.center, x), n) > -s.radius
+                    && may_reach(s)
+            })
             .collect()
     }
 
-    fn mixture_pdf(&self, cones: &[(f64, [f64; 3])], n: [f64; 3], w: [f64; 3]) -> f64 {
+    /// The cones from `x` to the chosen spheres.
+    pub fn cones(&self, x: [f64; 3], spheres: &[usize]) -> Vec<Cone> {
+        spheres
+            .iter()
+            .map(|&i| cone_cos(x, &self.spheres[i]))
+            .collect()
+    }
+
+    fn mixture_pdf(&self, cones: &[Cone], n: [f64; 3], w: [f64; 3]) -> f64 {
         let cos_pdf = dot(n, w).max(0.0) / PI;
         if cones.is_empty() || self.alpha <= 0.0 {
             return cos_pdf;
@@ -73,14 +99,25 @@ impl ClutterGuidedSampler {
         p
     }
 
-    /// A direction and its weight `(cosθ/π) / p_mix` (0 for directions below the surface).
+    /// A direction and its weight `(cosθ/π) / p_mix` (0 for directions below the surface),
+    /// aiming at every sphere [`Self::guide_spheres`] keeps with no visibility test.
+    pub fn sample(&self, x: [f64; 3], n: [f64; 3], u_pick: f64, u: [f64; 2]) -> ([f64; 3], f64) {
+        let cones = self.cones(x, &self.guide_spheres(x, n, &|_| true));
+        self.sample_with(&cones, n, u_pick, u)
+    }
+
+    /// A direction and its weight for the mixture over `cones` (from [`Self::cones`]).
     /// `u_pick` chooses the strategy (cosine below `1 − α`, then the cones in turn), `u` the
     /// direction. Callers pass `u_pick = (i + ½)/N` for ray i of N: a deterministic split (the
     /// multi-sample balance heuristic), so the cosine rays are a prefix of the Sobol' sequence
-    /// and keep their stratification. Where no cone is usable this is plain cosine sampling
-    /// with weight 1.
-    pub fn sample(&self, x: [f64; 3], n: [f64; 3], u_pick: f64, u: [f64; 2]) -> ([f64; 3], f64) {
-        let cones = self.usable(x);
+    /// and keep their stratification. With no cone this is plain cosine sampling with weight 1.
+    pub fn sample_with(
+        &self,
+        cones: &[Cone],
+        n: [f64; 3],
+        u_pick: f64,
+        u: [f64; 2],
+    ) -> ([f64; 3], f64) {
         if cones.is_empty() || self.alpha <= 0.0 {
             return (to_world(sample_cosine_hemisphere(u), n), 1.0);
         }
@@ -99,7 +136,7 @@ impl ClutterGuidedSampler {
         if cos <= 0.0 {
             return (w, 0.0);
         }
-        (w, cos / PI / self.mixture_pdf(&cones, n, w))
+        (w, cos / PI / self.mixture_pdf(cones, n, w))
     }
 }
 

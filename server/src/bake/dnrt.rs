@@ -9,7 +9,10 @@
 //!   reference solver);
 //! - occlusion (eq. 13): `k_j = ∫_D Y_j(ω) / π² · (ω·n_o)₊ dω` (anti-radiance: the irradiance
 //!   of a surface facing away from `p` stands in for the radiance the object hides);
-//! - stored: `m_j = t_j − k_j` per RGB channel (`ρ` is the object's albedo per channel).
+//! - stored: `t_j` per RGB channel (`ρ` is the albedo at the hit, per channel: the object's
+//!   uniform albedo, or the mesh's own base colour — vertex colours, base-colour texture —
+//!   through [`SurfaceAlbedo`]) and `k_j` once, apart (not the paper's `m_j = t_j − k_j`: the
+//!   client weighs them with different lighting, see `lightfarm_proto::dnrt_grid`).
 //!
 //! Both integrals come from one ray pass (one ray serves every `j`, as §5.1.1). Rays: from a
 //! point outside the bounding sphere whose cone is narrow, uniform in the cone subtending the
@@ -17,10 +20,10 @@
 //! cosine-weighted over the hemisphere of `n_o`. Each ray carries the weight
 //! `(cosθ/π) / pdf`, so `∫ f cos dω = π · mean(weight · f)`.
 //!
-//! Appendix A ([`DnrtNormals::Convolution`]): instead of integrating about `n_o`, each transfer
-//! function `f_j(ω) = (ρ Y_j(n_s) − Y_j(ω))/π²` on `D` is projected onto SH over directions
-//! and convolved with the clamped cosine: `G_jt = Â_t ∫_D f_j Y_t dω`, so a receiver of any
-//! normal n gets `ρ Σ_t (Σ_j c_j G_jt) Y_t(n)` (order-2 band limit of the cosine lobe).
+//! Appendix A ([`DnrtNormals::Convolution`]): instead of integrating about `n_o`, the transfer
+//! functions `ρ Y_j(n_s)/π²` and `Y_j(ω)/π²` on `D` are projected onto SH over directions and
+//! convolved with the clamped cosine: `Â_t ∫_D f_j Y_t dω`, so a receiver of any normal n gets
+//! `ρ Σ_t (Σ_j c_j T_jt − π Σ_j l_j K_jt) Y_t(n)` (order-2 band limit of the cosine lobe).
 //!
 //! Invariants: every random number is a pure function of (seed, purpose, grid point, ray
 //! index); points run in parallel with rayon but each depends only on its own stream, so a
@@ -28,13 +31,16 @@
 
 use rayon::prelude::*;
 
-use lightfarm_proto::dnrt_grid::{fitted_term_ranges, placement_offset, DnrtGrid, DnrtNormals};
+use lightfarm_proto::dnrt_grid::{
+    fitted_term_ranges, placement_offset, DnrtGrid, DnrtNormals, SLOTS,
+};
 use lightfarm_proto::scene::DnrtSettings;
 use lightfarm_proto::sh::{irradiance_weights, sh_basis};
 
 use super::clutter_sampling::{ClutterGuidedSampler, Sphere};
 use super::geometry::Primitive;
 use super::mesh::{dot, sub};
+use super::mesh_albedo::SurfaceAlbedo;
 use super::probe_volume::sample_uniform_sphere;
 use super::sampling::{sobol_2d, stream_key};
 use super::tracer::Tracer;
@@ -72,18 +78,19 @@ pub fn bounding_sphere(triangles: &[[[f64; 3]; 3]]) -> BoundingSphere {
     BoundingSphere { centre, radius }
 }
 
-/// Albedo-free reflection and occlusion coefficients of every grid point.
+/// Reflection and occlusion coefficients of every grid point.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TransferCoefficients {
     pub n_sh: usize,
-    /// `point · n_sh + j`: `t_j / ρ` (eq. 8 without the object's albedo).
+    /// `(point · 3 + channel) · n_sh + j`: `t_j` (eq. 8, with the albedo at each hit).
     pub reflection: Vec<f64>,
     /// `point · n_sh + j`: `k_j` (eq. 13).
     pub occlusion: Vec<f64>,
 }
 
-/// The reflection and occlusion coefficients at arbitrary points `points` (object frame) for
-/// an object of uniform albedo, `rays` Monte Carlo rays each.
+/// The reflection and occlusion coefficients at arbitrary points `points` (object frame),
+/// `rays` Monte Carlo rays each; `albedo` gives the object's albedo at each hit (triangle
+/// index = primitive index of `tracer`).
 pub fn transfer_at_points(
     tracer: &Tracer,
     sphere: BoundingSphere,
@@ -91,6 +98,7 @@ pub fn transfer_at_points(
     n_sh: usize,
     rays: u32,
     seed: u64,
+    albedo: SurfaceAlbedo,
 ) -> TransferCoefficients {
     let sampler = ClutterGuidedSampler {
         spheres: vec![Sphere {
@@ -111,7 +119,7 @@ pub fn transfer_at_points(
                 [0.0, 1.0, 0.0]
             };
             let key = stream_key(seed, PURPOSE_DNRT, p as u64);
-            let mut reflection = vec![0.0; n_sh];
+            let mut reflection = vec![0.0; 3 * n_sh];
             let mut occlusion = vec![0.0; n_sh];
             for i in 0..rays {
                 let u_pick = (i as f64 + 0.5) / rays as f64;
@@ -122,10 +130,13 @@ pub fn transfer_at_points(
                 let Some(hit) = tracer.closest(*x, w, f64::INFINITY, &|_| 1.0) else {
                     continue;
                 };
+                let rho = albedo_at(tracer, &albedo, &hit);
                 let y_surface = sh_basis(hit.normal);
                 let y_direction = sh_basis(w);
                 for j in 0..n_sh {
-                    reflection[j] += weight * y_surface[j];
+                    for c in 0..3 {
+                        reflection[c * n_sh + j] += weight * rho[c] * y_surface[j];
+                    }
                     occlusion[j] += weight * y_direction[j];
                 }
             }
@@ -140,10 +151,11 @@ pub fn transfer_at_points(
     concatenate_points(n_sh, per_point)
 }
 
-/// Appendix A: per point, SH index j (irradiance) and t (direction), the albedo-free
-/// `R_jt = ∫_D Y_j(n_s) Y_t(ω) / π² dω` and `O_jt = ∫_D Y_j(ω) Y_t(ω) / π² dω` over all
-/// directions that hit the object (no cosine: the receiver's clamped cosine is applied at
-/// runtime by convolution). Layout `point · n_sh² + j · n_sh + t`. Rays: uniform in the
+/// Appendix A: per point, SH index j (irradiance) and t (direction),
+/// `R_jt = ∫_D ρ Y_j(n_s) Y_t(ω) / π² dω` per channel (layout
+/// `(point · 3 + channel) · n_sh² + j · n_sh + t`) and `O_jt = ∫_D Y_j(ω) Y_t(ω) / π² dω`
+/// (layout `point · n_sh² + j · n_sh + t`) over all directions that hit the object (no cosine:
+/// the receiver's clamped cosine is applied at runtime by convolution). Rays: uniform in the
 /// bounding sphere's cone where it is narrow, else uniform over the whole sphere (near the
 /// object it can cover more than a hemisphere).
 pub fn convolved_transfer_at_points(
@@ -153,6 +165,7 @@ pub fn convolved_transfer_at_points(
     n_sh: usize,
     rays: u32,
     seed: u64,
+    albedo: SurfaceAlbedo,
 ) -> TransferCoefficients {
     let pi = std::f64::consts::PI;
     let radius = sphere.radius * (1.0 + 1e-6) + tracer.epsilon;
@@ -178,7 +191,7 @@ pub fn convolved_transfer_at_points(
                 [0.0, 1.0, 0.0]
             };
             let key = stream_key(seed, PURPOSE_DNRT_CONVOLVED, p as u64);
-            let mut reflection = vec![0.0; nn];
+            let mut reflection = vec![0.0; 3 * nn];
             let mut occlusion = vec![0.0; nn];
             for i in 0..rays {
                 let u = sobol_2d(key, i);
@@ -196,11 +209,15 @@ pub fn convolved_transfer_at_points(
                 let Some(hit) = tracer.closest(*x, w, f64::INFINITY, &|_| 1.0) else {
                     continue;
                 };
+                let rho = albedo_at(tracer, &albedo, &hit);
                 let y_surface = sh_basis(hit.normal);
                 let y_direction = sh_basis(w);
                 for j in 0..n_sh {
                     for t in 0..n_sh {
-                        reflection[j * n_sh + t] += inv_pdf * y_surface[j] * y_direction[t];
+                        let r = inv_pdf * y_surface[j] * y_direction[t];
+                        for c in 0..3 {
+                            reflection[c * nn + j * n_sh + t] += rho[c] * r;
+                        }
                         occlusion[j * n_sh + t] += inv_pdf * y_direction[j] * y_direction[t];
                     }
                 }
@@ -213,6 +230,15 @@ pub fn convolved_transfer_at_points(
         })
         .collect();
     concatenate_points(n_sh, per_point)
+}
+
+/// The object's albedo where `hit` landed.
+fn albedo_at(tracer: &Tracer, albedo: &SurfaceAlbedo, hit: &super::tracer::Hit) -> [f64; 3] {
+    match (albedo, &tracer.primitives()[hit.primitive as usize]) {
+        (SurfaceAlbedo::Uniform(a), _) => *a,
+        (_, Primitive::Triangle { v, .. }) => albedo.at(hit.primitive as usize, v, hit.point),
+        (_, Primitive::Rect { albedo, .. }) => *albedo,
+    }
 }
 
 /// Per-point (reflection, occlusion) coefficient runs, concatenated in point order.
@@ -249,8 +275,8 @@ pub fn object_tracer(triangles: &[[[f64; 3]; 3]]) -> Tracer {
     Tracer::new(primitives, scale)
 }
 
-/// The unquantised `m_j` of a whole grid (layout of `lightfarm_proto::dnrt_grid`) and the
-/// grid's geometry.
+/// The unquantised `t_j`, `k_j` of a whole grid (layout of `lightfarm_proto::dnrt_grid`) and
+/// the grid's geometry.
 pub struct DnrtValues {
     pub sphere: BoundingSphere,
     pub inner_half_extent: f64,
@@ -280,10 +306,11 @@ pub fn grid_points(settings: &DnrtSettings, sphere: BoundingSphere) -> Vec<[f64;
     points
 }
 
-/// Bakes `m_j = ρ t_j − k_j` for every grid point and channel, unquantised.
+/// Bakes `t_j` per channel and `k_j` for every grid point, unquantised (layout of
+/// `lightfarm_proto::dnrt_grid`).
 pub fn dnrt_values(
     triangles: &[[[f64; 3]; 3]],
-    albedo: [f64; 3],
+    albedo: SurfaceAlbedo,
     settings: &DnrtSettings,
     seed: u64,
 ) -> DnrtValues {
@@ -293,29 +320,37 @@ pub fn dnrt_values(
     let n_sh = settings.sh as usize;
     let (coeffs, terms, weight): (_, usize, Vec<f64>) = match settings.normals {
         DnrtNormals::Intermediate => (
-            transfer_at_points(&tracer, sphere, &points, n_sh, settings.rays, seed),
+            transfer_at_points(&tracer, sphere, &points, n_sh, settings.rays, seed, albedo),
             n_sh,
             vec![1.0; n_sh],
         ),
-        // G_jt = Â_t (ρ R_jt − O_jt): the clamped-cosine convolution (Funk–Hecke).
+        // G_jt = Â_t (R_jt − O_jt): the clamped-cosine convolution (Funk–Hecke).
         DnrtNormals::Convolution => {
             let a = irradiance_weights();
             (
-                convolved_transfer_at_points(&tracer, sphere, &points, n_sh, settings.rays, seed),
+                convolved_transfer_at_points(
+                    &tracer,
+                    sphere,
+                    &points,
+                    n_sh,
+                    settings.rays,
+                    seed,
+                    albedo,
+                ),
                 n_sh * n_sh,
                 (0..n_sh * n_sh).map(|k| a[k % n_sh]).collect(),
             )
         }
     };
-    let mut values = Vec::with_capacity(points.len() * 3 * terms);
+    let mut values = Vec::with_capacity(points.len() * SLOTS * terms);
     for p in 0..points.len() {
-        let span = p * terms..(p + 1) * terms;
-        let (t, o) = (&coeffs.reflection[span.clone()], &coeffs.occlusion[span]);
-        for rho in albedo {
-            for ((w, t), o) in weight.iter().zip(t).zip(o) {
-                values.push(w * (rho * t - o));
-            }
+        for c in 0..3 {
+            let at = (p * 3 + c) * terms;
+            let t = &coeffs.reflection[at..at + terms];
+            values.extend(weight.iter().zip(t).map(|(w, t)| w * t));
         }
+        let o = &coeffs.occlusion[p * terms..(p + 1) * terms];
+        values.extend(weight.iter().zip(o).map(|(w, o)| w * o));
     }
     DnrtValues {
         sphere,
@@ -349,7 +384,7 @@ pub fn encode_grid(object: &str, baked: &DnrtValues, settings: &DnrtSettings) ->
 pub fn bake_dnrt_grid(
     object: &str,
     triangles: &[[[f64; 3]; 3]],
-    albedo: [f64; 3],
+    albedo: SurfaceAlbedo,
     settings: &DnrtSettings,
     seed: u64,
 ) -> DnrtGrid {
@@ -471,11 +506,19 @@ mod tests {
                 .collect();
             expected.push((t, k));
         }
-        let got = transfer_at_points(&tracer, sphere, &points, 4, 1 << 14, 7);
+        let got = transfer_at_points(
+            &tracer,
+            sphere,
+            &points,
+            4,
+            1 << 14,
+            7,
+            SurfaceAlbedo::Uniform([1.0; 3]),
+        );
         for (p, (t, k)) in expected.iter().enumerate() {
             let scale = t[0].abs();
             for j in 0..4 {
-                let (gt, gk) = (got.reflection[p * 4 + j], got.occlusion[p * 4 + j]);
+                let (gt, gk) = (got.reflection[p * 12 + j], got.occlusion[p * 4 + j]);
                 assert!(
                     (gt - t[j]).abs() < 0.01 * scale,
                     "point {p} t_{j}: {gt} vs {}",
@@ -500,7 +543,15 @@ mod tests {
         let p = [1.2, 2.0, -1.6];
         let dist = dot(p, p).sqrt();
         let n_o = p.map(|x| -x / dist);
-        let got = transfer_at_points(&tracer, sphere, &[p], 9, 4096, 3);
+        let got = transfer_at_points(
+            &tracer,
+            sphere,
+            &[p],
+            9,
+            4096,
+            3,
+            SurfaceAlbedo::Uniform([1.0; 3]),
+        );
         let sin2 = (0.05 / dist).powi(2);
         let y = sh_basis(n_o);
         let k0 = Y0 * sin2 / PI;
@@ -530,7 +581,9 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap()
-                .install(|| dnrt_values(&tris, [0.8, 0.2, 0.1], &settings, 5).values)
+                .install(|| {
+                    dnrt_values(&tris, SurfaceAlbedo::Uniform([0.8, 0.2, 0.1]), &settings, 5).values
+                })
         };
         let one = run(1);
         let two = run(2);
@@ -561,7 +614,15 @@ mod tests {
             let a = d.map(|x: f64| -x);
             let sin2 = 1.0 / (s * s);
             let cos = (1.0 - sin2).sqrt();
-            let got = convolved_transfer_at_points(&tracer, sphere, &[p], 4, 1 << 15, 11);
+            let got = convolved_transfer_at_points(
+                &tracer,
+                sphere,
+                &[p],
+                4,
+                1 << 15,
+                11,
+                SurfaceAlbedo::Uniform([1.0; 3]),
+            );
             let o00 = Y0 * Y0 * 2.0 * PI * (1.0 - cos) / (PI * PI);
             let axis = [a[1], a[2], a[0]];
             assert!(
@@ -585,5 +646,155 @@ mod tests {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::needless_range_loop)]
+mod albedo_tests {
+    use super::*;
+    use crate::bake::mesh::load_mesh;
+    use lightfarm_proto::scene::Transform;
+    use std::f64::consts::PI;
+
+    /// Writes `tris` (non-indexed) with one COLOR_0 per vertex as `name.gltf` + `name.bin`.
+    fn write_gltf(
+        dir: &std::path::Path,
+        name: &str,
+        tris: &[[[f64; 3]; 3]],
+        colour: &dyn Fn(&[[f64; 3]; 3]) -> [f32; 3],
+    ) {
+        let mut bin = Vec::new();
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for t in tris {
+            for v in t {
+                for k in 0..3 {
+                    let x = v[k] as f32;
+                    lo[k] = lo[k].min(x);
+                    hi[k] = hi[k].max(x);
+                    bin.extend_from_slice(&x.to_le_bytes());
+                }
+            }
+        }
+        let pos_len = bin.len();
+        for t in tris {
+            let c = colour(t);
+            for _ in 0..3 {
+                for x in c {
+                    bin.extend_from_slice(&x.to_le_bytes());
+                }
+            }
+        }
+        let n = tris.len() * 3;
+        let json = format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"COLOR_0":1}}}}]}}],
+"buffers":[{{"uri":"{name}.bin","byteLength":{total}}}],
+"bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":{pos_len}}},{{"buffer":0,"byteOffset":{pos_len},"byteLength":{col_len}}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":{n},"type":"VEC3","min":[{},{},{}],"max":[{},{},{}]}},
+{{"bufferView":1,"componentType":5126,"count":{n},"type":"VEC3"}}]}}"#,
+            lo[0],
+            lo[1],
+            lo[2],
+            hi[0],
+            hi[1],
+            hi[2],
+            total = bin.len(),
+            col_len = bin.len() - pos_len,
+        );
+        std::fs::write(dir.join(format!("{name}.bin")), &bin).unwrap();
+        std::fs::write(dir.join(format!("{name}.gltf")), json).unwrap();
+    }
+
+    fn temp_dir(tag: &str) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("lf-dnrt-albedo-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    /// Uniform vertex colours give the grid of the same uniform albedo.
+    #[test]
+    fn uniform_vertex_colours_bake_the_uniform_albedo_grid() {
+        let dir = temp_dir("uniform");
+        let tris = icosphere([0.0, 0.1, 0.0], 0.4, 2);
+        write_gltf(&dir, "ball", &tris, &|_| [0.75, 0.125, 0.0625]);
+        let mesh = load_mesh("dynamic \"ball\"", &dir, "ball.gltf", &Transform::default()).unwrap();
+        assert_eq!(mesh.albedo.triangles.len(), mesh.triangles.len());
+        assert!(!mesh.albedo.is_empty());
+        let settings = DnrtSettings {
+            resolution: 5,
+            rays: 64,
+            ..DnrtSettings::default()
+        };
+        let coloured = dnrt_values(
+            &mesh.triangles,
+            SurfaceAlbedo::Mesh {
+                albedo: &mesh.albedo,
+                fallback: [0.3; 3],
+            },
+            &settings,
+            9,
+        );
+        let uniform = dnrt_values(
+            &mesh.triangles,
+            SurfaceAlbedo::Uniform([0.75, 0.125, 0.0625]),
+            &settings,
+            9,
+        );
+        let scale = uniform.values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (k, (a, b)) in coloured.values.iter().zip(&uniform.values).enumerate() {
+            assert!((a - b).abs() <= 1e-12 * scale, "{k}: {a} vs {b}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A ball red on +x and green on −x: seen from +x (where only the red half is visible),
+    /// `t_0` is the red albedo times the closed form in red and the green one in green, and
+    /// the other way round from −x.
+    #[test]
+    fn a_half_red_half_green_ball_gives_channel_dependent_coefficients() {
+        let dir = temp_dir("halves");
+        let r = 0.4;
+        let tris = icosphere([0.0; 3], r, 4);
+        let (red, green) = ([0.875f32, 0.125, 0.0625], [0.125f32, 0.875, 0.0625]);
+        write_gltf(&dir, "ball", &tris, &|t| {
+            if t[0][0] + t[1][0] + t[2][0] > 0.0 {
+                red
+            } else {
+                green
+            }
+        });
+        let mesh = load_mesh("dynamic \"ball\"", &dir, "ball.gltf", &Transform::default()).unwrap();
+        let tracer = object_tracer(&mesh.triangles);
+        let sphere = bounding_sphere(&mesh.triangles);
+        let s = 2.5;
+        let points = [[s * r, 0.0, 0.0], [-s * r, 0.0, 0.0]];
+        let got = transfer_at_points(
+            &tracer,
+            sphere,
+            &points,
+            4,
+            1 << 13,
+            4,
+            SurfaceAlbedo::Mesh {
+                albedo: &mesh.albedo,
+                fallback: [0.5; 3],
+            },
+        );
+        // Closed form of t_0/ρ for a sphere: Y_0 sin²α / π.
+        let t0 = 0.282_094_791_773_878_1 / (s * s) / PI;
+        for (p, colour) in [(0usize, red), (1, green)] {
+            for c in 0..3 {
+                let want = colour[c] as f64 * t0;
+                let t = got.reflection[(p * 3 + c) * 4];
+                assert!(
+                    (t - want).abs() < 0.02 * t0,
+                    "point {p} channel {c}: {t} vs {want}"
+                );
+                // Occlusion wins: m_0 < 0 in every channel.
+                assert!(t - got.occlusion[p * 4] < 0.0);
+            }
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

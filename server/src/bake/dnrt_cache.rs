@@ -2,7 +2,8 @@
 //! albedo, DNRT settings, seed), so it is reused across scenes and bakes.
 //!
 //! Key: blake3 of (code version, every triangle's f64 bits in the object frame, albedo bits,
-//! every DNRT setting, seed). Layout: `<dir>/dnrt/<key>.lfdnrt` = 8-byte FNV-1a checksum of the
+//! the mesh's own colours — vertex colours, texture coordinates, texture texels — every DNRT
+//! setting, seed). Layout: `<dir>/dnrt/<key>.lfdnrt` = 8-byte FNV-1a checksum of the
 //! payload, then the payload ([`DnrtGrid::write`]). Writes go to a temp file and are renamed
 //! into place; an entry that fails its checksum or does not decode is deleted and recomputed.
 //! The object id stored in a cached grid is replaced by the caller's (same content, any name).
@@ -15,13 +16,16 @@ use lightfarm_proto::dnrt_grid::{DnrtCodec, DnrtGrid, DnrtNormals, DnrtPlacement
 use lightfarm_proto::scene::DnrtSettings;
 use lightfarm_proto::wire::{checksum, Reader, Writer};
 
+use super::mesh_albedo::MeshAlbedo;
+
 /// Bumped whenever the bake's output for the same inputs changes.
-const CODE_VERSION: &str = "lightfarm-dnrt-1";
+const CODE_VERSION: &str = "lightfarm-dnrt-2";
 
 /// The content key of one object's grid.
 pub fn dnrt_key(
     triangles: &[[[f64; 3]; 3]],
     albedo: [f64; 3],
+    mesh_albedo: &MeshAlbedo,
     settings: &DnrtSettings,
     seed: u64,
 ) -> String {
@@ -34,6 +38,7 @@ pub fn dnrt_key(
     for x in albedo {
         h.update(&x.to_bits().to_le_bytes());
     }
+    mesh_albedo.hash_into(&mut h);
     h.update(&settings.resolution.to_le_bytes());
     h.update(&settings.sh.to_le_bytes());
     h.update(&settings.extent.to_bits().to_le_bytes());
@@ -83,6 +88,11 @@ impl DnrtCache {
         self.dir.join(format!("{key}.lfdnrt"))
     }
 
+    /// Where the grid with this key lives, relative to the operator cache directory.
+    pub fn relative_path(key: &str) -> PathBuf {
+        PathBuf::from("dnrt").join(format!("{key}.lfdnrt"))
+    }
+
     /// The cached grid under `key`, renamed to `object`.
     pub fn get(&self, key: &str, object: &str) -> DnrtLookup {
         let path = self.path(key);
@@ -119,6 +129,7 @@ impl DnrtCache {
 mod tests {
     use super::*;
     use crate::bake::dnrt::{bake_dnrt_grid, icosphere};
+    use crate::bake::mesh_albedo::{SurfaceAlbedo, TriangleAlbedo};
 
     #[test]
     fn hits_after_put_misses_on_changed_content_and_recovers_from_corruption() {
@@ -131,9 +142,10 @@ mod tests {
             rays: 16,
             ..DnrtSettings::default()
         };
-        let key = dnrt_key(&tris, [0.5; 3], &settings, 1);
+        let none = MeshAlbedo::default();
+        let key = dnrt_key(&tris, [0.5; 3], &none, &settings, 1);
         assert!(matches!(cache.get(&key, "a"), DnrtLookup::Miss));
-        let grid = bake_dnrt_grid("a", &tris, [0.5; 3], &settings, 1);
+        let grid = bake_dnrt_grid("a", &tris, SurfaceAlbedo::Uniform([0.5; 3]), &settings, 1);
         cache.put(&key, &grid).unwrap();
         match cache.get(&key, "b") {
             DnrtLookup::Hit(g) => {
@@ -148,11 +160,22 @@ mod tests {
             ..settings.clone()
         };
         let moved = icosphere([0.0, 0.1, 0.0], 0.3, 1);
+        let coloured = MeshAlbedo {
+            triangles: vec![
+                Some(TriangleAlbedo {
+                    vertex: [[0.5, 0.5, 0.4]; 3],
+                    texture: None,
+                });
+                tris.len()
+            ],
+            textures: vec![],
+        };
         for k in [
-            dnrt_key(&tris, [0.5, 0.5, 0.4], &settings, 1),
-            dnrt_key(&tris, [0.5; 3], &other, 1),
-            dnrt_key(&tris, [0.5; 3], &settings, 2),
-            dnrt_key(&moved, [0.5; 3], &settings, 1),
+            dnrt_key(&tris, [0.5, 0.5, 0.4], &none, &settings, 1),
+            dnrt_key(&tris, [0.5; 3], &none, &other, 1),
+            dnrt_key(&tris, [0.5; 3], &none, &settings, 2),
+            dnrt_key(&moved, [0.5; 3], &none, &settings, 1),
+            dnrt_key(&tris, [0.5; 3], &coloured, &settings, 1),
         ] {
             assert_ne!(k, key);
         }

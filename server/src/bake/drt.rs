@@ -20,65 +20,25 @@
 use std::collections::BTreeMap;
 
 use faer::Mat;
-use rayon::prelude::*;
 
 use lightfarm_proto::bundle::{DeltaSource, TexelGather};
 use lightfarm_proto::scene::{ClutterGather, Opening, Scene};
 
 use super::clutter_basis::{clutter_basis, ClutterBasisOps};
-use super::clutter_sampling::{ClutterGuidedSampler, Sphere};
-use super::geometry::{Geometry, Primitive, SurfaceOwner};
+use super::drt_rays::{trace_all, DrtRayCache, RayPass};
+use super::geometry::Geometry;
 use super::low_rank::LowRankError;
-use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
 use super::shape::ShapeOperators;
-use super::tracer::{Hit, Tracer};
+use super::tracer::Tracer;
 use super::transport::MrtTransport;
 
-const PURPOSE_DRT_SCENE: u64 = 31;
-const PURPOSE_DRT_CLUTTER: u64 = 32;
-
-/// Bounding spheres of every clutter object (boxes from their box, meshes from their triangles).
-fn clutter_spheres(scene: &Scene, g: &Geometry) -> Vec<Sphere> {
-    let mut out = Vec::new();
-    for c in &scene.clutter {
-        if let Some(b) = c.box_ {
-            let center = [0, 1, 2].map(|k| 0.5 * (b.min[k] + b.max[k]));
-            let radius = (0..3)
-                .map(|k| (0.5 * (b.max[k] - b.min[k])).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            out.push(Sphere { center, radius });
-        }
-    }
-    // Mesh clutter: one sphere around all triangles of the geometry (they are all clutter).
-    let tris: Vec<&[[f64; 3]; 3]> = g
-        .primitives
-        .iter()
-        .filter_map(|p| {
-            if let Primitive::Triangle { v, .. } = p {
-                Some(v)
-            } else {
-                None
-            }
-        })
-        .collect();
-    if !tris.is_empty() {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for v in tris.iter().flat_map(|t| t.iter()) {
-            for k in 0..3 {
-                lo[k] = lo[k].min(v[k]);
-                hi[k] = hi[k].max(v[k]);
-            }
-        }
-        let center = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
-        let radius = (0..3)
-            .map(|k| (0.5 * (hi[k] - lo[k])).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        out.push(Sphere { center, radius });
-    }
-    out
+/// Why the DRT operators could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum DrtError {
+    #[error(transparent)]
+    LowRank(#[from] LowRankError),
+    #[error("ray cache: {0}")]
+    Cache(#[from] std::io::Error),
 }
 
 /// Rows of one target, keyed by (source kind, source index) then global texel row.
@@ -107,6 +67,10 @@ pub struct DrtStats {
     pub buried_clutter_texels: usize,
     pub inpainted_without_neighbours: usize,
     pub clutter_ranks: Vec<usize>,
+    /// Texels whose rays were traced in this bake, and texels whose rays an earlier bake's
+    /// cache gave (incremental rebake).
+    pub traced_texels: usize,
+    pub reused_texels: usize,
 }
 
 /// All DRT operators of a scene.
@@ -119,47 +83,6 @@ pub struct DrtOperators {
     pub entries: Vec<DeltaBlock>,
     pub buried: Vec<u32>,
     pub stats: DrtStats,
-}
-
-/// What one ray from a texel saw, for the delta operators.
-enum Seen {
-    Nothing,
-    /// Block texel (global index).
-    Block(u32),
-    /// Clutter texel (global index), or clutter without texels (mesh) when None.
-    Clutter {
-        texel: Option<u32>,
-        back: bool,
-    },
-}
-
-fn classify(g: &Geometry, tracer: &Tracer, hit: &Hit) -> Seen {
-    match tracer.primitives()[hit.primitive as usize] {
-        Primitive::Rect {
-            surface: Some(s), ..
-        } => {
-            let surface = &g.surfaces[s as usize];
-            match surface.owner {
-                SurfaceOwner::Block { .. } if hit.front => {
-                    Seen::Block(g.texel_at(s, hit.point) as u32)
-                }
-                SurfaceOwner::Block { .. } => Seen::Nothing,
-                SurfaceOwner::ClutterBox { .. } => {
-                    let t = g.texel_at(s, hit.point);
-                    Seen::Clutter {
-                        texel: hit.front.then_some(t as u32),
-                        back: !hit.front,
-                    }
-                }
-            }
-        }
-        Primitive::Rect { surface: None, .. } => Seen::Nothing,
-        // Triangles are mesh clutter (dynamic objects are not in the bake geometry).
-        Primitive::Triangle { .. } => Seen::Clutter {
-            texel: None,
-            back: false,
-        },
-    }
 }
 
 /// Accumulates `weight · row` into `map[source][global_row]`.
@@ -202,15 +125,13 @@ pub fn build_drt(
     gb: &Geometry,
     shapes: &[&ShapeOperators],
     mrt: &MrtTransport,
+    cache: Option<&DrtRayCache>,
     progress: &(dyn Fn(u64) + Sync),
-) -> Result<DrtOperators, LowRankError> {
+) -> Result<DrtOperators, DrtError> {
     let settings = &scene.settings;
     let tracer = Tracer::new(g.primitives.clone(), g.scale());
     let block_tracer = Tracer::new(gb.primitives.clone(), gb.scale());
-    let sign = |s: u32| g.surfaces[s as usize].normal_sign;
-    let sign_b = |s: u32| gb.surfaces[s as usize].normal_sign;
-    let rays = settings.rays_per_texel;
-    let inv = 1.0 / rays as f64;
+    let inv = 1.0 / settings.rays_per_texel as f64;
     let n_blocks = scene.blocks.len();
     let block_of: Vec<u32> = {
         let mut o = vec![u32::MAX; g.texels.len()];
@@ -280,70 +201,27 @@ pub fn build_drt(
             .any(|b| (0..3).all(|k| p[k] > b.min[k] + e && p[k] < b.max[k] - e))
     };
 
-    // Pass over block texels: occlusion and reflection, rays guided toward clutter.
-    let guided = ClutterGuidedSampler {
-        spheres: clutter_spheres(scene, g),
-        alpha: settings.clutter_importance,
-    };
-    let block_texels: Vec<usize> = g.block_texels.iter().flat_map(|r| r.clone()).collect();
-    type SceneRow = (Vec<(u32, f64)>, Vec<(u32, f64)>, f64, f64);
-    let scene_rows: Vec<SceneRow> = block_texels
-        .par_iter()
-        .map(|&x| {
-            let texel = &g.texels[x];
-            let key = stream_key(settings.seed, PURPOSE_DRT_SCENE, x as u64);
-            let mut occluded: Vec<(u32, f64)> = Vec::new();
-            let mut reflected: Vec<(u32, f64)> = Vec::new();
-            let (mut clutter_hits, mut back_hits) = (0.0, 0.0);
-            for i in 0..rays {
-                let (d, weight) = guided.sample(
-                    texel.position,
-                    texel.normal,
-                    (i as f64 + 0.5) / rays as f64,
-                    sobol_2d(key, i),
-                );
-                if weight == 0.0 {
-                    continue;
-                }
-                let w = weight * inv;
-                let Some(hit) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
-                    continue;
-                };
-                if let Seen::Clutter { texel: k, back } = classify(g, &tracer, &hit) {
-                    clutter_hits += w;
-                    if back {
-                        back_hits += w;
-                    }
-                    if let Some(k) = k {
-                        reflected.push((k, w));
-                    }
-                    if let Some(behind) =
-                        block_tracer.closest(texel.position, d, f64::INFINITY, &sign_b)
-                    {
-                        if let Seen::Block(t) = classify(gb, &block_tracer, &behind) {
-                            occluded.push((t, w));
-                        }
-                    }
-                }
-            }
-            progress(1);
-            (occluded, reflected, clutter_hits, back_hits)
-        })
-        .collect();
+    // Both ray passes (block texels guided toward clutter; clutter texels), reusing what an
+    // earlier bake traced where nothing it saw has changed.
+    let pass = RayPass::new(scene, openings, g, gb, &tracer, &block_tracer);
+    let rays = trace_all(&pass, cache, progress)?;
+    stats.traced_texels = rays.traced_texels;
+    stats.reused_texels = rays.reused_texels;
+    let block_texels: Vec<usize> = (0..gb.texels.len()).collect();
 
     // Accumulate per target block: map[(kind, source)][row] = values.
     let mut per_target: Vec<RowsBySource> = (0..n_blocks).map(|_| BTreeMap::new()).collect();
     let mut buried_scene: Vec<bool> = vec![false; g.texels.len()];
-    for (&x, (occluded, reflected, clutter_hits, back_hits)) in block_texels.iter().zip(&scene_rows)
-    {
+    for (&x, r) in block_texels.iter().zip(&rays.block) {
+        let (occluded, reflected, clutter_hits) = (&r.occluded, &r.reflected, r.clutter_hits);
         let (target, _) = local(x as u32);
-        let buried = inside_box(g.texels[x].position, None) || *back_hits > 0.5;
+        let buried = inside_box(g.texels[x].position, None) || r.back_hits > 0.5;
         buried_scene[x] = buried;
         if buried {
             stats.buried_scene_texels += 1;
             continue;
         }
-        if *clutter_hits < settings.tolerance || *clutter_hits == 0.0 {
+        if clutter_hits < settings.tolerance || clutter_hits == 0.0 {
             stats.scene_texels_skipped += 1;
             continue;
         }
@@ -470,29 +348,6 @@ pub fn build_drt(
 
     // Clutter texels: gather from blocks (C_b) and from other clutter.
     let clutter_texels: Vec<usize> = g.clutter_texels.iter().flat_map(|r| r.clone()).collect();
-    let clutter_rows: Vec<(Vec<u32>, f64)> = clutter_texels
-        .par_iter()
-        .map(|&x| {
-            let texel = &g.texels[x];
-            let key = stream_key(settings.seed, PURPOSE_DRT_CLUTTER, x as u64);
-            let mut hits = Vec::new();
-            let mut back = 0.0;
-            for i in 0..rays {
-                let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), texel.normal);
-                let Some(hit) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
-                    continue;
-                };
-                match classify(g, &tracer, &hit) {
-                    Seen::Block(t) => hits.push(t),
-                    Seen::Clutter { texel: Some(k), .. } => hits.push(k),
-                    Seen::Clutter { back: true, .. } => back += inv,
-                    _ => {}
-                }
-            }
-            progress(1);
-            (hits, back)
-        })
-        .collect();
     let mut per_clutter: BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>> = BTreeMap::new();
     let mut buried = Vec::new();
     let exact = settings.clutter_gather == ClutterGather::Exact;
@@ -500,7 +355,8 @@ pub fn build_drt(
         row_start: vec![0],
         ..Default::default()
     };
-    for (&x, (hits, back)) in clutter_texels.iter().zip(&clutter_rows) {
+    for (&x, r) in clutter_texels.iter().zip(&rays.clutter) {
+        let (hits, back) = (&r.hits, &r.back);
         let (owner, _) = local(x as u32);
         let p = g.texels[x].position;
         if !inside_blocks(p) || inside_box(p, Some(owner - n_blocks)) || *back > 0.5 {
@@ -509,15 +365,10 @@ pub fn build_drt(
         }
         if exact {
             // Sparse row over the direct light of the texels hit.
-            let mut sorted = hits.clone();
-            sorted.sort_unstable();
-            let mut row: Vec<(u32, f32)> = Vec::new();
-            for t in sorted {
-                match row.last_mut() {
-                    Some((last, w)) if *last == t => *w += inv as f32,
-                    _ => row.push((t, inv as f32)),
-                }
-            }
+            let row: Vec<(u32, f32)> = hits
+                .iter()
+                .map(|&(t, n)| (t, (n as f64 * inv) as f32))
+                .collect();
             if !row.is_empty() {
                 gather.rows.push(x as u32);
                 for (c, v) in row {
@@ -528,7 +379,8 @@ pub fn build_drt(
             }
             continue;
         }
-        for &t in hits {
+        for &(t, count) in hits {
+            let weight = count as f64 * inv;
             let (source, l) = local(t);
             if source < n_blocks {
                 let l_imp = &shapes[source].l_imp;
@@ -538,7 +390,7 @@ pub fn build_drt(
                     DeltaSource::Block(source as u32),
                     x as u32,
                     &row,
-                    inv,
+                    weight,
                 );
             } else if let Some(p) = basis_of(source - n_blocks) {
                 let row: Vec<f64> = (0..p.basis.basis.ncols())
@@ -549,7 +401,7 @@ pub fn build_drt(
                     DeltaSource::Clutter(projection_of[source - n_blocks].unwrap() as u32),
                     x as u32,
                     &row,
-                    inv,
+                    weight,
                 );
             }
         }

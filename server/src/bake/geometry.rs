@@ -116,6 +116,49 @@ pub struct Geometry {
     pub block_texels: Vec<Range<usize>>,
     /// Global texel range of each clutter object (empty for mesh clutter).
     pub clutter_texels: Vec<Range<usize>>,
+    /// Bounds and content fingerprint of each clutter object, in scene order.
+    pub clutter_shapes: Vec<ClutterShape>,
+}
+
+/// Where a clutter object is and what it is, for telling which objects changed between bakes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClutterShape {
+    /// World-space bounds `[min, max]` of the box or of every triangle of the mesh.
+    pub bounds: [[f64; 3]; 2],
+    /// blake3 of the geometry rays can hit (box corners or every triangle) and its texel count.
+    pub fingerprint: [u8; 32],
+}
+
+impl ClutterShape {
+    fn of_box(aabb: &Aabb, t: usize) -> ClutterShape {
+        let mut h = blake3::Hasher::new();
+        h.update(b"box");
+        for x in aabb.min.iter().chain(&aabb.max) {
+            h.update(&x.to_bits().to_le_bytes());
+        }
+        h.update(&(t as u64).to_le_bytes());
+        ClutterShape {
+            bounds: [aabb.min, aabb.max],
+            fingerprint: *h.finalize().as_bytes(),
+        }
+    }
+
+    fn of_triangles(triangles: &[[[f64; 3]; 3]]) -> ClutterShape {
+        let mut h = blake3::Hasher::new();
+        h.update(b"mesh");
+        let mut bounds = [[f64::INFINITY; 3], [f64::NEG_INFINITY; 3]];
+        for v in triangles.iter().flatten() {
+            for k in 0..3 {
+                bounds[0][k] = bounds[0][k].min(v[k]);
+                bounds[1][k] = bounds[1][k].max(v[k]);
+                h.update(&v[k].to_bits().to_le_bytes());
+            }
+        }
+        ClutterShape {
+            bounds,
+            fingerprint: *h.finalize().as_bytes(),
+        }
+    }
 }
 
 /// Why a scene's geometry could not be built.
@@ -228,6 +271,7 @@ impl Geometry {
         for (c, clutter) in scene.clutter.iter().enumerate() {
             let start = g.texels.len();
             if let Some(aabb) = &clutter.box_ {
+                g.clutter_shapes.push(ClutterShape::of_box(aabb, t));
                 for face in Face::ALL {
                     let normal_sign = if face.is_max_side() { 1.0 } else { -1.0 };
                     let offset = (face.index() * t * t) as u32;
@@ -250,6 +294,8 @@ impl Geometry {
                     path,
                     &transform,
                 )?;
+                g.clutter_shapes
+                    .push(ClutterShape::of_triangles(&mesh.triangles));
                 g.add_triangles(&mesh.triangles, clutter.albedo);
             }
             g.clutter_texels.push(start..g.texels.len());
@@ -257,7 +303,8 @@ impl Geometry {
         Ok(g)
     }
 
-    /// Adds dynamic objects at the given poses (geometry only).
+    /// Adds dynamic objects at the given poses (geometry only; each triangle's albedo is the
+    /// mesh's own colour at its centroid where it has one, else the object's albedo).
     pub fn add_posed_dynamic(
         &mut self,
         scene: &Scene,
@@ -279,7 +326,13 @@ impl Geometry {
                 &object.mesh,
                 &transform,
             )?;
-            self.add_triangles(&mesh.triangles, object.albedo);
+            // The mesh's own colours (vertex colours, base-colour texture) at each
+            // triangle's centroid: the reference's triangles carry one albedo each.
+            for (k, tri) in mesh.triangles.iter().enumerate() {
+                let albedo = mesh.albedo.at(k, [1.0 / 3.0; 3], object.albedo);
+                self.primitives
+                    .push(Primitive::Triangle { v: *tri, albedo });
+            }
         }
         Ok(())
     }

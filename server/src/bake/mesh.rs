@@ -9,10 +9,15 @@ use std::path::{Path, PathBuf};
 
 use lightfarm_proto::scene::Transform;
 
+use super::mesh_albedo::{texture_from_gltf, MeshAlbedo, TriangleAlbedo};
+
 /// A triangle mesh in world coordinates (metres).
 #[derive(Clone, Debug, Default)]
 pub struct TriangleMesh {
     pub triangles: Vec<[[f64; 3]; 3]>,
+    /// The surface colours a glTF carries (base colour factor, `COLOR_0`, base-colour
+    /// texture), aligned with `triangles`; empty for OBJ files.
+    pub albedo: MeshAlbedo,
     /// Zero-area triangles that were dropped.
     pub dropped_degenerate: usize,
 }
@@ -28,6 +33,8 @@ pub enum MeshError {
     },
     #[error("{object}: triangle {triangle} has a non-finite vertex")]
     NonFinite { object: String, triangle: usize },
+    #[error("{object}: triangle {triangle} has a non-finite colour or texture coordinate")]
+    NonFiniteColour { object: String, triangle: usize },
     #[error("{object}: mesh has {count} triangles, more than the limit of {limit}")]
     TooLarge {
         object: String,
@@ -55,7 +62,8 @@ pub fn load_mesh(
         message,
     };
     let lower = relative.to_ascii_lowercase();
-    let raw: Vec<[[f64; 3]; 3]> = if lower.ends_with(".obj") {
+    let mut textures = Vec::new();
+    let raw: Vec<([[f64; 3]; 3], Option<TriangleAlbedo>)> = if lower.ends_with(".obj") {
         let (models, _) = tobj::load_obj(
             &path,
             &tobj::LoadOptions {
@@ -83,12 +91,13 @@ pub fn load_mesh(
                 {
                     return Err(read_err("face index out of range".into()));
                 }
-                tris.push([vertex(idx[0]), vertex(idx[1]), vertex(idx[2])]);
+                tris.push(([vertex(idx[0]), vertex(idx[1]), vertex(idx[2])], None));
             }
         }
         tris
     } else {
-        let (doc, buffers, _) = gltf::import(&path).map_err(|e| read_err(e.to_string()))?;
+        let (doc, buffers, images) = gltf::import(&path).map_err(|e| read_err(e.to_string()))?;
+        textures = images.iter().map(texture_from_gltf).collect();
         let mut tris = Vec::new();
         let scene = doc.default_scene().or_else(|| doc.scenes().next());
         let Some(scene) = scene else {
@@ -114,13 +123,59 @@ pub fn load_mesh(
                         Some(i) => i.into_u32().collect(),
                         None => (0..pos.len() as u32).collect(),
                     };
+                    // Base colour: factor × COLOR_0 × texture (at TEXCOORD_n).
+                    let pbr = prim.material().pbr_metallic_roughness();
+                    let factor = pbr.base_color_factor().map(|x| x as f64);
+                    let colours: Option<Vec<[f64; 3]>> = reader
+                        .read_colors(0)
+                        .map(|c| c.into_rgb_f32().map(|v| v.map(|x| x as f64)).collect());
+                    let texture = pbr.base_color_texture().and_then(|info| {
+                        let uv: Vec<[f64; 2]> = reader
+                            .read_tex_coords(info.tex_coord())?
+                            .into_f32()
+                            .map(|v| v.map(|x| x as f64))
+                            .collect();
+                        Some((uv, info.texture().source().index() as u32))
+                    });
+                    let coloured = colours.is_some()
+                        || texture.is_some()
+                        || factor[..3].iter().any(|x| *x != 1.0);
                     for idx in indices.chunks_exact(3) {
                         let get = |i: u32| {
                             pos.get(i as usize)
                                 .copied()
                                 .ok_or_else(|| read_err("index out of range".into()))
                         };
-                        tris.push([get(idx[0])?, get(idx[1])?, get(idx[2])?]);
+                        let tri = [get(idx[0])?, get(idx[1])?, get(idx[2])?];
+                        let albedo = if coloured {
+                            let colour = |i: u32| -> Result<[f64; 3], MeshError> {
+                                let c = match &colours {
+                                    Some(c) => *c.get(i as usize).ok_or_else(|| {
+                                        read_err("COLOR_0 index out of range".into())
+                                    })?,
+                                    None => [1.0; 3],
+                                };
+                                Ok(std::array::from_fn(|k| factor[k] * c[k]))
+                            };
+                            let texture = match &texture {
+                                Some((uv, image)) => {
+                                    let at = |i: u32| {
+                                        uv.get(i as usize).copied().ok_or_else(|| {
+                                            read_err("TEXCOORD index out of range".into())
+                                        })
+                                    };
+                                    Some(([at(idx[0])?, at(idx[1])?, at(idx[2])?], *image))
+                                }
+                                None => None,
+                            };
+                            Some(TriangleAlbedo {
+                                vertex: [colour(idx[0])?, colour(idx[1])?, colour(idx[2])?],
+                                texture,
+                            })
+                        } else {
+                            None
+                        };
+                        tris.push((tri, albedo));
                     }
                 }
             }
@@ -136,7 +191,21 @@ pub fn load_mesh(
         });
     }
     let mut mesh = TriangleMesh::default();
-    for (k, tri) in raw.into_iter().enumerate() {
+    mesh.albedo.textures = textures;
+    for (k, (tri, albedo)) in raw.into_iter().enumerate() {
+        if albedo.as_ref().is_some_and(|a| {
+            a.vertex.iter().flatten().any(|x| !x.is_finite())
+                || a.texture
+                    .iter()
+                    .flat_map(|t| t.0)
+                    .flatten()
+                    .any(|x| !x.is_finite())
+        }) {
+            return Err(MeshError::NonFiniteColour {
+                object: object.to_string(),
+                triangle: k,
+            });
+        }
         if tri.iter().flatten().any(|x| !x.is_finite()) {
             return Err(MeshError::NonFinite {
                 object: object.to_string(),
@@ -149,6 +218,10 @@ pub fn load_mesh(
             continue;
         }
         mesh.triangles.push(world);
+        mesh.albedo.triangles.push(albedo.map(|a| TriangleAlbedo {
+            vertex: a.vertex.map(|v| v.map(|x| x.clamp(0.0, 1.0))),
+            ..a
+        }));
     }
     if mesh.triangles.is_empty() {
         return Err(MeshError::Empty {
@@ -249,5 +322,90 @@ mod tests {
         let missing =
             load_mesh("clutter \"x\"", &dir, "missing.obj", &Transform::default()).unwrap_err();
         assert!(missing.to_string().contains("missing.obj"), "{missing}");
+    }
+
+    /// A PNG (8-bit RGB, stored deflate block) of `w × h` pixels, row-major from the top.
+    fn png(w: u32, h: u32, rgb: &[[u8; 3]]) -> Vec<u8> {
+        fn crc32(bytes: &[u8]) -> u32 {
+            let mut c = 0xffff_ffffu32;
+            for b in bytes {
+                c ^= *b as u32;
+                for _ in 0..8 {
+                    c = if c & 1 != 0 {
+                        0xedb8_8320 ^ (c >> 1)
+                    } else {
+                        c >> 1
+                    };
+                }
+            }
+            !c
+        }
+        let mut raw = Vec::new();
+        for row in rgb.chunks_exact(w as usize) {
+            raw.push(0u8); // filter: none
+            raw.extend(row.iter().flatten());
+        }
+        let (mut a, mut b) = (1u32, 0u32);
+        for x in &raw {
+            a = (a + *x as u32) % 65521;
+            b = (b + a) % 65521;
+        }
+        let mut z = vec![0x78, 0x01, 0x01];
+        z.extend((raw.len() as u16).to_le_bytes());
+        z.extend((!(raw.len() as u16)).to_le_bytes());
+        z.extend(&raw);
+        z.extend(((b << 16) | a).to_be_bytes());
+        let mut ihdr = Vec::new();
+        ihdr.extend(w.to_be_bytes());
+        ihdr.extend(h.to_be_bytes());
+        ihdr.extend([8, 2, 0, 0, 0]);
+        let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+        for (kind, data) in [(b"IHDR", ihdr), (b"IDAT", z), (b"IEND", Vec::new())] {
+            out.extend((data.len() as u32).to_be_bytes());
+            let mut chunk = kind.to_vec();
+            chunk.extend(&data);
+            out.extend(&chunk);
+            out.extend(crc32(&chunk).to_be_bytes());
+        }
+        out
+    }
+
+    /// A glTF triangle with a base-colour factor and an sRGB texture: the albedo at a hit is
+    /// the factor times the decoded (linear) texel at the interpolated TEXCOORD_0.
+    #[test]
+    fn gltf_base_colour_texture_and_factor_give_the_hit_albedo() {
+        let dir = std::env::temp_dir().join(format!("lf-mesh-tex-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("tex.png"),
+            png(2, 1, &[[188, 94, 0], [255, 255, 255]]),
+        )
+        .unwrap();
+        let pos: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        // Every vertex at u = 0.25 (the first texel's centre).
+        let uv: [[f32; 2]; 3] = [[0.25, 0.5]; 3];
+        let mut bin = Vec::new();
+        for v in pos.iter().flatten().chain(uv.iter().flatten()) {
+            bin.extend(v.to_le_bytes());
+        }
+        std::fs::write(dir.join("tri.bin"), &bin).unwrap();
+        let json = r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
+"meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_0":1},"material":0}]}],
+"materials":[{"pbrMetallicRoughness":{"baseColorFactor":[0.5,1.0,1.0,1.0],"baseColorTexture":{"index":0}}}],
+"textures":[{"source":0}],"images":[{"uri":"tex.png"}],
+"buffers":[{"uri":"tri.bin","byteLength":60}],
+"bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":36},{"buffer":0,"byteOffset":36,"byteLength":24}],
+"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]},
+{"bufferView":1,"componentType":5126,"count":3,"type":"VEC2"}]}"#;
+        std::fs::write(dir.join("tri.gltf"), json).unwrap();
+        let mesh = load_mesh("dynamic \"tri\"", &dir, "tri.gltf", &Transform::default()).unwrap();
+        assert_eq!(mesh.albedo.textures.len(), 1);
+        let a = mesh.albedo.at(0, [0.2, 0.3, 0.5], [0.9; 3]);
+        let lin = |x: f64| ((x / 255.0 + 0.055) / 1.055).powf(2.4);
+        let want = [0.5 * lin(188.0), lin(94.0), 0.0];
+        for c in 0..3 {
+            assert!((a[c] - want[c]).abs() < 1e-4, "{a:?} vs {want:?}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

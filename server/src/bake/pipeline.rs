@@ -19,8 +19,10 @@ use lightfarm_proto::scene::{ProbeVolumeMode, Scene, SceneError, Transform, Tran
 use super::dnrt::bake_dnrt_grid;
 use super::dnrt_cache::{dnrt_key, DnrtCache, DnrtLookup};
 use super::drt::{build_drt, DeltaBlock, DrtStats};
+use super::drt_rays::DrtRayCache;
 use super::geometry::{Geometry, GeometryError, Primitive};
 use super::mesh::load_mesh;
+use super::mesh_albedo::SurfaceAlbedo;
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
 use super::probe_volume::build_probe_volume;
 use super::progress::Progress;
@@ -28,6 +30,7 @@ use super::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
 use super::shape_cache::{Lookup, ShapeCache};
 use super::tracer::Tracer;
 use super::transport::{lightfield_transport, traced_transport, MrtTransport, TransportStats};
+use super::transport_cache::{transport_key, CachedTransport, TransportCache};
 use super::transport_compaction::compact_transport;
 
 /// What to bake beyond the scene's own settings.
@@ -52,6 +55,8 @@ pub struct BakeReport {
     pub corrupt_cache_entries: usize,
     pub ranks: Vec<usize>,
     pub transport: TransportStats,
+    /// The inter-block transport came from the cache (nothing about the blocks changed).
+    pub transport_from_cache: bool,
     pub stage_seconds: Vec<(String, f64)>,
     pub bundle_bytes: usize,
     pub drt: Option<DrtStats>,
@@ -157,6 +162,141 @@ pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
     }
 }
 
+/// The scene's blocks' shape operators, deduplicated by content key.
+pub struct ShapePlan {
+    /// One per block.
+    pub specs: Vec<ShapeSpec>,
+    /// Unique shape keys, in order of first use.
+    pub unique: Vec<String>,
+    /// Per unique shape, the first block (index into `specs`) that uses it.
+    pub unique_spec: Vec<usize>,
+    /// Per block, its unique shape.
+    pub shape_index: Vec<usize>,
+}
+
+/// Which shape each block uses, and the unique shapes.
+pub fn shape_plan(scene: &Scene) -> ShapePlan {
+    let specs: Vec<ShapeSpec> = scene
+        .blocks
+        .iter()
+        .map(|b| ShapeSpec::for_block(&b.aabb(), &b.open, &scene.settings, &scene.light_regions))
+        .collect();
+    let mut unique: Vec<String> = Vec::new();
+    let mut unique_spec = Vec::new();
+    let mut shape_index: Vec<usize> = Vec::new();
+    let mut key_to_index: HashMap<String, usize> = HashMap::new();
+    for (b, spec) in specs.iter().enumerate() {
+        let key = spec.key();
+        let idx = *key_to_index.entry(key.clone()).or_insert_with(|| {
+            unique.push(key);
+            unique_spec.push(b);
+            unique.len() - 1
+        });
+        shape_index.push(idx);
+    }
+    ShapePlan {
+        specs,
+        unique,
+        unique_spec,
+        shape_index,
+    }
+}
+
+/// The MRT inter-block transport of the blocks alone (and its compaction when the scene ships
+/// compact transport).
+pub fn mrt_transport(
+    scene: &Scene,
+    block_geometry: &Geometry,
+    per_block: &[&ShapeOperators],
+    openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
+    transport_kind: Transport,
+    progress: &dyn Progress,
+) -> Result<CachedTransport, BakeError> {
+    let settings = &scene.settings;
+    let (mrt, mut stats) = match transport_kind {
+        Transport::Lightfield => {
+            progress.stage("lightfield transport", 1);
+            let (blocks, stats) = lightfield_transport(per_block, openings, settings.tolerance);
+            progress.advance(1);
+            (MrtTransport::Lightfield(blocks), stats)
+        }
+        Transport::Traced => {
+            progress.stage("traced transport", block_geometry.texels.len() as u64);
+            let tracer = Tracer::new(block_geometry.primitives.clone(), block_geometry.scale());
+            let (blocks, stats) = traced_transport(
+                block_geometry,
+                &tracer,
+                per_block,
+                settings.rays_per_texel,
+                settings.seed,
+                settings.tolerance,
+                &|n| progress.advance(n),
+            );
+            (MrtTransport::Traced(blocks), stats)
+        }
+    };
+    let compact = if settings.compact_transport {
+        let compact = compact_transport(per_block, &mrt, settings.tolerance)
+            .map_err(|e| BakeError::Transport(e.to_string()))?;
+        stats.compact_ranks = compact.iter().map(|c| c.y.ncols()).collect();
+        Some(compact)
+    } else {
+        None
+    };
+    Ok(CachedTransport {
+        mrt,
+        compact,
+        stats,
+    })
+}
+
+/// A dynamic object's DNRT grid: from the cache, or baked and stored there.
+pub fn dnrt_grid(
+    scene: &Scene,
+    scene_dir: &Path,
+    object: &lightfarm_proto::scene::DynamicObject,
+    cache: Option<&DnrtCache>,
+) -> Result<lightfarm_proto::dnrt_grid::DnrtGrid, BakeError> {
+    let settings = &scene.settings;
+    let mesh = load_mesh(
+        &format!("dynamic \"{}\"", object.id),
+        scene_dir,
+        &object.mesh,
+        &Transform::default(),
+    )
+    .map_err(GeometryError::from)?;
+    let key = dnrt_key(
+        &mesh.triangles,
+        object.albedo,
+        &mesh.albedo,
+        &settings.dnrt,
+        settings.seed,
+    );
+    if let Some(DnrtLookup::Hit(grid)) = cache.map(|c| c.get(&key, &object.id)) {
+        return Ok(*grid);
+    }
+    // The mesh's own colours where it has them, the object's albedo elsewhere.
+    let albedo = if mesh.albedo.is_empty() {
+        SurfaceAlbedo::Uniform(object.albedo)
+    } else {
+        SurfaceAlbedo::Mesh {
+            albedo: &mesh.albedo,
+            fallback: object.albedo,
+        }
+    };
+    let grid = bake_dnrt_grid(
+        &object.id,
+        &mesh.triangles,
+        albedo,
+        &settings.dnrt,
+        settings.seed,
+    );
+    if let Some(c) = cache {
+        c.put(&key, &grid)?;
+    }
+    Ok(grid)
+}
+
 /// Bakes a validated scene. `scene_dir` resolves mesh paths.
 pub fn bake(
     scene: &Scene,
@@ -182,24 +322,14 @@ pub fn bake(
     lap(&mut report, "geometry");
 
     // Shape operators, deduplicated by content key.
-    let specs: Vec<ShapeSpec> = scene
-        .blocks
-        .iter()
-        .map(|b| ShapeSpec::for_block(&b.aabb(), &b.open, settings, &scene.light_regions))
-        .collect();
-    let mut unique: Vec<String> = Vec::new();
-    let mut shape_index: Vec<usize> = Vec::new();
-    let mut key_to_index: HashMap<String, usize> = HashMap::new();
-    let mut unique_specs: Vec<&ShapeSpec> = Vec::new();
-    for spec in &specs {
-        let key = spec.key();
-        let idx = *key_to_index.entry(key.clone()).or_insert_with(|| {
-            unique.push(key.clone());
-            unique_specs.push(spec);
-            unique.len() - 1
-        });
-        shape_index.push(idx);
-    }
+    let plan = shape_plan(scene);
+    let ShapePlan {
+        specs,
+        unique,
+        unique_spec,
+        shape_index,
+    } = &plan;
+    let unique_specs: Vec<&ShapeSpec> = unique_spec.iter().map(|i| &specs[*i]).collect();
     report.unique_shapes = unique.len();
     let mut shapes: Vec<Arc<ShapeOperators>> = Vec::new();
     let mut to_compute: Vec<usize> = Vec::new();
@@ -238,36 +368,40 @@ pub fn bake(
     report.ranks = shapes.iter().map(|s| s.rank()).collect();
     lap(&mut report, "shape operators");
 
-    // Inter-block transport.
     let per_block: Vec<&ShapeOperators> = shape_index.iter().map(|i| shapes[*i].as_ref()).collect();
-    let mrt = match options.transport.unwrap_or(settings.transport) {
-        Transport::Lightfield => {
-            progress.stage("lightfield transport", 1);
-            let (blocks, stats) = lightfield_transport(&per_block, &openings, settings.tolerance);
-            progress.advance(1);
-            report.transport = stats;
-            MrtTransport::Lightfield(blocks)
-        }
-        Transport::Traced => {
-            progress.stage("traced transport", block_geometry.texels.len() as u64);
-            let tracer = Tracer::new(block_geometry.primitives.clone(), block_geometry.scale());
-            let (blocks, stats) = traced_transport(
+    // Inter-block transport: of the blocks alone, so cached by the blocks and their shapes.
+    let transport_kind = options.transport.unwrap_or(settings.transport);
+    let transport_cache = match &options.cache {
+        Some(c) => Some(TransportCache::open(c.dir())?),
+        None => None,
+    };
+    let block_shape_keys: Vec<String> = shape_index.iter().map(|i| unique[*i].clone()).collect();
+    let transport_key = transport_key(scene, transport_kind, &block_shape_keys);
+    let cached = transport_cache.as_ref().and_then(|c| c.get(&transport_key));
+    report.transport_from_cache = cached.is_some();
+    let CachedTransport {
+        mrt,
+        compact,
+        stats,
+    } = match cached {
+        Some(t) => t,
+        None => {
+            let computed = mrt_transport(
+                scene,
                 &block_geometry,
-                &tracer,
                 &per_block,
-                settings.rays_per_texel,
-                settings.seed,
-                settings.tolerance,
-                &|n| progress.advance(n),
-            );
-            report.transport = stats;
-            MrtTransport::Traced(blocks)
+                &openings,
+                transport_kind,
+                progress,
+            )?;
+            if let Some(cache) = &transport_cache {
+                cache.put(&transport_key, &computed)?;
+            }
+            computed
         }
     };
-    let transport = if settings.compact_transport {
-        let compact = compact_transport(&per_block, &mrt, settings.tolerance)
-            .map_err(|e| BakeError::Transport(e.to_string()))?;
-        report.transport.compact_ranks = compact.iter().map(|c| c.y.ncols()).collect();
+    report.transport = stats;
+    let transport = if let Some(compact) = &compact {
         TransportOps::Compact(
             compact
                 .iter()
@@ -306,6 +440,48 @@ pub fn bake(
     };
     // Opening operators are only applied by lightfield transport at run time.
     let ship_openings = matches!(transport, TransportOps::Lightfield(_));
+    // The bundle grows in file order; each step's sections are final once announced.
+    let mut bundle = Bundle {
+        layout: layout_of(scene, &full_geometry),
+        shapes: shapes
+            .iter()
+            .map(|s| bundle::ShapeOps {
+                key: s.key.clone(),
+                u_b: to_matrix(&s.u_b),
+                t_db: to_matrix(&s.t_db),
+                openings: s
+                    .openings
+                    .iter()
+                    .filter(|_| ship_openings)
+                    .map(|o| bundle::OpeningOps {
+                        face: o.face.index() as u8,
+                        u_r: to_matrix(&o.u_r),
+                    })
+                    .collect(),
+            })
+            .collect(),
+        blocks: scene
+            .blocks
+            .iter()
+            .enumerate()
+            .map(|(b, block)| bundle::BlockOps {
+                id: block.id.clone(),
+                shape: shape_index[b] as u32,
+                texel_offset: full_geometry.block_texels[b].start as u32,
+            })
+            .collect(),
+        transport: Some(transport),
+        full: None,
+        drt: None,
+        probes: None,
+        dnrt: None,
+    };
+    let announce = |bundle: &Bundle| {
+        if progress.wants_sections() {
+            progress.sections_ready(bundle);
+        }
+    };
+    announce(&bundle);
     lap(&mut report, "transport");
 
     // DRT: clutter operators.
@@ -314,6 +490,10 @@ pub fn bake(
     } else {
         let n = full_geometry.texels.len() as u64;
         progress.stage("clutter operators", n);
+        let ray_cache = match &options.cache {
+            Some(c) => Some(DrtRayCache::open(c.dir())?),
+            None => None,
+        };
         let ops = build_drt(
             scene,
             &openings,
@@ -321,13 +501,14 @@ pub fn bake(
             &block_geometry,
             &per_block,
             &mrt,
+            ray_cache.as_ref(),
             &|k| progress.advance(k),
         )
         .map_err(|source| BakeError::Drt(source.to_string()))?;
         report.drt = Some(ops.stats.clone());
         Some(ops)
     };
-    let drt = drt_ops.as_ref().map(|ops| bundle::DrtOps {
+    bundle.drt = drt_ops.as_ref().map(|ops| bundle::DrtOps {
         clutter: ops
             .clutter
             .iter()
@@ -341,6 +522,9 @@ pub fn bake(
         buried: ops.buried.clone(),
         direct_gather: ops.direct_gather.clone(),
     });
+    if bundle.drt.is_some() {
+        announce(&bundle);
+    }
     lap(&mut report, "clutter operators");
 
     // U_dyn: the probe volume, when something will read it.
@@ -349,7 +533,7 @@ pub fn bake(
         ProbeVolumeMode::Always => !(scene.clutter.is_empty() && scene.dynamic.is_empty()),
         ProbeVolumeMode::Never => false,
     };
-    let probes = if !wanted {
+    bundle.probes = if !wanted {
         None
     } else {
         let (clutter, projection_of): (&[_], Vec<Option<usize>>) = match &drt_ops {
@@ -374,11 +558,13 @@ pub fn bake(
             entries: volume.entries.iter().map(to_entry).collect(),
         })
     };
-
+    if bundle.probes.is_some() {
+        announce(&bundle);
+    }
     lap(&mut report, "probe volume");
 
     // DNRT grids: one per dynamic object, content-cached (they depend on the object alone).
-    let dnrt = if scene.dynamic.is_empty() {
+    bundle.dnrt = if scene.dynamic.is_empty() {
         None
     } else {
         let cache = match &options.cache {
@@ -387,36 +573,8 @@ pub fn bake(
         };
         let mut grids = Vec::new();
         for object in &scene.dynamic {
-            let mesh = load_mesh(
-                &format!("dynamic \"{}\"", object.id),
-                scene_dir,
-                &object.mesh,
-                &Transform::default(),
-            )
-            .map_err(GeometryError::from)?;
-            let key = dnrt_key(
-                &mesh.triangles,
-                object.albedo,
-                &settings.dnrt,
-                settings.seed,
-            );
             let start = Instant::now();
-            let grid = match cache.as_ref().map(|c| c.get(&key, &object.id)) {
-                Some(DnrtLookup::Hit(grid)) => *grid,
-                _ => {
-                    let grid = bake_dnrt_grid(
-                        &object.id,
-                        &mesh.triangles,
-                        object.albedo,
-                        &settings.dnrt,
-                        settings.seed,
-                    );
-                    if let Some(c) = &cache {
-                        c.put(&key, &grid)?;
-                    }
-                    grid
-                }
-            };
+            let grid = dnrt_grid(scene, scene_dir, object, cache.as_ref())?;
             report.dnrt.push((
                 object.id.clone(),
                 start.elapsed().as_secs_f64(),
@@ -426,10 +584,13 @@ pub fn bake(
         }
         Some(grids)
     };
+    if bundle.dnrt.is_some() && options.full {
+        announce(&bundle);
+    }
     lap(&mut report, "dnrt grids");
 
     // The dense Hašan-style operator over the full geometry.
-    let full = if options.full {
+    bundle.full = if options.full {
         progress.stage("dense operator", full_geometry.texels.len() as u64);
         let tracer = Tracer::new(full_geometry.primitives.clone(), full_geometry.scale());
         let all: Vec<usize> = (0..full_geometry.texels.len()).collect();
@@ -460,42 +621,5 @@ pub fn bake(
         None
     };
     lap(&mut report, "dense operator");
-
-    let bundle = Bundle {
-        layout: layout_of(scene, &full_geometry),
-        shapes: shapes
-            .iter()
-            .map(|s| bundle::ShapeOps {
-                key: s.key.clone(),
-                u_b: to_matrix(&s.u_b),
-                t_db: to_matrix(&s.t_db),
-                openings: s
-                    .openings
-                    .iter()
-                    .filter(|_| ship_openings)
-                    .map(|o| bundle::OpeningOps {
-                        face: o.face.index() as u8,
-                        u_r: to_matrix(&o.u_r),
-                    })
-                    .collect(),
-            })
-            .collect(),
-        blocks: scene
-            .blocks
-            .iter()
-            .enumerate()
-            .map(|(b, block)| bundle::BlockOps {
-                id: block.id.clone(),
-                shape: shape_index[b] as u32,
-                texel_offset: full_geometry.block_texels[b].start as u32,
-            })
-            .collect(),
-        transport: Some(transport),
-        full,
-        drt,
-        probes,
-        dnrt,
-    };
-    lap(&mut report, "bundle");
     Ok((bundle, report))
 }

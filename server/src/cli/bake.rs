@@ -68,6 +68,10 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
                 "drt: {} scene texels with rows, {} skipped (view of clutter below tolerance), {} buried scene texels ({} without a valid neighbour), {} buried clutter texels, clutter ranks {:?}",
                 d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.clutter_ranks
             );
+            eprintln!(
+                "drt rays: {} texels traced, {} reused from the cache (nothing they saw changed)",
+                d.traced_texels, d.reused_texels
+            );
         }
         for (id, seconds, bytes) in &report.dnrt {
             eprintln!("dnrt: \"{id}\" grid {bytes} bytes in {seconds:.3}s (bake or cache lookup)");

@@ -6,9 +6,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use lightfarm_client::{
-    direct_from_point_lights, direct_from_point_lights_averaged, irradiance_at, irradiance_sh_at,
-    point_light_irradiance_sh, Bundle, DirectLight, DnrtInstance, DnrtVolume, IndirectLight,
-    Method, Occluders, ProbeField, Runtime,
+    direct_from_point_lights, direct_from_point_lights_averaged, irradiance_at,
+    point_light_irradiance_sh, radiance_sh_at, Bundle, DirectLight, DnrtInstance, DnrtVolume,
+    IndirectLight, Method, Occluders, ProbeField, Runtime,
 };
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::lights::Pose;
@@ -100,8 +100,11 @@ pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Re
 }
 
 /// DNRT (paper 003) for every posed dynamic object: per texel, the light the objects add and
-/// take away. Each object's irradiance at its centre is what a light probe there would hold:
-/// the probe volume's (light from direct-lit surfaces) plus the point lights' direct light.
+/// take away, consistent with the one-bounce solution: an object reflects the point lights'
+/// direct light (their irradiance lobe at its centre) and hides the radiance of the direct-lit
+/// surfaces behind it (the probe volume's radiance SH at its centre, Appendix B.2). Light the
+/// object would reflect from the walls is a second bounce, and a point light it hides is its
+/// direct shadow; neither is part of one-bounce indirect light.
 /// `None` when there are no poses; an error when a pose names an object without a grid.
 pub fn dnrt_delta(
     runtime: &mut Runtime,
@@ -127,16 +130,12 @@ pub fn dnrt_delta(
             anyhow::anyhow!("pose \"{}\": the bundle has no DNRT grid for it", pose.id)
         })?;
         let dnrt = DnrtVolume::new(grid)?;
-        let at = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, [[0.0; 9]; 3]);
+        let zero = [[0.0; 9]; 3];
+        let at = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, zero, zero);
         let centre = at.centre_world();
-        let mut c = irradiance_sh_at(volume, &field, centre);
         let lit = point_light_irradiance_sh(occluders, &lights.lights, centre);
-        for (cc, lc) in c.iter_mut().zip(&lit) {
-            for (a, b) in cc.iter_mut().zip(lc) {
-                *a += b;
-            }
-        }
-        let instance = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, c);
+        let hidden = radiance_sh_at(volume, &field, centre);
+        let instance = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, lit, hidden);
         instance.apply_texels(&bundle.layout, &mut out)?;
     }
     Ok(Some(out))

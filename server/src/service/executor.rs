@@ -2,6 +2,11 @@
 //! lays the assets out as files in a scratch directory, runs [`crate::bake::pipeline::bake`] with
 //! the shared shape-operator cache, and encodes the bundle with the scene's codec settings.
 //!
+//! While the bake runs, each partial bundle the engine reports is encoded with the same options
+//! and its bytes up to the table of contents are published: they are the final bundle's first
+//! bytes (the engine's `sections_ready` invariant and deterministic encoding), so a client can
+//! start on MRT before DRT and DNRT arrive.
+//!
 //! Invariants: runs on a runner thread inside the worker pool (never on the async runtime); the
 //! bundle bytes are exactly those `lightfarm bake` writes for the same scene and settings; the
 //! scratch directory is removed whatever the outcome (also when the bake unwinds on cancel).
@@ -10,6 +15,8 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
+use lightfarm_proto::bundle::{Bundle, EncodeOptions};
+use lightfarm_proto::container::sections_end;
 use lightfarm_proto::scene::Scene;
 
 use super::job_progress::JobProgress;
@@ -18,6 +25,7 @@ use super::scene_inputs::{apply_overrides, asset_hash};
 use super::store::{BlobKind, BlobStore};
 use crate::bake::bundle_encoding::encode_options;
 use crate::bake::pipeline::{bake, BakeOptions};
+use crate::bake::progress::Progress;
 use crate::bake::shape_cache::ShapeCache;
 
 /// Bakes in this process.
@@ -37,6 +45,38 @@ impl PipelineExecutor {
             scratch: scratch.to_path_buf(),
             counter: AtomicU64::new(0),
         }
+    }
+}
+
+/// The job's progress hook, plus encoding each partial bundle the engine reports with the
+/// bundle's own options and publishing its bytes up to the table of contents.
+struct StreamingProgress<'a> {
+    job: &'a JobProgress,
+    options: EncodeOptions,
+}
+
+impl Progress for StreamingProgress<'_> {
+    fn stage(&self, name: &str, total: u64) {
+        self.job.stage(name, total);
+    }
+
+    fn advance(&self, n: u64) {
+        self.job.advance(n);
+    }
+
+    fn wants_sections(&self) -> bool {
+        true
+    }
+
+    fn sections_ready(&self, bundle: &Bundle) {
+        let (bytes, report) = bundle.encode_with(&self.options);
+        let Some(end) = sections_end(&bytes) else {
+            return;
+        };
+        let mut bytes = bytes;
+        bytes.truncate(end);
+        let names = report.sections.iter().map(|(n, _)| n.to_string()).collect();
+        self.job.publish_prefix(bytes, names);
     }
 }
 
@@ -69,8 +109,20 @@ impl BakeExecutor for PipelineExecutor {
             cache: Some(cache),
             ..BakeOptions::default()
         };
+        let streaming = StreamingProgress {
+            job: progress,
+            options: encode_options(&scene.settings, None),
+        };
         let (bundle, report) =
-            bake(&scene, &dir.0, &options, progress).map_err(|e| e.to_string())?;
+            bake(&scene, &dir.0, &options, &streaming).map_err(|e| e.to_string())?;
+        if let Some(drt) = &report.drt {
+            tracing::info!(
+                scene = %scene_id,
+                traced = drt.traced_texels,
+                reused = drt.reused_texels,
+                "drt rays: texels traced, and reused from earlier bakes"
+            );
+        }
         Ok(BakeOutput {
             bundle: encode_bundle(&scene, &bundle),
             stage_seconds: report.stage_seconds,

@@ -95,6 +95,22 @@ impl JobProgress {
     }
 }
 
+impl JobProgress {
+    /// Records `bytes` as the bundle's final leading bytes and announces them.
+    pub fn publish_prefix(&self, bytes: Vec<u8>, sections: Vec<String>) {
+        let mut inner = self.shared.inner.lock().unwrap();
+        let Some(job) = inner.jobs.get_mut(&self.id) else {
+            return;
+        };
+        let len = bytes.len() as u64;
+        job.prefix = Some(Arc::new(bytes));
+        let _ = job.events.send(BakeEvent::Sections {
+            sections,
+            bytes: len,
+        });
+    }
+}
+
 impl Progress for JobProgress {
     fn stage(&self, name: &str, total: u64) {
         self.stop_if_cancelled();

@@ -98,6 +98,8 @@ pub trait JobQueue: Send + Sync + 'static {
         team: &str,
         id: &str,
     ) -> Option<(BakeStatus, broadcast::Receiver<BakeEvent>)>;
+    /// The bundle bytes that are final while the bake runs (see [`BakeEvent::Sections`]).
+    fn bundle_prefix(&self, team: &str, id: &str) -> Option<Arc<Vec<u8>>>;
     /// How often each shape key was used by the team's finished bakes.
     fn shape_uses(&self, team: &str) -> HashMap<String, u64>;
     fn metrics(&self) -> QueueMetrics;
@@ -189,6 +191,8 @@ pub(crate) fn unix_now() -> f64 {
 
 pub(super) struct Job {
     pub record: JobRecord,
+    /// The bundle's leading bytes that are final while the bake runs (not persisted).
+    pub prefix: Option<Arc<Vec<u8>>>,
     pub cancel: Arc<AtomicBool>,
     pub events: broadcast::Sender<BakeEvent>,
 }
@@ -289,6 +293,7 @@ impl LocalJobs {
                 record.id.clone(),
                 Job {
                     record,
+                    prefix: None,
                     cancel: Arc::new(AtomicBool::new(false)),
                     events,
                 },
@@ -464,6 +469,7 @@ fn runner(shared: Arc<Shared>, pool: Arc<rayon::ThreadPool>, executor: Arc<dyn B
             for (kind, hash) in &record.inputs {
                 shared.store.unpin(*kind, hash);
             }
+            job.prefix = None;
             cancel.store(false, Ordering::SeqCst);
             shared.persist(record);
             let _ = job.events.send(record.state_event());
@@ -565,6 +571,7 @@ impl JobQueue for LocalJobs {
         match inner.jobs.get_mut(&request.id) {
             Some(job) => {
                 job.record = record;
+                job.prefix = None;
                 let _ = job.events.send(job.record.state_event());
             }
             None => {
@@ -573,6 +580,7 @@ impl JobQueue for LocalJobs {
                     request.id.clone(),
                     Job {
                         record,
+                        prefix: None,
                         cancel: Arc::new(AtomicBool::new(false)),
                         events,
                     },
@@ -638,6 +646,15 @@ impl JobQueue for LocalJobs {
             return None;
         }
         Some((job.record.status(false), job.events.subscribe()))
+    }
+
+    fn bundle_prefix(&self, team: &str, id: &str) -> Option<Arc<Vec<u8>>> {
+        let inner = self.shared.inner.lock().unwrap();
+        let job = inner.jobs.get(id)?;
+        if !job.record.owners.contains(team) {
+            return None;
+        }
+        job.prefix.clone()
     }
 
     fn shape_uses(&self, team: &str) -> HashMap<String, u64> {

@@ -327,6 +327,12 @@ impl JobQueue for FarmJobs {
         }
     }
 
+    /// The farm does not stream partial bundles: `GET /v1/bakes/{id}/bundle` sends the stored
+    /// bundle in one piece once the bake has succeeded.
+    fn bundle_prefix(&self, _team: &str, _id: &str) -> Option<Arc<Vec<u8>>> {
+        None
+    }
+
     fn shape_uses(&self, team: &str) -> HashMap<String, u64> {
         let mut uses = HashMap::new();
         for job in self.farm.block_on(self.all_jobs()) {

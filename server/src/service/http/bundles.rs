@@ -25,7 +25,7 @@ use super::AppState;
 use crate::service::store::BlobKind;
 
 /// A stored blob as a response body without copying it.
-struct SharedBlob(std::sync::Arc<Vec<u8>>);
+pub(super) struct SharedBlob(pub(super) std::sync::Arc<Vec<u8>>);
 
 impl AsRef<[u8]> for SharedBlob {
     fn as_ref(&self) -> &[u8] {

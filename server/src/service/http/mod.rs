@@ -4,11 +4,13 @@
 //!
 //! # Layout
 //! - [`auth`]: the calling team; [`error`]: the error response.
-//! - [`assets`], [`scenes`], [`bakes`], [`events`], [`bundles`]: the `/v1` resources.
+//! - [`assets`], [`scenes`], [`bakes`], [`events`], [`bundles`], [`bake_bundle`] (a bundle
+//!   streamed while it is written): the `/v1` resources.
 //! - [`ops`]: health, readiness, metrics, shapes; [`openapi`]: `/openapi.json`.
 
 pub mod assets;
 pub mod auth;
+pub mod bake_bundle;
 pub mod bakes;
 pub mod bundles;
 pub mod error;
@@ -88,6 +90,10 @@ pub fn router(state: AppState) -> Router {
             get(bakes::bake_status).delete(bakes::cancel_bake),
         )
         .route("/v1/bakes/{id}/events", get(events::bake_events))
+        .route(
+            "/v1/bakes/{id}/bundle",
+            get(bake_bundle::stream_bake_bundle),
+        )
         .route("/v1/bundles/{hash}", get(bundles::get_bundle))
         .route("/v1/shapes", get(ops::list_shapes))
         .route("/healthz", get(ops::healthz))

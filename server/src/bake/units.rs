@@ -1,0 +1,288 @@
+//! A bake cut into deterministic units that fill the operator cache, for running on many
+//! machines (the farm): each unit computes one cache entry (a shape's operators, a block's or a
+//! clutter object's DRT rays, a dynamic object's DNRT grid, the level's transport), and the
+//! bundle is then assembled by [`super::pipeline::bake`] over a cache holding every unit's
+//! files — every lookup hits, so assembly is quick and its bundle is byte-identical to a bake
+//! run in one piece (the cache never changes results).
+//!
+//! Phases: units of one phase are independent; phase 1 (transport) reads phase 0's shapes.
+//! A unit run twice writes identical bytes, so a redelivered unit is harmless.
+//!
+//! Who calls it: the farm's workers (through the service), and tests. Paths are relative to
+//! the operator cache directory (the one [`ShapeCache`] opens).
+
+use std::path::{Path, PathBuf};
+
+use lightfarm_proto::scene::Scene;
+
+use super::dnrt_cache::{dnrt_key, DnrtCache};
+use super::drt_rays::{trace_block_unit, trace_clutter_unit, DrtRayCache, RayPass};
+use super::geometry::{Geometry, GeometryError};
+use super::mesh::load_mesh;
+use super::pipeline::{dnrt_grid, mrt_transport, shape_plan, BakeError};
+use super::progress::Progress;
+use super::shape::{bake_shape, ShapeOperators};
+use super::shape_cache::{Lookup, ShapeCache};
+use super::tracer::Tracer;
+use super::transport_cache::{transport_key, TransportCache};
+
+/// One deterministic piece of a bake.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub enum BakeUnit {
+    /// Unique shape `index` of the scene's [`super::pipeline::ShapePlan`].
+    Shape { index: usize },
+    /// The level's MRT inter-block transport (needs every shape).
+    Transport,
+    /// Block `block`'s DRT rays.
+    DrtBlock { block: usize },
+    /// Box clutter `clutter`'s DRT rays.
+    DrtClutter { clutter: usize },
+    /// Dynamic object `object`'s DNRT grid.
+    Dnrt { object: usize },
+}
+
+impl BakeUnit {
+    /// `shape/3`, `transport`, `drt-block/5`, `drt-clutter/0`, `dnrt/1`.
+    pub fn name(&self) -> String {
+        match self {
+            BakeUnit::Shape { index } => format!("shape/{index}"),
+            BakeUnit::Transport => "transport".to_string(),
+            BakeUnit::DrtBlock { block } => format!("drt-block/{block}"),
+            BakeUnit::DrtClutter { clutter } => format!("drt-clutter/{clutter}"),
+            BakeUnit::Dnrt { object } => format!("dnrt/{object}"),
+        }
+    }
+
+    /// The inverse of [`BakeUnit::name`].
+    pub fn parse(name: &str) -> Option<BakeUnit> {
+        if name == "transport" {
+            return Some(BakeUnit::Transport);
+        }
+        let (kind, index) = name.split_once('/')?;
+        let i: usize = index.parse().ok()?;
+        Some(match kind {
+            "shape" => BakeUnit::Shape { index: i },
+            "drt-block" => BakeUnit::DrtBlock { block: i },
+            "drt-clutter" => BakeUnit::DrtClutter { clutter: i },
+            "dnrt" => BakeUnit::Dnrt { object: i },
+            _ => return None,
+        })
+    }
+}
+
+/// The scene's units by phase: phase 0 shapes, DRT rays and DNRT grids; phase 1 transport.
+pub fn plan(scene: &Scene, scene_dir: &Path) -> Result<Vec<Vec<BakeUnit>>, BakeError> {
+    scene.validate()?;
+    let shapes = shape_plan(scene);
+    let mut first: Vec<BakeUnit> = (0..shapes.unique.len())
+        .map(|index| BakeUnit::Shape { index })
+        .collect();
+    if !scene.clutter.is_empty() {
+        let g = Geometry::from_scene(scene, scene_dir)?;
+        first.extend(
+            (0..scene.blocks.len())
+                .filter(|b| !g.block_texels[*b].is_empty())
+                .map(|block| BakeUnit::DrtBlock { block }),
+        );
+        first.extend(
+            (0..scene.clutter.len())
+                .filter(|c| !g.clutter_texels[*c].is_empty())
+                .map(|clutter| BakeUnit::DrtClutter { clutter }),
+        );
+    }
+    first.extend((0..scene.dynamic.len()).map(|object| BakeUnit::Dnrt { object }));
+    Ok(vec![first, vec![BakeUnit::Transport]])
+}
+
+fn unknown(unit: &BakeUnit) -> BakeError {
+    BakeError::Drt(format!("unit {} is not part of this scene", unit.name()))
+}
+
+fn shape_file(key: &str) -> PathBuf {
+    PathBuf::from(format!("{key}.lfshape"))
+}
+
+/// Cache files a unit reads if present: its own earlier result (reused, or refreshed
+/// incrementally) and, for transport, every shape.
+pub fn unit_inputs(
+    scene: &Scene,
+    scene_dir: &Path,
+    unit: &BakeUnit,
+) -> Result<Vec<PathBuf>, BakeError> {
+    let shapes = shape_plan(scene);
+    Ok(match unit {
+        BakeUnit::Shape { index } => {
+            vec![shape_file(
+                shapes.unique.get(*index).ok_or_else(|| unknown(unit))?,
+            )]
+        }
+        BakeUnit::Transport => {
+            let mut files: Vec<PathBuf> = shapes.unique.iter().map(|k| shape_file(k)).collect();
+            files.push(transport_file(scene, &shapes));
+            files
+        }
+        BakeUnit::DrtBlock { .. } | BakeUnit::DrtClutter { .. } | BakeUnit::Dnrt { .. } => {
+            outputs(scene, scene_dir, unit)?
+        }
+    })
+}
+
+fn transport_file(scene: &Scene, shapes: &super::pipeline::ShapePlan) -> PathBuf {
+    let keys: Vec<String> = shapes
+        .shape_index
+        .iter()
+        .map(|i| shapes.unique[*i].clone())
+        .collect();
+    TransportCache::relative_path(&transport_key(scene, scene.settings.transport, &keys))
+}
+
+/// The cache files holding a unit's result.
+fn outputs(scene: &Scene, scene_dir: &Path, unit: &BakeUnit) -> Result<Vec<PathBuf>, BakeError> {
+    let shapes = shape_plan(scene);
+    Ok(match unit {
+        BakeUnit::Shape { index } => {
+            vec![shape_file(
+                shapes.unique.get(*index).ok_or_else(|| unknown(unit))?,
+            )]
+        }
+        BakeUnit::Transport => vec![transport_file(scene, &shapes)],
+        BakeUnit::DrtBlock { block } => {
+            if *block >= scene.blocks.len() {
+                return Err(unknown(unit));
+            }
+            with_ray_pass(scene, scene_dir, |pass| vec![pass.block_unit_file(*block)])?
+        }
+        BakeUnit::DrtClutter { clutter } => {
+            if *clutter >= scene.clutter.len() {
+                return Err(unknown(unit));
+            }
+            with_ray_pass(scene, scene_dir, |pass| {
+                pass.clutter_unit_file(*clutter).into_iter().collect()
+            })?
+        }
+        BakeUnit::Dnrt { object } => {
+            let object = scene.dynamic.get(*object).ok_or_else(|| unknown(unit))?;
+            let mesh = load_mesh(
+                &format!("dynamic \"{}\"", object.id),
+                scene_dir,
+                &object.mesh,
+                &Default::default(),
+            )
+            .map_err(GeometryError::from)?;
+            let key = dnrt_key(
+                &mesh.triangles,
+                object.albedo,
+                &mesh.albedo,
+                &scene.settings.dnrt,
+                scene.settings.seed,
+            );
+            vec![DnrtCache::relative_path(&key)]
+        }
+    })
+}
+
+/// Builds the DRT ray pass of a scene (geometry and tracers) and hands it to `f`.
+fn with_ray_pass<T>(
+    scene: &Scene,
+    scene_dir: &Path,
+    f: impl FnOnce(&RayPass) -> T,
+) -> Result<T, BakeError> {
+    let g = Geometry::from_scene(scene, scene_dir)?;
+    let gb = Geometry::blocks_only(scene);
+    let openings = scene.openings()?;
+    let tracer = Tracer::new(g.primitives.clone(), g.scale());
+    let block_tracer = Tracer::new(gb.primitives.clone(), gb.scale());
+    let pass = RayPass::new(scene, &openings, &g, &gb, &tracer, &block_tracer);
+    Ok(f(&pass))
+}
+
+/// Runs one unit against the cache; returns the cache files holding its result.
+pub fn run_unit(
+    scene: &Scene,
+    scene_dir: &Path,
+    cache: &ShapeCache,
+    unit: &BakeUnit,
+    progress: &dyn Progress,
+) -> Result<Vec<PathBuf>, BakeError> {
+    scene.validate()?;
+    let shapes = shape_plan(scene);
+    match unit {
+        BakeUnit::Shape { index } => {
+            let key = shapes.unique.get(*index).ok_or_else(|| unknown(unit))?;
+            if !matches!(cache.get(key), Lookup::Hit(_)) {
+                let spec = &shapes.specs[shapes.unique_spec[*index]];
+                progress.stage("shape operators", spec.n_texels() as u64);
+                let ops = bake_shape(spec, &|n| progress.advance(n))?;
+                cache.put(&ops)?;
+            }
+        }
+        BakeUnit::Transport => {
+            let transport_cache = TransportCache::open(cache.dir())?;
+            let keys: Vec<String> = shapes
+                .shape_index
+                .iter()
+                .map(|i| shapes.unique[*i].clone())
+                .collect();
+            let key = transport_key(scene, scene.settings.transport, &keys);
+            if transport_cache.get(&key).is_none() {
+                let mut unique: Vec<ShapeOperators> = Vec::new();
+                for k in &shapes.unique {
+                    match cache.get(k) {
+                        Lookup::Hit(ops) => unique.push(*ops),
+                        _ => {
+                            return Err(BakeError::Drt(format!(
+                                "transport needs shape {k}, which is not in the cache"
+                            )))
+                        }
+                    }
+                }
+                let per_block: Vec<&ShapeOperators> =
+                    shapes.shape_index.iter().map(|i| &unique[*i]).collect();
+                let computed = mrt_transport(
+                    scene,
+                    &Geometry::blocks_only(scene),
+                    &per_block,
+                    &scene.openings()?,
+                    scene.settings.transport,
+                    progress,
+                )?;
+                transport_cache.put(&key, &computed)?;
+            }
+        }
+        BakeUnit::DrtBlock { block } => {
+            if *block >= scene.blocks.len() {
+                return Err(unknown(unit));
+            }
+            let ray_cache = DrtRayCache::open(cache.dir())?;
+            with_ray_pass(scene, scene_dir, |pass| {
+                progress.stage("clutter operators", pass.block_texel_count(*block) as u64);
+                trace_block_unit(pass, *block, Some(&ray_cache), &|n| progress.advance(n))
+            })??;
+        }
+        BakeUnit::DrtClutter { clutter } => {
+            if *clutter >= scene.clutter.len() {
+                return Err(unknown(unit));
+            }
+            let ray_cache = DrtRayCache::open(cache.dir())?;
+            with_ray_pass(scene, scene_dir, |pass| {
+                progress.stage(
+                    "clutter operators",
+                    pass.clutter_texel_count(*clutter) as u64,
+                );
+                trace_clutter_unit(pass, *clutter, Some(&ray_cache), &|n| progress.advance(n))
+            })??;
+        }
+        BakeUnit::Dnrt { object } => {
+            let object = scene.dynamic.get(*object).ok_or_else(|| unknown(unit))?;
+            progress.stage("dnrt grids", 1);
+            dnrt_grid(
+                scene,
+                scene_dir,
+                object,
+                Some(&DnrtCache::open(cache.dir())?),
+            )?;
+            progress.advance(1);
+        }
+    }
+    outputs(scene, scene_dir, unit)
+}
