@@ -7,14 +7,19 @@
 //!   cache writes are, so a concurrent reader never sees half a file.
 //! - A file absent from the object store is skipped, not an error: `unit_inputs` names files a
 //!   unit reads *if present* (earlier results it may reuse).
-//! - The object store is authoritative: a local copy is replaced by the stored one. Cache files
-//!   are checksummed by the engine, which recomputes any entry it finds corrupt, and a cache
-//!   never changes results (an engine invariant), so a stale or missing file costs time only.
+//! - The object store is authoritative: a local copy is replaced by the stored one unless it has
+//!   the stored object's SHA-256 (the object store's own digest), in which case nothing moves;
+//!   likewise an upload of bytes the store already holds under that name is skipped (a unit run
+//!   again writes identical bytes). Cache files are checksummed by the engine, which recomputes
+//!   any entry it finds corrupt, and a cache never changes results (an engine invariant), so a
+//!   stale or missing file costs time only.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use async_nats::jetstream::object_store::{GetErrorKind, ObjectStore};
+use async_nats::jetstream::object_store::{GetErrorKind, InfoErrorKind, ObjectStore};
+use base64::engine::general_purpose::URL_SAFE;
+use base64::engine::Engine;
 use tokio::io::AsyncReadExt;
 
 use super::FarmError;
@@ -29,6 +34,22 @@ pub fn object_name(path: &Path) -> String {
         .join("/")
 }
 
+/// The object store's digest of `bytes` (`SHA-256=<url-safe base64>`).
+pub fn digest(bytes: &[u8]) -> String {
+    let sha = ring::digest::digest(&ring::digest::SHA256, bytes);
+    format!("SHA-256={}", URL_SAFE.encode(sha.as_ref()))
+}
+
+/// The stored digest of `name`; `Ok(None)` when there is no such object.
+async fn stored_digest(objects: &ObjectStore, name: &str) -> Result<Option<String>, FarmError> {
+    match objects.info(name).await {
+        Ok(info) if !info.deleted => Ok(Some(info.digest.unwrap_or_default())),
+        Ok(_) => Ok(None),
+        Err(e) if e.kind() == InfoErrorKind::NotFound => Ok(None),
+        Err(e) => Err(FarmError::nats(format!("look up operator file {name}"), e)),
+    }
+}
+
 /// Downloads the stored ones among `paths` into `cache_dir`; returns the bytes downloaded.
 pub async fn download(
     objects: &ObjectStore,
@@ -38,6 +59,13 @@ pub async fn download(
     let mut total = 0;
     for path in paths {
         let name = object_name(path);
+        let target = cache_dir.join(path);
+        let Some(stored) = stored_digest(objects, &name).await? else {
+            continue;
+        };
+        if std::fs::read(&target).is_ok_and(|local| digest(&local) == stored) {
+            continue;
+        }
         let mut object = match objects.get(&name).await {
             Ok(o) => o,
             Err(e) if e.kind() == GetErrorKind::NotFound => continue,
@@ -48,7 +76,6 @@ pub async fn download(
             .read_to_end(&mut bytes)
             .await
             .map_err(|e| FarmError::nats(format!("read operator file {name}"), e))?;
-        let target = cache_dir.join(path);
         let write = || -> std::io::Result<()> {
             let dir = target.parent().unwrap_or(cache_dir);
             std::fs::create_dir_all(dir)?;
@@ -66,7 +93,8 @@ pub async fn download(
     Ok(total)
 }
 
-/// Uploads `paths` (relative to `cache_dir`) to the object store; returns the bytes uploaded.
+/// Uploads `paths` (relative to `cache_dir`) to the object store, except files it already holds
+/// with the same bytes; returns the bytes uploaded.
 pub async fn upload(
     objects: &ObjectStore,
     cache_dir: &Path,
@@ -78,6 +106,9 @@ pub async fn upload(
         let source = cache_dir.join(path);
         let bytes = std::fs::read(&source)
             .map_err(|e| FarmError::nats(format!("read {}", source.display()), e))?;
+        if stored_digest(objects, &name).await? == Some(digest(&bytes)) {
+            continue;
+        }
         let mut reader = bytes.as_slice();
         objects
             .put(name.as_str(), &mut reader)
@@ -86,4 +117,23 @@ pub async fn upload(
         total += bytes.len() as u64;
     }
     Ok(total)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn digest_is_the_object_stores_form() {
+        // SHA-256 of nothing, in the object store's `SHA-256=<url-safe base64>` form.
+        assert_eq!(
+            digest(b""),
+            "SHA-256=47DEQpj8HBSa-_TImW-5JCeuQeRkm5NMpJWZG3hSuFU="
+        );
+    }
+
+    #[test]
+    fn object_names_use_slashes() {
+        assert_eq!(object_name(Path::new("drt/ab.bin")), "drt/ab.bin");
+    }
 }
