@@ -97,6 +97,16 @@ class Farm:
         except OSError:
             return False
 
+    def stored_bytes(self, stream):
+        with urllib.request.urlopen(
+                f"http://127.0.0.1:{self.monitor_port}/jsz?streams=true") as r:
+            jsz = json.loads(r.read())
+        for account in jsz.get("account_details", []):
+            for detail in account.get("stream_detail", []):
+                if detail["name"] == stream:
+                    return detail["state"]["bytes"]
+        return 0
+
     def nats_bytes(self):
         v = self.varz()
         return v["in_bytes"] + v["out_bytes"]
@@ -142,7 +152,9 @@ def timed_bake(binary, workers, settings):
         seconds = time.monotonic() - started
         crossed = farm.nats_bytes() - before
         assert status["state"] == "succeeded", status
-        return seconds, crossed, status["bundle_bytes"]
+        operators = farm.stored_bytes("OBJ_lightfarm_operators")
+        stages = ", ".join(f"{s['stage']} {s['seconds']:.1f} s" for s in status["stages"])
+        return seconds, crossed, status["bundle_bytes"], operators, stages
     finally:
         farm.close()
 
@@ -173,11 +185,12 @@ def main():
     args = parser.parse_args()
     settings = {"texels_per_face": args.texels, "rays_per_texel": args.rays}
     print(f"maze with pillars, settings {json.dumps(settings)}, every worker --threads 1, "
-          f"{os.cpu_count()} cores on this machine")
+          f"{os.cpu_count()} cores on this machine, load average {os.getloadavg()[0]:.1f}")
     for workers in (1, 2):
-        seconds, crossed, bundle = timed_bake(args.bin, workers, settings)
-        print(f"{workers} worker(s): {seconds:.1f} s, {crossed / 1e6:.2f} MB across NATS "
-              f"(bundle {bundle / 1e6:.2f} MB)")
+        seconds, crossed, bundle, operators, stages = timed_bake(args.bin, workers, settings)
+        print(f"{workers} worker(s): {seconds:.1f} s ({stages}); {crossed / 1e6:.1f} MB across "
+              f"NATS (operator files stored {operators / 1e6:.1f} MB, bundle "
+              f"{bundle / 1e6:.2f} MB)")
     unit, delay, state = redelivery(args.bin, settings)
     if delay is None:
         print(f"redelivery: unit {unit} was not started again (it had finished); bake {state}")
