@@ -9,6 +9,9 @@
 //! restarted mid-bake; the bundle is byte-identical to the embedded bake. Then a second bake is
 //! cancelled on replica B and the workers stop its units.
 //!
+//! `farm_keeps_teams_apart_and_bounds_its_queue`: with team tokens and no workers, another
+//! team's bake and scene are 404 and submissions beyond `queue_capacity` are 429.
+//!
 //! Skipped (passing, with a message) only when the `nats-server` binary is absent; `.ci/run`
 //! installs it, so CI always runs it.
 
@@ -87,9 +90,18 @@ struct Replica {
 
 impl Replica {
     fn start(farm: &str, data: &Path) -> Replica {
-        let mut child = Command::new(TEST_SERVER)
+        Replica::start_with(farm, data, None)
+    }
+
+    fn start_with(farm: &str, data: &Path, config: Option<&Path>) -> Replica {
+        let mut command = Command::new(TEST_SERVER);
+        command
             .args(["--addr", "127.0.0.1:0", "--farm", farm, "--data"])
-            .arg(data)
+            .arg(data);
+        if let Some(config) = config {
+            command.arg("--config").arg(config);
+        }
+        let mut child = command
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
@@ -328,5 +340,75 @@ fn farm_survives_a_dead_worker_and_a_restarted_replica() {
     drop(workers);
     drop(replica_a);
     drop(replica_b);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn farm_keeps_teams_apart_and_bounds_its_queue() {
+    let Some(nats) = nats_server() else {
+        eprintln!("SKIPPED: the nats-server binary is not installed (apt-get install nats-server)");
+        return;
+    };
+    let root = std::env::temp_dir().join(format!("lightfarm-farm-teams-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    let (_nats, url) = start_nats(&nats, &root.join("nats"));
+    let config = root.join("farm.toml");
+    std::fs::write(
+        &config,
+        "[limits]\nqueue_capacity = 2\n\
+         [[teams]]\nname = \"red\"\ntoken = \"red-token\"\n\
+         [[teams]]\nname = \"blue\"\ntoken = \"blue-token\"\n",
+    )
+    .unwrap();
+    let replica = Replica::start_with(&url, &root.join("a"), Some(&config));
+    let red = replica.client().with_token("red-token");
+    let blue = replica.client().with_token("blue-token");
+
+    let scene_text = std::fs::read_to_string(scene_dir("maze").join("scene.json")).unwrap();
+    let scene = red.create_scene(&scene_text).unwrap().id;
+    // No worker runs: the first two bakes wait, the third is refused.
+    let mut accepted = Vec::new();
+    for seed in 0..3 {
+        match red.submit_bake(&scene, json!({"seed": seed, "texels_per_face": 4})) {
+            Ok(status) => accepted.push(status.id),
+            Err(lightfarm_client::ServiceError::Api {
+                status: 429,
+                retry_after,
+                ..
+            }) => assert!(retry_after.is_some_and(|s| s >= 1)),
+            Err(e) => panic!("{e}"),
+        }
+    }
+    assert_eq!(accepted.len(), 2);
+    // The same bake again joins the waiting job instead of queueing another.
+    let again = red
+        .submit_bake(&scene, json!({"seed": 0, "texels_per_face": 4}))
+        .unwrap();
+    assert_eq!(again.id, accepted[0]);
+
+    // Blue sees neither red's bake nor red's scene.
+    assert_eq!(
+        blue.bake_status(&accepted[0]).unwrap_err().status(),
+        Some(404)
+    );
+    assert_eq!(
+        blue.cancel_bake(&accepted[0]).unwrap_err().status(),
+        Some(404)
+    );
+    assert_eq!(
+        blue.submit_bake(&scene, json!({"texels_per_face": 4}))
+            .unwrap_err()
+            .status(),
+        Some(404)
+    );
+    assert_eq!(
+        red.bake_status(&accepted[1]).unwrap().state,
+        JobState::Queued
+    );
+    let cancelled = red.cancel_bake(&accepted[1]).unwrap();
+    assert_eq!(cancelled.state, JobState::Cancelled);
+
+    drop(replica);
     let _ = std::fs::remove_dir_all(&root);
 }
