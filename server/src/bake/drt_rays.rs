@@ -42,6 +42,7 @@ use super::lighting_prior::unshadowed_pattern;
 use super::low_rank::LowRankError;
 use super::ray_reach::RayReach;
 use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use super::shape_cache::mark_used;
 use super::tracer::{Hit, Tracer};
 
 const PURPOSE_DRT_SCENE: u64 = 31;
@@ -759,6 +760,7 @@ impl DrtRayCache {
         let valid = bytes.len() >= 8
             && u64::from_le_bytes(bytes[..8].try_into().unwrap()) == checksum(&bytes[8..]);
         if valid {
+            mark_used(&path);
             Some(bytes[8..].to_vec())
         } else {
             let _ = fs::remove_file(&path);

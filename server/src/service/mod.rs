@@ -23,6 +23,7 @@ pub mod executor;
 pub mod http;
 pub mod job_progress;
 pub mod jobs;
+pub mod operator_cache;
 pub mod scene_inputs;
 pub mod store;
 
@@ -85,6 +86,7 @@ pub async fn start(config: ServiceConfig) -> anyhow::Result<RunningService> {
     let executor = Arc::new(PipelineExecutor::new(
         store.clone(),
         &operator_cache,
+        config.limits.operator_cache_bytes,
         &data.join("work"),
     ));
     let jobs: Arc<dyn JobQueue> = Arc::new(LocalJobs::open(
