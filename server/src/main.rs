@@ -174,6 +174,9 @@ enum Command {
         /// The Embree side of the throughput comparison.
         #[arg(long, default_value = "scripts/embree_throughput.py")]
         embree_script: PathBuf,
+        /// Only rewrite the plots and markdown from OUT/results.json (no measuring).
+        #[arg(long)]
+        replot: bool,
     },
     /// Print the JSON Schema of the scene description.
     Schema,
@@ -292,6 +295,7 @@ fn main() -> anyhow::Result<()> {
             no_embree,
             python,
             embree_script,
+            replot,
         } => cli::bench::run(cli::bench::BenchArgs {
             preset: if quick {
                 cli::bench::Preset::Quick
@@ -305,6 +309,7 @@ fn main() -> anyhow::Result<()> {
             seed,
             embree: (!no_embree).then_some((python, embree_script)),
             command_line: std::env::args().collect::<Vec<_>>().join(" "),
+            replot,
         }),
         Command::Schema => {
             println!(

@@ -129,7 +129,7 @@ impl BenchMethod {
 }
 
 /// The bake settings of one sweep point (codecs share the bake).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BakeSetting {
     pub texels_per_face: u32,
     pub rays_per_texel: u32,
@@ -138,7 +138,7 @@ pub struct BakeSetting {
 }
 
 /// A measured point.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct BenchPoint {
     pub scene: String,
     pub method: BenchMethod,

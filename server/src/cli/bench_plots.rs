@@ -134,6 +134,8 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, data: &PlotData) -> an
         .configure_mesh()
         .x_desc(data.x_label)
         .y_desc("relative L2 error (mean over light sets)")
+        .x_labels(8)
+        .y_labels(8)
         .x_label_formatter(&|v| short(*v))
         .y_label_formatter(&|v| short(*v))
         .label_style(("sans-serif", 13))
@@ -150,11 +152,34 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, data: &PlotData) -> an
             continue;
         }
         let c = colour(method);
-        chart
-            .draw_series(points.iter().map(|&p| Circle::new(p, 4, c.filled())))
-            .map_err(|e| err(&e))?
-            .label(method.label())
-            .legend(move |(x, y)| Circle::new((x, y), 4, c.filled()));
+        // Distinct shapes, so methods with equal numbers (one-block scenes) stay visible.
+        match method {
+            BenchMethod::Full | BenchMethod::MrtLightfield => {
+                chart
+                    .draw_series(points.iter().map(|&p| Circle::new(p, 4, c.filled())))
+                    .map_err(|e| err(&e))?
+                    .label(method.label())
+                    .legend(move |(x, y)| Circle::new((x, y), 4, c.filled()));
+            }
+            BenchMethod::MrtTraced | BenchMethod::Dnrt => {
+                chart
+                    .draw_series(
+                        points
+                            .iter()
+                            .map(|&p| TriangleMarker::new(p, 6, c.stroke_width(2))),
+                    )
+                    .map_err(|e| err(&e))?
+                    .label(method.label())
+                    .legend(move |(x, y)| TriangleMarker::new((x, y), 6, c.stroke_width(2)));
+            }
+            BenchMethod::Drt => {
+                chart
+                    .draw_series(points.iter().map(|&p| Cross::new(p, 5, c.stroke_width(2))))
+                    .map_err(|e| err(&e))?
+                    .label(method.label())
+                    .legend(move |(x, y)| Cross::new((x, y), 5, c.stroke_width(2)));
+            }
+        }
     }
     let mut front: Vec<(f64, f64)> = data
         .points

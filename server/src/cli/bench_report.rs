@@ -113,7 +113,8 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
         w,
         "- CPU: {} (`nproc` = {}), shared with other builds while it ran\n\
          - command: `{}`\n\
-         - preset: {:?}; wall time {:.1} min\n\
+         - preset: {:?}; wall time {:.1} min, not counting {:.1} min of reference runs read \
+         from the cache (a cold run takes about {:.1} min)\n\
          - {} seeded random light sets per scene (1–4 point lights, 2–20 W/sr, 0.25 m from \
          walls and clutter; poses of dynamic objects); high-ray reference {} rays per texel \
          (cached by content); brute-force runs at {:?} rays per texel; apply time = median of \
@@ -123,6 +124,8 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
         results.command_line,
         plan.preset,
         results.wall_seconds / 60.0,
+        results.reference_seconds_from_cache / 60.0,
+        (results.wall_seconds + results.reference_seconds_from_cache) / 60.0,
         plan.light_sets,
         plan.reference_rays,
         plan.brute_force_rays,
@@ -206,7 +209,9 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
          the method models (block texels inside clutter boxes left out), mean over light sets; \
          *p95*: 95th percentile of the per-texel error over the mean reference magnitude.\n\
          - *bake s*: the engine stages the method needs, cold (no shape cache), plus the \
-         encode; *bytes*: the stored bundle sections the method reads plus the container.\n\
+         encode; *bytes*: the stored bundle sections the method reads plus the container \
+         (zstd-compressed; the dense operator is stored as sparse f32 rows whatever the codec, \
+         so `full` does not change with the codec).\n\
          - *full*: the dense per-texel operator (Hašan et al. 2006 style, the paper's \
          baseline); *drt*/*dnrt* are on the lightfield bake; *mrt-\\** ignore clutter and \
          dynamic objects (which the reference contains); *dnrt* = MRT plus the DNRT grids.\n\

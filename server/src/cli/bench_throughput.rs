@@ -14,7 +14,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::bake::geometry::{Geometry, Primitive};
 use crate::bake::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
@@ -24,7 +24,7 @@ use crate::bake::tracer::{tangents, Tracer};
 const PURPOSE_THROUGHPUT: u64 = 0x7468_726f_7567_6870;
 
 /// Rays per second of both tracers (None where a side could not be measured, with why).
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Throughput {
     pub scene: String,
     pub triangles: usize,
