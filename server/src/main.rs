@@ -144,6 +144,40 @@ enum Command {
         #[arg(long)]
         near_clutter: Option<f64>,
     },
+    /// Speed against error: sweep scenes × methods × bake settings against a cached high-ray
+    /// reference; write results.json, plots and BENCHMARKS.md-ready markdown.
+    Bench {
+        /// A few minutes on 2 cores (small scenes, few settings, low reference rays).
+        #[arg(long)]
+        quick: bool,
+        /// Output directory (results.json and the plots).
+        #[arg(long, default_value = "bench-out")]
+        out: PathBuf,
+        /// Where to write the markdown [default: OUT/BENCHMARKS.md].
+        #[arg(long)]
+        markdown: Option<PathBuf>,
+        /// Cache of reference results (keyed by content; reused across runs).
+        #[arg(long, default_value = "lightfarm-data/bench-references")]
+        reference_cache: PathBuf,
+        /// Directory of the example scenes.
+        #[arg(long, default_value = "scenes")]
+        scenes: PathBuf,
+        /// Seed of the light sets and the exported rays.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Skip the Embree throughput comparison.
+        #[arg(long)]
+        no_embree: bool,
+        /// Python interpreter with embreex installed.
+        #[arg(long, default_value = "python3")]
+        python: String,
+        /// The Embree side of the throughput comparison.
+        #[arg(long, default_value = "scripts/embree_throughput.py")]
+        embree_script: PathBuf,
+        /// Only rewrite the plots and markdown from OUT/results.json (no measuring).
+        #[arg(long)]
+        replot: bool,
+    },
     /// Print the JSON Schema of the scene description.
     Schema,
     /// Run the bake service (HTTP API; in-process workers, on-disk store under --data; with
@@ -284,6 +318,32 @@ fn main() -> anyhow::Result<()> {
             farm,
             cache,
             threads,
+        }),
+        Command::Bench {
+            quick,
+            out,
+            markdown,
+            reference_cache,
+            scenes,
+            seed,
+            no_embree,
+            python,
+            embree_script,
+            replot,
+        } => cli::bench::run(cli::bench::BenchArgs {
+            preset: if quick {
+                cli::bench::Preset::Quick
+            } else {
+                cli::bench::Preset::Full
+            },
+            out,
+            markdown,
+            reference_cache,
+            scenes,
+            seed,
+            embree: (!no_embree).then_some((python, embree_script)),
+            command_line: std::env::args().collect::<Vec<_>>().join(" "),
+            replot,
         }),
         Command::Schema => {
             println!(

@@ -52,39 +52,16 @@ fn nearby_blocks(scene: &Scene, openings: &[[Option<Opening>; 6]], aabb: &Aabb) 
     out
 }
 
-/// Builds the basis for clutter object `clutter` whose texels are `texels` in `g`.
-#[allow(clippy::too_many_arguments)]
-pub fn clutter_basis(
+/// The prior's light positions for clutter object `clutter`: quasi-random in the blocks it
+/// stands in and their neighbours (volume-weighted), clipped to the light regions, never inside
+/// the clutter itself.
+pub fn prior_lights(
     scene: &Scene,
     openings: &[[Option<Opening>; 6]],
-    g: &Geometry,
-    tracer: &Tracer,
     clutter: usize,
     aabb: &Aabb,
-    texels: std::ops::Range<usize>,
-) -> Result<ClutterBasisOps, LowRankError> {
-    let n = texels.len();
+) -> Vec<[f64; 3]> {
     let settings = &scene.settings;
-    if settings.clutter_basis == ClutterBasis::FaceConstant {
-        // One column per face (surface) of the object.
-        let mut faces: Vec<(usize, usize)> = Vec::new();
-        for s in &g.surfaces {
-            if s.texel_offset >= texels.start && s.texel_offset < texels.end {
-                faces.push((s.texel_offset - texels.start, s.t * s.t));
-            }
-        }
-        let mut basis = Mat::<f64>::zeros(n, faces.len());
-        for (j, (start, count)) in faces.iter().enumerate() {
-            for i in 0..*count {
-                basis[(start + i, j)] = 1.0 / (*count as f64).sqrt();
-            }
-        }
-        return Ok(ClutterBasisOps {
-            basis,
-            dropped_energy: f64::NAN,
-        });
-    }
-    // Light positions in nearby blocks (volume-weighted), clipped to light regions.
     let blocks = nearby_blocks(scene, openings, aabb);
     let mut volumes: Vec<Aabb> = Vec::new();
     for b in &blocks {
@@ -124,6 +101,42 @@ pub fn clutter_basis(
             }
         }
     }
+    lights
+}
+
+/// Builds the basis for clutter object `clutter` whose texels are `texels` in `g`.
+#[allow(clippy::too_many_arguments)]
+pub fn clutter_basis(
+    scene: &Scene,
+    openings: &[[Option<Opening>; 6]],
+    g: &Geometry,
+    tracer: &Tracer,
+    clutter: usize,
+    aabb: &Aabb,
+    texels: std::ops::Range<usize>,
+) -> Result<ClutterBasisOps, LowRankError> {
+    let n = texels.len();
+    let settings = &scene.settings;
+    if settings.clutter_basis == ClutterBasis::FaceConstant {
+        // One column per face (surface) of the object.
+        let mut faces: Vec<(usize, usize)> = Vec::new();
+        for s in &g.surfaces {
+            if s.texel_offset >= texels.start && s.texel_offset < texels.end {
+                faces.push((s.texel_offset - texels.start, s.t * s.t));
+            }
+        }
+        let mut basis = Mat::<f64>::zeros(n, faces.len());
+        for (j, (start, count)) in faces.iter().enumerate() {
+            for i in 0..*count {
+                basis[(start + i, j)] = 1.0 / (*count as f64).sqrt();
+            }
+        }
+        return Ok(ClutterBasisOps {
+            basis,
+            dropped_energy: f64::NAN,
+        });
+    }
+    let lights = prior_lights(scene, openings, clutter, aabb);
     let min_r2 = (1e-3 * g.scale()).powi(2);
     let columns: Vec<Vec<f64>> = lights
         .par_iter()

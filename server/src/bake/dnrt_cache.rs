@@ -104,6 +104,7 @@ impl DnrtCache {
         {
             if let Ok(mut grid) = DnrtGrid::read(&mut Reader::new(&bytes[8..])) {
                 grid.object = object.to_string();
+                super::shape_cache::mark_used(&path);
                 return DnrtLookup::Hit(Box::new(grid));
             }
         }

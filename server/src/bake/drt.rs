@@ -22,10 +22,10 @@ use std::collections::BTreeMap;
 use faer::Mat;
 
 use lightfarm_proto::bundle::{DeltaSource, TexelGather};
-use lightfarm_proto::scene::{ClutterGather, Opening, Scene};
+use lightfarm_proto::scene::{ClutterBasis, ClutterGather, Opening, Scene};
 
-use super::clutter_basis::{clutter_basis, ClutterBasisOps};
-use super::drt_rays::{trace_all, DrtRayCache, RayPass};
+use super::clutter_basis::{clutter_basis, prior_lights, ClutterBasisOps};
+use super::drt_rays::{clutter_basis_unit, trace_all, DrtRayCache, RayPass};
 use super::geometry::Geometry;
 use super::low_rank::LowRankError;
 use super::shape::ShapeOperators;
@@ -107,6 +107,29 @@ fn add_row(
     }
 }
 
+/// A matrix copied row-major, so a row is a contiguous slice.
+struct RowMajor {
+    cols: usize,
+    data: Vec<f64>,
+}
+
+impl RowMajor {
+    fn of(m: &Mat<f64>) -> RowMajor {
+        let mut data = Vec::with_capacity(m.nrows() * m.ncols());
+        for i in 0..m.nrows() {
+            data.extend((0..m.ncols()).map(|j| m[(i, j)]));
+        }
+        RowMajor {
+            cols: m.ncols(),
+            data,
+        }
+    }
+
+    fn row(&self, i: usize) -> &[f64] {
+        &self.data[i * self.cols..(i + 1) * self.cols]
+    }
+}
+
 fn source_of(key: (u8, u32)) -> DeltaSource {
     if key.0 == 0 {
         DeltaSource::Block(key.1)
@@ -165,7 +188,14 @@ pub fn build_drt(
             continue; // mesh clutter: occluder only (no lightmap yet)
         }
         let aabb = object.box_.expect("texels only on box clutter");
-        let basis = clutter_basis(scene, openings, g, &tracer, c, &aabb, range.clone())?;
+        let basis = if settings.clutter_basis == ClutterBasis::Prior {
+            let lights = prior_lights(scene, openings, c, &aabb);
+            clutter_basis_unit(scene, g, c, &lights, cache, || {
+                clutter_basis(scene, openings, g, &tracer, c, &aabb, range.clone())
+            })?
+        } else {
+            clutter_basis(scene, openings, g, &tracer, c, &aabb, range.clone())?
+        };
         stats.clutter_ranks.push(basis.basis.ncols());
         clutter.push((
             c,
@@ -180,7 +210,6 @@ pub fn build_drt(
     let projection_of: Vec<Option<usize>> = (0..scene.clutter.len())
         .map(|c| clutter.iter().position(|(k, _)| *k == c))
         .collect();
-    let basis_of = |c: usize| projection_of[c].map(|i| &clutter[i].1);
 
     // Buried texels: inside a clutter box (closed), or clutter texels outside every block.
     let inside_box = |p: [f64; 3], skip: Option<usize>| {
@@ -209,6 +238,27 @@ pub fn build_drt(
     stats.reused_texels = rays.reused_texels;
     let block_texels: Vec<usize> = (0..gb.texels.len()).collect();
 
+    // Row-major copies of every block's L_imp and every clutter basis (rows are read per hit).
+    let mut by_shape: Vec<(*const ShapeOperators, std::sync::Arc<RowMajor>)> = Vec::new();
+    let l_imp_rows: Vec<std::sync::Arc<RowMajor>> = shapes
+        .iter()
+        .map(|s| {
+            let ptr = *s as *const ShapeOperators;
+            match by_shape.iter().find(|(p, _)| *p == ptr) {
+                Some((_, rows)) => rows.clone(),
+                None => {
+                    let rows = std::sync::Arc::new(RowMajor::of(&s.l_imp));
+                    by_shape.push((ptr, rows.clone()));
+                    rows
+                }
+            }
+        })
+        .collect();
+    let basis_rows: Vec<RowMajor> = clutter
+        .iter()
+        .map(|(_, p)| RowMajor::of(&p.basis.basis))
+        .collect();
+
     // Accumulate per target block: map[(kind, source)][row] = values.
     let mut per_target: Vec<RowsBySource> = (0..n_blocks).map(|_| BTreeMap::new()).collect();
     let mut buried_scene: Vec<bool> = vec![false; g.texels.len()];
@@ -228,28 +278,24 @@ pub fn build_drt(
         stats.scene_texels_with_rows += 1;
         for &(t, w) in occluded {
             let (source, l) = local(t);
-            let l_imp = &shapes[source].l_imp;
-            let row: Vec<f64> = (0..l_imp.ncols()).map(|j| -l_imp[(l, j)]).collect();
+            // Antiradiance: −L_imp at the wall behind.
             add_row(
                 &mut per_target[target],
                 DeltaSource::Block(source as u32),
                 x as u32,
-                &row,
-                w,
+                l_imp_rows[source].row(l),
+                -w,
             );
         }
         for &(k, w) in reflected {
             let (owner, l) = local(k);
             let c = owner - n_blocks;
-            if let Some(p) = basis_of(c) {
-                let row: Vec<f64> = (0..p.basis.basis.ncols())
-                    .map(|j| p.basis.basis[(l, j)])
-                    .collect();
+            if let Some(i) = projection_of[c] {
                 add_row(
                     &mut per_target[target],
-                    DeltaSource::Clutter(projection_of[c].unwrap() as u32),
+                    DeltaSource::Clutter(i as u32),
                     x as u32,
-                    &row,
+                    basis_rows[i].row(l),
                     w,
                 );
             }
@@ -383,24 +429,19 @@ pub fn build_drt(
             let weight = count as f64 * inv;
             let (source, l) = local(t);
             if source < n_blocks {
-                let l_imp = &shapes[source].l_imp;
-                let row: Vec<f64> = (0..l_imp.ncols()).map(|j| l_imp[(l, j)]).collect();
                 add_row(
                     &mut per_clutter,
                     DeltaSource::Block(source as u32),
                     x as u32,
-                    &row,
+                    l_imp_rows[source].row(l),
                     weight,
                 );
-            } else if let Some(p) = basis_of(source - n_blocks) {
-                let row: Vec<f64> = (0..p.basis.basis.ncols())
-                    .map(|j| p.basis.basis[(l, j)])
-                    .collect();
+            } else if let Some(i) = projection_of[source - n_blocks] {
                 add_row(
                     &mut per_clutter,
-                    DeltaSource::Clutter(projection_of[source - n_blocks].unwrap() as u32),
+                    DeltaSource::Clutter(i as u32),
                     x as u32,
-                    &row,
+                    basis_rows[i].row(l),
                     weight,
                 );
             }

@@ -17,6 +17,9 @@
 //! clutter is still reached by the cosine rays); this is what limits (a) to the neighbourhood
 //! of the moved object.
 //!
+//! The clutter lighting-prior bases are reused the same way ([`clutter_basis_unit`]): when no
+//! changed object meets a shadow segment from a prior light to a texel.
+//!
 //! Frames: world, metres. Invariant: results are per texel in global texel order, hit lists
 //! ascending by texel with weights summed in ray order, whether traced or reused — so a bake is
 //! the same bytes with or without the cache, at any thread count.
@@ -31,10 +34,15 @@ use rayon::prelude::*;
 use lightfarm_proto::scene::{Opening, Scene};
 use lightfarm_proto::wire::{checksum, Reader, WireError, Writer};
 
+use super::clutter_basis::ClutterBasisOps;
 use super::clutter_sampling::{ClutterGuidedSampler, Sphere};
+use super::drt::DrtError;
 use super::geometry::{ClutterShape, Geometry, Primitive, SurfaceOwner};
+use super::lighting_prior::unshadowed_pattern;
+use super::low_rank::LowRankError;
 use super::ray_reach::RayReach;
 use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use super::shape_cache::mark_used;
 use super::tracer::{Hit, Tracer};
 
 const PURPOSE_DRT_SCENE: u64 = 31;
@@ -752,6 +760,7 @@ impl DrtRayCache {
         let valid = bytes.len() >= 8
             && u64::from_le_bytes(bytes[..8].try_into().unwrap()) == checksum(&bytes[8..]);
         if valid {
+            mark_used(&path);
             Some(bytes[8..].to_vec())
         } else {
             let _ = fs::remove_file(&path);
@@ -869,6 +878,141 @@ impl DrtRayCache {
             w.f64(t.back);
             write_reach(&mut w, &t.reach);
         }
+        self.write(key, &w.bytes)
+    }
+}
+
+/// True when the segment `a → b` meets the box grown by `margin` (slab test).
+fn segment_meets(a: [f64; 3], b: [f64; 3], bounds: &Bounds, margin: f64) -> bool {
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for k in 0..3 {
+        let (lo, hi) = (bounds[0][k] - margin, bounds[1][k] + margin);
+        let d = b[k] - a[k];
+        if d.abs() < 1e-300 {
+            if a[k] < lo || a[k] > hi {
+                return false;
+            }
+            continue;
+        }
+        let (s0, s1) = ((lo - a[k]) / d, (hi - a[k]) / d);
+        t0 = t0.max(s0.min(s1));
+        t1 = t1.min(s0.max(s1));
+        if t0 > t1 {
+            return false;
+        }
+    }
+    true
+}
+
+/// Clutter object `c`'s lighting-prior basis (`clutter_basis` with `settings.clutter_basis:
+/// prior`), reused from `cache` when no changed clutter object meets a shadow segment from one
+/// of its prior lights to one of its texels that the light faces — then every shadow ray, so
+/// the pattern matrix and its SVD, is the same; otherwise `compute`d and stored.
+pub fn clutter_basis_unit(
+    scene: &Scene,
+    g: &Geometry,
+    c: usize,
+    lights: &[[f64; 3]],
+    cache: Option<&DrtRayCache>,
+    compute: impl FnOnce() -> Result<ClutterBasisOps, LowRankError>,
+) -> Result<ClutterBasisOps, DrtError> {
+    let Some(cache) = cache else {
+        return Ok(compute()?);
+    };
+    let s = &scene.settings;
+    let range = g.clutter_texels[c].clone();
+    let mut h = blake3::Hasher::new();
+    h.update(
+        unit_key(
+            &blocks_fingerprint(scene),
+            scene,
+            "basis",
+            c,
+            range.start,
+            Some(&g.clutter_shapes[c]),
+        )
+        .as_bytes(),
+    );
+    h.update(&s.prior_lights.to_le_bytes());
+    h.update(&s.tolerance.to_bits().to_le_bytes());
+    for x in lights.iter().flatten() {
+        h.update(&x.to_bits().to_le_bytes());
+    }
+    let key = h.finalize().to_hex().to_string();
+    let new_clutter = clutter_list(g);
+    if let Some((old_clutter, basis)) = cache.get_basis(&key) {
+        let changes = Changes::between(&old_clutter, &new_clutter, g.scale());
+        let min_r2 = (1e-3 * g.scale()).powi(2);
+        let shadows_same = range.clone().all(|t| {
+            let texel = &g.texels[t];
+            lights.iter().all(|l| {
+                unshadowed_pattern(texel, *l, min_r2) <= 0.0
+                    || changes
+                        .changed
+                        .iter()
+                        .all(|b| !segment_meets(texel.position, *l, b, changes.margin))
+            })
+        });
+        if shadows_same && basis.basis.nrows() == range.len() {
+            return Ok(basis);
+        }
+    }
+    let basis = compute()?;
+    cache.put_basis(&key, &new_clutter, &basis)?;
+    Ok(basis)
+}
+
+impl DrtRayCache {
+    fn get_basis(&self, key: &str) -> Option<(Vec<(ClutterShape, u32, u32)>, ClutterBasisOps)> {
+        let bytes = self.read(key)?;
+        let decode = || -> Result<_, WireError> {
+            let mut r = Reader::new(&bytes);
+            let (_, clutter, rows) = read_header(&mut r)?;
+            let cols = r.u32()? as usize;
+            let data = r.f64s()?;
+            if data.len() != rows * cols {
+                return Err(WireError::Invalid("basis size".into()));
+            }
+            let dropped_energy = r.f64()?;
+            let basis = faer::Mat::from_fn(rows, cols, |i, j| data[i * cols + j]);
+            Ok((
+                clutter,
+                ClutterBasisOps {
+                    basis,
+                    dropped_energy,
+                },
+            ))
+        };
+        let out = decode().ok();
+        if out.is_none() {
+            let _ = fs::remove_file(self.path(key));
+        }
+        out
+    }
+
+    fn put_basis(
+        &self,
+        key: &str,
+        clutter: &[(ClutterShape, u32, u32)],
+        basis: &ClutterBasisOps,
+    ) -> std::io::Result<()> {
+        let mut w = Writer::new();
+        write_header::<()>(
+            &mut w,
+            &Unit {
+                spheres: Vec::new(),
+                clutter: clutter.to_vec(),
+                texels: vec![(); basis.basis.nrows()],
+            },
+        );
+        let m = &basis.basis;
+        w.u32(m.ncols() as u32);
+        let mut data = Vec::with_capacity(m.nrows() * m.ncols());
+        for i in 0..m.nrows() {
+            data.extend((0..m.ncols()).map(|j| m[(i, j)]));
+        }
+        w.f64s(&data);
+        w.f64(basis.dropped_energy);
         self.write(key, &w.bytes)
     }
 }

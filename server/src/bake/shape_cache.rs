@@ -13,6 +13,14 @@ use lightfarm_proto::wire::checksum;
 
 use super::shape::ShapeOperators;
 
+/// Marks a cache file as just used (its modification time), for least-recently-used trimming
+/// by whoever bounds the cache's size. Best effort: a failure only makes the entry look older.
+pub fn mark_used(path: &Path) {
+    if let Ok(f) = fs::File::options().append(true).open(path) {
+        let _ = f.set_modified(std::time::SystemTime::now());
+    }
+}
+
 /// A directory of cached shape operators.
 #[derive(Clone, Debug)]
 pub struct ShapeCache {
@@ -56,6 +64,7 @@ impl ShapeCache {
         if valid {
             if let Ok(ops) = ShapeOperators::decode(&bytes[8..]) {
                 if ops.key == key {
+                    mark_used(&path);
                     return Lookup::Hit(Box::new(ops));
                 }
             }

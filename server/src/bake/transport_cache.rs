@@ -19,6 +19,7 @@ use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_proto::wire::{checksum, Reader, WireError, Writer};
 use lightfarm_proto::Face;
 
+use super::shape_cache::mark_used;
 use super::transport::{MrtTransport, PropBlock, TracedBlock, TransportStats};
 use super::transport_compaction::CompactTransport;
 
@@ -240,7 +241,10 @@ impl TransportCache {
         let valid = bytes.len() >= 8
             && u64::from_le_bytes(bytes[..8].try_into().unwrap()) == checksum(&bytes[8..]);
         match valid.then(|| decode(&bytes[8..]).ok()).flatten() {
-            Some(t) => Some(t),
+            Some(t) => {
+                mark_used(&path);
+                Some(t)
+            }
             None => {
                 let _ = fs::remove_file(&path);
                 None

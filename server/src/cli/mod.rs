@@ -3,6 +3,15 @@
 //! [`crate::bake`] and the client crate.
 
 pub mod bake;
+pub mod bench;
+pub mod bench_equal_error;
+pub mod bench_lights;
+pub mod bench_measure;
+pub mod bench_pareto;
+pub mod bench_plots;
+pub mod bench_reference_cache;
+pub mod bench_report;
+pub mod bench_throughput;
 pub mod compare;
 pub mod eval;
 pub mod frame_time;

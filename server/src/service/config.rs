@@ -56,6 +56,9 @@ pub struct Limits {
     pub request_timeout_seconds: u64,
     /// The blob store (assets, scenes, bundles) is trimmed least-recently-used to this size.
     pub store_budget_bytes: u64,
+    /// The operator cache (shape operators, DRT rays, transports, DNRT grids) is trimmed
+    /// least-recently-used to this size after every bake.
+    pub operator_cache_bytes: u64,
 }
 
 impl Default for Limits {
@@ -70,6 +73,7 @@ impl Default for Limits {
             worker_threads: 0,
             request_timeout_seconds: 30,
             store_budget_bytes: 20 << 30,
+            operator_cache_bytes: 10 << 30,
         }
     }
 }

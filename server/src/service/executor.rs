@@ -21,6 +21,7 @@ use lightfarm_proto::scene::Scene;
 
 use super::job_progress::JobProgress;
 use super::jobs::{BakeExecutor, BakeOutput};
+use super::operator_cache;
 use super::scene_inputs::{apply_overrides, asset_hash};
 use super::store::{BlobKind, BlobStore};
 use crate::bake::bundle_encoding::encode_options;
@@ -32,16 +33,24 @@ use crate::bake::shape_cache::ShapeCache;
 pub struct PipelineExecutor {
     store: Arc<dyn BlobStore>,
     operator_cache: PathBuf,
+    /// The operator cache is trimmed to this many bytes after every bake.
+    operator_cache_bytes: u64,
     scratch: PathBuf,
     counter: AtomicU64,
 }
 
 impl PipelineExecutor {
-    pub fn new(store: Arc<dyn BlobStore>, operator_cache: &Path, scratch: &Path) -> Self {
+    pub fn new(
+        store: Arc<dyn BlobStore>,
+        operator_cache: &Path,
+        operator_cache_bytes: u64,
+        scratch: &Path,
+    ) -> Self {
         let _ = std::fs::remove_dir_all(scratch);
         PipelineExecutor {
             store,
             operator_cache: operator_cache.to_path_buf(),
+            operator_cache_bytes,
             scratch: scratch.to_path_buf(),
             counter: AtomicU64::new(0),
         }
@@ -115,6 +124,15 @@ impl BakeExecutor for PipelineExecutor {
         };
         let (bundle, report) =
             bake(&scene, &dir.0, &options, &streaming).map_err(|e| e.to_string())?;
+        let trimmed = operator_cache::trim(&self.operator_cache, self.operator_cache_bytes);
+        if trimmed.removed_files > 0 {
+            tracing::info!(
+                files = trimmed.removed_files,
+                bytes = trimmed.removed_bytes,
+                kept = trimmed.bytes,
+                "operator cache trimmed to its budget (least recently used first)"
+            );
+        }
         if let Some(drt) = &report.drt {
             tracing::info!(
                 scene = %scene_id,

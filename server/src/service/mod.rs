@@ -24,6 +24,7 @@ pub mod farm;
 pub mod http;
 pub mod job_progress;
 pub mod jobs;
+pub mod operator_cache;
 pub mod scene_inputs;
 pub mod store;
 
@@ -124,6 +125,7 @@ fn embedded_backend(
     let executor = Arc::new(PipelineExecutor::new(
         store.clone(),
         &data.join("operators"),
+        config.limits.operator_cache_bytes,
         &data.join("work"),
     ));
     let jobs: Arc<dyn JobQueue> = Arc::new(LocalJobs::open(

@@ -1,0 +1,230 @@
+//! Ray throughput of our tracer (`bake::tracer::Tracer`, obvhs CWBVH with exact f64 tests)
+//! against Embree (`embreex`, through `scripts/embree_throughput.py`) on the same triangles
+//! and the same rays.
+//!
+//! The scene's primitives are written as a triangle soup (each rectangle as two triangles) and
+//! a seeded set of rays leaves the texels the way the reference solver's first bounce does
+//! (cosine-distributed, from 1e-4 of the scene scale above the surface so that neither tracer
+//! needs its own self-hit rule). Both sides trace closest hits on one thread; ours is timed on
+//! the same triangles (the ratio) and on its native rectangles (what a bake actually uses).
+//!
+//! Invariant: both tracers read the very same f32 values (ours widens them to f64).
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::bake::geometry::{Geometry, Primitive};
+use crate::bake::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use crate::bake::tracer::{tangents, Tracer};
+
+/// Purpose tag of the exported rays' random stream (any value distinct from the engine's).
+const PURPOSE_THROUGHPUT: u64 = 0x7468_726f_7567_6870;
+
+/// Rays per second of both tracers (None where a side could not be measured, with why).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Throughput {
+    pub scene: String,
+    pub triangles: usize,
+    pub rays: usize,
+    /// Ours on the triangle soup, one thread.
+    pub obvhs_triangles_rays_per_second: f64,
+    /// Ours on the native primitives (rectangles), one thread.
+    pub obvhs_native_rays_per_second: f64,
+    pub embree_rays_per_second: Option<f64>,
+    pub embree_build_seconds: Option<f64>,
+    /// Fraction of rays whose closest-hit distance agrees (1e-3 relative) between the two.
+    pub agreement: Option<f64>,
+    /// Why Embree was not measured.
+    pub embree_missing: Option<String>,
+}
+
+/// The geometry's primitives as triangles (a rectangle becomes two).
+pub fn triangle_soup(primitives: &[Primitive]) -> Vec<[[f64; 3]; 3]> {
+    let mut out = Vec::with_capacity(primitives.len() * 2);
+    for p in primitives {
+        match p {
+            Primitive::Rect {
+                axis,
+                coord,
+                min,
+                max,
+                ..
+            } => {
+                let (u, v) = tangents(*axis);
+                let corner = |a: f64, b: f64| {
+                    let mut c = [0.0; 3];
+                    c[*axis] = *coord;
+                    c[u] = a;
+                    c[v] = b;
+                    c
+                };
+                let (c00, c10) = (corner(min[0], min[1]), corner(max[0], min[1]));
+                let (c11, c01) = (corner(max[0], max[1]), corner(min[0], max[1]));
+                out.push([c00, c10, c11]);
+                out.push([c00, c11, c01]);
+            }
+            Primitive::Triangle { v, .. } => out.push(*v),
+        }
+    }
+    out
+}
+
+/// `n_rays` seeded cosine-distributed rays from the texels (cycled), origins lifted off the
+/// surface; each value is rounded to f32 (what both tracers read).
+pub fn texel_rays(g: &Geometry, n_rays: usize, seed: u64) -> Vec<([f64; 3], [f64; 3])> {
+    let lift = 1e-4 * g.scale();
+    (0..n_rays)
+        .map(|i| {
+            let texel = &g.texels[i % g.texels.len()];
+            let round = (i / g.texels.len()) as u32;
+            let key = stream_key(seed, PURPOSE_THROUGHPUT, (i % g.texels.len()) as u64);
+            let d = to_world(sample_cosine_hemisphere(sobol_2d(key, round)), texel.normal);
+            let o = [0, 1, 2].map(|k| texel.position[k] + lift * texel.normal[k]);
+            let f = |x: f64| x as f32 as f64;
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            (o.map(f), d.map(|x| f(x / len)))
+        })
+        .collect()
+}
+
+/// Closest-hit distance of every ray (inf on a miss) and the best-of-3 rays per second.
+fn trace_all(tracer: &Tracer, rays: &[([f64; 3], [f64; 3])]) -> (Vec<f32>, f64) {
+    let no_surfaces = |_: u32| 1.0;
+    let mut distances = vec![f32::INFINITY; rays.len()];
+    let mut best = f64::INFINITY;
+    for _ in 0..3 {
+        let start = Instant::now();
+        for (slot, (o, d)) in distances.iter_mut().zip(rays) {
+            *slot = tracer
+                .closest(*o, *d, f64::INFINITY, &no_surfaces)
+                .map_or(f32::INFINITY, |h| h.t as f32);
+        }
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    (distances, rays.len() as f64 / best)
+}
+
+fn write_f32(path: &Path, values: impl Iterator<Item = f32>) -> anyhow::Result<()> {
+    let bytes: Vec<u8> = values.flat_map(f32::to_le_bytes).collect();
+    super::write_atomic(path, &bytes)
+}
+
+/// Measures both tracers on `g`; exports to `dir` and runs `python script dir` for Embree
+/// unless `python` is None.
+pub fn measure_throughput(
+    scene_name: &str,
+    g: &Geometry,
+    n_rays: usize,
+    seed: u64,
+    dir: &Path,
+    python_and_script: Option<(&str, &Path)>,
+) -> anyhow::Result<Throughput> {
+    let soup = triangle_soup(&g.primitives);
+    let rays = texel_rays(g, n_rays, seed);
+    let triangle_tracer = Tracer::new(
+        soup.iter()
+            .map(|v| Primitive::Triangle {
+                v: v.map(|p| p.map(|x| x as f32 as f64)),
+                albedo: [0.5; 3],
+            })
+            .collect(),
+        g.scale(),
+    );
+    let (distances, obvhs_triangles) = trace_all(&triangle_tracer, &rays);
+    let native_tracer = Tracer::new(g.primitives.clone(), g.scale());
+    let (_, obvhs_native) = trace_all(&native_tracer, &rays);
+    let mut out = Throughput {
+        scene: scene_name.to_string(),
+        triangles: soup.len(),
+        rays: rays.len(),
+        obvhs_triangles_rays_per_second: obvhs_triangles,
+        obvhs_native_rays_per_second: obvhs_native,
+        ..Throughput::default()
+    };
+    let Some((python, script)) = python_and_script else {
+        out.embree_missing = Some("skipped (--no-embree)".into());
+        return Ok(out);
+    };
+    std::fs::create_dir_all(dir)?;
+    write_f32(
+        &dir.join("triangles.f32"),
+        soup.iter().flatten().flatten().map(|&x| x as f32),
+    )?;
+    write_f32(
+        &dir.join("rays.f32"),
+        rays.iter()
+            .flat_map(|(o, d)| o.iter().chain(d).map(|&x| x as f32).collect::<Vec<_>>()),
+    )?;
+    write_f32(&dir.join("obvhs_t.f32"), distances.into_iter())?;
+    let output = match Command::new(python).arg(script).arg(dir).output() {
+        Ok(output) => output,
+        Err(e) => {
+            out.embree_missing = Some(format!("cannot run {python}: {e}"));
+            return Ok(out);
+        }
+    };
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let parsed: Option<serde_json::Value> = stdout
+        .lines()
+        .last()
+        .and_then(|l| serde_json::from_str(l).ok());
+    match parsed {
+        Some(v) if output.status.success() => {
+            out.embree_rays_per_second = v["rays_per_second"].as_f64();
+            out.embree_build_seconds = v["build_seconds"].as_f64();
+            out.agreement = v["agreement"].as_f64();
+        }
+        Some(v) if v["error"].is_string() => {
+            out.embree_missing = v["error"].as_str().map(str::to_string);
+        }
+        _ => {
+            out.embree_missing = Some(format!(
+                "{} failed ({}): {}",
+                script.display(),
+                output.status,
+                String::from_utf8_lossy(&output.stderr).trim()
+            ));
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lightfarm_proto::scene::Aabb;
+    use lightfarm_proto::Face;
+
+    /// Rays from inside a closed box hit it at the same distance on the triangle soup as on
+    /// the rectangles.
+    #[test]
+    fn triangle_soup_traces_like_the_rectangles() {
+        let mut g = Geometry::default();
+        let aabb = Aabb {
+            min: [0.0; 3],
+            max: [2.0, 1.0, 3.0],
+        };
+        g.add_block(0, "b", &aabb, &Face::ALL, |_| [0.5; 3], 4);
+        let soup = triangle_soup(&g.primitives);
+        assert_eq!(soup.len(), 12);
+        let triangles = Tracer::new(
+            soup.iter()
+                .map(|&v| Primitive::Triangle {
+                    v,
+                    albedo: [0.5; 3],
+                })
+                .collect(),
+            g.scale(),
+        );
+        let rects = Tracer::new(g.primitives.clone(), g.scale());
+        let sign = |_: u32| 1.0;
+        for (o, d) in texel_rays(&g, 500, 3) {
+            let a = triangles.closest(o, d, f64::INFINITY, &sign).unwrap();
+            let b = rects.closest(o, d, f64::INFINITY, &sign).unwrap();
+            assert!((a.t - b.t).abs() < 1e-6, "{} vs {}", a.t, b.t);
+        }
+    }
+}
