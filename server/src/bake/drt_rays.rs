@@ -423,6 +423,32 @@ fn clutter_list(g: &Geometry) -> Vec<(ClutterShape, u32, u32)> {
         .collect()
 }
 
+/// Traces (in parallel) every texel a unit could not reuse; returns all texels in order and
+/// how many were traced.
+fn trace_missing<T: Send>(
+    mut texels: Vec<Option<T>>,
+    trace: impl Fn(usize) -> T + Sync,
+    progress: &(dyn Fn(u64) + Sync),
+) -> (Vec<T>, usize) {
+    let todo: Vec<usize> = (0..texels.len()).filter(|i| texels[*i].is_none()).collect();
+    let traced: Vec<T> = todo
+        .par_iter()
+        .map(|&i| {
+            let r = trace(i);
+            progress(1);
+            r
+        })
+        .collect();
+    for (i, r) in todo.iter().zip(traced) {
+        texels[*i] = Some(r);
+    }
+    let all = texels
+        .into_iter()
+        .map(|r| r.expect("every texel is reused or traced"))
+        .collect();
+    (all, todo.len())
+}
+
 /// Block `b`'s ray unit: its texels' rays, reusing what `cache` holds from an earlier bake and
 /// storing the unit. Returns (results in texel order, texels traced, texels reused).
 pub fn trace_block_unit(
@@ -461,19 +487,11 @@ pub fn trace_block_unit(
         }
     }
     progress(reused as u64);
-    let todo: Vec<usize> = (0..range.len()).filter(|i| texels[*i].is_none()).collect();
-    let traced: Vec<BlockTexelRays> = todo
-        .par_iter()
-        .map(|&i| {
-            let r = pass.trace_block_texel(range.start + i);
-            progress(1);
-            r
-        })
-        .collect();
-    for (i, r) in todo.iter().zip(traced) {
-        texels[*i] = Some(r);
-    }
-    let texels: Vec<BlockTexelRays> = texels.into_iter().map(|r| r.expect("traced")).collect();
+    let (texels, traced) = trace_missing(
+        texels,
+        |i| pass.trace_block_texel(range.start + i),
+        progress,
+    );
     if let Some(cache) = cache {
         cache.put_block(
             &key,
@@ -484,7 +502,7 @@ pub fn trace_block_unit(
             },
         )?;
     }
-    Ok((texels, todo.len(), reused))
+    Ok((texels, traced, reused))
 }
 
 /// Clutter object `c`'s ray unit (like [`trace_block_unit`]); empty for mesh clutter.
@@ -522,19 +540,11 @@ pub fn trace_clutter_unit(
         }
     }
     progress(reused as u64);
-    let todo: Vec<usize> = (0..range.len()).filter(|i| texels[*i].is_none()).collect();
-    let traced: Vec<ClutterTexelRays> = todo
-        .par_iter()
-        .map(|&i| {
-            let r = pass.trace_clutter_texel(range.start + i);
-            progress(1);
-            r
-        })
-        .collect();
-    for (i, r) in todo.iter().zip(traced) {
-        texels[*i] = Some(r);
-    }
-    let texels: Vec<ClutterTexelRays> = texels.into_iter().map(|r| r.expect("traced")).collect();
+    let (texels, traced) = trace_missing(
+        texels,
+        |i| pass.trace_clutter_texel(range.start + i),
+        progress,
+    );
     if let Some(cache) = cache {
         cache.put_clutter(
             &key,
@@ -545,7 +555,7 @@ pub fn trace_clutter_unit(
             },
         )?;
     }
-    Ok((texels, todo.len(), reused))
+    Ok((texels, traced, reused))
 }
 
 /// Runs both passes unit by unit, reusing what `cache` holds and storing the new units.
