@@ -789,38 +789,28 @@ impl DrtRayCache {
         fs::rename(&tmp, self.path(key))
     }
 
-    fn get_block(&self, key: &str, texels: usize) -> Option<Unit<BlockTexelRays>> {
+    /// A unit of `texels` texels, each read by `read_texel`; a unit that does not decode (or
+    /// has another texel count) is deleted and missed.
+    fn get_unit<T>(
+        &self,
+        key: &str,
+        texels: usize,
+        mut read_texel: impl FnMut(&mut Reader) -> Result<T, WireError>,
+    ) -> Option<Unit<T>> {
         let bytes = self.read(key)?;
-        let decode = || -> Result<Unit<BlockTexelRays>, WireError> {
+        let mut decode = || -> Result<Unit<T>, WireError> {
             let mut r = Reader::new(&bytes);
             let (spheres, clutter, n) = read_header(&mut r)?;
             if n != texels {
                 return Err(WireError::Invalid("texel count".into()));
             }
-            let mut out = Vec::with_capacity(n);
-            for _ in 0..n {
-                let mut pairs = || -> Result<Vec<(u32, f64)>, WireError> {
-                    let ts = r.u32s()?;
-                    let ws = r.f64s()?;
-                    if ts.len() != ws.len() {
-                        return Err(WireError::Invalid("hit list".into()));
-                    }
-                    Ok(ts.into_iter().zip(ws).collect())
-                };
-                let occluded = pairs()?;
-                let reflected = pairs()?;
-                out.push(BlockTexelRays {
-                    occluded,
-                    reflected,
-                    clutter_hits: r.f64()?,
-                    back_hits: r.f64()?,
-                    reach: read_reach(&mut r)?,
-                });
-            }
+            let texels = (0..n)
+                .map(|_| read_texel(&mut r))
+                .collect::<Result<Vec<T>, WireError>>()?;
             Ok(Unit {
                 spheres,
                 clutter,
-                texels: out,
+                texels,
             })
         };
         let unit = decode().ok();
@@ -830,65 +820,77 @@ impl DrtRayCache {
         unit
     }
 
-    fn put_block(&self, key: &str, unit: &Unit<BlockTexelRays>) -> std::io::Result<()> {
+    /// Stores a unit, each texel written by `write_texel`.
+    fn put_unit<T>(
+        &self,
+        key: &str,
+        unit: &Unit<T>,
+        write_texel: impl Fn(&mut Writer, &T),
+    ) -> std::io::Result<()> {
         let mut w = Writer::new();
         write_header(&mut w, unit);
         for t in &unit.texels {
+            write_texel(&mut w, t);
+        }
+        self.write(key, &w.bytes)
+    }
+
+    fn get_block(&self, key: &str, texels: usize) -> Option<Unit<BlockTexelRays>> {
+        self.get_unit(key, texels, |r| {
+            let mut pairs = || -> Result<Vec<(u32, f64)>, WireError> {
+                let ts = r.u32s()?;
+                let ws = r.f64s()?;
+                if ts.len() != ws.len() {
+                    return Err(WireError::Invalid("hit list".into()));
+                }
+                Ok(ts.into_iter().zip(ws).collect())
+            };
+            let occluded = pairs()?;
+            let reflected = pairs()?;
+            Ok(BlockTexelRays {
+                occluded,
+                reflected,
+                clutter_hits: r.f64()?,
+                back_hits: r.f64()?,
+                reach: read_reach(r)?,
+            })
+        })
+    }
+
+    fn put_block(&self, key: &str, unit: &Unit<BlockTexelRays>) -> std::io::Result<()> {
+        self.put_unit(key, unit, |w, t| {
             for list in [&t.occluded, &t.reflected] {
                 w.u32s(&list.iter().map(|p| p.0).collect::<Vec<_>>());
                 w.f64s(&list.iter().map(|p| p.1).collect::<Vec<_>>());
             }
             w.f64(t.clutter_hits);
             w.f64(t.back_hits);
-            write_reach(&mut w, &t.reach);
-        }
-        self.write(key, &w.bytes)
+            write_reach(w, &t.reach);
+        })
     }
 
     fn get_clutter(&self, key: &str, texels: usize) -> Option<Unit<ClutterTexelRays>> {
-        let bytes = self.read(key)?;
-        let decode = || -> Result<Unit<ClutterTexelRays>, WireError> {
-            let mut r = Reader::new(&bytes);
-            let (spheres, clutter, n) = read_header(&mut r)?;
-            if n != texels {
-                return Err(WireError::Invalid("texel count".into()));
+        self.get_unit(key, texels, |r| {
+            let ts = r.u32s()?;
+            let ns = r.u32s()?;
+            if ts.len() != ns.len() {
+                return Err(WireError::Invalid("hit list".into()));
             }
-            let mut out = Vec::with_capacity(n);
-            for _ in 0..n {
-                let ts = r.u32s()?;
-                let ns = r.u32s()?;
-                if ts.len() != ns.len() {
-                    return Err(WireError::Invalid("hit list".into()));
-                }
-                out.push(ClutterTexelRays {
-                    hits: ts.into_iter().zip(ns).collect(),
-                    back: r.f64()?,
-                    reach: read_reach(&mut r)?,
-                });
-            }
-            Ok(Unit {
-                spheres,
-                clutter,
-                texels: out,
+            Ok(ClutterTexelRays {
+                hits: ts.into_iter().zip(ns).collect(),
+                back: r.f64()?,
+                reach: read_reach(r)?,
             })
-        };
-        let unit = decode().ok();
-        if unit.is_none() {
-            let _ = fs::remove_file(self.path(key));
-        }
-        unit
+        })
     }
 
     fn put_clutter(&self, key: &str, unit: &Unit<ClutterTexelRays>) -> std::io::Result<()> {
-        let mut w = Writer::new();
-        write_header(&mut w, unit);
-        for t in &unit.texels {
+        self.put_unit(key, unit, |w, t| {
             w.u32s(&t.hits.iter().map(|p| p.0).collect::<Vec<_>>());
             w.u32s(&t.hits.iter().map(|p| p.1).collect::<Vec<_>>());
             w.f64(t.back);
-            write_reach(&mut w, &t.reach);
-        }
-        self.write(key, &w.bytes)
+            write_reach(w, &t.reach);
+        })
     }
 }
 

@@ -68,9 +68,8 @@ impl RayReach {
             .map(|k| lo[k].max(-hi[k]).max(0.0).powi(2))
             .sum::<f64>()
             .sqrt();
-        let corners: Vec<[f64; 3]> = (0..8)
-            .map(|c| [0, 1, 2].map(|k| if c >> k & 1 == 1 { hi[k] } else { lo[k] }))
-            .collect();
+        let corners: [[f64; 3]; 8] =
+            std::array::from_fn(|c| [0, 1, 2].map(|k| if c >> k & 1 == 1 { hi[k] } else { lo[k] }));
         // Some corner on the inner side of the half-space n·p ≥ 0 (else the box is outside).
         let inside = |n: [f64; 3]| {
             corners
