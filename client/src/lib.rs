@@ -29,7 +29,9 @@
 //! - [`runtime`]: the per-frame, allocation-free application of the bundle's operators
 //!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
 //!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator), and
-//!   [`Runtime::apply_probes`], the SH radiance of the bundle's probe volume.
+//!   [`Runtime::apply_probes`], the SH radiance of the bundle's probe volume, and
+//!   [`Runtime::apply_sh`], per-texel SH incident radiance for normal-mapped surfaces
+//!   ([`ShLight::shade`] at a perturbed normal).
 //! - [`dnrt`]: Deferred Neighbouring Radiance Transfer: a dynamic object's reflection and
 //!   occlusion on the receivers around it (G-buffer or lightmap texels), from its baked grid.
 //! - [`probes`]: the probe field ([`ProbeField`]: n_probes × 3 channels × 9 SH coefficients)
@@ -71,7 +73,7 @@ pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};
 pub use occluders::Occluders;
 pub use probes::{irradiance_at, irradiance_sh_at, radiance_sh_at, ProbeField};
-pub use runtime::{ApplyError, IndirectLight, Method, Runtime};
+pub use runtime::{ApplyError, IndirectLight, Method, Runtime, ShLight};
 #[cfg(feature = "fetch")]
 pub use service::{ServiceClient, ServiceError};
 

@@ -51,6 +51,9 @@ use lightfarm_proto::bundle::{
 use crate::direct::DirectLight;
 use crate::probes::ProbeField;
 
+mod sh_apply;
+pub use sh_apply::ShLight;
+
 /// Which operator turns direct into indirect light.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Method {
@@ -79,6 +82,8 @@ pub enum ApplyError {
     DirectLength { expected: usize, got: usize },
     #[error("this bundle has no probe volume")]
     MissingProbes,
+    #[error("this bundle has no SH responses; bake with settings.sh_responses")]
+    MissingSh,
 }
 
 /// Where one block's data sits in the block-major scratch vectors.
@@ -965,6 +970,7 @@ mod tests {
             drt: None,
             probes: None,
             dnrt: None,
+            sh: None,
         }
     }
 
@@ -1159,6 +1165,7 @@ mod tests {
             }),
             probes: None,
             dnrt: None,
+            sh: None,
         }
     }
 

@@ -19,9 +19,15 @@ use crate::codec::{choose_codec, read_matrix, write_matrix, CodecPolicy, MatrixC
 use crate::container::{read_sections, write_container, ContainerError, SectionInfo};
 use crate::wire::{Reader, WireError, Writer};
 
+mod sh_responses;
+pub use sh_responses::{ShEntry, ShResponses};
+
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 pub const BUNDLE_MAJOR: u16 = 1;
-pub const BUNDLE_MINOR: u16 = 1;
+pub const BUNDLE_MINOR: u16 = 2;
+/// The minor version a bundle without the minor-2 `sh` section is written with, so such a
+/// bundle is byte-identical to what a minor-1 writer produced.
+const MINOR_WITHOUT_SH: u16 = 1;
 
 /// Section kinds.
 pub mod section {
@@ -35,6 +41,8 @@ pub mod section {
     /// DNRT grids with `t_j` and `k_j` apart (minor 1). Kind 8 held the paper's `m_j` (minor 0)
     /// and is no longer read: such a bundle decodes without grids.
     pub const DNRT: u32 = 9;
+    /// SH incident-radiance responses for normal-mapped surfaces (minor 2).
+    pub const SH: u32 = 10;
 }
 
 /// Report name of a section kind.
@@ -48,6 +56,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::DRT => "drt",
         section::PROBES => "probes",
         section::DNRT => "dnrt",
+        section::SH => "sh",
         _ => "unknown",
     }
 }
@@ -291,6 +300,8 @@ pub struct Bundle {
     pub probes: Option<ProbeVolume>,
     /// DNRT transfer grids, one per dynamic object (`crate::dnrt_grid`).
     pub dnrt: Option<Vec<crate::dnrt_grid::DnrtGrid>>,
+    /// SH incident-radiance responses per lit texel (`settings.sh_responses`; minor 2).
+    pub sh: Option<ShResponses>,
 }
 
 /// A regular grid of SH radiance probes (`crate::sh` convention, 9 coefficients per channel).
@@ -517,8 +528,12 @@ impl Bundle {
             report: EncodeReport::default(),
         };
         let sections = self.encode_sections(&mut enc);
-        let (bytes, infos) =
-            write_container(BUNDLE_MAJOR, BUNDLE_MINOR, &sections, options.zstd_level);
+        let minor = if self.sh.is_some() {
+            BUNDLE_MINOR
+        } else {
+            MINOR_WITHOUT_SH
+        };
+        let (bytes, infos) = write_container(BUNDLE_MAJOR, minor, &sections, options.zstd_level);
         let mut report = enc.report;
         report.sections = infos
             .into_iter()
@@ -646,6 +661,11 @@ impl Bundle {
             }
             sections.push((section::DNRT, w.bytes));
         }
+        if let Some(sh) = &self.sh {
+            let mut w = Writer::new();
+            sh_responses::write_sh(&mut w, sh, enc);
+            sections.push((section::SH, w.bytes));
+        }
         if let Some(f) = &self.full {
             let mut w = Writer::new();
             w.u32(f.n);
@@ -685,7 +705,7 @@ impl Bundle {
     fn from_sections(sections: Vec<(u32, Vec<u8>)>) -> Result<Bundle, BundleError> {
         let (mut layout, mut shapes, mut blocks, mut transport, mut full, mut drt, mut probes) =
             (None, None, None, None, None, None, None);
-        let mut dnrt = None;
+        let (mut dnrt, mut sh) = (None, None);
         for (kind, payload) in &sections {
             let mut p = Reader::new(payload);
             match *kind {
@@ -697,6 +717,7 @@ impl Bundle {
                 section::DRT => drt = Some(read_drt(&mut p)?),
                 section::PROBES => probes = Some(read_probes(&mut p)?),
                 section::DNRT => dnrt = Some(read_dnrt(&mut p)?),
+                section::SH => sh = Some(sh_responses::read_sh(&mut p)?),
                 _ => {} // read_sections passes known kinds only
             }
             if p.remaining() != 0 {
@@ -716,6 +737,7 @@ impl Bundle {
             drt,
             probes,
             dnrt,
+            sh,
         };
         bundle.validate()?;
         Ok(bundle)
@@ -977,6 +999,17 @@ impl Bundle {
                     ));
                 }
             }
+        }
+        if let Some(sh) = &self.sh {
+            let clutter = self.drt.as_ref().map_or(&[][..], |d| &d.clutter[..]);
+            let width = |source: DeltaSource| match source {
+                DeltaSource::Block(b) => self
+                    .blocks
+                    .get(b as usize)
+                    .map(|blk| self.shapes[blk.shape as usize].u_b.cols),
+                DeltaSource::Clutter(c) => clutter.get(c as usize).map(|c| c.t_dc.rows),
+            };
+            sh_responses::validate(sh, n_texels, &width)?;
         }
         if let Some(grids) = &self.dnrt {
             for (k, g) in grids.iter().enumerate() {

@@ -145,6 +145,16 @@ pub struct Settings {
     pub codec_error: f64,
     /// DNRT grids of dynamic objects (paper 003).
     pub dnrt: DnrtSettings,
+    /// Bake SH (order 2, `crate::sh`) incident-radiance responses per lit texel for
+    /// normal-mapped surfaces (DRT §5 "vector responses"; bundle section `sh`, minor 2).
+    /// Off by default: a scene without it bakes the same bytes as before the setting existed
+    /// (and it is not serialised when off, so bake ids do not change either).
+    #[serde(skip_serializing_if = "is_false")]
+    pub sh_responses: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 /// How the DNRT grid of every dynamic object is baked and stored (paper 003 §5.1).
@@ -205,6 +215,7 @@ impl Default for Settings {
             bundle_codec: BundleCodec::Auto,
             codec_error: 0.02,
             dnrt: DnrtSettings::default(),
+            sh_responses: false,
         }
     }
 }

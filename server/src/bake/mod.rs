@@ -10,6 +10,8 @@
 //! - [`transport`]: inter-block transport (lightfield composition or traced);
 //!   [`transport_compaction`]: per target block, the low-rank form the runtime applies.
 //! - [`reference`]: the brute-force one-bounce reference solver.
+//! - [`sh_gather`], [`sh_response`]: SH gathering of implicit radiance (shared with
+//!   [`probe_volume`]) and the per-texel SH responses for normal-mapped surfaces.
 //! - [`dnrt`], [`dnrt_cache`]: DNRT transfer grids of dynamic objects and their disk cache.
 //! - [`pipeline`]: scene → bundle; [`progress`]: how long work reports progress.
 //! - [`bundle_encoding`]: the codecs and compression a bundle is stored with.
@@ -37,6 +39,8 @@ pub mod progress;
 pub mod ray_reach;
 pub mod reference;
 pub mod sampling;
+pub mod sh_gather;
+pub mod sh_response;
 pub mod shape;
 pub mod shape_cache;
 pub mod tracer;

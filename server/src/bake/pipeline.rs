@@ -26,6 +26,7 @@ use super::mesh_albedo::SurfaceAlbedo;
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
 use super::probe_volume::build_probe_volume;
 use super::progress::Progress;
+use super::sh_response::{build_sh_responses, ShResponseStats};
 use super::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
 use super::shape_cache::{Lookup, ShapeCache};
 use super::tracer::Tracer;
@@ -64,6 +65,8 @@ pub struct BakeReport {
     /// Per dynamic object: (id, seconds to bake its DNRT grid or read it from the cache, grid
     /// data bytes).
     pub dnrt: Vec<(String, f64, usize)>,
+    /// SH responses (`settings.sh_responses`), when baked.
+    pub sh: Option<ShResponseStats>,
 }
 
 /// Why a bake failed.
@@ -475,6 +478,7 @@ pub fn bake(
         drt: None,
         probes: None,
         dnrt: None,
+        sh: None,
     };
     let announce = |bundle: &Bundle| {
         if progress.wants_sections() {
@@ -588,6 +592,43 @@ pub fn bake(
         announce(&bundle);
     }
     lap(&mut report, "dnrt grids");
+
+    // SH responses for normal-mapped surfaces, only when the scene asks for them.
+    if settings.sh_responses {
+        progress.stage("sh responses", full_geometry.texels.len() as u64);
+        let (clutter, projection_of, buried): (&[_], Vec<Option<usize>>, &[u32]) = match &drt_ops
+        {
+            Some(ops) => (&ops.clutter, ops.projection_of.clone(), &ops.buried),
+            None => (&[], vec![None; scene.clutter.len()], &[]),
+        };
+        let ops = build_sh_responses(
+            scene,
+            &full_geometry,
+            &per_block,
+            clutter,
+            &projection_of,
+            buried,
+            &|k| progress.advance(k),
+        )
+        .map_err(|e| BakeError::Drt(format!("sh responses: {e}")))?;
+        report.sh = Some(ops.stats.clone());
+        bundle.sh = Some(bundle::ShResponses {
+            entries: ops
+                .entries
+                .iter()
+                .map(|e| bundle::ShEntry {
+                    texels: e.texels.clone(),
+                    source: e.source,
+                    y: to_matrix(&e.y),
+                    z: to_matrix(&e.z),
+                })
+                .collect(),
+        });
+        if options.full {
+            announce(&bundle);
+        }
+        lap(&mut report, "sh responses");
+    }
 
     // The dense Hašan-style operator over the full geometry.
     bundle.full = if options.full {

@@ -15,13 +15,13 @@ use std::collections::BTreeMap;
 use faer::Mat;
 use rayon::prelude::*;
 
-use lightfarm_proto::bundle::DeltaSource;
 use lightfarm_proto::scene::Scene;
 use lightfarm_proto::sh::{sh_basis, SH_COEFFS};
 
 use super::drt::{ClutterProjection, DeltaBlock};
-use super::geometry::{Geometry, Primitive, SurfaceOwner};
+use super::geometry::Geometry;
 use super::sampling::{sobol_2d, stream_key};
+use super::sh_gather::{implicit_source_hit, sh_rows, source_of, SourceKey};
 use super::shape::ShapeOperators;
 use super::tracer::Tracer;
 
@@ -94,11 +94,10 @@ pub fn build_probe_volume(
         }
     }
     let tracer = Tracer::new(g.primitives.clone(), g.scale());
-    let sign = |s: u32| g.surfaces[s as usize].normal_sign;
     let rays = scene.settings.rays_per_texel;
     let weight = 4.0 * std::f64::consts::PI / rays as f64;
-    // Per probe: (source key, sh basis of the ray, hit texel local index) tuples.
-    let hits: Vec<Vec<(DeltaSource, usize, [f64; SH_COEFFS])>> = positions
+    // Per probe: (source, hit texel local index, sh basis of the ray) in ray order.
+    let hits: Vec<Vec<(SourceKey, usize, [f64; SH_COEFFS])>> = positions
         .par_iter()
         .enumerate()
         .map(|(p, x)| {
@@ -106,70 +105,30 @@ pub fn build_probe_volume(
             let mut out = Vec::new();
             for i in 0..rays {
                 let d = sample_uniform_sphere(sobol_2d(key, i));
-                let Some(hit) = tracer.closest(*x, d, f64::INFINITY, &sign) else {
-                    continue;
-                };
-                if !hit.front {
-                    continue;
-                }
-                let Primitive::Rect {
-                    surface: Some(s), ..
-                } = tracer.primitives()[hit.primitive as usize]
-                else {
-                    continue;
-                };
-                let t = g.texel_at(s, hit.point);
-                match g.surfaces[s as usize].owner {
-                    SurfaceOwner::Block { block, .. } => out.push((
-                        DeltaSource::Block(block as u32),
-                        t - g.block_texels[block].start,
-                        sh_basis(d),
-                    )),
-                    SurfaceOwner::ClutterBox { clutter: c, .. } => {
-                        if let Some(j) = projection_of[c] {
-                            out.push((
-                                DeltaSource::Clutter(j as u32),
-                                t - g.clutter_texels[c].start,
-                                sh_basis(d),
-                            ));
-                        }
-                    }
+                if let Some((source, local)) =
+                    implicit_source_hit(g, &tracer, projection_of, *x, d)
+                {
+                    out.push((source, local, sh_basis(d)));
                 }
             }
             progress(1);
             out
         })
         .collect();
-    let mut per_source: BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>> = BTreeMap::new();
+    let mut per_source: BTreeMap<SourceKey, BTreeMap<u32, Vec<f64>>> = BTreeMap::new();
     for (p, list) in hits.iter().enumerate() {
         // Sum the SH basis of rays landing on the same texel first.
-        let mut by_texel: BTreeMap<((u8, u32), usize), [f64; SH_COEFFS]> = BTreeMap::new();
-        for (source, local, y) in list {
-            let key = match source {
-                DeltaSource::Block(b) => (0u8, *b),
-                DeltaSource::Clutter(c) => (1u8, *c),
-            };
-            let acc = by_texel.entry((key, *local)).or_insert([0.0; SH_COEFFS]);
+        let mut by_texel: BTreeMap<(SourceKey, usize), [f64; SH_COEFFS]> = BTreeMap::new();
+        for (key, local, y) in list {
+            let acc = by_texel.entry((*key, *local)).or_insert([0.0; SH_COEFFS]);
             for (a, v) in acc.iter_mut().zip(y) {
                 *a += weight * v;
             }
         }
-        for ((key, local), y) in by_texel {
-            let row: Vec<f64> = if key.0 == 0 {
-                let l_imp = &shapes[key.1 as usize].l_imp;
-                (0..l_imp.ncols()).map(|j| l_imp[(local, j)]).collect()
-            } else {
-                let basis = &clutter[key.1 as usize].basis.basis;
-                (0..basis.ncols()).map(|j| basis[(local, j)]).collect()
-            };
-            let rows = per_source.entry(key).or_default();
-            for (lm, y_lm) in y.iter().enumerate() {
-                let acc = rows
-                    .entry((p * SH_COEFFS + lm) as u32)
-                    .or_insert_with(|| vec![0.0; row.len()]);
-                for (a, v) in acc.iter_mut().zip(&row) {
-                    *a += y_lm * v;
-                }
+        for (key, rows) in sh_rows(&by_texel, shapes, clutter) {
+            let target = per_source.entry(key).or_default();
+            for (lm, row) in rows.into_iter().enumerate() {
+                target.insert((p * SH_COEFFS + lm) as u32, row);
             }
         }
     }
@@ -180,11 +139,7 @@ pub fn build_probe_volume(
             let width = values.first().map_or(0, |v| v.len());
             DeltaBlock {
                 rows: rows.keys().copied().collect(),
-                source: if key.0 == 0 {
-                    DeltaSource::Block(key.1)
-                } else {
-                    DeltaSource::Clutter(key.1)
-                },
+                source: source_of(key),
                 matrix: Mat::from_fn(values.len(), width, |i, j| values[i][j]),
             }
         })

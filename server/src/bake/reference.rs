@@ -18,8 +18,14 @@ use lightfarm_proto::result::{ResultFile, TexelRecord};
 
 use super::geometry::{Geometry, Primitive};
 use super::one_bounce::PURPOSE_REFERENCE;
-use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use super::sampling::{
+    sample_cosine_hemisphere, sample_uniform_hemisphere, sobol_2d, stream_key, to_world,
+};
 use super::tracer::Tracer;
+
+/// Stream purposes of the brute-force SH references (texel index is the stream).
+const PURPOSE_REFERENCE_SH: u64 = 62;
+const PURPOSE_REFERENCE_IRRADIANCE: u64 = 63;
 
 /// Direct outgoing radiance at `p` with normal `n` (lit side) and albedo `albedo`.
 pub fn direct_radiance(
@@ -102,6 +108,85 @@ pub fn reference(
         })
         .collect();
     ResultFile { texels }
+}
+
+/// Exact direct radiance leaving the first surface hit along `o + t·d` (0 on a miss).
+fn radiance_along(
+    tracer: &Tracer,
+    g: &Geometry,
+    lights: &[Light],
+    o: [f64; 3],
+    d: [f64; 3],
+    min_r2: f64,
+) -> [f64; 3] {
+    let sign = |s: u32| g.surfaces[s as usize].normal_sign;
+    let Some(hit) = tracer.closest(o, d, f64::INFINITY, &sign) else {
+        return [0.0; 3];
+    };
+    let albedo = match tracer.primitives()[hit.primitive as usize] {
+        Primitive::Rect { albedo, .. } | Primitive::Triangle { albedo, .. } => albedo,
+    };
+    direct_radiance(tracer, lights, hit.point, hit.normal, albedo, min_r2)
+}
+
+/// Brute-force SH incident radiance (`lightfarm_proto::sh`, world frame) at texel `x` of `g`:
+/// `L_lm = (2π/N) Σ Y_lm(ω_i) L_d(hit_i)` over N uniform directions of the texel's geometric
+/// hemisphere, with direct light evaluated exactly at every hit (one bounce, as [`reference`]).
+/// Returns `[channel][lm]`.
+pub fn reference_incident_sh(
+    g: &Geometry,
+    tracer: &Tracer,
+    lights: &[Light],
+    x: usize,
+    rays: u32,
+    seed: u64,
+) -> [[f64; lightfarm_proto::sh::SH_COEFFS]; 3] {
+    let texel = &g.texels[x];
+    let min_r2 = (1e-4 * g.scale()).powi(2);
+    let key = stream_key(seed, PURPOSE_REFERENCE_SH, x as u64);
+    let weight = 2.0 * PI / rays as f64;
+    let mut out = [[0.0; lightfarm_proto::sh::SH_COEFFS]; 3];
+    for i in 0..rays {
+        let d = to_world(sample_uniform_hemisphere(sobol_2d(key, i)), texel.normal);
+        let l = radiance_along(tracer, g, lights, texel.position, d, min_r2);
+        let y = lightfarm_proto::sh::sh_basis(d);
+        for c in 0..3 {
+            for (o, y_lm) in out[c].iter_mut().zip(y) {
+                *o += weight * l[c] * y_lm;
+            }
+        }
+    }
+    out
+}
+
+/// Brute-force irradiance at texel `x` for a perturbed unit normal `n` (a normal map's):
+/// `E = ∫ L(ω) (ω·n)₊ dω` over directions above the texel's geometric surface only (below it
+/// the ray would start inside the wall), by cosine-weighted rays about `n`.
+pub fn reference_irradiance(
+    g: &Geometry,
+    tracer: &Tracer,
+    lights: &[Light],
+    x: usize,
+    n: [f64; 3],
+    rays: u32,
+    seed: u64,
+) -> [f64; 3] {
+    let texel = &g.texels[x];
+    let min_r2 = (1e-4 * g.scale()).powi(2);
+    let key = stream_key(seed, PURPOSE_REFERENCE_IRRADIANCE, x as u64);
+    let mut sum = [0.0; 3];
+    for i in 0..rays {
+        let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), n);
+        let above: f64 = (0..3).map(|k| d[k] * texel.normal[k]).sum();
+        if above <= 0.0 {
+            continue;
+        }
+        let l = radiance_along(tracer, g, lights, texel.position, d, min_r2);
+        for c in 0..3 {
+            sum[c] += l[c];
+        }
+    }
+    sum.map(|s| PI * s / rays as f64)
 }
 
 #[cfg(test)]

@@ -147,6 +147,27 @@ pub fn invert_cosine_hemisphere(w: [f64; 3]) -> [f64; 2] {
     invert_concentric_disk([w[0], w[1]])
 }
 
+/// A uniformly distributed direction on the hemisphere in the local frame (z is the normal).
+/// `u[0]` maps to `cos θ` linearly, so a stratified `u` stratifies solid angle.
+pub fn sample_uniform_hemisphere(u: [f64; 2]) -> [f64; 3] {
+    let z = u[0];
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = 2.0 * PI * u[1];
+    [r * phi.cos(), r * phi.sin(), z]
+}
+
+/// Density of [`sample_uniform_hemisphere`] per steradian.
+pub fn uniform_hemisphere_pdf() -> f64 {
+    1.0 / (2.0 * PI)
+}
+
+/// Inverse of [`sample_uniform_hemisphere`] (for a unit direction with z ≥ 0).
+pub fn invert_uniform_hemisphere(w: [f64; 3]) -> [f64; 2] {
+    let phi = w[1].atan2(w[0]);
+    let phi = if phi < 0.0 { phi + 2.0 * PI } else { phi };
+    [w[2].clamp(0.0, 1.0), (phi / (2.0 * PI)).clamp(0.0, 1.0)]
+}
+
 /// An orthonormal frame whose third axis is `n` (a unit vector along a world axis or not).
 pub fn frame(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
     // Duff et al. 2017, branchless ONB.
@@ -229,6 +250,24 @@ mod tests {
                 * PI;
         }
         assert!((total - 1.0).abs() < 1e-4, "{total}");
+    }
+
+    #[test]
+    fn uniform_hemisphere_round_trips_and_converges() {
+        for i in 1..2048u32 {
+            let u = sobol_2d(3, i);
+            let w = sample_uniform_hemisphere(u);
+            assert!((w[0] * w[0] + w[1] * w[1] + w[2] * w[2] - 1.0).abs() < 1e-12);
+            let back = invert_uniform_hemisphere(w);
+            assert!((back[0] - u[0]).abs() < 1e-9 && (back[1] - u[1]).abs() < 1e-9);
+        }
+        // ∫ cos θ dω over the hemisphere = π, estimated as mean(cos θ / pdf).
+        let n = 4096;
+        let estimate: f64 = (0..n)
+            .map(|i| sample_uniform_hemisphere(sobol_2d(9, i))[2] / uniform_hemisphere_pdf())
+            .sum::<f64>()
+            / n as f64;
+        assert!((estimate - PI).abs() < 1e-3, "{estimate}");
     }
 
     #[test]

@@ -73,6 +73,12 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
                 d.traced_texels, d.reused_texels
             );
         }
+        if let Some(s) = &report.sh {
+            eprintln!(
+                "sh responses: {} texels with rows ({} buried), {} entries, rank {} of {} source columns kept, largest dropped energy {:.2e}",
+                s.texels_with_rows, s.buried_texels, s.entries, s.kept_rank, s.full_width, s.max_dropped_energy
+            );
+        }
         for (id, seconds, bytes) in &report.dnrt {
             eprintln!("dnrt: \"{id}\" grid {bytes} bytes in {seconds:.3}s (bake or cache lookup)");
         }
