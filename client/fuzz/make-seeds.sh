@@ -4,8 +4,15 @@
 # `cargo build --release`.
 set -euo pipefail
 out=client/fuzz/corpus/decode
-bin=./target/release/lightfarm
+bin=${LIGHTFARM_BIN:-./target/release/lightfarm}
 for c in u8 f16 f32; do
   "$bin" bake client/fuzz/seed-scene.json -o "$out/tiny-$c.lfb" --no-cache --codec "$c" -q
 done
 "$bin" bake client/fuzz/seed-scene.json -o "$out/tiny-traced.lfb" --no-cache --transport traced -q
+# The SH responses section (minor 2) in every codec.
+sh_scene=$(mktemp --suffix=.json)
+jq '.settings.sh_responses = true' client/fuzz/seed-scene.json > "$sh_scene"
+for c in u8 f16 f32; do
+  "$bin" bake "$sh_scene" -o "$out/tiny-sh-$c.lfb" --no-cache --codec "$c" -q
+done
+rm -f "$sh_scene"

@@ -596,8 +596,7 @@ pub fn bake(
     // SH responses for normal-mapped surfaces, only when the scene asks for them.
     if settings.sh_responses {
         progress.stage("sh responses", full_geometry.texels.len() as u64);
-        let (clutter, projection_of, buried): (&[_], Vec<Option<usize>>, &[u32]) = match &drt_ops
-        {
+        let (clutter, projection_of, buried): (&[_], Vec<Option<usize>>, &[u32]) = match &drt_ops {
             Some(ops) => (&ops.clutter, ops.projection_of.clone(), &ops.buried),
             None => (&[], vec![None; scene.clutter.len()], &[]),
         };

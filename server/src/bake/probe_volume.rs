@@ -105,8 +105,7 @@ pub fn build_probe_volume(
             let mut out = Vec::new();
             for i in 0..rays {
                 let d = sample_uniform_sphere(sobol_2d(key, i));
-                if let Some((source, local)) =
-                    implicit_source_hit(g, &tracer, projection_of, *x, d)
+                if let Some((source, local)) = implicit_source_hit(g, &tracer, projection_of, *x, d)
                 {
                     out.push((source, local, sh_basis(d)));
                 }

@@ -25,8 +25,11 @@
 //!
 //! **Compression (model only what the scene needs).** Per receiving object (block or clutter box)
 //! and source, the `9·texels × width` response `M` is truncated by SVD to the smallest rank
-//! keeping `1 − tolerance` of its squared Frobenius norm (`low_rank`): `M ≈ Y Z`, `Y = U_k Σ_k`
-//! (9·texels × k), `Z = V_kᵀ` (k × width). Sources no ray of an object reached get no entry.
+//! keeping `1 − tolerance` of the squared Frobenius norm of `W M` (`low_rank`), where `W`
+//! weights coefficient lm by `Â_l/π` (1, 2/3, 1/4 per band): the error is measured in what
+//! the client reads, irradiance, not in the radiance coefficients (band 2 counts a quarter).
+//! `M ≈ Y Z` with `Y = W⁻¹ U_k Σ_k` (9·texels × k), `Z = V_kᵀ` (k × width). Sources no ray of an
+//! object reached get no entry.
 //!
 //! Frames and units: world frame, y up (`lightfarm_proto::sh`); radiance per unit coefficient.
 //! Invariants: albedo-free; every random number is a function of (seed, purpose, texel, ray);
@@ -41,7 +44,7 @@ use rayon::prelude::*;
 
 use lightfarm_proto::bundle::DeltaSource;
 use lightfarm_proto::scene::Scene;
-use lightfarm_proto::sh::{sh_basis, SH_COEFFS};
+use lightfarm_proto::sh::{irradiance_weights, sh_basis, SH_COEFFS};
 
 use super::drt::ClutterProjection;
 use super::geometry::{Geometry, SurfaceOwner};
@@ -179,19 +182,23 @@ pub fn build_sh_responses(
         .collect();
 
     // One truncated SVD per group (each sequential; groups in parallel, order kept).
+    let band_weight = irradiance_weights().map(|a| a / std::f64::consts::PI);
     let factored: Vec<Result<Option<(ShResponseBlock, f64, usize)>, LowRankError>> = groups
         .par_iter()
         .map(|(source, group)| {
             let width = group[0].1[0].len();
+            // Truncate what the client reads, irradiance: coefficient lm weighted by Â_l/π.
             let m = Mat::from_fn(SH_COEFFS * group.len(), width, |i, j| {
-                group[i / SH_COEFFS].1[i % SH_COEFFS][j]
+                band_weight[i % SH_COEFFS] * group[i / SH_COEFFS].1[i % SH_COEFFS][j]
             });
             let svd = truncated_svd(m.as_ref(), settings.tolerance)?;
             let k = svd.s.len();
             if k == 0 {
                 return Ok(None);
             }
-            let y = Mat::from_fn(m.nrows(), k, |i, j| svd.u[(i, j)] * svd.s[j]);
+            let y = Mat::from_fn(m.nrows(), k, |i, j| {
+                svd.u[(i, j)] * svd.s[j] / band_weight[i % SH_COEFFS]
+            });
             let z = Mat::from_fn(k, width, |i, j| svd.v[(j, i)]);
             Ok(Some((
                 ShResponseBlock {
