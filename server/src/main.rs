@@ -119,6 +119,10 @@ enum Command {
         /// Also write the indirect lightmap atlas as raw f16 RGB (for engines).
         #[arg(long)]
         f16: Option<PathBuf>,
+        /// Also write every texel's SH incident radiance (27 little-endian f32 per texel:
+        /// R, G, B × 9 coefficients); needs a bundle baked with `settings.sh_responses`.
+        #[arg(long)]
+        sh_out: Option<PathBuf>,
     },
     /// Brute-force one-bounce reference.
     Reference {
@@ -264,6 +268,7 @@ fn main() -> anyhow::Result<()> {
             png,
             png_lit,
             f16,
+            sh_out,
         } => cli::eval::run(cli::eval::EvalArgs {
             bundle,
             lights,
@@ -274,6 +279,7 @@ fn main() -> anyhow::Result<()> {
                 png_lit,
                 f16_indirect: f16,
             },
+            sh_out,
         }),
         Command::Reference {
             scene,

@@ -24,6 +24,8 @@ pub struct EvalArgs {
     pub method: Method,
     pub out: PathBuf,
     pub lightmaps: LightmapFiles,
+    /// Also write every texel's SH incident radiance (`eval_sh`); needs an `sh` section.
+    pub sh_out: Option<PathBuf>,
 }
 
 /// Direct light is averaged over a 4×4 grid per texel before it enters the operators.
@@ -148,6 +150,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let lights = LightSet::from_json(&read_text(&args.lights)?)
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.lights.display()))?;
     let layout = bundle.layout.clone();
+    if let Some(path) = &args.sh_out {
+        let sh = super::eval_sh::sh_incident(bundle.clone(), &lights)?;
+        super::eval_sh::write_sh_file(path, &sh)?;
+    }
     let result = evaluate(bundle, &lights, args.method)?;
     write_json(&args.out, &result)?;
     if !args.lightmaps.is_empty() {

@@ -93,6 +93,19 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
         p.entries.iter().for_each(|e| probes.add(&e.matrix));
         line(&format!("probes ({})", p.n_probes), &probes);
     }
+    if let Some(sh) = &bundle.sh {
+        let (mut from_block, mut from_clutter) = (Tally::default(), Tally::default());
+        for e in &sh.entries {
+            let t = match e.source {
+                DeltaSource::Block(_) => &mut from_block,
+                DeltaSource::Clutter(_) => &mut from_clutter,
+            };
+            t.add(&e.y);
+            t.add(&e.z);
+        }
+        line("SH responses (from blocks)", &from_block);
+        line("SH responses (from clutter)", &from_clutter);
+    }
     if let Some(f) = &bundle.full {
         println!("  {:<28} {:>17} values", "full (sparse)", f.values.len());
     }
