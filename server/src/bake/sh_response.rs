@@ -78,6 +78,9 @@ pub struct ShResponseStats {
     /// Σ over entries of the kept rank, and of the source width (what dense storage would use).
     pub kept_rank: usize,
     pub full_width: usize,
+    /// Values stored (`Y` and `Z` of every entry), and what the unfactored `M`s would hold.
+    pub stored_values: usize,
+    pub dense_values: usize,
     /// Largest fraction of squared Frobenius norm one entry's truncation dropped.
     pub max_dropped_energy: f64,
 }
@@ -217,6 +220,8 @@ pub fn build_sh_responses(
         if let Some((block, dropped, width)) = f? {
             stats.kept_rank += block.z.nrows();
             stats.full_width += width;
+            stats.stored_values += block.y.nrows() * block.y.ncols() + block.z.nrows() * width;
+            stats.dense_values += block.y.nrows() * width;
             stats.max_dropped_energy = stats.max_dropped_energy.max(dropped);
             entries.push(block);
         }

@@ -75,8 +75,8 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
         }
         if let Some(s) = &report.sh {
             eprintln!(
-                "sh responses: {} texels with rows ({} buried), {} entries, rank {} of {} source columns kept, largest dropped energy {:.2e}",
-                s.texels_with_rows, s.buried_texels, s.entries, s.kept_rank, s.full_width, s.max_dropped_energy
+                "sh responses: {} texels with rows ({} buried), {} entries, rank {} of {} source columns kept ({} values, {} unfactored), largest dropped energy {:.2e}",
+                s.texels_with_rows, s.buried_texels, s.entries, s.kept_rank, s.full_width, s.stored_values, s.dense_values, s.max_dropped_energy
             );
         }
         for (id, seconds, bytes) in &report.dnrt {

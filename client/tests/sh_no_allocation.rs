@@ -1,0 +1,162 @@
+//! `Runtime::apply_sh` allocates nothing per frame once its output is sized, computes
+//! `Y · (Z · b)` per texel, and `ShLight::shade` follows the lightmap's radiometric convention.
+//! Its own test binary, because it replaces the global allocator with one that counts the
+//! current thread's allocations.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+use lightfarm_client::{DirectLight, Runtime, ShLight};
+use lightfarm_proto::bundle::{
+    BlockOps, Bundle, DeltaSource, Layout as TexelLayout, Matrix, ShEntry, ShResponses, ShapeOps,
+    SurfaceInfo,
+};
+use lightfarm_proto::sh::SH_COEFFS;
+
+struct CountingAlloc;
+
+thread_local! {
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
+
+unsafe impl GlobalAlloc for CountingAlloc {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: CountingAlloc = CountingAlloc;
+
+fn allocs() -> u64 {
+    ALLOCS.with(|a| a.get())
+}
+
+fn m(rows: usize, cols: usize, salt: f32) -> Matrix {
+    Matrix {
+        rows: rows as u32,
+        cols: cols as u32,
+        data: (0..rows * cols)
+            .map(|k| salt / (1 + k) as f32 - 0.01 * (k % 3) as f32)
+            .collect(),
+    }
+}
+
+/// One block of `n` texels (rank 2) whose texels all have an SH entry of rank 2.
+fn bundle(n: usize) -> Bundle {
+    Bundle {
+        layout: TexelLayout {
+            scene_name: "strip".into(),
+            surfaces: vec![SurfaceInfo {
+                name: "block:strip/-y".into(),
+                texel_offset: 0,
+                texel_count: n as u32,
+            }],
+            positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
+            normals: vec![[0.0, 1.0, 0.0]; n],
+            albedo: vec![[0.5, 0.6, 0.7]; n],
+            texel_size: vec![[1.0, 1.0]; n],
+            rects: vec![],
+            triangles: vec![],
+        },
+        shapes: vec![ShapeOps {
+            key: "strip".into(),
+            u_b: m(n, 2, 1.0),
+            t_db: m(2, n, 0.5),
+            openings: vec![],
+        }],
+        blocks: vec![BlockOps {
+            id: "strip".into(),
+            shape: 0,
+            texel_offset: 0,
+        }],
+        transport: None,
+        full: None,
+        drt: None,
+        probes: None,
+        dnrt: None,
+        sh: Some(ShResponses {
+            entries: vec![ShEntry {
+                texels: (0..n as u32).collect(),
+                source: DeltaSource::Block(0),
+                y: m(SH_COEFFS * n, 2, 2.0),
+                z: m(2, 2, 3.0),
+            }],
+        }),
+    }
+}
+
+#[test]
+fn apply_sh_allocates_nothing_and_computes_y_z_b() {
+    let n = 12;
+    let b = bundle(n);
+    let (y, z, t_db) = {
+        let e = &b.sh.as_ref().unwrap().entries[0];
+        (e.y.clone(), e.z.clone(), b.shapes[0].t_db.clone())
+    };
+    let bytes = b.encode();
+    let mut rt = Runtime::new(Bundle::decode(&bytes).unwrap());
+    let direct = DirectLight {
+        radiance: (0..n)
+            .map(|k| [(k % 5) as f32 * 0.25, 0.5, (k % 3) as f32])
+            .collect(),
+    };
+    let (mut first, mut second) = (ShLight::default(), ShLight::default());
+    rt.apply_sh(&direct, &mut first).unwrap();
+    rt.apply_sh(&direct, &mut second).unwrap();
+
+    let before = allocs();
+    let _counter_works = std::hint::black_box(Box::new(0u8));
+    assert_eq!(allocs(), before + 1, "the allocation counter works");
+    let before = allocs();
+    rt.apply_sh(&direct, &mut first).unwrap();
+    rt.apply_sh(&direct, &mut second).unwrap();
+    assert_eq!(allocs(), before, "apply_sh allocated once sized");
+    assert_eq!(first, second);
+
+    // Y · (Z · (T_d→b · l_d)) in f64, per channel.
+    for c in 0..3 {
+        let b: Vec<f64> = (0..2)
+            .map(|r| {
+                (0..n)
+                    .map(|t| t_db.row(r)[t] as f64 * direct.radiance[t][c] as f64)
+                    .sum()
+            })
+            .collect();
+        let s: Vec<f64> = (0..2)
+            .map(|k| (0..2).map(|j| z.row(k)[j] as f64 * b[j]).sum())
+            .collect();
+        for t in 0..n {
+            for lm in 0..SH_COEFFS {
+                let row = y.row(SH_COEFFS * t + lm);
+                let want: f64 = (0..2).map(|k| row[k] as f64 * s[k]).sum();
+                let got = first.coefficients[t][c][lm] as f64;
+                assert!(
+                    (got - want).abs() <= 1e-5 * (1.0 + want.abs()),
+                    "texel {t} channel {c} lm {lm}: {got} vs {want}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn shading_constant_radiance_gives_albedo_times_radiance() {
+    // A constant field L = 1 has L_00 = √(4π) and E(n) = π at any normal, so the outgoing
+    // radiance is ρ · L, the scalar lightmap's `ρ ⊙ (F l)` with F's rows summing to 1.
+    let mut sh = ShLight::default();
+    let l00 = (4.0 * std::f64::consts::PI).sqrt() as f32;
+    sh.coefficients = vec![[[l00, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]; 3]];
+    let out = sh.shade(0, [0.6, 0.8, 0.0], [0.5, 0.25, 1.0]);
+    for (o, want) in out.iter().zip([0.5, 0.25, 1.0]) {
+        assert!((o - want).abs() < 1e-5, "{out:?}");
+    }
+}
