@@ -3,8 +3,10 @@
 //! The bytes are a [`crate::container`] (magic, version, compressed and checksummed sections,
 //! table of contents; specified in `docs/bundle-format.md`). Sections come in the order a client
 //! can use them: layout, shape operators, block instances and MRT transport light the scene;
-//! the DRT and probe sections add clutter and dynamic-object lighting; `full` (dense reference
-//! operator) comes last. A reader skips section kinds it does not know (newer minor version); a
+//! the DRT and probe sections add clutter and dynamic-object lighting; the `sh` section (minor 2,
+//! [`ShResponses`], only when the scene asks) per-texel SH incident radiance for normal-mapped
+//! surfaces; `full` (dense reference operator) comes last. A bundle without `sh` is stamped
+//! minor 1, so it is byte-identical to a minor-1 writer's. A reader skips section kinds it does not know (newer minor version); a
 //! different major version is refused.
 //!
 //! Operator matrices are row-major, stored in the codec [`EncodeOptions`] picks per matrix

@@ -6,6 +6,7 @@
 //! - [`lights`]: LIGHTS.json (point lights, dynamic-object poses).
 //! - [`result`]: RESULT.json (per-texel direct and indirect radiance) and `compare`.
 //! - [`bundle`]: the operator bundle the server writes and the client reads.
+//!   `bundle/sh_responses.rs`: its SH responses section (normal-mapped surfaces, minor 2).
 //! - [`face`]: box faces and the texel layout on each.
 //! - [`wire`]: the little-endian encoding the bundle and the operator cache share.
 //! - [`dnrt_grid`]: one dynamic object's DNRT transfer grid (codecs, ranges, placement).
