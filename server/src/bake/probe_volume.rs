@@ -148,6 +148,9 @@ pub fn build_probe_volume(
             let key = match source {
                 DeltaSource::Block(b) => (0u8, *b),
                 DeltaSource::Clutter(c) => (1u8, *c),
+                DeltaSource::Direct { .. } => {
+                    unreachable!("probe rays read blocks and clutter only")
+                }
             };
             let acc = by_texel.entry((key, *local)).or_insert([0.0; SH_COEFFS]);
             for (a, v) in acc.iter_mut().zip(y) {
