@@ -56,6 +56,7 @@ pub mod dnrt;
 pub mod fetch;
 pub mod lightmap;
 pub mod occluders;
+pub mod packed;
 pub mod probes;
 pub mod runtime;
 #[cfg(feature = "fetch")]

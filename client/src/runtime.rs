@@ -44,11 +44,10 @@
 //!   with the `rayon` feature and [`Runtime::set_parallel`], with bit-identical results.
 //! - Block texel ranges are ascending and disjoint (checked by `Bundle::validate`).
 
-use lightfarm_proto::bundle::{
-    Bundle, BundleError, DeltaSource, Matrix, ProbeVolume, TransportOps,
-};
+use lightfarm_proto::bundle::{Bundle, BundleError, DeltaSource, ProbeVolume, TransportOps};
 
 use crate::direct::DirectLight;
+use crate::packed::PackedMatrix;
 use crate::probes::ProbeField;
 
 mod sh_apply;
@@ -95,12 +94,88 @@ struct BlockSlots {
     /// `lf[lf_start .. lf_end]`: the reduced lightfields of the block's openings.
     lf_start: usize,
     lf_end: usize,
+    /// `lf[scratch_start .. lf_end]`: scratch of the block's packed products.
+    scratch_start: usize,
     /// `out[texel_start .. texel_end]`: the block's texels.
     texel_start: usize,
     texel_end: usize,
     /// `entry_order[entries_start .. entries_end]`: transport entries that target the block.
     entries_start: usize,
     entries_end: usize,
+}
+
+/// Every operator the per-frame stages read, packed, indexed like the bundle's.
+#[derive(Clone, Debug, Default)]
+struct PackedOps {
+    /// Per shape: `(U_b, T_d→b, U_r per opening)`.
+    shapes: Vec<(PackedMatrix, PackedMatrix, Vec<PackedMatrix>)>,
+    /// Per transport entry: its matrix (traced, lightfield) or `(Y, Z)` as two (compact).
+    transport: Vec<PackedMatrix>,
+    transport_z: Vec<PackedMatrix>,
+    /// Per DRT clutter object: `t_dc`.
+    clutter: Vec<PackedMatrix>,
+    /// Per DRT delta entry: its matrix and, for a low-rank entry, its `mix`.
+    deltas: Vec<PackedMatrix>,
+    delta_mix: Vec<Option<PackedMatrix>>,
+    /// Per probe-volume entry.
+    probes: Vec<PackedMatrix>,
+    /// Per SH-response entry: `Y` and `Z`, and the scratch their products need.
+    sh_y: Vec<PackedMatrix>,
+    sh_z: Vec<PackedMatrix>,
+    sh_scratch: usize,
+}
+
+impl PackedOps {
+    fn new(bundle: &Bundle) -> PackedOps {
+        let pack = PackedMatrix::new;
+        let mut ops = PackedOps {
+            shapes: bundle
+                .shapes
+                .iter()
+                .map(|s| {
+                    let u_r = s.openings.iter().map(|o| pack(&o.u_r)).collect();
+                    (pack(&s.u_b), pack(&s.t_db), u_r)
+                })
+                .collect(),
+            ..PackedOps::default()
+        };
+        match &bundle.transport {
+            Some(TransportOps::Traced(e)) => {
+                ops.transport = e.iter().map(|e| pack(&e.matrix)).collect()
+            }
+            Some(TransportOps::Lightfield(e)) => {
+                ops.transport = e.iter().map(|e| pack(&e.matrix)).collect()
+            }
+            Some(TransportOps::Compact(e)) => {
+                ops.transport = e.iter().map(|e| pack(&e.y)).collect();
+                ops.transport_z = e.iter().map(|e| pack(&e.z)).collect();
+            }
+            None => {}
+        }
+        if let Some(d) = &bundle.drt {
+            ops.clutter = d.clutter.iter().map(|c| pack(&c.t_dc)).collect();
+            ops.deltas = d.entries.iter().map(|e| pack(&e.matrix)).collect();
+            ops.delta_mix = d.entries.iter().map(|e| e.mix.as_ref().map(pack)).collect();
+        }
+        if let Some(p) = &bundle.probes {
+            ops.probes = p.entries.iter().map(|e| pack(&e.matrix)).collect();
+        }
+        if let Some(sh) = &bundle.sh {
+            ops.sh_y = sh.entries.iter().map(|e| pack(&e.y)).collect();
+            ops.sh_z = sh.entries.iter().map(|e| pack(&e.z)).collect();
+            ops.sh_scratch = PackedOps::scratch_len(ops.sh_y.iter().chain(&ops.sh_z));
+        }
+        ops
+    }
+
+    /// Largest scratch any of `matrices` needs.
+    fn scratch_len<'a>(matrices: impl IntoIterator<Item = &'a PackedMatrix>) -> usize {
+        matrices
+            .into_iter()
+            .map(PackedMatrix::scratch_len)
+            .max()
+            .unwrap_or(0)
+    }
 }
 
 /// Decoded bundle plus scratch, ready to apply every frame.
@@ -129,62 +204,12 @@ pub struct Runtime {
     clutter_coef: Vec<(usize, usize)>,
     /// Scratch: clutter coefficients.
     c: Vec<f32>,
+    /// The bundle's operators packed for the kernels (see [`crate::packed`]).
+    ops: PackedOps,
+    /// Scratch of the packed products outside the per-block stages (clutter, deltas, probes).
+    scratch: Vec<f32>,
     /// Whether per-block work runs on the current rayon pool (feature `rayon`).
     parallel: bool,
-}
-
-/// Row · x for three channels in one pass; `x[c]` must be at least as long as `row`.
-///
-/// Eight independent partial sums per channel let the compiler keep them in vector registers
-/// (floating-point addition is not reassociated for us). The summation order is fixed by the
-/// code, not the instruction set, so the result is bit-identical whether it runs as AVX2 (chosen
-/// at run time where the CPU has it: one 8-wide register per channel) or as the portable build.
-#[inline]
-fn dot3(row: &[f32], x: [&[f32]; 3]) -> [f32; 3] {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked above); the function has no other contract.
-        return unsafe { dot3_avx2(row, x) };
-    }
-    dot3_lanes(row, x)
-}
-
-/// [`dot3_lanes`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn dot3_avx2(row: &[f32], x: [&[f32]; 3]) -> [f32; 3] {
-    dot3_lanes(row, x)
-}
-
-#[inline(always)]
-fn dot3_lanes(row: &[f32], x: [&[f32]; 3]) -> [f32; 3] {
-    const LANES: usize = 8;
-    let n = row.len();
-    let (x0, x1, x2) = (&x[0][..n], &x[1][..n], &x[2][..n]);
-    let body = n - n % LANES;
-    let mut acc = [[0.0f32; LANES]; 3];
-    for (((r, a), b), c) in row[..body]
-        .chunks_exact(LANES)
-        .zip(x0[..body].chunks_exact(LANES))
-        .zip(x1[..body].chunks_exact(LANES))
-        .zip(x2[..body].chunks_exact(LANES))
-    {
-        for k in 0..LANES {
-            acc[0][k] += r[k] * a[k];
-            acc[1][k] += r[k] * b[k];
-            acc[2][k] += r[k] * c[k];
-        }
-    }
-    let mut s = [0.0f32; 3];
-    for k in body..n {
-        s[0] += row[k] * x0[k];
-        s[1] += row[k] * x1[k];
-        s[2] += row[k] * x2[k];
-    }
-    for (sc, ac) in s.iter_mut().zip(&acc) {
-        *sc += ac.iter().sum::<f32>();
-    }
-    s
 }
 
 /// The three channel slices `[offset, offset + len)` of a planar 3 × `stride` vector.
@@ -206,67 +231,63 @@ fn group(v: &[f32], start: usize, width: usize, len: usize) -> [&[f32]; 3] {
 
 /// `out[t] += M · x` for every row t of `m`.
 #[inline]
-fn add_matvec(out: &mut [[f32; 3]], m: &Matrix, x: [&[f32]; 3]) {
-    let cols = m.cols as usize;
-    if cols == 0 {
-        return;
-    }
-    for (o, row) in out.iter_mut().zip(m.data.chunks_exact(cols)) {
-        let v = dot3(row, x);
+fn add_matvec(out: &mut [[f32; 3]], m: &PackedMatrix, x: [&[f32]; 3], scratch: &mut [f32]) {
+    m.matvec(x, scratch, |t, v| {
+        let o = &mut out[t];
         o[0] += v[0];
         o[1] += v[1];
         o[2] += v[2];
-    }
+    });
 }
 
 /// `dst[c·width + j] = M.row(j) · x` (channel c) for every row j of `m`, into a channel-planar
 /// group of `3 × width` values (`width ≥ m.rows`).
 #[inline]
-fn set_matvec(dst: &mut [f32], width: usize, m: &Matrix, x: [&[f32]; 3]) {
-    let (rows, cols) = (m.rows as usize, m.cols as usize);
-    if cols == 0 {
-        for ch in 0..3 {
-            dst[ch * width..ch * width + rows].fill(0.0);
-        }
-        return;
-    }
-    for (j, row) in m.data.chunks_exact(cols).enumerate() {
-        let v = dot3(row, x);
+fn set_matvec(
+    dst: &mut [f32],
+    width: usize,
+    m: &PackedMatrix,
+    x: [&[f32]; 3],
+    scratch: &mut [f32],
+) {
+    m.matvec(x, scratch, |j, v| {
         dst[j] = v[0];
         dst[width + j] = v[1];
         dst[2 * width + j] = v[2];
-    }
+    });
 }
 
 /// `dst[c·width + j] += M.row(j) · x` (channel c), like [`set_matvec`].
 #[inline]
-fn acc_matvec(dst: &mut [f32], width: usize, m: &Matrix, x: [&[f32]; 3]) {
-    let cols = m.cols as usize;
-    if cols == 0 {
-        return;
-    }
-    for (j, row) in m.data.chunks_exact(cols).enumerate() {
-        let v = dot3(row, x);
+fn acc_matvec(
+    dst: &mut [f32],
+    width: usize,
+    m: &PackedMatrix,
+    x: [&[f32]; 3],
+    scratch: &mut [f32],
+) {
+    m.matvec(x, scratch, |j, v| {
         dst[j] += v[0];
         dst[width + j] += v[1];
         dst[2 * width + j] += v[2];
-    }
+    });
 }
 
 /// `out[rows[i]] += M.row(i) · x` (per channel) for every row i of `m`.
 #[inline]
-fn scatter_matvec(out: &mut [[f32; 3]], rows: &[u32], m: &Matrix, x: [&[f32]; 3]) {
-    let cols = m.cols as usize;
-    if cols == 0 {
-        return;
-    }
-    for (&t, row) in rows.iter().zip(m.data.chunks_exact(cols)) {
-        let v = dot3(row, x);
-        let o = &mut out[t as usize];
+fn scatter_matvec(
+    out: &mut [[f32; 3]],
+    rows: &[u32],
+    m: &PackedMatrix,
+    x: [&[f32]; 3],
+    scratch: &mut [f32],
+) {
+    m.matvec(x, scratch, |i, v| {
+        let o = &mut out[rows[i] as usize];
         o[0] += v[0];
         o[1] += v[1];
         o[2] += v[2];
-    }
+    });
 }
 
 /// Runs `work(k, a_k, b_k)` for every block k in `lo..hi`, where `a_k`/`b_k` are block k's
@@ -362,6 +383,7 @@ impl Runtime {
         };
         let mut entry_order: Vec<u32> = (0..targets.len() as u32).collect();
         entry_order.sort_by_key(|&i| targets[i as usize]);
+        let ops = PackedOps::new(&bundle);
 
         let (mut blocks, mut opening_lf, mut first_opening) = (Vec::new(), Vec::new(), Vec::new());
         let (mut n_coef, mut n_lf, mut next_entry) = (0, 0, 0);
@@ -389,12 +411,23 @@ impl Runtime {
                     n_lf += 3 * (e.z.cols as usize + e.z.rows as usize);
                 }
             }
+            let (u_b, t_db, u_r) = &ops.shapes[blk.shape as usize];
+            let targeting = entry_order[entries_start..next_entry].iter();
+            let scratch_start = n_lf;
+            n_lf += PackedOps::scratch_len(
+                [u_b, t_db]
+                    .into_iter()
+                    .chain(u_r)
+                    .chain(targeting.clone().map(|&i| &ops.transport[i as usize]))
+                    .chain(targeting.filter_map(|&i| ops.transport_z.get(i as usize))),
+            );
             let texel_start = blk.texel_offset as usize;
             blocks.push(BlockSlots {
                 coef_start: n_coef,
                 rank,
                 lf_start,
                 lf_end: n_lf,
+                scratch_start,
                 texel_start,
                 texel_end: texel_start + shape.u_b.rows as usize,
                 entries_start,
@@ -437,6 +470,23 @@ impl Runtime {
             clutter_coef,
             c: vec![0.0; n_clutter_coef],
             parallel: false,
+            scratch: vec![
+                0.0;
+                PackedOps::scratch_len(
+                    ops.clutter
+                        .iter()
+                        .chain(&ops.deltas)
+                        .chain(ops.delta_mix.iter().flatten())
+                        .chain(&ops.probes)
+                ) + 3 * ops
+                    .delta_mix
+                    .iter()
+                    .flatten()
+                    .map(PackedMatrix::rows)
+                    .max()
+                    .unwrap_or(0)
+            ],
+            ops,
             bundle,
         })
     }
@@ -449,42 +499,29 @@ impl Runtime {
         self.parallel = parallel;
     }
 
-    /// Bytes of operator data one [`Runtime::apply`] with `method` reads (f32 values, indices
-    /// of sparse rows), for comparing frame time with memory bandwidth.
+    /// Bytes of operator data one [`Runtime::apply`] with `method` reads (packed values and
+    /// their 8-bit parameters, row indices of sparse rows), for comparing frame time with memory
+    /// bandwidth.
     pub fn operator_bytes_per_frame(&self, method: Method) -> usize {
         let b = &self.bundle;
-        let values = |m: &Matrix| 4 * m.data.len();
         if method == Method::Full {
             return b.full.as_ref().map_or(0, |f| 8 * f.values.len());
         }
+        let ops = &self.ops;
+        let sum = |m: &[PackedMatrix]| m.iter().map(PackedMatrix::bytes).sum::<usize>();
         let mut bytes = 0;
         for blk in &b.blocks {
-            let s = &b.shapes[blk.shape as usize];
-            bytes += values(&s.u_b) + values(&s.t_db);
+            let (u_b, t_db, u_r) = &ops.shapes[blk.shape as usize];
+            bytes += u_b.bytes() + t_db.bytes();
             if matches!(b.transport, Some(TransportOps::Lightfield(_))) {
-                bytes += s.openings.iter().map(|o| values(&o.u_r)).sum::<usize>();
+                bytes += sum(u_r);
             }
         }
-        match &b.transport {
-            Some(TransportOps::Lightfield(e)) => {
-                bytes += e.iter().map(|e| values(&e.matrix)).sum::<usize>()
-            }
-            Some(TransportOps::Traced(e)) => {
-                bytes += e.iter().map(|e| values(&e.matrix)).sum::<usize>()
-            }
-            Some(TransportOps::Compact(e)) => {
-                bytes += e.iter().map(|e| values(&e.y) + values(&e.z)).sum::<usize>()
-            }
-            None => {}
-        }
+        bytes += sum(&ops.transport) + sum(&ops.transport_z);
         if method == Method::Drt {
             if let Some(d) = &b.drt {
-                bytes += d.clutter.iter().map(|c| values(&c.t_dc)).sum::<usize>();
-                bytes += d
-                    .entries
-                    .iter()
-                    .map(|e| values(&e.matrix) + 4 * e.rows.len())
-                    .sum::<usize>();
+                bytes += sum(&ops.clutter) + sum(&ops.deltas);
+                bytes += d.entries.iter().map(|e| 4 * e.rows.len()).sum::<usize>();
                 bytes += d.direct_gather.as_ref().map_or(0, |g| 8 * g.values.len());
             }
         }
@@ -550,20 +587,16 @@ impl Runtime {
     /// Probe step, after [`Runtime::project_blocks`] and [`Runtime::project_clutter`], into a
     /// zeroed field of the volume's size: adds every probe entry. Does nothing without a probe
     /// volume.
-    fn add_probe_entries(&self, out: &mut ProbeField) {
+    fn add_probe_entries(&mut self, out: &mut ProbeField) {
         let Some(probes) = &self.bundle.probes else {
             return;
         };
-        for e in &probes.entries {
-            let cols = e.matrix.cols as usize;
-            if cols == 0 {
-                continue;
-            }
-            let x = self.source_coefficients(e.source, cols);
-            for (&r, row) in e.rows.iter().zip(e.matrix.data.chunks_exact(cols)) {
-                out.add_row(r, dot3(row, x));
-            }
+        let mut scratch = std::mem::take(&mut self.scratch);
+        for (e, m) in probes.entries.iter().zip(&self.ops.probes) {
+            let x = self.source_coefficients(e.source, m.cols());
+            m.matvec(x, &mut scratch, |i, v| out.add_row(e.rows[i], v));
         }
+        self.scratch = scratch;
     }
 
     /// Turns direct light into indirect light by `method`, writing every texel of `out`
@@ -634,6 +667,8 @@ impl Runtime {
             blocks,
             ld,
             b,
+            lf,
+            ops,
             parallel,
             ..
         } = self;
@@ -651,20 +686,20 @@ impl Runtime {
             let s: &BlockSlots = &blocks[k];
             (s.coef_start, s.coef_start + 3 * s.rank)
         };
-        let no_range = |_: usize| (0, 0);
+        let scratch_range = |k: usize| (blocks[k].scratch_start, blocks[k].lf_end);
         for_each_block(
             0,
             blocks.len(),
             (b.as_mut_slice(), 0),
-            (&mut [][..], 0),
+            (lf.as_mut_slice(), 0),
             &coef_range,
-            &no_range,
+            &scratch_range,
             *parallel,
-            &|k, b_k: &mut [f32], _: &mut [()]| {
+            &|k, b_k: &mut [f32], scratch: &mut [f32]| {
                 let blk = &bundle.blocks[k];
-                let t_db = &bundle.shapes[blk.shape as usize].t_db;
-                let x = planar(ld, n, blk.texel_offset as usize, t_db.cols as usize);
-                set_matvec(b_k, blocks[k].rank, t_db, x);
+                let t_db = &ops.shapes[blk.shape as usize].1;
+                let x = planar(ld, n, blk.texel_offset as usize, t_db.cols());
+                set_matvec(b_k, blocks[k].rank, t_db, x, scratch);
             },
         );
     }
@@ -683,6 +718,7 @@ impl Runtime {
             entry_opening,
             b,
             lf,
+            ops,
             parallel,
             ..
         } = self;
@@ -704,24 +740,27 @@ impl Runtime {
             &|k, out_k: &mut [[f32; 3]], lf_k: &mut [f32]| {
                 let slots = &blocks[k];
                 let blk = &bundle.blocks[k];
-                let shape = &bundle.shapes[blk.shape as usize];
+                let (u_b, _, u_r) = &ops.shapes[blk.shape as usize];
+                let (lf_k, scratch) = lf_k.split_at_mut(slots.scratch_start - slots.lf_start);
                 // 2. l_ind^B = U_b · b_B.
-                add_matvec(out_k, &shape.u_b, coefficients(k, shape.u_b.cols as usize));
+                add_matvec(out_k, u_b, coefficients(k, u_b.cols()), scratch);
                 let targeting = &entry_order[slots.entries_start..slots.entries_end];
                 // 3. Inter-block transport into this block.
                 match &bundle.transport {
                     Some(TransportOps::Traced(entries)) => {
                         for &i in targeting {
                             let e = &entries[i as usize];
-                            let x = coefficients(e.source_block as usize, e.matrix.cols as usize);
-                            add_matvec(&mut out_k[..e.matrix.rows as usize], &e.matrix, x);
+                            let m = &ops.transport[i as usize];
+                            let x = coefficients(e.source_block as usize, m.cols());
+                            add_matvec(&mut out_k[..m.rows()], m, x, scratch);
                         }
                     }
                     Some(TransportOps::Compact(entries)) => {
                         let mut at = 0;
                         for &i in targeting {
                             let e = &entries[i as usize];
-                            let (width, k) = (e.z.cols as usize, e.z.rows as usize);
+                            let (y, z) = (&ops.transport[i as usize], &ops.transport_z[i as usize]);
+                            let (width, k) = (z.cols(), z.rows());
                             let (x, rest) = lf_k[at..].split_at_mut(3 * width);
                             // Stack the sources' coefficients, channel-planar.
                             let mut col = 0;
@@ -736,8 +775,8 @@ impl Runtime {
                                 col += r;
                             }
                             let z_out = &mut rest[..3 * k];
-                            set_matvec(z_out, k, &e.z, planar(x, width, 0, width));
-                            add_matvec(out_k, &e.y, planar(z_out, k, 0, k));
+                            set_matvec(z_out, k, z, planar(x, width, 0, width), scratch);
+                            add_matvec(out_k, y, planar(z_out, k, 0, k), scratch);
                             at += 3 * (width + k);
                         }
                     }
@@ -748,20 +787,21 @@ impl Runtime {
                         let mut fed = 0u64;
                         for &i in targeting {
                             let e = &entries[i as usize];
+                            let m = &ops.transport[i as usize];
                             let opening = entry_opening[i as usize];
-                            let q = e.matrix.rows as usize;
+                            let q = m.rows();
                             let start = opening_lf[opening] - slots.lf_start;
-                            let x = coefficients(e.source_block as usize, e.matrix.cols as usize);
-                            acc_matvec(&mut lf_k[start..start + 3 * q], q, &e.matrix, x);
+                            let x = coefficients(e.source_block as usize, m.cols());
+                            acc_matvec(&mut lf_k[start..start + 3 * q], q, m, x, scratch);
                             fed |= 1 << (opening - first_opening[k]).min(63);
                         }
-                        for (oi, o) in shape.openings.iter().enumerate() {
+                        for (oi, u_r) in u_r.iter().enumerate() {
                             if oi < 63 && fed & (1 << oi) == 0 {
                                 continue;
                             }
-                            let q = o.u_r.cols as usize;
+                            let q = u_r.cols();
                             let start = opening_lf[first_opening[k] + oi] - slots.lf_start;
-                            add_matvec(out_k, &o.u_r, group(lf_k, start, q, q));
+                            add_matvec(out_k, u_r, group(lf_k, start, q, q), scratch);
                         }
                     }
                     None => {}
@@ -779,19 +819,26 @@ impl Runtime {
             ld,
             clutter_coef,
             c,
+            ops,
+            scratch,
             ..
         } = self;
         let Some(drt) = &bundle.drt else { return };
         // 2. c_j = t_dc · l_d^j.
-        for (clutter, &(start, m)) in drt.clutter.iter().zip(clutter_coef.iter()) {
-            let t_dc = &clutter.t_dc;
-            let x = planar(ld, n, clutter.texel_offset as usize, t_dc.cols as usize);
-            set_matvec(&mut c[start..start + 3 * m], m, t_dc, x);
+        for ((clutter, t_dc), &(start, m)) in drt
+            .clutter
+            .iter()
+            .zip(&ops.clutter)
+            .zip(clutter_coef.iter())
+        {
+            let x = planar(ld, n, clutter.texel_offset as usize, t_dc.cols());
+            set_matvec(&mut c[start..start + 3 * m], m, t_dc, x, scratch);
         }
     }
 
-    /// The coefficients a delta entry's matrix multiplies: the source block's `b` or the source
-    /// clutter object's `c`, first `cols` of each channel. Needs `b` (and `c`) filled.
+    /// The coefficients a delta entry's matrix multiplies: the source block's `b`, the source
+    /// clutter object's `c` or a texel range of the direct light, first `cols` of each channel.
+    /// Needs `ld` and `b` (and `c`) filled.
     #[inline]
     fn source_coefficients(&self, source: DeltaSource, cols: usize) -> [&[f32]; 3] {
         match source {
@@ -803,18 +850,40 @@ impl Runtime {
                 let (start, m) = self.clutter_coef[j as usize];
                 group(&self.c, start, m, cols)
             }
+            DeltaSource::Direct { first, .. } => {
+                planar(&self.ld, self.n_texels, first as usize, cols)
+            }
         }
     }
 
     /// DRT step 3, after [`Runtime::project_blocks`] and [`Runtime::project_clutter`]: adds
     /// every delta entry (albedo-free). Does nothing without a DRT section.
-    fn add_drt_deltas(&self, out: &mut [[f32; 3]]) {
+    fn add_drt_deltas(&mut self, out: &mut [[f32; 3]]) {
         let Some(drt) = &self.bundle.drt else { return };
+        let mut scratch = std::mem::take(&mut self.scratch);
         // 3. out[rows[i]] += matrix.row(i) · (b_source or c_source).
-        for e in &drt.entries {
-            let x = self.source_coefficients(e.source, e.matrix.cols as usize);
-            scatter_matvec(out, &e.rows, &e.matrix, x);
+        for ((e, m), mix) in drt
+            .entries
+            .iter()
+            .zip(&self.ops.deltas)
+            .zip(&self.ops.delta_mix)
+        {
+            match mix {
+                None => {
+                    let x = self.source_coefficients(e.source, m.cols());
+                    scatter_matvec(out, &e.rows, m, x, &mut scratch);
+                }
+                Some(mix) => {
+                    // Low rank: y = mix · x (k values per channel), then rows += matrix · y.
+                    let k = mix.rows();
+                    let (y, rest) = scratch.split_at_mut(3 * k);
+                    let x = self.source_coefficients(e.source, mix.cols());
+                    set_matvec(y, k, mix, x, rest);
+                    scatter_matvec(out, &e.rows, m, planar(y, k, 0, k), rest);
+                }
+            }
         }
+        self.scratch = scratch;
     }
 
     /// DRT exact clutter gather: sparse rows over the direct light (albedo-free).
@@ -860,8 +929,8 @@ mod tests {
     use crate::occluders::tests::Lcg;
     use crate::probes::irradiance_at;
     use lightfarm_proto::bundle::{
-        BlockOps, ClutterOps, CompactEntry, DeltaEntry, DrtOps, Layout, OpeningOps, PropEntry,
-        ShapeOps, SparseRows, SurfaceInfo, TracedEntry,
+        BlockOps, ClutterOps, CompactEntry, DeltaEntry, DrtOps, Layout, Matrix, OpeningOps,
+        PropEntry, ShapeOps, SparseRows, SurfaceInfo, TracedEntry,
     };
     use lightfarm_proto::bundle::{BUNDLE_MAJOR, BUNDLE_MINOR};
     use lightfarm_proto::container::write_container;
@@ -1142,14 +1211,38 @@ mod tests {
                 let cols = match source {
                     DeltaSource::Block(k) => r[k as usize],
                     DeltaSource::Clutter(j) => m[j as usize],
+                    DeltaSource::Direct { count, .. } => count as usize,
                 };
                 DeltaEntry {
                     matrix: matrix(rng, rows.len(), cols),
                     rows,
                     source,
+                    mix: None,
                 }
             })
-            .collect();
+            .collect::<Vec<_>>();
+        // Low-rank entries (`mix`) and direct-light sources (the exact gather in low-rank form).
+        let mut entries = entries;
+        entries.extend([
+            DeltaEntry {
+                matrix: matrix(rng, 3, 2),
+                rows: vec![4, 5, 6],
+                source: DeltaSource::Block(1),
+                mix: Some(matrix(rng, 2, r[1])),
+            },
+            DeltaEntry {
+                matrix: matrix(rng, 2, 1),
+                rows: vec![10, 12],
+                source: DeltaSource::Direct { first: 0, count: 5 },
+                mix: Some(matrix(rng, 1, 5)),
+            },
+            DeltaEntry {
+                matrix: matrix(rng, 3, 4),
+                rows: vec![1, 11, 13],
+                source: DeltaSource::Direct { first: 6, count: 4 },
+                mix: None,
+            },
+        ]);
         let full = full.then(|| random_full(rng, n));
         Bundle {
             layout,
@@ -1201,10 +1294,12 @@ mod tests {
                     match source {
                         DeltaSource::Block(k) => r[k as usize],
                         DeltaSource::Clutter(_) => m,
+                        DeltaSource::Direct { count, .. } => count as usize,
                     },
                 ),
                 rows,
                 source,
+                mix: None,
             })
             .collect();
         b.probes = Some(ProbeVolume {
@@ -1240,6 +1335,7 @@ mod tests {
             let start = match e.source {
                 DeltaSource::Block(k) => block_start[k as usize],
                 DeltaSource::Clutter(j) => clutter_start[j as usize],
+                DeltaSource::Direct { .. } => unreachable!("probe entries have no direct source"),
             };
             for (i, &t) in e.rows.iter().enumerate() {
                 for j in 0..e.matrix.cols as usize {
@@ -1491,15 +1587,34 @@ mod tests {
             coefs.extend(reference_project(&cl.t_dc, ld, cl.texel_offset));
             clutter_start.push(coefs.len());
         }
+        // Direct-light sources read the direct light itself, stacked after the coefficients.
+        let direct_start = coefs.len();
+        coefs.extend(ld.iter().map(|l| l.map(|v| v as f64)));
         let mut dense = vec![vec![0.0f64; coefs.len()]; n];
         for e in &drt.entries {
             let start = match e.source {
                 DeltaSource::Block(k) => block_start[k as usize],
                 DeltaSource::Clutter(j) => clutter_start[j as usize],
+                DeltaSource::Direct { first, .. } => direct_start + first as usize,
+            };
+            // A low-rank entry's matrix is `matrix · mix`.
+            let (cols, value): (usize, Box<dyn Fn(usize, usize) -> f64>) = match &e.mix {
+                None => (
+                    e.matrix.cols as usize,
+                    Box::new(|i, j| get(&e.matrix, i, j)),
+                ),
+                Some(mix) => (
+                    mix.cols as usize,
+                    Box::new(move |i, j| {
+                        (0..mix.rows as usize)
+                            .map(|l| get(&e.matrix, i, l) * get(mix, l, j))
+                            .sum()
+                    }),
+                ),
             };
             for (i, &t) in e.rows.iter().enumerate() {
-                for j in 0..e.matrix.cols as usize {
-                    dense[t as usize][start + j] += get(&e.matrix, i, j);
+                for j in 0..cols {
+                    dense[t as usize][start + j] += value(i, j);
                 }
             }
         }
@@ -1551,26 +1666,6 @@ mod tests {
         let mut out = IndirectLight::default();
         rt.apply(method, ld, &mut out).unwrap();
         out
-    }
-
-    #[test]
-    fn dot3_matches_a_plain_loop_at_every_length() {
-        let mut rng = Lcg(3);
-        for n in 0..40 {
-            let row: Vec<f32> = (0..n).map(|_| rng.range(-1.0, 1.0)).collect();
-            let x: Vec<Vec<f32>> = (0..3)
-                .map(|_| (0..n).map(|_| rng.range(-1.0, 1.0)).collect())
-                .collect();
-            let got = dot3(&row, [&x[0], &x[1], &x[2]]);
-            for c in 0..3 {
-                let want: f64 = row
-                    .iter()
-                    .zip(&x[c])
-                    .map(|(a, b)| *a as f64 * *b as f64)
-                    .sum();
-                assert!((got[c] as f64 - want).abs() < 1e-5, "n = {n}");
-            }
-        }
     }
 
     #[test]
@@ -2170,7 +2265,8 @@ mod tests {
     fn mutated_drt_bundles_never_panic() {
         let mut rng = Lcg(24);
         let b = drt_bundle(&mut rng, false, true, true);
-        fuzz_bundle(&mut rng, &b, lightfarm_proto::bundle::section::DRT);
+        // The test bundle has low-rank entries, so its DRT section is the minor-2 kind.
+        fuzz_bundle(&mut rng, &b, lightfarm_proto::bundle::section::DRT_LOW_RANK);
     }
 
     #[test]

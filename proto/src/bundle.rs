@@ -5,9 +5,10 @@
 //! can use them: layout, shape operators, block instances and MRT transport light the scene;
 //! the DRT and probe sections add clutter and dynamic-object lighting; the `sh` section (minor 2,
 //! [`ShResponses`], only when the scene asks) per-texel SH incident radiance for normal-mapped
-//! surfaces; `full` (dense reference operator) comes last. A bundle without `sh` is stamped
-//! minor 1, so it is byte-identical to a minor-1 writer's. A reader skips section kinds it does not know (newer minor version); a
-//! different major version is refused.
+//! surfaces; `full` (dense reference operator) comes last. A bundle without minor-2 sections
+//! (`sh`, low-rank `drt`) is stamped minor 1, so it is byte-identical to a minor-1 writer's. A
+//! reader skips section kinds it does not know (newer minor version); a different major version
+//! is refused.
 //!
 //! Operator matrices are row-major, stored in the codec [`EncodeOptions`] picks per matrix
 //! (f32, f16 or 8-bit, see [`crate::codec`]) and decoded to f32. Shapes: `U_b` is texels × r,
@@ -17,7 +18,9 @@
 //! Invariant: [`Bundle::decode`] returns `Ok` only for a bundle whose every index, size and value
 //! is consistent and finite, so the runtime can index without checks; it never panics.
 
-use crate::codec::{choose_codec, read_matrix, write_matrix, CodecPolicy, MatrixCodec};
+use crate::codec::{
+    choose_encoding, read_matrix, u8_step_name, write_matrix_step, CodecPolicy, MatrixCodec,
+};
 use crate::container::{read_sections, write_container, ContainerError, SectionInfo};
 use crate::wire::{Reader, WireError, Writer};
 
@@ -27,9 +30,9 @@ pub use sh_responses::{ShEntry, ShResponses};
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 pub const BUNDLE_MAJOR: u16 = 1;
 pub const BUNDLE_MINOR: u16 = 2;
-/// The minor version a bundle without the minor-2 `sh` section is written with, so such a
-/// bundle is byte-identical to what a minor-1 writer produced.
-const MINOR_WITHOUT_SH: u16 = 1;
+/// The minor version a bundle without minor-2 sections (`sh`, low-rank `drt`) is written with,
+/// so such a bundle is byte-identical to what a minor-1 writer produced.
+const MINOR_WITHOUT_MINOR_2_SECTIONS: u16 = 1;
 
 /// Section kinds.
 pub mod section {
@@ -45,6 +48,10 @@ pub mod section {
     pub const DNRT: u32 = 9;
     /// SH incident-radiance responses for normal-mapped surfaces (minor 2).
     pub const SH: u32 = 10;
+    /// The DRT section in the layout of minor 2, which adds low-rank entries and direct-light
+    /// sources (see [`super::DeltaEntry`]). Written instead of [`DRT`] only when some entry uses
+    /// them, so a minor-1 reader skips it and lights the scene by MRT alone.
+    pub const DRT_LOW_RANK: u32 = 11;
 }
 
 /// Report name of a section kind.
@@ -59,6 +66,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::PROBES => "probes",
         section::DNRT => "dnrt",
         section::SH => "sh",
+        section::DRT_LOW_RANK => "drt",
         _ => "unknown",
     }
 }
@@ -123,9 +131,13 @@ struct MatrixEncoder {
 impl MatrixEncoder {
     fn write(&mut self, w: &mut Writer, m: &Matrix) {
         let (rows, cols) = (m.rows as usize, m.cols as usize);
-        let (codec, error) = choose_codec(&m.data, rows, cols, self.policy);
-        write_matrix(w, &m.data, rows, cols, codec);
-        let usage = self.report.codecs.entry(codec.name()).or_default();
+        let (codec, step, error) = choose_encoding(&m.data, rows, cols, self.policy);
+        write_matrix_step(w, &m.data, rows, cols, codec, step);
+        let name = match codec {
+            MatrixCodec::U8Columns | MatrixCodec::U8Rows => u8_step_name(step),
+            _ => codec.name(),
+        };
+        let usage = self.report.codecs.entry(name).or_default();
         usage.matrices += 1;
         usage.values += (rows * cols) as u64;
         usage.bytes += codec.value_bytes(rows, cols) as u64;
@@ -327,18 +339,31 @@ pub enum DeltaSource {
     Block(u32),
     /// A clutter object's `c` (m coefficients per channel).
     Clutter(u32),
+    /// The direct light of texels `first .. first + count` (the exact clutter gather in
+    /// low-rank form; minor 2).
+    Direct { first: u32, count: u32 },
 }
 
 /// Rows of a delta operator: `out[rows[i]] += matrix.row(i) · coefficients(source)` for each
-/// channel. `rows` are global texel indices (ascending, unique). This one form carries ΔU_b
+/// channel, or with `mix` (a low-rank entry, minor 2) `out[rows[i]] += matrix.row(i) · (mix ·
+/// coefficients(source))`. `rows` are global texel indices (ascending, unique). This one form carries ΔU_b
 /// (delta occlusion, source = block), ΔU_c (delta reflection, source = clutter), C_b (clutter
 /// gather, rows on clutter, source = block) and clutter-to-clutter bounce (source = clutter).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DeltaEntry {
     pub rows: Vec<u32>,
     pub source: DeltaSource,
-    /// rows.len() × (r or m).
+    /// rows.len() × (r or m), or rows.len() × k with `mix`.
     pub matrix: Matrix,
+    /// k × (r or m): the right factor of a low-rank entry.
+    pub mix: Option<Matrix>,
+}
+
+impl DeltaEntry {
+    /// Whether only a minor-2 reader understands this entry.
+    pub fn needs_low_rank_format(&self) -> bool {
+        self.mix.is_some() || matches!(self.source, DeltaSource::Direct { .. })
+    }
 }
 
 /// Direct light on one clutter object projected to its basis: `c = t_dc · l_d[texels]`.
@@ -530,10 +555,11 @@ impl Bundle {
             report: EncodeReport::default(),
         };
         let sections = self.encode_sections(&mut enc);
-        let minor = if self.sh.is_some() {
+        let minor_2 = [section::SH, section::DRT_LOW_RANK];
+        let minor = if sections.iter().any(|(kind, _)| minor_2.contains(kind)) {
             BUNDLE_MINOR
         } else {
-            MINOR_WITHOUT_SH
+            MINOR_WITHOUT_MINOR_2_SECTIONS
         };
         let (bytes, infos) = write_container(BUNDLE_MAJOR, minor, &sections, options.zstd_level);
         let mut report = enc.report;
@@ -639,7 +665,12 @@ impl Bundle {
                 }
                 None => w.u8(0),
             }
-            sections.push((section::DRT, w.bytes));
+            let kind = if d.entries.iter().any(DeltaEntry::needs_low_rank_format) {
+                section::DRT_LOW_RANK
+            } else {
+                section::DRT
+            };
+            sections.push((kind, w.bytes));
         }
         if let Some(p) = &self.probes {
             let mut w = Writer::new();
@@ -716,7 +747,7 @@ impl Bundle {
                 section::BLOCKS => blocks = Some(read_blocks(&mut p)?),
                 section::TRANSPORT => transport = Some(read_transport(&mut p)?),
                 section::FULL => full = Some(read_full(&mut p)?),
-                section::DRT => drt = Some(read_drt(&mut p)?),
+                section::DRT | section::DRT_LOW_RANK => drt = Some(read_drt(&mut p)?),
                 section::PROBES => probes = Some(read_probes(&mut p)?),
                 section::DNRT => dnrt = Some(read_dnrt(&mut p)?),
                 section::SH => sh = Some(sh_responses::read_sh(&mut p)?),
@@ -933,9 +964,18 @@ impl Bundle {
                     DeltaSource::Clutter(c) if (c as u64) < n_clutter => {
                         d.clutter[c as usize].t_dc.rows
                     }
+                    DeltaSource::Direct { first, count }
+                        if first as u64 + count as u64 <= n_texels =>
+                    {
+                        count
+                    }
                     _ => return bad(format!("drt: entry {k} names a missing source")),
                 };
-                if e.matrix.rows as usize != e.rows.len() || e.matrix.cols != cols {
+                let (inner, mix_ok) = match &e.mix {
+                    Some(mix) => (mix.rows, mix.cols == cols),
+                    None => (cols, true),
+                };
+                if e.matrix.rows as usize != e.rows.len() || e.matrix.cols != inner || !mix_ok {
                     return bad(format!("drt: entry {k} matrix has the wrong size"));
                 }
                 if e.rows.iter().any(|r| *r as u64 >= n_texels)
@@ -990,7 +1030,10 @@ impl Bundle {
                     }
                     _ => return bad(format!("probes: entry {k} names a missing source")),
                 };
-                if e.matrix.rows as usize != e.rows.len() || e.matrix.cols != cols {
+                if e.matrix.rows as usize != e.rows.len()
+                    || e.matrix.cols != cols
+                    || e.mix.is_some()
+                {
                     return bad(format!("probes: entry {k} matrix has the wrong size"));
                 }
                 if e.rows.iter().any(|r| *r as u64 >= rows_max)
@@ -1010,6 +1053,7 @@ impl Bundle {
                     .get(b as usize)
                     .map(|blk| self.shapes[blk.shape as usize].u_b.cols),
                 DeltaSource::Clutter(c) => clutter.get(c as usize).map(|c| c.t_dc.rows),
+                DeltaSource::Direct { .. } => None, // SH entries read b and c only
             };
             sh_responses::validate(sh, n_texels, &width)?;
         }
@@ -1155,17 +1199,27 @@ fn write_entries(w: &mut Writer, entries: &[DeltaEntry], enc: &mut MatrixEncoder
     w.u32(entries.len() as u32);
     for e in entries {
         w.u32s(&e.rows);
+        // Bit 7 of the source kind: a `mix` matrix follows the entry's matrix.
+        let low_rank = if e.mix.is_some() { 0x80 } else { 0 };
         match e.source {
             DeltaSource::Block(b) => {
-                w.u8(0);
+                w.u8(low_rank);
                 w.u32(b);
             }
             DeltaSource::Clutter(c) => {
-                w.u8(1);
+                w.u8(1 | low_rank);
                 w.u32(c);
+            }
+            DeltaSource::Direct { first, count } => {
+                w.u8(2 | low_rank);
+                w.u32(first);
+                w.u32(count);
             }
         }
         e.matrix.write(w, enc);
+        if let Some(mix) = &e.mix {
+            mix.write(w, enc);
+        }
     }
 }
 
@@ -1174,19 +1228,31 @@ fn read_entries(r: &mut Reader) -> Result<Vec<DeltaEntry>, BundleError> {
     let mut entries = Vec::with_capacity(n_entries.min(r.remaining() / 24));
     for _ in 0..n_entries {
         let rows = r.u32s()?;
-        let source = match r.u8()? {
+        let kind = r.u8()?;
+        let source = match kind & 0x7f {
             0 => DeltaSource::Block(r.u32()?),
             1 => DeltaSource::Clutter(r.u32()?),
+            2 => DeltaSource::Direct {
+                first: r.u32()?,
+                count: r.u32()?,
+            },
             k => {
                 return Err(BundleError::Invalid(format!(
                     "delta entry: unknown source kind {k}"
                 )))
             }
         };
+        let matrix = Matrix::read(r, "delta entry")?;
+        let mix = if kind & 0x80 != 0 {
+            Some(Matrix::read(r, "delta entry mix")?)
+        } else {
+            None
+        };
         entries.push(DeltaEntry {
             rows,
             source,
-            matrix: Matrix::read(r, "delta entry")?,
+            matrix,
+            mix,
         });
     }
     Ok(entries)

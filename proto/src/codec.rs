@@ -14,7 +14,14 @@
 //! before any allocation).
 //!
 //! The error a codec adds to a matrix is its relative RMS error `‖Q(M) − M‖_F / ‖M‖_F`
-//! ([`codec_error`]); [`choose_codec`] picks the smallest codec within a budget.
+//! ([`codec_error`]); [`choose_encoding`] picks the smallest codec within a budget.
+//!
+//! Coarser 8-bit grids: the encoder may use only every `step`-th level of the 256 (`step` in
+//! [`U8_STEPS`], a divisor of 255, so the line's maximum stays on the grid): q is a multiple of
+//! `step`, which leaves the wire format and the decoder unchanged but gives zstd only
+//! `255/step + 1` distinct bytes to code (86 levels ≈ 6.4 bits, 52 ≈ 5.7, 18 ≈ 4.2). With a
+//! budget the encoder takes the coarsest step within it. The runtime still sees an ordinary
+//! 8-bit grid.
 
 use crate::wire::{Reader, WireError, Writer};
 
@@ -96,9 +103,25 @@ fn u8_line_params(lo: f32, hi: f32) -> (f32, f32) {
     }
 }
 
-fn quantize_u8(v: f32, offset: f32, scale: f32) -> u8 {
+/// Steps of the 8-bit grid the encoder may use (divisors of 255), coarsest first.
+pub const U8_STEPS: [u8; 5] = [17, 15, 5, 3, 1];
+
+/// Report name of the 8-bit codec with `step`.
+pub fn u8_step_name(step: u8) -> &'static str {
+    match step {
+        17 => "u8 (16 levels)",
+        15 => "u8 (18 levels)",
+        5 => "u8 (52 levels)",
+        3 => "u8 (86 levels)",
+        _ => "u8",
+    }
+}
+
+fn quantize_u8(v: f32, offset: f32, scale: f32, step: u8) -> u8 {
     if scale > 0.0 {
-        ((v - offset) / scale).round().clamp(0.0, 255.0) as u8
+        let step = step.max(1) as f32;
+        let q = ((v - offset) / (scale * step)).round() * step;
+        q.clamp(0.0, 255.0) as u8
     } else {
         0
     }
@@ -131,6 +154,17 @@ fn u8_params(data: &[f32], rows: usize, cols: usize, per_column: bool) -> Vec<(f
 
 /// The values a matrix decodes to after a round trip through `codec`.
 pub fn round_trip(data: &[f32], rows: usize, cols: usize, codec: MatrixCodec) -> Vec<f32> {
+    round_trip_step(data, rows, cols, codec, 1)
+}
+
+/// [`round_trip`] with an 8-bit grid `step` (ignored by the other codecs).
+pub fn round_trip_step(
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    codec: MatrixCodec,
+    step: u8,
+) -> Vec<f32> {
     match codec {
         MatrixCodec::F32 => data.to_vec(),
         MatrixCodec::F16 => data
@@ -144,7 +178,7 @@ pub fn round_trip(data: &[f32], rows: usize, cols: usize, codec: MatrixCodec) ->
             for i in 0..rows {
                 for j in 0..cols {
                     let (offset, scale) = params[if per_column { j } else { i }];
-                    let q = quantize_u8(data[i * cols + j], offset, scale);
+                    let q = quantize_u8(data[i * cols + j], offset, scale, step);
                     out.push(offset + scale * q as f32);
                 }
             }
@@ -156,7 +190,18 @@ pub fn round_trip(data: &[f32], rows: usize, cols: usize, codec: MatrixCodec) ->
 /// Relative RMS error `‖Q(M) − M‖_F / ‖M‖_F` that `codec` adds to a matrix (0 for an all-zero
 /// matrix stored exactly; infinite when the codec cannot represent a value, e.g. f16 overflow).
 pub fn codec_error(data: &[f32], rows: usize, cols: usize, codec: MatrixCodec) -> f64 {
-    let back = round_trip(data, rows, cols, codec);
+    codec_error_step(data, rows, cols, codec, 1)
+}
+
+/// [`codec_error`] with an 8-bit grid `step`.
+pub fn codec_error_step(
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    codec: MatrixCodec,
+    step: u8,
+) -> f64 {
+    let back = round_trip_step(data, rows, cols, codec, step);
     let (mut diff, mut norm) = (0.0f64, 0.0f64);
     for (a, b) in data.iter().zip(&back) {
         let d = *b as f64 - *a as f64;
@@ -172,7 +217,7 @@ pub fn codec_error(data: &[f32], rows: usize, cols: usize, codec: MatrixCodec) -
     (diff / norm).sqrt()
 }
 
-/// The codec `policy` gives a matrix, with the error it adds.
+/// The codec `policy` gives a matrix, with the error it adds (full 8-bit grid).
 pub fn choose_codec(
     data: &[f32],
     rows: usize,
@@ -180,25 +225,67 @@ pub fn choose_codec(
     policy: CodecPolicy,
 ) -> (MatrixCodec, f64) {
     match policy {
+        CodecPolicy::Budget(_) => {
+            let (codec, step, error) = choose_encoding(data, rows, cols, policy);
+            if step == 1 {
+                return (codec, error);
+            }
+            (codec, codec_error(data, rows, cols, codec))
+        }
+        _ => {
+            let (codec, _, error) = choose_encoding(data, rows, cols, policy);
+            (codec, error)
+        }
+    }
+}
+
+/// The codec and 8-bit grid step `policy` gives a matrix, with the error they add. A budget
+/// takes the coarsest 8-bit grid within it, else f16, else f32; a fixed codec uses the full grid.
+pub fn choose_encoding(
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    policy: CodecPolicy,
+) -> (MatrixCodec, u8, f64) {
+    let (codec, error) = match policy {
         CodecPolicy::Fixed(MatrixCodec::U8Columns | MatrixCodec::U8Rows) => {
             let codec = MatrixCodec::u8_for(rows, cols);
             (codec, codec_error(data, rows, cols, codec))
         }
         CodecPolicy::Fixed(codec) => (codec, codec_error(data, rows, cols, codec)),
         CodecPolicy::Budget(budget) => {
-            for codec in [MatrixCodec::u8_for(rows, cols), MatrixCodec::F16] {
-                let e = codec_error(data, rows, cols, codec);
+            let u8_codec = MatrixCodec::u8_for(rows, cols);
+            for step in U8_STEPS {
+                let e = codec_error_step(data, rows, cols, u8_codec, step);
                 if e <= budget {
-                    return (codec, e);
+                    return (u8_codec, step, e);
                 }
             }
-            (MatrixCodec::F32, 0.0)
+            let e = codec_error(data, rows, cols, MatrixCodec::F16);
+            if e <= budget {
+                (MatrixCodec::F16, e)
+            } else {
+                (MatrixCodec::F32, 0.0)
+            }
         }
-    }
+    };
+    (codec, 1, error)
 }
 
 /// Writes `rows, cols, codec` and the values in `codec`.
 pub fn write_matrix(w: &mut Writer, data: &[f32], rows: usize, cols: usize, codec: MatrixCodec) {
+    write_matrix_step(w, data, rows, cols, codec, 1)
+}
+
+/// [`write_matrix`] on an 8-bit grid with `step` (the bytes decode like any 8-bit matrix).
+pub fn write_matrix_step(
+    w: &mut Writer,
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    codec: MatrixCodec,
+    step: u8,
+) {
     debug_assert_eq!(data.len(), rows * cols);
     w.u32(rows as u32);
     w.u32(cols as u32);
@@ -225,7 +312,7 @@ pub fn write_matrix(w: &mut Writer, data: &[f32], rows: usize, cols: usize, code
             for i in 0..rows {
                 for j in 0..cols {
                     let (offset, scale) = params[if per_column { j } else { i }];
-                    w.u8(quantize_u8(data[i * cols + j], offset, scale));
+                    w.u8(quantize_u8(data[i * cols + j], offset, scale, step));
                 }
             }
         }

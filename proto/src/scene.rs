@@ -136,6 +136,9 @@ pub struct Settings {
     /// Ship inter-block transport as one low-rank operator per receiving block (rank from
     /// `tolerance`) instead of the composed per-opening operators.
     pub compact_transport: bool,
+    /// Ship DRT delta operators and the exact clutter gather in low-rank form where that is
+    /// smaller (rank from `tolerance`; bundle minor 2).
+    pub compact_deltas: bool,
     /// How operator matrices are stored in the bundle.
     pub bundle_codec: BundleCodec,
     /// With `bundle_codec: auto`, the relative RMS error (‖Q(M) − M‖ / ‖M‖) a codec may add to
@@ -212,6 +215,7 @@ impl Default for Settings {
             clutter_importance: 0.25,
             clutter_gather: ClutterGather::Exact,
             compact_transport: true,
+            compact_deltas: true,
             bundle_codec: BundleCodec::Auto,
             codec_error: 0.02,
             dnrt: DnrtSettings::default(),

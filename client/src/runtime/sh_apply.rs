@@ -4,7 +4,8 @@
 //!
 //! [`Runtime::apply_sh`]: MRT step 1 and DRT step 2 exactly as [`Runtime::apply`] (the same
 //! `b` and `c`), then for every entry `s = Z · x` (x the source's `b` or `c`, per channel) and
-//! `sh[texels[i]][c][lm] += Y.row(9·i + lm) · s[c]`. No albedo: incident radiance, like a probe.
+//! `sh[texels[i]][c][lm] += Y.row(9·i + lm) · s[c]`, with `Y` and `Z` packed like every other
+//! operator (`crate::packed`). No albedo: incident radiance, like a probe.
 //! [`ShLight::shade`] turns it into the lightmap's quantity, outgoing radiance
 //! `ρ/π · E(n')` with `E(n') = Σ Â_l L_lm Y_lm(n')` — at the geometric normal this is the scalar
 //! DRT output up to SH truncation and Monte-Carlo noise (tested).
@@ -15,14 +16,15 @@
 
 use lightfarm_proto::sh::{irradiance_weights, sh_basis, SH_COEFFS};
 
-use super::{dot3, set_matvec, ApplyError, Runtime};
+use super::{set_matvec, ApplyError, Runtime};
 use crate::direct::DirectLight;
 
 /// SH incident radiance per texel: `coefficients[texel][channel][lm]`.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ShLight {
     pub coefficients: Vec<[[f32; SH_COEFFS]; 3]>,
-    /// Per-channel `Z · x` of one entry, channel-planar (3 × the bundle's largest k).
+    /// Per-channel `Z · x` of one entry, channel-planar (3 × the bundle's largest k), then the
+    /// packed products' scratch.
     scratch: Vec<f32>,
 }
 
@@ -76,8 +78,9 @@ impl Runtime {
         } else {
             out.coefficients.fill([[0.0; SH_COEFFS]; 3]);
         }
-        if out.scratch.len() < 3 * max_rank {
-            out.scratch.resize(3 * max_rank, 0.0);
+        let scratch_len = 3 * max_rank + self.ops.sh_scratch;
+        if out.scratch.len() < scratch_len {
+            out.scratch.resize(scratch_len, 0.0);
         }
         self.project_blocks(&direct.radiance);
         self.project_clutter();
@@ -88,23 +91,23 @@ impl Runtime {
             coefficients,
             scratch,
         } = out;
-        for e in &sh.entries {
-            let k = e.z.rows as usize;
+        for ((e, z), y) in sh.entries.iter().zip(&self.ops.sh_z).zip(&self.ops.sh_y) {
+            let k = z.rows();
             if k == 0 {
                 continue;
             }
-            let x = self.source_coefficients(e.source, e.z.cols as usize);
-            set_matvec(&mut scratch[..3 * k], k, &e.z, x);
-            let s = [&scratch[..k], &scratch[k..2 * k], &scratch[2 * k..3 * k]];
-            for (&t, rows) in e.texels.iter().zip(e.y.data.chunks_exact(SH_COEFFS * k)) {
-                let o = &mut coefficients[t as usize];
-                for (lm, row) in rows.chunks_exact(k).enumerate() {
-                    let v = dot3(row, s);
-                    o[0][lm] += v[0];
-                    o[1][lm] += v[1];
-                    o[2][lm] += v[2];
-                }
-            }
+            let x = self.source_coefficients(e.source, z.cols());
+            let (s, rest) = scratch.split_at_mut(3 * k);
+            set_matvec(s, k, z, x, rest);
+            let s = [&s[..k], &s[k..2 * k], &s[2 * k..3 * k]];
+            // Row 9·i + lm of Y is coefficient lm of texel texels[i].
+            y.matvec(s, rest, |row, v| {
+                let o = &mut coefficients[e.texels[row / SH_COEFFS] as usize];
+                let lm = row % SH_COEFFS;
+                o[0][lm] += v[0];
+                o[1][lm] += v[1];
+                o[2][lm] += v[2];
+            });
         }
         Ok(())
     }

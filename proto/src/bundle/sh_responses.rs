@@ -63,6 +63,12 @@ pub(super) fn write_sh(w: &mut Writer, sh: &ShResponses, enc: &mut MatrixEncoder
                 w.u8(1);
                 w.u32(c);
             }
+            DeltaSource::Direct { first, count } => {
+                // Never baked; written so a hand-built bundle round-trips (validation refuses it).
+                w.u8(2);
+                w.u32(first);
+                w.u32(count);
+            }
         }
         e.y.write(w, enc);
         e.z.write(w, enc);
@@ -77,6 +83,10 @@ pub(super) fn read_sh(r: &mut Reader) -> Result<ShResponses, BundleError> {
         let source = match r.u8()? {
             0 => DeltaSource::Block(r.u32()?),
             1 => DeltaSource::Clutter(r.u32()?),
+            2 => DeltaSource::Direct {
+                first: r.u32()?,
+                count: r.u32()?,
+            },
             k => {
                 return Err(BundleError::Invalid(format!(
                     "sh: entry has unknown source kind {k}"

@@ -96,6 +96,7 @@ fn add_row(
     let key = match source {
         DeltaSource::Block(b) => (0, b),
         DeltaSource::Clutter(c) => (1, c),
+        DeltaSource::Direct { .. } => unreachable!("DRT rays read blocks and clutter only"),
     };
     let acc = map
         .entry(key)
@@ -358,13 +359,16 @@ pub fn build_drt(
                         let width = match source_of(key) {
                             DeltaSource::Block(b) => shapes[b as usize].rank(),
                             DeltaSource::Clutter(c) => clutter[c as usize].1.basis.basis.ncols(),
+                            DeltaSource::Direct { count, .. } => count as usize,
                         };
                         let unshadowed = |row: usize| -> Vec<f64> {
                             match source_of(key) {
                                 DeltaSource::Block(b) => mrt
                                     .row(shapes, target, b as usize, row)
                                     .unwrap_or_else(|| vec![0.0; width]),
-                                DeltaSource::Clutter(_) => vec![0.0; width],
+                                DeltaSource::Clutter(_) | DeltaSource::Direct { .. } => {
+                                    vec![0.0; width]
+                                }
                             }
                         };
                         // ΔU[x] = mean_n (U[n] + ΔU[n]) − U[x]; no neighbours: −U[x].

@@ -22,6 +22,7 @@
 pub mod bundle_encoding;
 pub mod clutter_basis;
 pub mod clutter_sampling;
+pub mod delta_compaction;
 pub mod dnrt;
 pub mod dnrt_cache;
 pub mod drt;

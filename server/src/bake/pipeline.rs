@@ -14,13 +14,15 @@ use faer::Mat;
 use lightfarm_proto::bundle::{
     self, Bundle, Layout, Matrix, SparseRows, SurfaceInfo, TransportOps,
 };
-use lightfarm_proto::scene::{ProbeVolumeMode, Scene, SceneError, Transform, Transport};
+use lightfarm_proto::scene::{ProbeVolumeMode, Scene, SceneError, Settings, Transform, Transport};
 
+use super::delta_compaction::{compact_entry, compact_gather, DeltaCompactionStats};
 use super::dnrt::bake_dnrt_grid;
 use super::dnrt_cache::{dnrt_key, DnrtCache, DnrtLookup};
-use super::drt::{build_drt, DeltaBlock, DrtStats};
+use super::drt::{build_drt, DeltaBlock, DrtOperators, DrtStats};
 use super::drt_rays::DrtRayCache;
 use super::geometry::{Geometry, GeometryError, Primitive};
+use super::low_rank::LowRankError;
 use super::mesh::load_mesh;
 use super::mesh_albedo::SurfaceAlbedo;
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
@@ -61,6 +63,9 @@ pub struct BakeReport {
     pub stage_seconds: Vec<(String, f64)>,
     pub bundle_bytes: usize,
     pub drt: Option<DrtStats>,
+    /// What the low-rank form of the DRT operators saved (None without DRT or with
+    /// `compact_deltas: false`).
+    pub delta_compaction: Option<DeltaCompactionStats>,
     pub probes: usize,
     /// Per dynamic object: (id, seconds to bake its DNRT grid or read it from the cache, grid
     /// data bytes).
@@ -86,11 +91,75 @@ pub enum BakeError {
     Cache(#[from] std::io::Error),
 }
 
+/// The bundle's DRT section from the DRT operators: delta entries and the exact gather in
+/// low-rank form when `compact_deltas` (see [`super::delta_compaction`]).
+fn drt_section(
+    bundle: &Bundle,
+    ops: &DrtOperators,
+    settings: &Settings,
+) -> Result<(bundle::DrtOps, Option<DeltaCompactionStats>), BakeError> {
+    let clutter: Vec<bundle::ClutterOps> = ops
+        .clutter
+        .iter()
+        .map(|c| bundle::ClutterOps {
+            id: c.id.clone(),
+            texel_offset: c.texel_offset as u32,
+            t_dc: to_matrix(&c.basis.basis.transpose().to_owned()),
+        })
+        .collect();
+    if !settings.compact_deltas {
+        let drt = bundle::DrtOps {
+            clutter,
+            entries: ops.entries.iter().map(to_entry).collect(),
+            buried: ops.buried.clone(),
+            direct_gather: ops.direct_gather.clone(),
+        };
+        return Ok((drt, None));
+    }
+    let low_rank = |e: LowRankError| BakeError::Drt(format!("delta compaction: {e}"));
+    let mut stats = DeltaCompactionStats::default();
+    let mut entries = Vec::with_capacity(ops.entries.len());
+    for e in &ops.entries {
+        entries.push(
+            compact_entry(
+                e.rows.clone(),
+                e.source,
+                &e.matrix,
+                settings.tolerance,
+                &mut stats,
+            )
+            .map_err(low_rank)?,
+        );
+    }
+    let mut direct_gather = None;
+    if let Some(g) = &ops.direct_gather {
+        // Source ranges: every block's texels and every clutter object's.
+        let ranges: Vec<(u32, u32)> = bundle
+            .blocks
+            .iter()
+            .map(|b| (b.texel_offset, bundle.shapes[b.shape as usize].u_b.rows))
+            .chain(clutter.iter().map(|c| (c.texel_offset, c.t_dc.cols)))
+            .collect();
+        let (gathered, rest) =
+            compact_gather(g, &ranges, settings.tolerance, &mut stats).map_err(low_rank)?;
+        entries.extend(gathered);
+        direct_gather = rest;
+    }
+    let drt = bundle::DrtOps {
+        clutter,
+        entries,
+        buried: ops.buried.clone(),
+        direct_gather,
+    };
+    Ok((drt, Some(stats)))
+}
+
 fn to_entry(e: &DeltaBlock) -> bundle::DeltaEntry {
     bundle::DeltaEntry {
         rows: e.rows.clone(),
         source: e.source,
         matrix: to_matrix(&e.matrix),
+        mix: None,
     }
 }
 
@@ -512,20 +581,14 @@ pub fn bake(
         report.drt = Some(ops.stats.clone());
         Some(ops)
     };
-    bundle.drt = drt_ops.as_ref().map(|ops| bundle::DrtOps {
-        clutter: ops
-            .clutter
-            .iter()
-            .map(|c| bundle::ClutterOps {
-                id: c.id.clone(),
-                texel_offset: c.texel_offset as u32,
-                t_dc: to_matrix(&c.basis.basis.transpose().to_owned()),
-            })
-            .collect(),
-        entries: ops.entries.iter().map(to_entry).collect(),
-        buried: ops.buried.clone(),
-        direct_gather: ops.direct_gather.clone(),
-    });
+    bundle.drt = match &drt_ops {
+        Some(ops) => {
+            let (drt, stats) = drt_section(&bundle, ops, settings)?;
+            report.delta_compaction = stats;
+            Some(drt)
+        }
+        None => None,
+    };
     if bundle.drt.is_some() {
         announce(&bundle);
     }

@@ -29,6 +29,7 @@ pub fn key_of(source: DeltaSource) -> SourceKey {
     match source {
         DeltaSource::Block(b) => (0, b),
         DeltaSource::Clutter(c) => (1, c),
+        DeltaSource::Direct { .. } => unreachable!("gather rays read blocks and clutter only"),
     }
 }
 

@@ -79,6 +79,12 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
                 s.texels_with_rows, s.buried_texels, s.entries, s.kept_rank, s.full_width, s.stored_values, s.dense_values, s.max_dropped_energy
             );
         }
+        if let Some(c) = &report.delta_compaction {
+            eprintln!(
+                "drt low rank: {} entries factored, {} dense, values {} -> {}; exact gather {} sparse entries -> {} factor values + {} sparse; ranks {:?}",
+                c.factored, c.dense, c.values_before, c.values_after, c.gather_sparse_before, c.gather_factor_values, c.gather_sparse_left, c.ranks
+            );
+        }
         for (id, seconds, bytes) in &report.dnrt {
             eprintln!("dnrt: \"{id}\" grid {bytes} bytes in {seconds:.3}s (bake or cache lookup)");
         }

@@ -69,16 +69,24 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
     if let Some(d) = &bundle.drt {
         let mut t_dc = Tally::default();
         d.clutter.iter().for_each(|c| t_dc.add(&c.t_dc));
-        let (mut from_block, mut from_clutter) = (Tally::default(), Tally::default());
+        let (mut from_block, mut from_clutter, mut from_direct) =
+            (Tally::default(), Tally::default(), Tally::default());
         for e in &d.entries {
-            match e.source {
-                DeltaSource::Block(_) => from_block.add(&e.matrix),
-                DeltaSource::Clutter(_) => from_clutter.add(&e.matrix),
+            let tally = match e.source {
+                DeltaSource::Block(_) => &mut from_block,
+                DeltaSource::Clutter(_) => &mut from_clutter,
+                DeltaSource::Direct { .. } => &mut from_direct,
+            };
+            tally.add(&e.matrix);
+            if let Some(mix) = &e.mix {
+                // Low-rank entry: its right factor is one more matrix of the same source.
+                tally.add(mix);
             }
         }
         line("T_d→c", &t_dc);
         line("ΔU_b and C_b (from blocks)", &from_block);
         line("ΔU_c (from clutter)", &from_clutter);
+        line("exact gather (low rank)", &from_direct);
         if let Some(g) = &d.direct_gather {
             println!(
                 "  {:<28} {:>6} rows     {:>10} values",
@@ -98,7 +106,8 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
         for e in &sh.entries {
             let t = match e.source {
                 DeltaSource::Block(_) => &mut from_block,
-                DeltaSource::Clutter(_) => &mut from_clutter,
+                // Validation refuses direct-light sources in SH entries.
+                DeltaSource::Clutter(_) | DeltaSource::Direct { .. } => &mut from_clutter,
             };
             t.add(&e.y);
             t.add(&e.z);
