@@ -10,6 +10,9 @@
 //!   `DeltaSource::Direct`. A range whose factors are not smaller than twice its sparse entries
 //!   stays in the sparse gather, as do columns in no range.
 //!
+//! Rows of buried texels stay dense and exact ([`compact_entry_keeping`]): their inpainted
+//! deltas cancel MRT's transport there, and a truncated factor would leave a residue.
+//!
 //! The rank is the smallest keeping `1 − tolerance` of the entry's energy (the scene's
 //! tolerance, as every other rank), so the dropped part is at most `√tolerance` of the entry in
 //! Frobenius norm. A factorisation is kept only when `k (rows + cols)` is at most
@@ -106,6 +109,44 @@ pub fn compact_entry(
             }
         }
     })
+}
+
+/// Like [`compact_entry`], but rows in `exact_rows` (ascending; the buried texels, whose
+/// inpainted deltas must cancel MRT exactly) stay in a dense entry of their own.
+pub fn compact_entry_keeping(
+    rows: &[u32],
+    source: DeltaSource,
+    m: &Mat<f64>,
+    exact_rows: &[u32],
+    tolerance: f64,
+    stats: &mut DeltaCompactionStats,
+) -> Result<Vec<DeltaEntry>, LowRankError> {
+    let (keep, factor_rows): (Vec<usize>, Vec<usize>) =
+        (0..rows.len()).partition(|&i| exact_rows.binary_search(&rows[i]).is_ok());
+    let pick = |idx: &[usize]| {
+        (
+            idx.iter().map(|&i| rows[i]).collect::<Vec<u32>>(),
+            Mat::from_fn(idx.len(), m.ncols(), |r, c| m[(idx[r], c)]),
+        )
+    };
+    let mut out = Vec::new();
+    if !factor_rows.is_empty() {
+        let (r, sub) = pick(&factor_rows);
+        out.push(compact_entry(r, source, &sub, tolerance, stats)?);
+    }
+    if !keep.is_empty() {
+        let (r, sub) = pick(&keep);
+        stats.dense += 1;
+        stats.values_before += sub.nrows() * sub.ncols();
+        stats.values_after += sub.nrows() * sub.ncols();
+        out.push(DeltaEntry {
+            rows: r,
+            source,
+            matrix: to_matrix(&sub),
+            mix: None,
+        });
+    }
+    Ok(out)
 }
 
 /// Cuts the exact gather by `ranges` (`(first, count)` texel ranges, disjoint) into low-rank
@@ -243,6 +284,30 @@ mod tests {
         );
         assert_eq!(stats.factored, 1);
         assert!(stats.values_after < stats.values_before / 2);
+    }
+
+    /// Rows named exact are split into a dense entry with their values untouched.
+    #[test]
+    fn exact_rows_stay_dense() {
+        let m = Mat::from_fn(40, 30, |i, j| {
+            ((i + 1) * (j + 2)) as f64 * 1e-3 + if i == 5 { 0.3 } else { 0.0 }
+        });
+        let rows: Vec<u32> = (100..140).collect();
+        let mut stats = DeltaCompactionStats::default();
+        let out = compact_entry_keeping(
+            &rows,
+            DeltaSource::Block(2),
+            &m,
+            &[105, 999],
+            0.01,
+            &mut stats,
+        )
+        .unwrap();
+        assert_eq!(out.len(), 2);
+        assert!(out[0].mix.is_some() && !out[0].rows.contains(&105));
+        assert_eq!(out[1].rows, vec![105]);
+        assert!(out[1].mix.is_none());
+        assert_eq!(out[1].matrix.data[3], m[(5, 3)] as f32);
     }
 
     /// A full-rank (identity-like) entry stays dense and exact.

@@ -16,7 +16,7 @@ use lightfarm_proto::bundle::{
 };
 use lightfarm_proto::scene::{ProbeVolumeMode, Scene, SceneError, Settings, Transform, Transport};
 
-use super::delta_compaction::{compact_entry, compact_gather, DeltaCompactionStats};
+use super::delta_compaction::{compact_entry_keeping, compact_gather, DeltaCompactionStats};
 use super::dnrt::bake_dnrt_grid;
 use super::dnrt_cache::{dnrt_key, DnrtCache, DnrtLookup};
 use super::drt::{build_drt, DeltaBlock, DrtOperators, DrtStats};
@@ -119,12 +119,15 @@ fn drt_section(
     let low_rank = |e: LowRankError| BakeError::Drt(format!("delta compaction: {e}"));
     let mut stats = DeltaCompactionStats::default();
     let mut entries = Vec::with_capacity(ops.entries.len());
+    let mut buried = ops.buried.clone();
+    buried.sort_unstable();
     for e in &ops.entries {
-        entries.push(
-            compact_entry(
-                e.rows.clone(),
+        entries.extend(
+            compact_entry_keeping(
+                &e.rows,
                 e.source,
                 &e.matrix,
+                &buried,
                 settings.tolerance,
                 &mut stats,
             )
