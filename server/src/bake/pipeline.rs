@@ -20,7 +20,7 @@ use super::dnrt::bake_dnrt_grid;
 use super::dnrt_cache::{dnrt_key, DnrtCache, DnrtLookup};
 use super::drt::{build_drt, DeltaBlock, DrtStats};
 use super::drt_rays::DrtRayCache;
-use super::geometry::{Geometry, GeometryError, Primitive};
+use super::geometry::{Geometry, GeometryError, Primitive, SurfaceOwner};
 use super::mesh::load_mesh;
 use super::mesh_albedo::SurfaceAlbedo;
 use super::one_bounce::{gather_rows, PURPOSE_FULL};
@@ -109,7 +109,7 @@ fn to_matrix(m: &Mat<f64>) -> Matrix {
 pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
     let mut surfaces: Vec<SurfaceInfo> = Vec::new();
     for s in &g.surfaces {
-        let n = (s.t * s.t) as u32;
+        let n = s.n_texels as u32;
         match surfaces.last_mut() {
             // Clutter boxes: six faces, one surface name.
             Some(last) if last.name == s.name => last.texel_count += n,
@@ -151,10 +151,21 @@ pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
             .iter()
             .map(|t| {
                 let s = &g.surfaces[t.surface as usize];
-                [
-                    ((s.max[0] - s.min[0]) / s.t as f64) as f32,
-                    ((s.max[1] - s.min[1]) / s.t as f64) as f32,
-                ]
+                match s.owner {
+                    // A mesh texel: the side of the square in the normal's dominant tangent
+                    // plane whose lift onto the texel's plane has the texel's area
+                    // (`docs/bundle-format.md`, layout).
+                    SurfaceOwner::ClutterMesh { atlas, .. } => {
+                        let area = g.mesh_atlases[atlas].0.texels[t.index as usize].area;
+                        let dominant = t.normal.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+                        let side = (area * dominant).sqrt() as f32;
+                        [side, side]
+                    }
+                    _ => [
+                        ((s.max[0] - s.min[0]) / s.t as f64) as f32,
+                        ((s.max[1] - s.min[1]) / s.t as f64) as f32,
+                    ],
+                }
             })
             .collect(),
         rects,

@@ -21,6 +21,7 @@ use lightfarm_proto::sh::{sh_basis, SH_COEFFS};
 
 use super::drt::{ClutterProjection, DeltaBlock};
 use super::geometry::{Geometry, Primitive, SurfaceOwner};
+use super::mesh::{cross, dot, sub};
 use super::sampling::{sobol_2d, stream_key};
 use super::shape::ShapeOperators;
 use super::tracer::Tracer;
@@ -109,23 +110,33 @@ pub fn build_probe_volume(
                 let Some(hit) = tracer.closest(*x, d, f64::INFINITY, &sign) else {
                     continue;
                 };
-                if !hit.front {
-                    continue;
-                }
-                let Primitive::Rect {
-                    surface: Some(s), ..
-                } = tracer.primitives()[hit.primitive as usize]
-                else {
-                    continue;
+                let (s, t) = match tracer.primitives()[hit.primitive as usize] {
+                    Primitive::Rect {
+                        surface: Some(s), ..
+                    } if hit.front => (s, g.texel_at(s, hit.point)),
+                    Primitive::Triangle {
+                        v,
+                        lightmap: Some(m),
+                        ..
+                    } => {
+                        // Mesh clutter: its lit (counter-clockwise) side only.
+                        let n = cross(sub(v[1], v[0]), sub(v[2], v[0]));
+                        if dot(hit.normal, n) <= 0.0 {
+                            continue;
+                        }
+                        let surface = g.mesh_atlases[m.atlas as usize].1;
+                        (surface, g.mesh_texel_at(m, hit.point))
+                    }
+                    _ => continue,
                 };
-                let t = g.texel_at(s, hit.point);
                 match g.surfaces[s as usize].owner {
                     SurfaceOwner::Block { block, .. } => out.push((
                         DeltaSource::Block(block as u32),
                         t - g.block_texels[block].start,
                         sh_basis(d),
                     )),
-                    SurfaceOwner::ClutterBox { clutter: c, .. } => {
+                    SurfaceOwner::ClutterBox { clutter: c, .. }
+                    | SurfaceOwner::ClutterMesh { clutter: c, .. } => {
                         if let Some(j) = projection_of[c] {
                             out.push((
                                 DeltaSource::Clutter(j as u32),
