@@ -676,3 +676,208 @@ fn folds(uv: &[[[f64; 2]; 3]]) -> bool {
     }
     false
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The 12 outward-wound triangles of the box `[lo, hi]`.
+    pub(crate) fn cube(lo: [f64; 3], hi: [f64; 3]) -> Vec<[[f64; 3]; 3]> {
+        let c = |i: usize| {
+            [
+                if i & 1 == 0 { lo[0] } else { hi[0] },
+                if i & 2 == 0 { lo[1] } else { hi[1] },
+                if i & 4 == 0 { lo[2] } else { hi[2] },
+            ]
+        };
+        // Quads (counter-clockwise seen from outside).
+        let quads = [
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+        ];
+        quads
+            .iter()
+            .flat_map(|q| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
+            .collect()
+    }
+
+    fn overlap_area_positive(a: &[[f64; 2]; 3], b: &[[f64; 2]; 3]) -> bool {
+        // Separating axis over both triangles' edge normals, shrunk by a tolerance.
+        let mut axes = Vec::new();
+        for t in [a, b] {
+            for (i, j) in [(0, 1), (1, 2), (2, 0)] {
+                axes.push([t[i][1] - t[j][1], t[j][0] - t[i][0]]);
+            }
+        }
+        axes.iter().all(|ax| {
+            let l = (ax[0] * ax[0] + ax[1] * ax[1]).sqrt();
+            let proj = |t: &[[f64; 2]; 3]| {
+                let v = t.map(|p| (p[0] * ax[0] + p[1] * ax[1]) / l);
+                (
+                    v.iter().copied().fold(f64::INFINITY, f64::min),
+                    v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                )
+            };
+            let (pa, pb) = (proj(a), proj(b));
+            pa.1.min(pb.1) - pa.0.max(pb.0) > 1e-6
+        })
+    }
+
+    #[test]
+    fn mesh_box_gets_texels_at_the_density_of_its_longest_side() {
+        let t = 6;
+        let tris = cube([1.0, 0.0, 1.0], [2.0, 1.2, 2.0]);
+        let h = 1.2 / t as f64;
+        let atlas = MeshAtlas::build("clutter \"c\"", &tris, None, h).unwrap();
+        assert_eq!(atlas.source, AtlasSource::Generated);
+        assert_eq!(atlas.n_charts, 6);
+        // h = 1.2 m / 6 = 0.2 m: the four 1.0 × 1.2 m sides get 5 × 6 texels, the two
+        // 1.0 × 1.0 m caps 5 × 5 (a cube gets T × T on every face, as a box).
+        assert_eq!(atlas.texels.len(), 4 * 30 + 2 * 25);
+        for texel in &atlas.texels {
+            assert!((texel.area - h * h).abs() < 1e-12, "{}", texel.area);
+        }
+    }
+
+    #[test]
+    fn generated_atlas_covers_every_triangle_without_overlap_and_is_deterministic() {
+        // A cube, a sliver 1 µm wide, a fan of slanted triangles (a tent) and a lone triangle.
+        let mut tris = cube([0.0, 0.0, 0.0], [1.0, 1.0, 1.0]);
+        tris.push([[2.0, 0.0, 0.0], [3.0, 0.0, 0.0], [2.5, 0.000001, 0.0]]);
+        tris.push([[0.0, 2.0, 0.0], [1.0, 2.5, 0.0], [0.0, 2.0, 1.0]]);
+        tris.push([[1.0, 2.5, 0.0], [1.0, 2.5, 1.0], [0.0, 2.0, 1.0]]);
+        tris.push([[1.0, 2.5, 0.0], [2.0, 2.0, 0.0], [1.0, 2.5, 1.0]]);
+        tris.push([[2.0, 2.0, 0.0], [2.0, 2.0, 1.0], [1.0, 2.5, 1.0]]);
+        tris.push([[-1.0, -1.0, 3.0], [-0.2, -1.0, 3.1], [-1.0, -0.3, 2.5]]);
+        let h = 0.1;
+        let atlas = MeshAtlas::build("clutter \"m\"", &tris, None, h).unwrap();
+        let again = MeshAtlas::build("clutter \"m\"", &tris, None, h).unwrap();
+        assert_eq!(atlas.texels, again.texels);
+        assert_eq!(atlas.triangle_uv, again.triangle_uv);
+        // Every triangle has a texel; every texel lies inside the atlas.
+        for k in 0..tris.len() {
+            assert!(
+                !atlas.triangle_texels(k).is_empty(),
+                "triangle {k} has no texel"
+            );
+        }
+        for t in &atlas.texels {
+            assert!(t.x < atlas.width && t.y < atlas.height);
+            assert!(t.position.iter().chain(&t.normal).all(|x| x.is_finite()));
+        }
+        // Triangles of different charts never overlap in the atlas, and no texel serves two
+        // charts (the gutter).
+        for a in 0..tris.len() {
+            for b in a + 1..tris.len() {
+                if atlas.triangle_chart[a] != atlas.triangle_chart[b] {
+                    assert!(
+                        !overlap_area_positive(&atlas.triangle_uv[a], &atlas.triangle_uv[b]),
+                        "triangles {a} and {b} overlap"
+                    );
+                    let ta = atlas.triangle_texels(a);
+                    assert!(atlas.triangle_texels(b).iter().all(|x| !ta.contains(x)));
+                }
+            }
+        }
+        // Within a chart, triangles meet only along edges.
+        for a in 0..tris.len() {
+            for b in a + 1..tris.len() {
+                if atlas.triangle_chart[a] == atlas.triangle_chart[b] {
+                    assert!(!overlap_area_positive(
+                        &atlas.triangle_uv[a],
+                        &atlas.triangle_uv[b]
+                    ));
+                }
+            }
+        }
+        // The sliver (1 m long, 1 µm wide) gets the 10 texels it crosses, all its own.
+        let sliver = atlas.triangle_texels(12);
+        assert_eq!(sliver.len(), 10);
+        assert!(sliver
+            .iter()
+            .all(|t| atlas.texels[*t as usize].triangle == 12));
+    }
+
+    #[test]
+    fn hits_map_back_to_the_texel_they_land_in() {
+        let tris = cube([0.0, 0.0, 0.0], [1.0, 0.7, 1.3]);
+        let h = 1.3 / 8.0;
+        let atlas = MeshAtlas::build("clutter \"c\"", &tris, None, h).unwrap();
+        // A texel's own centre maps to itself.
+        for (k, t) in atlas.texels.iter().enumerate() {
+            assert_eq!(atlas.texel_at(t.triangle as usize, t.position), k);
+        }
+        // Any point on a triangle lands in the texel whose square holds its UV, within half a
+        // texel diagonal of the texel centre's world position (faces are flat).
+        for (k, tri) in tris.iter().enumerate() {
+            for (a, b) in [(0.2, 0.3), (0.6, 0.1), (0.05, 0.9), (0.33, 0.33)] {
+                let p: [f64; 3] = std::array::from_fn(|i| {
+                    (1.0 - a - b) * tri[0][i] + a * tri[1][i] + b * tri[2][i]
+                });
+                let texel = &atlas.texels[atlas.texel_at(k, p)];
+                let uv = atlas.triangle_uv[k];
+                let q: [f64; 2] =
+                    std::array::from_fn(|i| (1.0 - a - b) * uv[0][i] + a * uv[1][i] + b * uv[2][i]);
+                assert_eq!(
+                    (texel.x, texel.y),
+                    (q[0].floor() as u32, q[1].floor() as u32)
+                );
+                let d = norm(sub(texel.position, p));
+                assert!(d <= h * 0.5f64.sqrt() * (1.0 + 1e-9), "{d} > half diagonal");
+            }
+        }
+    }
+
+    #[test]
+    fn lightmap_uvs_place_texels_where_they_say() {
+        // A 2 m square in y = 0 with u along z and v along x (not the generated frame).
+        let p = |x: f64, z: f64| [x, 0.0, z];
+        let tris = vec![
+            [p(0.0, 0.0), p(0.0, 2.0), p(2.0, 2.0)],
+            [p(0.0, 0.0), p(2.0, 2.0), p(2.0, 0.0)],
+        ];
+        let uv = |x: f64, z: f64| [z / 2.0, x / 2.0];
+        let uvs = vec![
+            [uv(0.0, 0.0), uv(0.0, 2.0), uv(2.0, 2.0)],
+            [uv(0.0, 0.0), uv(2.0, 2.0), uv(2.0, 0.0)],
+        ];
+        let atlas = MeshAtlas::build("clutter \"q\"", &tris, Some(&uvs), 0.25).unwrap();
+        assert_eq!(atlas.source, AtlasSource::Texcoord1);
+        assert_eq!((atlas.width, atlas.height), (8, 8));
+        assert_eq!(atlas.texels.len(), 64);
+        for t in &atlas.texels {
+            let want = [(t.y as f64 + 0.5) * 0.25, 0.0, (t.x as f64 + 0.5) * 0.25];
+            assert!(
+                norm(sub(t.position, want)) < 1e-12,
+                "{:?} vs {want:?}",
+                t.position
+            );
+        }
+        let bad = vec![[[0.0, 0.0], [1.5, 0.0], [0.0, 1.0]]; 2];
+        let err = MeshAtlas::build("clutter \"q\"", &tris, Some(&bad), 0.25).unwrap_err();
+        assert!(
+            err.to_string()
+                .starts_with("clutter \"q\": TEXCOORD_1 of triangle 0"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn closed_pieces_are_found_and_oriented() {
+        let mut tris = cube([0.0; 3], [1.0; 3]);
+        let (pieces, volumes) = closed_pieces(&tris);
+        assert!(pieces.iter().all(|p| *p == (0, true)));
+        assert!((volumes[0] - 1.0).abs() < 1e-12);
+        for t in tris.iter_mut() {
+            t.swap(1, 2);
+        }
+        tris.push([[3.0, 0.0, 0.0], [4.0, 0.0, 0.0], [3.0, 1.0, 0.0]]);
+        let (pieces, volumes) = closed_pieces(&tris);
+        assert!((volumes[0] + 1.0).abs() < 1e-12);
+        assert_eq!(pieces[12], (1, false));
+    }
+}
