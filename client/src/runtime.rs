@@ -965,6 +965,7 @@ mod tests {
             drt: None,
             probes: None,
             dnrt: None,
+            surface_atlases: Vec::new(),
         }
     }
 
@@ -1159,6 +1160,7 @@ mod tests {
             }),
             probes: None,
             dnrt: None,
+            surface_atlases: Vec::new(),
         }
     }
 

@@ -21,7 +21,7 @@ use crate::wire::{Reader, WireError, Writer};
 
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 pub const BUNDLE_MAJOR: u16 = 1;
-pub const BUNDLE_MINOR: u16 = 1;
+pub const BUNDLE_MINOR: u16 = 2;
 
 /// Section kinds.
 pub mod section {
@@ -35,6 +35,8 @@ pub mod section {
     /// DNRT grids with `t_j` and `k_j` apart (minor 1). Kind 8 held the paper's `m_j` (minor 0)
     /// and is no longer read: such a bundle decodes without grids.
     pub const DNRT: u32 = 9;
+    /// Where mesh surfaces' texels sit in their own lightmap images (minor 2).
+    pub const LIGHTMAP: u32 = 10;
 }
 
 /// Report name of a section kind.
@@ -48,6 +50,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::DRT => "drt",
         section::PROBES => "probes",
         section::DNRT => "dnrt",
+        section::LIGHTMAP => "lightmap",
         _ => "unknown",
     }
 }
@@ -291,6 +294,21 @@ pub struct Bundle {
     pub probes: Option<ProbeVolume>,
     /// DNRT transfer grids, one per dynamic object (`crate::dnrt_grid`).
     pub dnrt: Option<Vec<crate::dnrt_grid::DnrtGrid>>,
+    /// The lightmap atlas of each mesh surface (mesh clutter), ascending by surface; empty
+    /// when the scene has none (and in bundles before minor 2).
+    pub surface_atlases: Vec<SurfaceAtlas>,
+}
+
+/// Where the texels of one layout surface sit in that surface's own lightmap image: texel `k`
+/// of the surface at column `texel_xy[k][0]`, row `texel_xy[k][1]` (rows top to bottom) of a
+/// `width × height` image; cells no texel lands in are empty.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfaceAtlas {
+    /// Index into `Layout::surfaces`.
+    pub surface: u32,
+    pub width: u32,
+    pub height: u32,
+    pub texel_xy: Vec<[u32; 2]>,
 }
 
 /// A regular grid of SH radiance probes (`crate::sh` convention, 9 coefficients per channel).
@@ -543,6 +561,17 @@ impl Bundle {
         let mut w = Writer::new();
         self.layout.write(&mut w);
         sections.push((section::LAYOUT, w.bytes));
+        if !self.surface_atlases.is_empty() {
+            let mut w = Writer::new();
+            w.u32(self.surface_atlases.len() as u32);
+            for a in &self.surface_atlases {
+                w.u32(a.surface);
+                w.u32(a.width);
+                w.u32(a.height);
+                w.u32s(&a.texel_xy.iter().flatten().copied().collect::<Vec<_>>());
+            }
+            sections.push((section::LIGHTMAP, w.bytes));
+        }
 
         let mut w = Writer::new();
         w.u32(self.shapes.len() as u32);
@@ -686,6 +715,7 @@ impl Bundle {
         let (mut layout, mut shapes, mut blocks, mut transport, mut full, mut drt, mut probes) =
             (None, None, None, None, None, None, None);
         let mut dnrt = None;
+        let mut surface_atlases = Vec::new();
         for (kind, payload) in &sections {
             let mut p = Reader::new(payload);
             match *kind {
@@ -697,6 +727,7 @@ impl Bundle {
                 section::DRT => drt = Some(read_drt(&mut p)?),
                 section::PROBES => probes = Some(read_probes(&mut p)?),
                 section::DNRT => dnrt = Some(read_dnrt(&mut p)?),
+                section::LIGHTMAP => surface_atlases = read_surface_atlases(&mut p)?,
                 _ => {} // read_sections passes known kinds only
             }
             if p.remaining() != 0 {
@@ -716,6 +747,7 @@ impl Bundle {
             drt,
             probes,
             dnrt,
+            surface_atlases,
         };
         bundle.validate()?;
         Ok(bundle)
@@ -987,8 +1019,49 @@ impl Bundle {
                 }
             }
         }
+        let mut previous = None;
+        for a in &self.surface_atlases {
+            let Some(s) = self.layout.surfaces.get(a.surface as usize) else {
+                return bad(format!("lightmap: surface {} out of range", a.surface));
+            };
+            if previous.is_some_and(|p| p >= a.surface) {
+                return bad("lightmap: surfaces not strictly ascending".to_string());
+            }
+            previous = Some(a.surface);
+            if a.texel_xy.len() != s.texel_count as usize
+                || a.texel_xy
+                    .iter()
+                    .any(|xy| xy[0] >= a.width || xy[1] >= a.height)
+            {
+                return bad(format!(
+                    "lightmap: surface \"{}\" texels out of its image",
+                    s.name
+                ));
+            }
+        }
         Ok(())
     }
+}
+
+fn read_surface_atlases(r: &mut Reader) -> Result<Vec<SurfaceAtlas>, BundleError> {
+    let n = r.u32()? as usize;
+    let mut out = Vec::with_capacity(n.min(r.remaining() / 20));
+    for _ in 0..n {
+        let (surface, width, height) = (r.u32()?, r.u32()?, r.u32()?);
+        let xy = r.u32s()?;
+        if xy.len() % 2 != 0 {
+            return Err(BundleError::Invalid(
+                "lightmap: odd texel coordinate count".into(),
+            ));
+        }
+        out.push(SurfaceAtlas {
+            surface,
+            width,
+            height,
+            texel_xy: xy.chunks_exact(2).map(|c| [c[0], c[1]]).collect(),
+        });
+    }
+    Ok(out)
 }
 
 fn read_shapes(r: &mut Reader) -> Result<Vec<ShapeOps>, BundleError> {

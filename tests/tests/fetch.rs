@@ -56,6 +56,7 @@ fn bundle_bytes(seed: u32) -> Vec<u8> {
         drt: None,
         probes: None,
         dnrt: None,
+        surface_atlases: Vec::new(),
     };
     // Stored raw (no zstd) so the body is large enough to cut mid-transfer.
     let (bytes, _) = bundle.encode_with(&lightfarm_proto::bundle::EncodeOptions {

@@ -355,3 +355,37 @@ fn texcoord1_places_the_texels() {
     let r = lightfarm_tests::apply(&bundle, &lights, Method::Drt);
     assert_finite("texcoord1", &r);
 }
+
+/// `scenes/cornell_mesh` (the short box as a turned glTF cube) bakes; its bundle carries the
+/// mesh's lightmap image (section `lightmap`, minor 2), which round-trips, and a bundle
+/// without that section (as a minor-1 writer made it) still decodes and lights the scene.
+#[test]
+fn cornell_mesh_bundle_carries_the_mesh_atlas() {
+    let (scene, lights) = lightfarm_tests::load_scene("cornell_mesh", 6, 128);
+    let dir = lightfarm_tests::scene_dir("cornell_mesh");
+    let (bytes, _) = lightfarm_tests::bake_scene(&scene, &dir, Transport::Lightfield, false);
+    let bundle = lightfarm_client::decode(&bytes).unwrap();
+    assert_eq!(bundle.surface_atlases.len(), 1);
+    let atlas = &bundle.surface_atlases[0];
+    let surface = &bundle.layout.surfaces[atlas.surface as usize];
+    assert_eq!(surface.name, "clutter:short_box");
+    assert_eq!(atlas.texel_xy.len(), surface.texel_count as usize);
+    let result = lightfarm_tests::apply(&bytes, &lights, Method::Drt);
+    assert_finite("cornell_mesh", &result);
+    let lit = result
+        .texels
+        .iter()
+        .filter(|t| t.surface == "clutter:short_box" && t.indirect.iter().any(|x| *x > 0.0))
+        .count();
+    assert!(lit > 0, "no mesh texel got indirect light");
+    // Without the lightmap section, as an older writer: same light, no mesh images.
+    let sections: Vec<(u32, Vec<u8>)> = bundle
+        .raw_sections()
+        .into_iter()
+        .filter(|(kind, _)| *kind != lightfarm_proto::bundle::section::LIGHTMAP)
+        .collect();
+    let (old, _) = lightfarm_proto::container::write_container(1, 1, &sections, 0);
+    let old = lightfarm_client::decode(&old).unwrap();
+    assert!(old.surface_atlases.is_empty());
+    assert_eq!(old.layout, bundle.layout);
+}

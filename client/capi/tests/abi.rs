@@ -55,6 +55,7 @@ fn two_texel_bundle() -> Vec<u8> {
         drt: None,
         probes: None,
         dnrt: None,
+        surface_atlases: Vec::new(),
     };
     bundle.encode()
 }

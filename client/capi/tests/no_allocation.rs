@@ -76,6 +76,7 @@ fn bundle(n: usize) -> Vec<u8> {
         drt: None,
         probes: None,
         dnrt: None,
+        surface_atlases: Vec::new(),
     }
     .encode()
 }

@@ -173,6 +173,27 @@ pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
     }
 }
 
+/// Each mesh surface's lightmap image (its atlas) for the bundle's layout.
+pub fn surface_atlases_of(g: &Geometry, layout: &Layout) -> Vec<bundle::SurfaceAtlas> {
+    g.mesh_atlases
+        .iter()
+        .map(|(atlas, surface)| {
+            let name = &g.surfaces[*surface as usize].name;
+            let index = layout
+                .surfaces
+                .iter()
+                .position(|s| &s.name == name)
+                .expect("every mesh surface is in the layout");
+            bundle::SurfaceAtlas {
+                surface: index as u32,
+                width: atlas.width,
+                height: atlas.height,
+                texel_xy: atlas.texels.iter().map(|t| [t.x, t.y]).collect(),
+            }
+        })
+        .collect()
+}
+
 /// The scene's blocks' shape operators, deduplicated by content key.
 pub struct ShapePlan {
     /// One per block.
@@ -452,8 +473,11 @@ pub fn bake(
     // Opening operators are only applied by lightfield transport at run time.
     let ship_openings = matches!(transport, TransportOps::Lightfield(_));
     // The bundle grows in file order; each step's sections are final once announced.
+    let layout = layout_of(scene, &full_geometry);
+    let surface_atlases = surface_atlases_of(&full_geometry, &layout);
     let mut bundle = Bundle {
-        layout: layout_of(scene, &full_geometry),
+        surface_atlases,
+        layout,
         shapes: shapes
             .iter()
             .map(|s| bundle::ShapeOps {

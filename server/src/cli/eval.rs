@@ -148,12 +148,13 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let lights = LightSet::from_json(&read_text(&args.lights)?)
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.lights.display()))?;
     let layout = bundle.layout.clone();
+    let surface_atlases = bundle.surface_atlases.clone();
     let result = evaluate(bundle, &lights, args.method)?;
     write_json(&args.out, &result)?;
     if !args.lightmaps.is_empty() {
         eprintln!(
             "lightmaps: {}",
-            write_lightmaps(&layout, &result, &args.lightmaps)?
+            write_lightmaps(&layout, &surface_atlases, &result, &args.lightmaps)?
         );
     }
     Ok(())
