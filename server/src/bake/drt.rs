@@ -12,6 +12,10 @@
 //!   neighbours' shadowed transport minus their own unshadowed transport; with no valid
 //!   neighbour on the face they get exactly minus their MRT transport (they are dark, never NaN).
 //!
+//! Clutter texels are a box's six faces or a mesh's lightmap atlas (`mesh_atlas`); every
+//! operator here reads them by global texel index, so both kinds go through the same code. A
+//! clutter object's basis is placed around its box, or around a mesh's bounding box.
+//!
 //! Model only what the scene needs: a block texel whose rays hit clutter less often than the
 //! tolerance gets no row (counted in the report). All operators are albedo-free.
 //!
