@@ -454,13 +454,14 @@ fn coloured_mesh_texels_carry_their_albedo() {
         );
     }
     let reference = reference(&s, &dir, &lights, REF_RAYS);
-    for (prefix, bound) in [("clutter:", 0.05), ("block:", 0.05)] {
+    for (prefix, bound) in [("clutter:", 0.04), ("block:", 0.06)] {
         let c = compare(&only(&result, prefix), &only(&reference, prefix));
         eprintln!(
             "coloured shelf {prefix} vs reference: relative_l2={:.4}",
             c.relative_l2
         );
-        // measured: clutter 0.0104, room 0.0185; bounds 0.05
+        // measured: clutter 0.0171, room 0.0407 (the same shelf in grey: 0.0174, 0.0386, so the
+        // colours cost the albedo-weighted basis little); bounds 0.04, 0.06
         assert!(c.relative_l2 <= bound, "{prefix}: {}", c.relative_l2);
     }
 }
