@@ -520,8 +520,8 @@ impl MeshAtlas {
     }
 
     /// The local texel a hit at world point `p` on triangle `k` lands in: barycentric → UV →
-    /// texel; a point whose cell is not one of the triangle's texels (on an edge, outside the
-    /// conservative cover by rounding) takes the triangle's texel with the nearest centre.
+    /// texel, O(1); a point whose cell holds no texel (on an edge, outside the conservative
+    /// cover by rounding) takes the triangle's texel with the nearest centre.
     pub fn texel_at(&self, k: usize, p: [f64; 3]) -> usize {
         let t = &self.triangles[k];
         let n = cross(sub(t[1], t[0]), sub(t[2], t[0]));
@@ -532,14 +532,16 @@ impl MeshAtlas {
         let uv = &self.triangle_uv[k];
         let q: [f64; 2] =
             std::array::from_fn(|a| b[0] * uv[0][a] + b[1] * uv[1][a] + b[2] * uv[2][a]);
-        let own = self.triangle_texels(k);
+        // The cell holding a point of the triangle overlaps it, so it is one of its texels (or,
+        // for a point on an edge, a neighbour's in the same chart: charts are a gutter apart).
         let (x, y) = (q[0].floor(), q[1].floor());
         if x >= 0.0 && y >= 0.0 && x < self.width as f64 && y < self.height as f64 {
             let local = self.grid[y as usize * self.width as usize + x as usize];
-            if own.contains(&local) {
+            if local != u32::MAX {
                 return local as usize;
             }
         }
+        let own = self.triangle_texels(k);
         let dist = |&&l: &&u32| {
             let tx = &self.texels[l as usize];
             (tx.x as f64 + 0.5 - q[0]).powi(2) + (tx.y as f64 + 0.5 - q[1]).powi(2)
