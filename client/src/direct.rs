@@ -152,8 +152,15 @@ pub fn direct_from_point_lights_averaged(
             for j in 0..m {
                 for i in 0..m {
                     let mut p = x;
-                    p[u] += ((i as f32 + 0.5) / m as f32 - 0.5) * size[0];
-                    p[v] += ((j as f32 + 0.5) / m as f32 - 0.5) * size[1];
+                    let du = ((i as f32 + 0.5) / m as f32 - 0.5) * size[0];
+                    let dv = ((j as f32 + 0.5) / m as f32 - 0.5) * size[1];
+                    p[u] += du;
+                    p[v] += dv;
+                    if n[u] != 0.0 || n[v] != 0.0 {
+                        // A slanted (mesh) texel: lift the sample onto the texel's plane
+                        // along the dominant axis.
+                        p[axis] -= (n[u] * du + n[v] * dv) / n[axis];
+                    }
                     let l = radiance_at(p, n, rho, lights, &light_pos, occluders, r2_min);
                     for c in 0..3 {
                         sum[c] += l[c];

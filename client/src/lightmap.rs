@@ -4,12 +4,14 @@
 //! The atlas cuts every layout surface into T×T tiles (T: the side of a block face) on a grid,
 //! one empty texel between tiles; texel `(i, j)` of a face (index `j·T + i`, `proto::face`
 //! convention) lands at tile origin + `(i, j)`, so each face shows with its first tangent axis
-//! to the right. A clutter box (one surface, six faces) takes six tiles.
+//! to the right. A clutter box (one surface, six faces) takes six tiles. A mesh surface with its
+//! own lightmap image (`Bundle::surface_atlases`: mesh clutter's atlas) is placed whole, as its
+//! own region below the tiles, one empty texel between regions.
 //!
 //! Invariants: every layout texel maps to exactly one pixel; pixels between tiles are black
 //! (8-bit) or zero (f16); the layout and radiance slices are in layout order.
 
-use lightfarm_proto::bundle::Layout;
+use lightfarm_proto::bundle::{Layout, SurfaceAtlas};
 
 /// Where each texel sits in the atlas image.
 #[derive(Clone, Debug, PartialEq)]
@@ -29,33 +31,59 @@ impl Atlas {
     /// the largest square surface (a block face); a surface of n texels takes ⌈n / T²⌉ tiles,
     /// so a clutter box (six faces in one surface) shows as six tiles.
     pub fn from_layout(layout: &Layout) -> Atlas {
+        Atlas::from_layout_with(layout, &[])
+    }
+
+    /// [`Atlas::from_layout`], with the surfaces in `surface_atlases` laid out as their own
+    /// images (left to right on one row below the tiles) instead of cut into tiles.
+    pub fn from_layout_with(layout: &Layout, surface_atlases: &[SurfaceAtlas]) -> Atlas {
+        let own = |k: usize| surface_atlases.iter().find(|a| a.surface as usize == k);
         let square_side = |n: u32| {
             let s = (n as f64).sqrt().round() as u32;
             (s * s == n).then_some(s)
         };
-        let tile = layout
+        let tiled: Vec<&lightfarm_proto::bundle::SurfaceInfo> = layout
             .surfaces
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| own(*k).is_none())
+            .map(|(_, s)| s)
+            .collect();
+        let tile = tiled
             .iter()
             .filter_map(|s| square_side(s.texel_count))
             .max()
             .or_else(|| {
-                let most = layout.surfaces.iter().map(|s| s.texel_count).max()?;
+                let most = tiled.iter().map(|s| s.texel_count).max()?;
                 Some((most as f64).sqrt().ceil() as u32)
             })
             .unwrap_or(1)
             .max(1);
         let per_tile = tile * tile;
-        let n_tiles: u32 = layout
-            .surfaces
-            .iter()
-            .map(|s| s.texel_count.div_ceil(per_tile))
-            .sum();
+        let n_tiles: u32 = tiled.iter().map(|s| s.texel_count.div_ceil(per_tile)).sum();
         let columns = ((n_tiles as f64).sqrt().ceil() as u32).max(1);
         let rows = n_tiles.div_ceil(columns).max(1);
         let pitch = tile + 1;
         let mut texel_xy = vec![(0, 0); layout.n_texels()];
         let mut next_tile = 0u32;
-        for s in &layout.surfaces {
+        let (mut width, mut height) = (columns * pitch - 1, rows * pitch - 1);
+        // Own images: one row below the tiles.
+        let (mut x, y) = (0u32, height + 1);
+        for a in surface_atlases {
+            let Some(s) = layout.surfaces.get(a.surface as usize) else {
+                continue;
+            };
+            for (k, xy) in a.texel_xy.iter().enumerate().take(s.texel_count as usize) {
+                texel_xy[(s.texel_offset as usize) + k] = (x + xy[0], y + xy[1]);
+            }
+            width = width.max(x + a.width);
+            height = height.max(y + a.height);
+            x += a.width + 1;
+        }
+        for (k, s) in layout.surfaces.iter().enumerate() {
+            if own(k).is_some() {
+                continue;
+            }
             for t in 0..s.texel_count {
                 let k = next_tile + t / per_tile;
                 let within = t % per_tile;
@@ -65,8 +93,8 @@ impl Atlas {
             next_tile += s.texel_count.div_ceil(per_tile);
         }
         Atlas {
-            width: columns * pitch - 1,
-            height: rows * pitch - 1,
+            width,
+            height,
             texel_xy,
         }
     }
@@ -166,6 +194,32 @@ mod tests {
         assert_eq!(atlas.texel_xy[16 + 4 + 3], (5 + 3, 1));
         // Texel 0 of the box's third face: tile 3 + 2 = 5, at (1·5, 1·5).
         assert_eq!(atlas.texel_xy[48 + 32], (5, 5));
+    }
+
+    /// A mesh surface with its own image keeps its atlas layout, below the tiles; the other
+    /// surfaces are tiled as without it.
+    #[test]
+    fn mesh_surfaces_keep_their_own_image() {
+        let l = layout(&[16, 16, 5]);
+        let mesh = SurfaceAtlas {
+            surface: 2,
+            width: 7,
+            height: 3,
+            texel_xy: vec![[0, 0], [6, 0], [3, 1], [0, 2], [6, 2]],
+        };
+        let atlas = Atlas::from_layout_with(&l, std::slice::from_ref(&mesh));
+        let tiles_only = Atlas::from_layout(&layout(&[16, 16]));
+        assert_eq!(atlas.texel_xy[..32], tiles_only.texel_xy[..]);
+        let y0 = tiles_only.height + 1;
+        for (k, xy) in mesh.texel_xy.iter().enumerate() {
+            assert_eq!(atlas.texel_xy[32 + k], (xy[0], y0 + xy[1]));
+        }
+        assert_eq!(
+            (atlas.width, atlas.height),
+            (tiles_only.width.max(7), y0 + 3)
+        );
+        let unique: std::collections::HashSet<_> = atlas.texel_xy.iter().collect();
+        assert_eq!(unique.len(), atlas.texel_xy.len());
     }
 
     #[test]

@@ -1040,6 +1040,7 @@ mod tests {
             probes: None,
             dnrt: None,
             sh: None,
+            surface_atlases: Vec::new(),
         }
     }
 
@@ -1259,6 +1260,7 @@ mod tests {
             probes: None,
             dnrt: None,
             sh: None,
+            surface_atlases: Vec::new(),
         }
     }
 

@@ -83,6 +83,7 @@ fn bundle(n: usize) -> Bundle {
         drt: None,
         probes: None,
         dnrt: None,
+        surface_atlases: Vec::new(),
         sh: Some(ShResponses {
             entries: vec![ShEntry {
                 texels: (0..n as u32).collect(),

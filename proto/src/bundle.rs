@@ -30,7 +30,8 @@ pub use sh_responses::{ShEntry, ShResponses};
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 pub const BUNDLE_MAJOR: u16 = 1;
 pub const BUNDLE_MINOR: u16 = 2;
-/// The minor version a bundle without minor-2 sections (`sh`, low-rank `drt`) is written with,
+/// The minor version a bundle without minor-2 sections (`sh`, low-rank `drt`, `lightmap`) is
+/// written with,
 /// so such a bundle is byte-identical to what a minor-1 writer produced.
 const MINOR_WITHOUT_MINOR_2_SECTIONS: u16 = 1;
 
@@ -52,6 +53,8 @@ pub mod section {
     /// sources (see [`super::DeltaEntry`]). Written instead of [`DRT`] only when some entry uses
     /// them, so a minor-1 reader skips it and lights the scene by MRT alone.
     pub const DRT_LOW_RANK: u32 = 11;
+    /// Where mesh surfaces' texels sit in their own lightmap images (minor 2).
+    pub const LIGHTMAP: u32 = 12;
 }
 
 /// Report name of a section kind.
@@ -67,6 +70,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::DNRT => "dnrt",
         section::SH => "sh",
         section::DRT_LOW_RANK => "drt",
+        section::LIGHTMAP => "lightmap",
         _ => "unknown",
     }
 }
@@ -316,6 +320,21 @@ pub struct Bundle {
     pub dnrt: Option<Vec<crate::dnrt_grid::DnrtGrid>>,
     /// SH incident-radiance responses per lit texel (`settings.sh_responses`; minor 2).
     pub sh: Option<ShResponses>,
+    /// The lightmap atlas of each mesh surface (mesh clutter), ascending by surface; empty
+    /// when the scene has none (and in bundles before minor 2).
+    pub surface_atlases: Vec<SurfaceAtlas>,
+}
+
+/// Where the texels of one layout surface sit in that surface's own lightmap image: texel `k`
+/// of the surface at column `texel_xy[k][0]`, row `texel_xy[k][1]` (rows top to bottom) of a
+/// `width × height` image; cells no texel lands in are empty.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfaceAtlas {
+    /// Index into `Layout::surfaces`.
+    pub surface: u32,
+    pub width: u32,
+    pub height: u32,
+    pub texel_xy: Vec<[u32; 2]>,
 }
 
 /// A regular grid of SH radiance probes (`crate::sh` convention, 9 coefficients per channel).
@@ -555,7 +574,7 @@ impl Bundle {
             report: EncodeReport::default(),
         };
         let sections = self.encode_sections(&mut enc);
-        let minor_2 = [section::SH, section::DRT_LOW_RANK];
+        let minor_2 = [section::SH, section::DRT_LOW_RANK, section::LIGHTMAP];
         let minor = if sections.iter().any(|(kind, _)| minor_2.contains(kind)) {
             BUNDLE_MINOR
         } else {
@@ -586,6 +605,17 @@ impl Bundle {
         let mut w = Writer::new();
         self.layout.write(&mut w);
         sections.push((section::LAYOUT, w.bytes));
+        if !self.surface_atlases.is_empty() {
+            let mut w = Writer::new();
+            w.u32(self.surface_atlases.len() as u32);
+            for a in &self.surface_atlases {
+                w.u32(a.surface);
+                w.u32(a.width);
+                w.u32(a.height);
+                w.u32s(&a.texel_xy.iter().flatten().copied().collect::<Vec<_>>());
+            }
+            sections.push((section::LIGHTMAP, w.bytes));
+        }
 
         let mut w = Writer::new();
         w.u32(self.shapes.len() as u32);
@@ -739,6 +769,7 @@ impl Bundle {
         let (mut layout, mut shapes, mut blocks, mut transport, mut full, mut drt, mut probes) =
             (None, None, None, None, None, None, None);
         let (mut dnrt, mut sh) = (None, None);
+        let mut surface_atlases = Vec::new();
         for (kind, payload) in &sections {
             let mut p = Reader::new(payload);
             match *kind {
@@ -751,6 +782,7 @@ impl Bundle {
                 section::PROBES => probes = Some(read_probes(&mut p)?),
                 section::DNRT => dnrt = Some(read_dnrt(&mut p)?),
                 section::SH => sh = Some(sh_responses::read_sh(&mut p)?),
+                section::LIGHTMAP => surface_atlases = read_surface_atlases(&mut p)?,
                 _ => {} // read_sections passes known kinds only
             }
             if p.remaining() != 0 {
@@ -771,6 +803,7 @@ impl Bundle {
             probes,
             dnrt,
             sh,
+            surface_atlases,
         };
         bundle.validate()?;
         Ok(bundle)
@@ -1066,8 +1099,49 @@ impl Bundle {
                 }
             }
         }
+        let mut previous = None;
+        for a in &self.surface_atlases {
+            let Some(s) = self.layout.surfaces.get(a.surface as usize) else {
+                return bad(format!("lightmap: surface {} out of range", a.surface));
+            };
+            if previous.is_some_and(|p| p >= a.surface) {
+                return bad("lightmap: surfaces not strictly ascending".to_string());
+            }
+            previous = Some(a.surface);
+            if a.texel_xy.len() != s.texel_count as usize
+                || a.texel_xy
+                    .iter()
+                    .any(|xy| xy[0] >= a.width || xy[1] >= a.height)
+            {
+                return bad(format!(
+                    "lightmap: surface \"{}\" texels out of its image",
+                    s.name
+                ));
+            }
+        }
         Ok(())
     }
+}
+
+fn read_surface_atlases(r: &mut Reader) -> Result<Vec<SurfaceAtlas>, BundleError> {
+    let n = r.u32()? as usize;
+    let mut out = Vec::with_capacity(n.min(r.remaining() / 20));
+    for _ in 0..n {
+        let (surface, width, height) = (r.u32()?, r.u32()?, r.u32()?);
+        let xy = r.u32s()?;
+        if xy.len() % 2 != 0 {
+            return Err(BundleError::Invalid(
+                "lightmap: odd texel coordinate count".into(),
+            ));
+        }
+        out.push(SurfaceAtlas {
+            surface,
+            width,
+            height,
+            texel_xy: xy.chunks_exact(2).map(|c| [c[0], c[1]]).collect(),
+        });
+    }
+    Ok(out)
 }
 
 fn read_shapes(r: &mut Reader) -> Result<Vec<ShapeOps>, BundleError> {

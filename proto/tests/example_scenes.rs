@@ -231,3 +231,15 @@ fn ball_corridor() {
     assert!(t[1] - 0.35 > 0.0 && t[1] - 0.35 < 0.2, "gap to the floor");
     assert!(t[2] - 0.35 > 0.0 && t[2] - 0.35 < 0.2, "gap to the wall");
 }
+
+#[test]
+fn cornell_mesh() {
+    let (scene, lights) = load("cornell_mesh");
+    let (cornell, cornell_lights) = load("cornell");
+    assert_eq!(scene.blocks, cornell.blocks);
+    assert_eq!(lights, cornell_lights);
+    assert_eq!(scene.clutter.len(), 2);
+    assert_eq!(scene.clutter[0].mesh.as_deref(), Some("short_box.gltf"));
+    assert_eq!(scene.clutter[1], cornell.clutter[1]);
+    assert!(scene_dir("cornell_mesh").join("short_box.bin").exists());
+}

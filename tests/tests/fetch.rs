@@ -57,6 +57,7 @@ fn bundle_bytes(seed: u32) -> Vec<u8> {
         probes: None,
         dnrt: None,
         sh: None,
+        surface_atlases: Vec::new(),
     };
     // Stored raw (no zstd) so the body is large enough to cut mid-transfer.
     let (bytes, _) = bundle.encode_with(&lightfarm_proto::bundle::EncodeOptions {

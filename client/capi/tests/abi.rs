@@ -56,6 +56,7 @@ fn two_texel_bundle() -> Vec<u8> {
         probes: None,
         dnrt: None,
         sh: None,
+        surface_atlases: Vec::new(),
     };
     bundle.encode()
 }

@@ -77,6 +77,7 @@ fn bundle(n: usize) -> Vec<u8> {
         probes: None,
         dnrt: None,
         sh: None,
+        surface_atlases: Vec::new(),
     }
     .encode()
 }

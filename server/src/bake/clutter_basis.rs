@@ -2,12 +2,15 @@
 //! with `B` (texels × m) orthonormal.
 //!
 //! Two choices (`settings.clutter_basis`):
-//! - `face_constant` — the paper's: one constant radiance per clutter face (m = faces);
+//! - `face_constant` — the paper's: one constant radiance per clutter face (m = faces; a mesh's
+//!   faces are the charts of its lightmap atlas, `mesh_atlas`);
 //! - `prior` — what the paper names as better: a lighting prior over the clutter's texels built
 //!   from the same light distribution as the blocks' (lights in the blocks the clutter stands in
 //!   and their neighbours, clipped to the light regions), with shadows from the real geometry.
-//!   A clutter object has one albedo, so direct light is `ρ · pattern` and one SVD over all its
-//!   texels is albedo-invariant. Rank from the tolerance.
+//!   A box (or an uncoloured mesh) has one albedo, so direct light is `ρ · pattern` and one SVD
+//!   over all its texels is albedo-invariant; a mesh with its own colours (glTF base colour)
+//!   has direct light `ρ_c(x) · pattern` per channel c, so its prior holds the three
+//!   albedo-weighted patterns of every light. Rank from the tolerance.
 //!
 //! Frames: world, metres. Invariant: `basis` has orthonormal columns.
 
@@ -16,7 +19,7 @@ use rayon::prelude::*;
 
 use lightfarm_proto::scene::{Aabb, ClutterBasis, Opening, Scene};
 
-use super::geometry::Geometry;
+use super::geometry::{Geometry, SurfaceOwner};
 use super::lighting_prior::unshadowed_pattern;
 use super::low_rank::{truncated_svd, LowRankError};
 use super::sampling::{halton_point_in, stream_key};
@@ -118,17 +121,28 @@ pub fn clutter_basis(
     let n = texels.len();
     let settings = &scene.settings;
     if settings.clutter_basis == ClutterBasis::FaceConstant {
-        // One column per face (surface) of the object.
-        let mut faces: Vec<(usize, usize)> = Vec::new();
+        // One column per face (surface) of a box, per chart of a mesh's atlas.
+        let mut faces: Vec<Vec<usize>> = Vec::new();
         for s in &g.surfaces {
             if s.texel_offset >= texels.start && s.texel_offset < texels.end {
-                faces.push((s.texel_offset - texels.start, s.t * s.t));
+                let start = s.texel_offset - texels.start;
+                match s.owner {
+                    SurfaceOwner::ClutterMesh { atlas, .. } => {
+                        let atlas = &g.mesh_atlases[atlas].0;
+                        let mut charts = vec![Vec::new(); atlas.n_charts];
+                        for (k, t) in atlas.texels.iter().enumerate() {
+                            charts[t.chart as usize].push(start + k);
+                        }
+                        faces.extend(charts.into_iter().filter(|c| !c.is_empty()));
+                    }
+                    _ => faces.push((start..start + s.n_texels).collect()),
+                }
             }
         }
         let mut basis = Mat::<f64>::zeros(n, faces.len());
-        for (j, (start, count)) in faces.iter().enumerate() {
-            for i in 0..*count {
-                basis[(start + i, j)] = 1.0 / (*count as f64).sqrt();
+        for (j, rows) in faces.iter().enumerate() {
+            for &i in rows {
+                basis[(i, j)] = 1.0 / (rows.len() as f64).sqrt();
             }
         }
         return Ok(ClutterBasisOps {
@@ -138,9 +152,11 @@ pub fn clutter_basis(
     }
     let lights = prior_lights(scene, openings, clutter, aabb);
     let min_r2 = (1e-3 * g.scale()).powi(2);
+    let albedo0 = g.texels[texels.start].albedo;
+    let coloured = texels.clone().any(|t| g.texels[t].albedo != albedo0);
     let columns: Vec<Vec<f64>> = lights
         .par_iter()
-        .map(|l| {
+        .flat_map_iter(|l| {
             let mut col: Vec<f64> = texels
                 .clone()
                 .map(|t| {
@@ -153,11 +169,25 @@ pub fn clutter_basis(
                     }
                 })
                 .collect();
-            let norm = col.iter().map(|x| x * x).sum::<f64>().sqrt();
-            if norm > 0.0 {
-                col.iter_mut().for_each(|x| *x /= norm);
-            }
-            col
+            let weighted: Vec<Vec<f64>> = if coloured {
+                (0..3)
+                    .map(|c| {
+                        col.iter()
+                            .zip(texels.clone())
+                            .map(|(x, t)| x * g.texels[t].albedo[c])
+                            .collect()
+                    })
+                    .collect()
+            } else {
+                vec![std::mem::take(&mut col)]
+            };
+            weighted.into_iter().map(|mut col| {
+                let norm = col.iter().map(|x| x * x).sum::<f64>().sqrt();
+                if norm > 0.0 {
+                    col.iter_mut().for_each(|x| *x /= norm);
+                }
+                col
+            })
         })
         .collect();
     let patterns = Mat::from_fn(n, columns.len(), |i, j| columns[j][i]);

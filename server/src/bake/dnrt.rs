@@ -265,6 +265,7 @@ pub fn object_tracer(triangles: &[[[f64; 3]; 3]]) -> Tracer {
         .map(|v| Primitive::Triangle {
             v: *v,
             albedo: [0.0; 3],
+            lightmap: None,
         })
         .collect();
     let scale = triangles

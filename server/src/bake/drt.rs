@@ -12,6 +12,10 @@
 //!   neighbours' shadowed transport minus their own unshadowed transport; with no valid
 //!   neighbour on the face they get exactly minus their MRT transport (they are dark, never NaN).
 //!
+//! Clutter texels are a box's six faces or a mesh's lightmap atlas (`mesh_atlas`); every
+//! operator here reads them by global texel index, so both kinds go through the same code. A
+//! clutter object's basis is placed around its box, or around a mesh's bounding box.
+//!
 //! Model only what the scene needs: a block texel whose rays hit clutter less often than the
 //! tolerance gets no row (counted in the report). All operators are albedo-free.
 //!
@@ -22,7 +26,7 @@ use std::collections::BTreeMap;
 use faer::Mat;
 
 use lightfarm_proto::bundle::{DeltaSource, TexelGather};
-use lightfarm_proto::scene::{ClutterBasis, ClutterGather, Opening, Scene};
+use lightfarm_proto::scene::{Aabb, ClutterBasis, ClutterGather, Opening, Scene};
 
 use super::clutter_basis::{clutter_basis, prior_lights, ClutterBasisOps};
 use super::drt_rays::{clutter_basis_unit, trace_all, DrtRayCache, RayPass};
@@ -78,7 +82,7 @@ pub struct DrtOperators {
     /// Exact clutter gather (None with `clutter_gather: implicit`).
     pub direct_gather: Option<TexelGather>,
     pub clutter: Vec<ClutterProjection>,
-    /// Scene clutter index → index in `clutter` (None for mesh clutter).
+    /// Scene clutter index → index in `clutter` (None for an object without texels).
     pub projection_of: Vec<Option<usize>>,
     pub entries: Vec<DeltaBlock>,
     pub buried: Vec<u32>,
@@ -186,9 +190,14 @@ pub fn build_drt(
     for (c, object) in scene.clutter.iter().enumerate() {
         let range = g.clutter_texels[c].clone();
         if range.is_empty() {
-            continue; // mesh clutter: occluder only (no lightmap yet)
+            continue;
         }
-        let aabb = object.box_.expect("texels only on box clutter");
+        // The box, or the mesh's bounds (where prior lights are placed around it).
+        let bounds = g.clutter_shapes[c].bounds;
+        let aabb = object.box_.unwrap_or(Aabb {
+            min: bounds[0],
+            max: bounds[1],
+        });
         let basis = if settings.clutter_basis == ClutterBasis::Prior {
             let lights = prior_lights(scene, openings, c, &aabb);
             clutter_basis_unit(scene, g, c, &lights, cache, || {
@@ -207,7 +216,7 @@ pub fn build_drt(
             },
         ));
     }
-    // Scene clutter index → index in the bundle's clutter list (box clutter only).
+    // Scene clutter index → index in the bundle's clutter list (objects with texels).
     let projection_of: Vec<Option<usize>> = (0..scene.clutter.len())
         .map(|c| clutter.iter().position(|(k, _)| *k == c))
         .collect();

@@ -40,6 +40,7 @@ use super::drt::DrtError;
 use super::geometry::{ClutterShape, Geometry, Primitive, SurfaceOwner};
 use super::lighting_prior::unshadowed_pattern;
 use super::low_rank::LowRankError;
+use super::mesh::{cross, dot, sub};
 use super::ray_reach::RayReach;
 use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
 use super::shape_cache::mark_used;
@@ -111,11 +112,26 @@ pub fn classify(g: &Geometry, tracer: &Tracer, hit: &Hit) -> Seen {
                         back: !hit.front,
                     }
                 }
+                SurfaceOwner::ClutterMesh { .. } => unreachable!("mesh surfaces have no rectangle"),
             }
         }
         Primitive::Rect { surface: None, .. } => Seen::Nothing,
-        // Triangles are mesh clutter (dynamic objects are not in the bake geometry).
-        Primitive::Triangle { .. } => Seen::Clutter {
+        // Triangles are mesh clutter (dynamic objects are not in the bake geometry). The lit
+        // side is the counter-clockwise one (hit.normal faces the ray's origin); closed
+        // pieces were wound outward when the geometry was built.
+        Primitive::Triangle {
+            v,
+            lightmap: Some(m),
+            ..
+        } => {
+            let front = dot(hit.normal, cross(sub(v[1], v[0]), sub(v[2], v[0]))) > 0.0;
+            Seen::Clutter {
+                texel: front.then(|| g.mesh_texel_at(m, hit.point) as u32),
+                // Only a closed piece has an inside; an open sheet's back is an occluder.
+                back: !front && m.closed,
+            }
+        }
+        Primitive::Triangle { lightmap: None, .. } => Seen::Clutter {
             texel: None,
             back: false,
         },
@@ -222,7 +238,9 @@ impl<'a> RayPass<'a> {
     fn block_of(&self, x: usize) -> usize {
         match self.g.surfaces[self.g.texels[x].surface as usize].owner {
             SurfaceOwner::Block { block, .. } => block,
-            SurfaceOwner::ClutterBox { .. } => unreachable!("block texels come first"),
+            SurfaceOwner::ClutterBox { .. } | SurfaceOwner::ClutterMesh { .. } => {
+                unreachable!("block texels come first")
+            }
         }
     }
 
@@ -505,7 +523,7 @@ pub fn trace_block_unit(
     Ok((texels, traced, reused))
 }
 
-/// Clutter object `c`'s ray unit (like [`trace_block_unit`]); empty for mesh clutter.
+/// Clutter object `c`'s ray unit (like [`trace_block_unit`]); box and mesh clutter alike.
 pub fn trace_clutter_unit(
     pass: &RayPass,
     c: usize,
@@ -623,7 +641,7 @@ impl RayPass<'_> {
         DrtRayCache::relative_path(&self.block_unit_key(b))
     }
 
-    /// The cache file of clutter object `c`'s ray unit (None for mesh clutter: no texels).
+    /// The cache file of clutter object `c`'s ray unit (None for an object without texels).
     pub fn clutter_unit_file(&self, c: usize) -> Option<PathBuf> {
         (!self.g.clutter_texels[c].is_empty())
             .then(|| DrtRayCache::relative_path(&self.clutter_unit_key(c)))

@@ -2,13 +2,19 @@
 //! rays can hit (axis-aligned rectangles for block walls and clutter boxes, triangles for meshes).
 //!
 //! Frames and units: world coordinates in metres. A block face's lit side faces into the block;
-//! a clutter box face's lit side faces out of the box. Texel `(i, j)` of a `T×T` face is global
-//! texel `surface.texel_offset + j*T + i`, `i` along the face's first tangent axis (see
-//! `lightfarm_proto::Face`). Global texel order: blocks in scene order (closed faces in canonical
-//! order), then clutter boxes (six faces each). Mesh clutter is geometry only (no texels yet).
+//! a clutter box face's lit side faces out of the box; a mesh triangle's lit side is its
+//! counter-clockwise side (the outside of a closed glTF or OBJ mesh). Texel `(i, j)` of a `T×T`
+//! face is global texel `surface.texel_offset + j*T + i`, `i` along the face's first tangent
+//! axis (see `lightfarm_proto::Face`). Global texel order: blocks in scene order (closed faces
+//! in canonical order), then clutter objects in scene order — a box's six faces, or a mesh's
+//! lightmap atlas texels in row-major atlas order ([`super::mesh_atlas`]).
 //!
-//! Invariant: `texels[k].surface` indexes `surfaces`, and every rectangle primitive with a
-//! `surface` maps hit points back to that surface's texels with [`Geometry::texel_at`].
+//! Invariant: `texels[k].surface` indexes `surfaces`; every rectangle primitive with a
+//! `surface` maps hit points back to that surface's texels with [`Geometry::texel_at`], and
+//! every mesh-clutter triangle (`lightmap: Some`) to its atlas's texels with
+//! [`Geometry::mesh_texel_at`]. A mesh surface (owner [`SurfaceOwner::ClutterMesh`]) is not a
+//! rectangle: its rectangle fields are zero and `t` is 0; its texels are `n_texels` from
+//! `texel_offset`.
 
 use std::ops::Range;
 use std::path::Path;
@@ -16,13 +22,25 @@ use std::path::Path;
 use lightfarm_proto::scene::{Aabb, Scene, Transform};
 use lightfarm_proto::Face;
 
-use super::mesh::{self, MeshError};
+use super::mesh::{self, MeshError, TriangleMesh};
+use super::mesh_atlas::{closed_pieces, AtlasError, MeshAtlas};
 
 /// Who owns a lit surface.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SurfaceOwner {
-    Block { block: usize, face: Face },
-    ClutterBox { clutter: usize, face: Face },
+    Block {
+        block: usize,
+        face: Face,
+    },
+    ClutterBox {
+        clutter: usize,
+        face: Face,
+    },
+    /// A mesh clutter object's lightmap atlas (`Geometry::mesh_atlases[atlas]`).
+    ClutterMesh {
+        clutter: usize,
+        atlas: usize,
+    },
 }
 
 /// An axis-aligned lit rectangle divided into `t × t` texels.
@@ -39,6 +57,8 @@ pub struct Surface {
     pub normal_sign: f64,
     pub t: usize,
     pub texel_offset: usize,
+    /// Texels of the surface (`t²` for a rectangle).
+    pub n_texels: usize,
     /// Index (in RESULT.json) of this surface's first texel within its name.
     pub index_offset: u32,
     pub albedo: [f64; 3],
@@ -102,8 +122,24 @@ pub enum Primitive {
         surface: Option<u32>,
         albedo: [f64; 3],
     },
-    /// Two-sided triangle.
-    Triangle { v: [[f64; 3]; 3], albedo: [f64; 3] },
+    /// Two-sided triangle; `lightmap` when it belongs to mesh clutter with texels.
+    Triangle {
+        v: [[f64; 3]; 3],
+        albedo: [f64; 3],
+        lightmap: Option<MeshTriangle>,
+    },
+}
+
+/// A mesh-clutter triangle's place in its lightmap atlas.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MeshTriangle {
+    /// Index into [`Geometry::mesh_atlases`].
+    pub atlas: u32,
+    /// The triangle's index in that mesh.
+    pub triangle: u32,
+    /// The triangle is part of a closed piece (outward-wound): a ray reaching its back side
+    /// is inside the mesh.
+    pub closed: bool,
 }
 
 /// Surfaces, texels and primitives of a scene (or of a lone shape).
@@ -114,10 +150,12 @@ pub struct Geometry {
     pub primitives: Vec<Primitive>,
     /// Global texel range of each block (empty for blocks with every face open).
     pub block_texels: Vec<Range<usize>>,
-    /// Global texel range of each clutter object (empty for mesh clutter).
+    /// Global texel range of each clutter object.
     pub clutter_texels: Vec<Range<usize>>,
     /// Bounds and content fingerprint of each clutter object, in scene order.
     pub clutter_shapes: Vec<ClutterShape>,
+    /// Lightmap atlases of mesh clutter, in scene order, with the surface each belongs to.
+    pub mesh_atlases: Vec<(MeshAtlas, u32)>,
 }
 
 /// Where a clutter object is and what it is, for telling which objects changed between bakes.
@@ -125,7 +163,8 @@ pub struct Geometry {
 pub struct ClutterShape {
     /// World-space bounds `[min, max]` of the box or of every triangle of the mesh.
     pub bounds: [[f64; 3]; 2],
-    /// blake3 of the geometry rays can hit (box corners or every triangle) and its texel count.
+    /// blake3 of the geometry rays can hit (box corners or every triangle) and its texels
+    /// (count for a box; every texel's atlas cell and position for a mesh).
     pub fingerprint: [u8; 32],
 }
 
@@ -143,15 +182,21 @@ impl ClutterShape {
         }
     }
 
-    fn of_triangles(triangles: &[[[f64; 3]; 3]]) -> ClutterShape {
+    fn of_triangles(triangles: &[[[f64; 3]; 3]], atlas: &MeshAtlas) -> ClutterShape {
         let mut h = blake3::Hasher::new();
         h.update(b"mesh");
-        let mut bounds = [[f64::INFINITY; 3], [f64::NEG_INFINITY; 3]];
+        let bounds = triangle_bounds(triangles);
         for v in triangles.iter().flatten() {
-            for k in 0..3 {
-                bounds[0][k] = bounds[0][k].min(v[k]);
-                bounds[1][k] = bounds[1][k].max(v[k]);
-                h.update(&v[k].to_bits().to_le_bytes());
+            for x in v {
+                h.update(&x.to_bits().to_le_bytes());
+            }
+        }
+        h.update(&(atlas.texels.len() as u64).to_le_bytes());
+        for t in &atlas.texels {
+            h.update(&t.x.to_le_bytes());
+            h.update(&t.y.to_le_bytes());
+            for x in t.position {
+                h.update(&x.to_bits().to_le_bytes());
             }
         }
         ClutterShape {
@@ -161,11 +206,25 @@ impl ClutterShape {
     }
 }
 
+/// World bounds `[min, max]` of triangles.
+pub fn triangle_bounds(triangles: &[[[f64; 3]; 3]]) -> [[f64; 3]; 2] {
+    let mut bounds = [[f64::INFINITY; 3], [f64::NEG_INFINITY; 3]];
+    for v in triangles.iter().flatten() {
+        for k in 0..3 {
+            bounds[0][k] = bounds[0][k].min(v[k]);
+            bounds[1][k] = bounds[1][k].max(v[k]);
+        }
+    }
+    bounds
+}
+
 /// Why a scene's geometry could not be built.
 #[derive(Debug, thiserror::Error)]
 pub enum GeometryError {
     #[error(transparent)]
     Mesh(#[from] MeshError),
+    #[error(transparent)]
+    Atlas(#[from] AtlasError),
 }
 
 impl Geometry {
@@ -193,6 +252,7 @@ impl Geometry {
             normal_sign,
             t,
             texel_offset: self.texels.len(),
+            n_texels: t * t,
             index_offset,
             albedo,
         };
@@ -288,15 +348,33 @@ impl Geometry {
                 }
             } else if let Some(path) = &clutter.mesh {
                 let transform = clutter.transform.unwrap_or_default();
-                let mesh = mesh::load_mesh(
+                let mut mesh = mesh::load_mesh(
                     &format!("clutter \"{}\"", clutter.id),
                     scene_dir,
                     path,
                     &transform,
                 )?;
+                // Closed pieces wound inside-out are turned outside-out.
+                let (pieces, volumes) = closed_pieces(&mesh.triangles);
+                for (k, (piece, closed)) in pieces.iter().enumerate() {
+                    if *closed && volumes[*piece as usize] < 0.0 {
+                        mesh.flip(k);
+                    }
+                }
+                let closed: Vec<bool> = pieces.iter().map(|p| p.1).collect();
+                let object = format!("clutter \"{}\"", clutter.id);
+                // Resolution: a box of the mesh's size would get T texels along its longest
+                // side (module doc of `mesh_atlas`).
+                let bounds = triangle_bounds(&mesh.triangles);
+                let extent = (0..3)
+                    .map(|k| bounds[1][k] - bounds[0][k])
+                    .fold(0.0, f64::max);
+                let h = extent / t as f64;
+                let uv = mesh.full_lightmap_uv();
+                let atlas = MeshAtlas::build(&object, &mesh.triangles, uv.as_deref(), h)?;
                 g.clutter_shapes
-                    .push(ClutterShape::of_triangles(&mesh.triangles));
-                g.add_triangles(&mesh.triangles, clutter.albedo);
+                    .push(ClutterShape::of_triangles(&mesh.triangles, &atlas));
+                g.add_mesh_clutter(c, &clutter.id, &mesh, &closed, atlas, clutter.albedo);
             }
             g.clutter_texels.push(start..g.texels.len());
         }
@@ -330,18 +408,85 @@ impl Geometry {
             // triangle's centroid: the reference's triangles carry one albedo each.
             for (k, tri) in mesh.triangles.iter().enumerate() {
                 let albedo = mesh.albedo.at(k, [1.0 / 3.0; 3], object.albedo);
-                self.primitives
-                    .push(Primitive::Triangle { v: *tri, albedo });
+                self.primitives.push(Primitive::Triangle {
+                    v: *tri,
+                    albedo,
+                    lightmap: None,
+                });
             }
         }
         Ok(())
     }
 
+    /// Adds triangles without texels (occluders).
     pub fn add_triangles(&mut self, triangles: &[[[f64; 3]; 3]], albedo: [f64; 3]) {
         for tri in triangles {
-            self.primitives
-                .push(Primitive::Triangle { v: *tri, albedo });
+            self.primitives.push(Primitive::Triangle {
+                v: *tri,
+                albedo,
+                lightmap: None,
+            });
         }
+    }
+
+    /// Adds mesh clutter `clutter` with its lightmap atlas (`closed`: per triangle, whether its
+    /// piece is closed): one surface `clutter:<id>`, the atlas texels (albedo: the mesh's own colour at the texel, else `albedo`), and its
+    /// triangles (albedo at the centroid, as the reference reads one per triangle).
+    pub fn add_mesh_clutter(
+        &mut self,
+        clutter: usize,
+        id: &str,
+        mesh: &TriangleMesh,
+        closed: &[bool],
+        atlas: MeshAtlas,
+        albedo: [f64; 3],
+    ) {
+        let surface = self.surfaces.len() as u32;
+        let atlas_index = self.mesh_atlases.len();
+        self.surfaces.push(Surface {
+            name: format!("clutter:{id}"),
+            owner: SurfaceOwner::ClutterMesh {
+                clutter,
+                atlas: atlas_index,
+            },
+            axis: 0,
+            coord: 0.0,
+            min: [0.0; 2],
+            max: [0.0; 2],
+            normal_sign: 1.0,
+            t: 0,
+            texel_offset: self.texels.len(),
+            n_texels: atlas.texels.len(),
+            index_offset: 0,
+            albedo,
+        });
+        for (k, texel) in atlas.texels.iter().enumerate() {
+            self.texels.push(Texel {
+                position: texel.position,
+                normal: texel.normal,
+                albedo: mesh.albedo.at(texel.triangle as usize, texel.bary, albedo),
+                surface,
+                index: k as u32,
+            });
+        }
+        for (k, tri) in mesh.triangles.iter().enumerate() {
+            self.primitives.push(Primitive::Triangle {
+                v: *tri,
+                albedo: mesh.albedo.at(k, [1.0 / 3.0; 3], albedo),
+                lightmap: Some(MeshTriangle {
+                    atlas: atlas_index as u32,
+                    triangle: k as u32,
+                    closed: closed[k],
+                }),
+            });
+        }
+        self.mesh_atlases.push((atlas, surface));
+    }
+
+    /// The global texel a hit at `p` on a mesh-clutter triangle lands in.
+    pub fn mesh_texel_at(&self, m: MeshTriangle, p: [f64; 3]) -> usize {
+        let (atlas, surface) = &self.mesh_atlases[m.atlas as usize];
+        self.surfaces[*surface as usize].texel_offset + atlas.texel_at(m.triangle as usize, p)
     }
 
     /// The global texel a hit on `surface` at point `p` lands in.

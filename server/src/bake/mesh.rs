@@ -20,6 +20,31 @@ pub struct TriangleMesh {
     pub albedo: MeshAlbedo,
     /// Zero-area triangles that were dropped.
     pub dropped_degenerate: usize,
+    /// A glTF's lightmap UVs (`TEXCOORD_1`) per triangle, aligned with `triangles`; `None` for
+    /// triangles whose primitive has no `TEXCOORD_1` (and for OBJ files).
+    pub lightmap_uv: Vec<Option<[[f64; 2]; 3]>>,
+}
+
+impl TriangleMesh {
+    /// Reverses triangle `k`'s winding (swaps its second and third vertex, with their colours
+    /// and texture coordinates), so its lit side becomes the other one.
+    pub fn flip(&mut self, k: usize) {
+        self.triangles[k].swap(1, 2);
+        if let Some(Some(uv)) = self.lightmap_uv.get_mut(k) {
+            uv.swap(1, 2);
+        }
+        if let Some(Some(a)) = self.albedo.triangles.get_mut(k) {
+            a.vertex.swap(1, 2);
+            if let Some((uv, _)) = a.texture.as_mut() {
+                uv.swap(1, 2);
+            }
+        }
+    }
+
+    /// The lightmap UVs when every triangle has them.
+    pub fn full_lightmap_uv(&self) -> Option<Vec<[[f64; 2]; 3]>> {
+        self.lightmap_uv.iter().copied().collect()
+    }
 }
 
 /// Why a mesh could not be loaded.
@@ -63,7 +88,8 @@ pub fn load_mesh(
     };
     let lower = relative.to_ascii_lowercase();
     let mut textures = Vec::new();
-    let raw: Vec<([[f64; 3]; 3], Option<TriangleAlbedo>)> = if lower.ends_with(".obj") {
+    type RawTriangle = ([[f64; 3]; 3], Option<TriangleAlbedo>, Option<[[f64; 2]; 3]>);
+    let raw: Vec<RawTriangle> = if lower.ends_with(".obj") {
         let (models, _) = tobj::load_obj(
             &path,
             &tobj::LoadOptions {
@@ -91,7 +117,7 @@ pub fn load_mesh(
                 {
                     return Err(read_err("face index out of range".into()));
                 }
-                tris.push(([vertex(idx[0]), vertex(idx[1]), vertex(idx[2])], None));
+                tris.push(([vertex(idx[0]), vertex(idx[1]), vertex(idx[2])], None, None));
             }
         }
         tris
@@ -137,6 +163,9 @@ pub fn load_mesh(
                             .collect();
                         Some((uv, info.texture().source().index() as u32))
                     });
+                    let lightmap_uv: Option<Vec<[f64; 2]>> = reader
+                        .read_tex_coords(1)
+                        .map(|uv| uv.into_f32().map(|v| v.map(|x| x as f64)).collect());
                     let coloured = colours.is_some()
                         || texture.is_some()
                         || factor[..3].iter().any(|x| *x != 1.0);
@@ -175,7 +204,18 @@ pub fn load_mesh(
                         } else {
                             None
                         };
-                        tris.push((tri, albedo));
+                        let lightmap = match &lightmap_uv {
+                            Some(uv) => {
+                                let at = |i: u32| {
+                                    uv.get(i as usize).copied().ok_or_else(|| {
+                                        read_err("TEXCOORD_1 index out of range".into())
+                                    })
+                                };
+                                Some([at(idx[0])?, at(idx[1])?, at(idx[2])?])
+                            }
+                            None => None,
+                        };
+                        tris.push((tri, albedo, lightmap));
                     }
                 }
             }
@@ -192,15 +232,18 @@ pub fn load_mesh(
     }
     let mut mesh = TriangleMesh::default();
     mesh.albedo.textures = textures;
-    for (k, (tri, albedo)) in raw.into_iter().enumerate() {
-        if albedo.as_ref().is_some_and(|a| {
-            a.vertex.iter().flatten().any(|x| !x.is_finite())
-                || a.texture
-                    .iter()
-                    .flat_map(|t| t.0)
-                    .flatten()
-                    .any(|x| !x.is_finite())
-        }) {
+    for (k, (tri, albedo, lightmap)) in raw.into_iter().enumerate() {
+        let bad_uv = lightmap.is_some_and(|t| t.iter().flatten().any(|x| !x.is_finite()));
+        if bad_uv
+            || albedo.as_ref().is_some_and(|a| {
+                a.vertex.iter().flatten().any(|x| !x.is_finite())
+                    || a.texture
+                        .iter()
+                        .flat_map(|t| t.0)
+                        .flatten()
+                        .any(|x| !x.is_finite())
+            })
+        {
             return Err(MeshError::NonFiniteColour {
                 object: object.to_string(),
                 triangle: k,
@@ -218,6 +261,7 @@ pub fn load_mesh(
             continue;
         }
         mesh.triangles.push(world);
+        mesh.lightmap_uv.push(lightmap);
         mesh.albedo.triangles.push(albedo.map(|a| TriangleAlbedo {
             vertex: a.vertex.map(|v| v.map(|x| x.clamp(0.0, 1.0))),
             ..a

@@ -2,7 +2,8 @@
 //!
 //! # Layout
 //! - [`sampling`]: seeded quasi-random numbers and hemisphere maps.
-//! - [`geometry`], [`mesh`]: texels and primitives of a scene or a lone shape; mesh loading.
+//! - [`geometry`], [`mesh`], [`mesh_atlas`]: texels and primitives of a scene or a lone shape;
+//!   mesh loading; lightmap atlases (texels) of mesh clutter.
 //! - [`tracer`]: the obvhs BVH and exact rectangle/triangle intersection.
 //! - [`one_bounce`]: sparse one-bounce gather rows (traced transport, the dense operator).
 //! - [`lighting_prior`], [`low_rank`], [`lightfield`], [`shape`]: MRT shape operators.
@@ -33,6 +34,7 @@ pub mod lighting_prior;
 pub mod low_rank;
 pub mod mesh;
 pub mod mesh_albedo;
+pub mod mesh_atlas;
 pub mod one_bounce;
 pub mod pipeline;
 pub mod probe_volume;

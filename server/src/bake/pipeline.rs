@@ -21,7 +21,7 @@ use super::dnrt::bake_dnrt_grid;
 use super::dnrt_cache::{dnrt_key, DnrtCache, DnrtLookup};
 use super::drt::{build_drt, DeltaBlock, DrtOperators, DrtStats};
 use super::drt_rays::DrtRayCache;
-use super::geometry::{Geometry, GeometryError, Primitive};
+use super::geometry::{Geometry, GeometryError, Primitive, SurfaceOwner};
 use super::low_rank::LowRankError;
 use super::mesh::load_mesh;
 use super::mesh_albedo::SurfaceAlbedo;
@@ -184,7 +184,7 @@ fn to_matrix(m: &Mat<f64>) -> Matrix {
 pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
     let mut surfaces: Vec<SurfaceInfo> = Vec::new();
     for s in &g.surfaces {
-        let n = (s.t * s.t) as u32;
+        let n = s.n_texels as u32;
         match surfaces.last_mut() {
             // Clutter boxes: six faces, one surface name.
             Some(last) if last.name == s.name => last.texel_count += n,
@@ -226,15 +226,47 @@ pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
             .iter()
             .map(|t| {
                 let s = &g.surfaces[t.surface as usize];
-                [
-                    ((s.max[0] - s.min[0]) / s.t as f64) as f32,
-                    ((s.max[1] - s.min[1]) / s.t as f64) as f32,
-                ]
+                match s.owner {
+                    // A mesh texel: the side of the square in the normal's dominant tangent
+                    // plane whose lift onto the texel's plane has the texel's area
+                    // (`docs/bundle-format.md`, layout).
+                    SurfaceOwner::ClutterMesh { atlas, .. } => {
+                        let area = g.mesh_atlases[atlas].0.texels[t.index as usize].area;
+                        let dominant = t.normal.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+                        let side = (area * dominant).sqrt() as f32;
+                        [side, side]
+                    }
+                    _ => [
+                        ((s.max[0] - s.min[0]) / s.t as f64) as f32,
+                        ((s.max[1] - s.min[1]) / s.t as f64) as f32,
+                    ],
+                }
             })
             .collect(),
         rects,
         triangles,
     }
+}
+
+/// Each mesh surface's lightmap image (its atlas) for the bundle's layout.
+pub fn surface_atlases_of(g: &Geometry, layout: &Layout) -> Vec<bundle::SurfaceAtlas> {
+    g.mesh_atlases
+        .iter()
+        .map(|(atlas, surface)| {
+            let name = &g.surfaces[*surface as usize].name;
+            let index = layout
+                .surfaces
+                .iter()
+                .position(|s| &s.name == name)
+                .expect("every mesh surface is in the layout");
+            bundle::SurfaceAtlas {
+                surface: index as u32,
+                width: atlas.width,
+                height: atlas.height,
+                texel_xy: atlas.texels.iter().map(|t| [t.x, t.y]).collect(),
+            }
+        })
+        .collect()
 }
 
 /// The scene's blocks' shape operators, deduplicated by content key.
@@ -516,8 +548,11 @@ pub fn bake(
     // Opening operators are only applied by lightfield transport at run time.
     let ship_openings = matches!(transport, TransportOps::Lightfield(_));
     // The bundle grows in file order; each step's sections are final once announced.
+    let layout = layout_of(scene, &full_geometry);
+    let surface_atlases = surface_atlases_of(&full_geometry, &layout);
     let mut bundle = Bundle {
-        layout: layout_of(scene, &full_geometry),
+        surface_atlases,
+        layout,
         shapes: shapes
             .iter()
             .map(|s| bundle::ShapeOps {

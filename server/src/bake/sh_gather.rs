@@ -18,6 +18,7 @@ use lightfarm_proto::sh::SH_COEFFS;
 
 use super::drt::ClutterProjection;
 use super::geometry::{Geometry, Primitive, SurfaceOwner};
+use super::mesh::{cross, dot, sub};
 use super::shape::ShapeOperators;
 use super::tracer::Tracer;
 
@@ -54,21 +55,31 @@ pub fn implicit_source_hit(
 ) -> Option<(SourceKey, usize)> {
     let sign = |s: u32| g.surfaces[s as usize].normal_sign;
     let hit = tracer.closest(o, d, f64::INFINITY, &sign)?;
-    if !hit.front {
-        return None;
-    }
-    let Primitive::Rect {
-        surface: Some(s), ..
-    } = tracer.primitives()[hit.primitive as usize]
-    else {
-        return None;
+    let (s, t) = match tracer.primitives()[hit.primitive as usize] {
+        Primitive::Rect {
+            surface: Some(s), ..
+        } if hit.front => (s, g.texel_at(s, hit.point)),
+        Primitive::Triangle {
+            v,
+            lightmap: Some(m),
+            ..
+        } => {
+            // Mesh clutter: its lit (counter-clockwise) side only.
+            let n = cross(sub(v[1], v[0]), sub(v[2], v[0]));
+            if dot(hit.normal, n) <= 0.0 {
+                return None;
+            }
+            let surface = g.mesh_atlases[m.atlas as usize].1;
+            (surface, g.mesh_texel_at(m, hit.point))
+        }
+        _ => return None,
     };
-    let t = g.texel_at(s, hit.point);
     match g.surfaces[s as usize].owner {
         SurfaceOwner::Block { block, .. } => {
             Some(((0, block as u32), t - g.block_texels[block].start))
         }
-        SurfaceOwner::ClutterBox { clutter: c, .. } => projection_of
+        SurfaceOwner::ClutterBox { clutter: c, .. }
+        | SurfaceOwner::ClutterMesh { clutter: c, .. } => projection_of
             .get(c)
             .copied()
             .flatten()

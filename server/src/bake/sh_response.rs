@@ -95,7 +95,9 @@ pub struct ShResponseOps {
 fn owner_of(g: &Geometry, x: usize) -> (u8, u32) {
     match g.surfaces[g.texels[x].surface as usize].owner {
         SurfaceOwner::Block { block, .. } => (0, block as u32),
-        SurfaceOwner::ClutterBox { clutter, .. } => (1, clutter as u32),
+        SurfaceOwner::ClutterBox { clutter, .. } | SurfaceOwner::ClutterMesh { clutter, .. } => {
+            (1, clutter as u32)
+        }
     }
 }
 
@@ -127,7 +129,7 @@ fn texel_response(
     sh_rows(&by_texel, shapes, clutter)
 }
 
-/// Builds the SH responses of every lit texel of `g` (blocks and box clutter). `clutter` and
+/// Builds the SH responses of every lit texel of `g` (blocks and clutter, meshes included). `clutter` and
 /// `projection_of` are the DRT clutter bases (empty without clutter); `buried` the texels DRT
 /// flagged (ascending).
 pub fn build_sh_responses(

@@ -129,6 +129,7 @@ pub fn measure_throughput(
             .map(|v| Primitive::Triangle {
                 v: v.map(|p| p.map(|x| x as f32 as f64)),
                 albedo: [0.5; 3],
+                lightmap: None,
             })
             .collect(),
         g.scale(),
@@ -215,6 +216,7 @@ mod tests {
                 .map(|&v| Primitive::Triangle {
                     v,
                     albedo: [0.5; 3],
+                    lightmap: None,
                 })
                 .collect(),
             g.scale(),

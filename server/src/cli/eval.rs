@@ -154,12 +154,13 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         let sh = super::eval_sh::sh_incident(bundle.clone(), &lights)?;
         super::eval_sh::write_sh_file(path, &sh)?;
     }
+    let surface_atlases = bundle.surface_atlases.clone();
     let result = evaluate(bundle, &lights, args.method)?;
     write_json(&args.out, &result)?;
     if !args.lightmaps.is_empty() {
         eprintln!(
             "lightmaps: {}",
-            write_lightmaps(&layout, &result, &args.lightmaps)?
+            write_lightmaps(&layout, &surface_atlases, &result, &args.lightmaps)?
         );
     }
     Ok(())

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use lightfarm_client::lightmap::{auto_exposure, Atlas};
-use lightfarm_proto::bundle::Layout;
+use lightfarm_proto::bundle::{Layout, SurfaceAtlas};
 use lightfarm_proto::result::ResultFile;
 
 use super::write_atomic;
@@ -69,10 +69,11 @@ fn write_png(path: &Path, atlas: &Atlas, rgb: &[u8]) -> anyhow::Result<()> {
 /// Writes the requested files; returns a line describing them.
 pub fn write_lightmaps(
     layout: &Layout,
+    surface_atlases: &[SurfaceAtlas],
     result: &ResultFile,
     files: &LightmapFiles,
 ) -> anyhow::Result<String> {
-    let atlas = Atlas::from_layout(layout);
+    let atlas = Atlas::from_layout_with(layout, surface_atlases);
     let (indirect, lit) = per_texel(layout, result);
     let mut notes = vec![format!("atlas {}x{}", atlas.width, atlas.height)];
     if let Some(path) = &files.png_indirect {
