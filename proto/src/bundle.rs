@@ -5,10 +5,8 @@
 //! can use them: layout, shape operators, block instances and MRT transport light the scene;
 //! the DRT and probe sections add clutter and dynamic-object lighting; the `sh` section (minor 2,
 //! [`ShResponses`], only when the scene asks) per-texel SH incident radiance for normal-mapped
-//! surfaces; `full` (dense reference operator) comes last. A bundle without minor-2 sections
-//! (`sh`, low-rank `drt`) is stamped minor 1, so it is byte-identical to a minor-1 writer's. A
-//! reader skips section kinds it does not know (newer minor version); a different major version
-//! is refused.
+//! surfaces; `full` (dense reference operator) comes last. A reader skips section kinds it does
+//! not know (newer minor version); a different major version is refused.
 //!
 //! Operator matrices are row-major, stored in the codec [`EncodeOptions`] picks per matrix
 //! (f32, f16 or 8-bit, see [`crate::codec`]) and decoded to f32. Shapes: `U_b` is texels × r,
@@ -30,10 +28,6 @@ pub use sh_responses::{ShEntry, ShResponses};
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 pub const BUNDLE_MAJOR: u16 = 1;
 pub const BUNDLE_MINOR: u16 = 2;
-/// The minor version a bundle without minor-2 sections (`sh`, low-rank `drt`, `lightmap`) is
-/// written with,
-/// so such a bundle is byte-identical to what a minor-1 writer produced.
-const MINOR_WITHOUT_MINOR_2_SECTIONS: u16 = 1;
 
 /// Section kinds.
 pub mod section {
@@ -574,12 +568,9 @@ impl Bundle {
             report: EncodeReport::default(),
         };
         let sections = self.encode_sections(&mut enc);
-        let minor_2 = [section::SH, section::DRT_LOW_RANK, section::LIGHTMAP];
-        let minor = if sections.iter().any(|(kind, _)| minor_2.contains(kind)) {
-            BUNDLE_MINOR
-        } else {
-            MINOR_WITHOUT_MINOR_2_SECTIONS
-        };
+        // Always the writer's minor version, whatever sections this bundle has: a streamed
+        // prefix (MRT sections only) and the whole bundle must share their header bytes.
+        let minor = BUNDLE_MINOR;
         let (bytes, infos) = write_container(BUNDLE_MAJOR, minor, &sections, options.zstd_level);
         let mut report = enc.report;
         report.sections = infos
