@@ -23,9 +23,10 @@
 
 use faer::Mat;
 
-use lightfarm_proto::bundle::{DeltaEntry, DeltaSource, Matrix, TexelGather};
+use lightfarm_proto::bundle::{DeltaEntry, DeltaSource, TexelGather};
 
 use super::low_rank::{truncated_svd, LowRankError};
+use super::pipeline::to_matrix;
 
 /// A factorisation is kept when its values are at most this fraction of the dense entry's.
 pub const KEEP_FRACTION: f64 = 0.8;
@@ -45,20 +46,6 @@ pub struct DeltaCompactionStats {
     pub gather_sparse_left: usize,
     /// Ranks of the factored entries, in order.
     pub ranks: Vec<usize>,
-}
-
-fn to_matrix(m: &Mat<f64>) -> Matrix {
-    let mut data = Vec::with_capacity(m.nrows() * m.ncols());
-    for i in 0..m.nrows() {
-        for j in 0..m.ncols() {
-            data.push(m[(i, j)] as f32);
-        }
-    }
-    Matrix {
-        rows: m.nrows() as u32,
-        cols: m.ncols() as u32,
-        data,
-    }
 }
 
 /// The factors `(left, mix)` of `m` when they are smaller than [`KEEP_FRACTION`] of it.

@@ -166,7 +166,8 @@ fn to_entry(e: &DeltaBlock) -> bundle::DeltaEntry {
     }
 }
 
-fn to_matrix(m: &Mat<f64>) -> Matrix {
+/// A bake matrix (f64) as a bundle matrix (f32, row-major).
+pub(crate) fn to_matrix(m: &Mat<f64>) -> Matrix {
     let mut data = Vec::with_capacity(m.nrows() * m.ncols());
     for i in 0..m.nrows() {
         for j in 0..m.ncols() {
