@@ -17,7 +17,7 @@
 //! layout, `Y` is `9·texels × k`, `Z` is `k × width(source)` with `k ≤ width(source)` (so a
 //! runtime's scratch is bounded by real operator data), and every source exists.
 
-use super::{BundleError, DeltaSource, Matrix, MatrixEncoder};
+use super::{read_source, write_source, BundleError, DeltaSource, Matrix, MatrixEncoder};
 use crate::sh::SH_COEFFS;
 use crate::wire::{Reader, Writer};
 
@@ -54,22 +54,8 @@ pub(super) fn write_sh(w: &mut Writer, sh: &ShResponses, enc: &mut MatrixEncoder
     w.u32(sh.entries.len() as u32);
     for e in &sh.entries {
         w.u32s(&e.texels);
-        match e.source {
-            DeltaSource::Block(b) => {
-                w.u8(0);
-                w.u32(b);
-            }
-            DeltaSource::Clutter(c) => {
-                w.u8(1);
-                w.u32(c);
-            }
-            DeltaSource::Direct { first, count } => {
-                // Never baked; written so a hand-built bundle round-trips (validation refuses it).
-                w.u8(2);
-                w.u32(first);
-                w.u32(count);
-            }
-        }
+        // Direct-light sources are never baked here; validation refuses them.
+        write_source(w, e.source, 0);
         e.y.write(w, enc);
         e.z.write(w, enc);
     }
@@ -80,19 +66,12 @@ pub(super) fn read_sh(r: &mut Reader) -> Result<ShResponses, BundleError> {
     let mut entries = Vec::with_capacity(n.min(r.remaining() / 32));
     for _ in 0..n {
         let texels = r.u32s()?;
-        let source = match r.u8()? {
-            0 => DeltaSource::Block(r.u32()?),
-            1 => DeltaSource::Clutter(r.u32()?),
-            2 => DeltaSource::Direct {
-                first: r.u32()?,
-                count: r.u32()?,
-            },
-            k => {
-                return Err(BundleError::Invalid(format!(
-                    "sh: entry has unknown source kind {k}"
-                )))
-            }
-        };
+        let (source, flags) = read_source(r, "sh: entry")?;
+        if flags != 0 {
+            return Err(BundleError::Invalid(format!(
+                "sh: entry has unknown source flags {flags:#x}"
+            )));
+        }
         entries.push(ShEntry {
             texels,
             source,

@@ -32,6 +32,7 @@ use super::clutter_basis::{clutter_basis, prior_lights, ClutterBasisOps};
 use super::drt_rays::{clutter_basis_unit, trace_all, DrtRayCache, RayPass};
 use super::geometry::Geometry;
 use super::low_rank::LowRankError;
+use super::sh_gather::{key_of, source_of, SourceKey};
 use super::shape::ShapeOperators;
 use super::tracer::Tracer;
 use super::transport::MrtTransport;
@@ -46,7 +47,7 @@ pub enum DrtError {
 }
 
 /// Rows of one target, keyed by (source kind, source index) then global texel row.
-type RowsBySource = BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>>;
+type RowsBySource = BTreeMap<SourceKey, BTreeMap<u32, Vec<f64>>>;
 
 /// A delta operator block in f64.
 pub struct DeltaBlock {
@@ -91,19 +92,14 @@ pub struct DrtOperators {
 
 /// Accumulates `weight · row` into `map[source][global_row]`.
 fn add_row(
-    map: &mut BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>>,
+    map: &mut BTreeMap<SourceKey, BTreeMap<u32, Vec<f64>>>,
     source: DeltaSource,
     row: u32,
     values: &[f64],
     weight: f64,
 ) {
-    let key = match source {
-        DeltaSource::Block(b) => (0, b),
-        DeltaSource::Clutter(c) => (1, c),
-        DeltaSource::Direct { .. } => unreachable!("DRT rays read blocks and clutter only"),
-    };
     let acc = map
-        .entry(key)
+        .entry(key_of(source))
         .or_default()
         .entry(row)
         .or_insert_with(|| vec![0.0; values.len()]);
@@ -132,14 +128,6 @@ impl RowMajor {
 
     fn row(&self, i: usize) -> &[f64] {
         &self.data[i * self.cols..(i + 1) * self.cols]
-    }
-}
-
-fn source_of(key: (u8, u32)) -> DeltaSource {
-    if key.0 == 0 {
-        DeltaSource::Block(key.1)
-    } else {
-        DeltaSource::Clutter(key.1)
     }
 }
 
@@ -318,7 +306,7 @@ pub fn build_drt(
         // Every source whose MRT transport reaches the target, not only those with delta rows:
         // a buried texel must cancel light arriving from neighbouring blocks too (a room
         // wholly inside a clutter box still receives MRT light through its openings).
-        let mut sources: Vec<(u8, u32)> = map.keys().copied().collect();
+        let mut sources: Vec<SourceKey> = map.keys().copied().collect();
         for b in 0..n_blocks {
             let key = (0, b as u32);
             let reaches = b == target || mrt.row(shapes, target, b, 0).is_some();
@@ -407,7 +395,7 @@ pub fn build_drt(
 
     // Clutter texels: gather from blocks (C_b) and from other clutter.
     let clutter_texels: Vec<usize> = g.clutter_texels.iter().flat_map(|r| r.clone()).collect();
-    let mut per_clutter: BTreeMap<(u8, u32), BTreeMap<u32, Vec<f64>>> = BTreeMap::new();
+    let mut per_clutter: RowsBySource = BTreeMap::new();
     let mut buried = Vec::new();
     let exact = settings.clutter_gather == ClutterGather::Exact;
     let mut gather = TexelGather {

@@ -14,15 +14,13 @@
 use std::collections::HashMap;
 use std::time::Instant;
 
-use lightfarm_client::{
-    direct_from_point_lights_averaged, Bundle, IndirectLight, Method, Occluders, Runtime,
-};
+use lightfarm_client::{Bundle, IndirectLight, Method, Occluders, Runtime};
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{compare, ResultFile};
 use lightfarm_proto::scene::{Aabb, BundleCodec, Scene, Transport};
 use serde::{Deserialize, Serialize};
 
-use super::eval::{dnrt_delta, evaluate, DIRECT_SAMPLES_PER_EDGE};
+use super::eval::{dnrt_delta, evaluate, operator_direct};
 use super::frame_time::time_frames;
 use crate::bake::bundle_encoding::encode_options;
 use crate::bake::pipeline::{bake, BakeOptions, BakeReport};
@@ -344,12 +342,7 @@ fn time_apply(
     frames: usize,
 ) -> anyhow::Result<f64> {
     let occluders = Occluders::from_layout(&bundle.layout);
-    let direct = direct_from_point_lights_averaged(
-        &bundle.layout,
-        &occluders,
-        &lights.lights,
-        DIRECT_SAMPLES_PER_EDGE,
-    );
+    let direct = operator_direct(&bundle.layout, &occluders, &lights);
     let mut runtime = Runtime::try_new(bundle.clone())?;
     let apply = time_frames(&mut runtime, &direct, method.client_method(), frames, 1)?;
     if method != BenchMethod::Dnrt {

@@ -10,6 +10,7 @@ use lightfarm_client::{
     point_light_irradiance_sh, radiance_sh_at, Bundle, DirectLight, DnrtInstance, DnrtVolume,
     IndirectLight, Method, Occluders, ProbeField, Runtime,
 };
+use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::lights::Pose;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
@@ -31,18 +32,19 @@ pub struct EvalArgs {
 /// Direct light is averaged over a 4×4 grid per texel before it enters the operators.
 pub const DIRECT_SAMPLES_PER_EDGE: u32 = 4;
 
+/// The direct light the operators are fed for `lights`: texel averages over a
+/// [`DIRECT_SAMPLES_PER_EDGE`]² grid, shadowed by the bundle's own geometry.
+pub fn operator_direct(layout: &Layout, occluders: &Occluders, lights: &LightSet) -> DirectLight {
+    direct_from_point_lights_averaged(layout, occluders, &lights.lights, DIRECT_SAMPLES_PER_EDGE)
+}
+
 /// Applies a bundle to a light set; returns the records the method models.
 pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Result<ResultFile> {
     let occluders = Occluders::from_layout(&bundle.layout);
     // RESULT.json reports direct light at texel centres; the operators are fed the texel
     // average, which is what a ray landing in the texel sees.
     let direct: DirectLight = direct_from_point_lights(&bundle.layout, &occluders, &lights.lights);
-    let averaged = direct_from_point_lights_averaged(
-        &bundle.layout,
-        &occluders,
-        &lights.lights,
-        DIRECT_SAMPLES_PER_EDGE,
-    );
+    let averaged = operator_direct(&bundle.layout, &occluders, lights);
     let mut runtime = Runtime::try_new(bundle)?;
     // A scene without clutter has no DRT operators: DRT is MRT there.
     let method = if method == Method::Drt && !runtime.has_drt() {

@@ -9,21 +9,16 @@
 use std::path::Path;
 
 use anyhow::Context;
-use lightfarm_client::{direct_from_point_lights_averaged, Occluders, Runtime, ShLight};
+use lightfarm_client::{Occluders, Runtime, ShLight};
 use lightfarm_proto::bundle::Bundle;
 use lightfarm_proto::lights::LightSet;
 
-use super::eval::DIRECT_SAMPLES_PER_EDGE;
+use super::eval::operator_direct;
 
 /// The SH incident radiance of every texel for `lights`.
 pub fn sh_incident(bundle: Bundle, lights: &LightSet) -> anyhow::Result<ShLight> {
     let occluders = Occluders::from_layout(&bundle.layout);
-    let direct = direct_from_point_lights_averaged(
-        &bundle.layout,
-        &occluders,
-        &lights.lights,
-        DIRECT_SAMPLES_PER_EDGE,
-    );
+    let direct = operator_direct(&bundle.layout, &occluders, &lights);
     let mut runtime = Runtime::try_new(bundle)?;
     let mut out = ShLight::default();
     runtime.apply_sh(&direct, &mut out)?;

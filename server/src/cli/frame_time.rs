@@ -10,12 +10,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use lightfarm_client::{
-    direct_from_point_lights_averaged, Bundle, IndirectLight, Method, Occluders, Runtime,
-};
+use lightfarm_client::{Bundle, IndirectLight, Method, Occluders, Runtime};
 use lightfarm_proto::lights::LightSet;
 
-use super::eval::DIRECT_SAMPLES_PER_EDGE;
+use super::eval::operator_direct;
 use super::read_text;
 
 /// Arguments of `frame-time`.
@@ -101,12 +99,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     let lights = LightSet::from_json(&read_text(&args.lights)?)
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.lights.display()))?;
     let occluders = Occluders::from_layout(&bundle.layout);
-    let direct = direct_from_point_lights_averaged(
-        &bundle.layout,
-        &occluders,
-        &lights.lights,
-        DIRECT_SAMPLES_PER_EDGE,
-    );
+    let direct = operator_direct(&bundle.layout, &occluders, &lights);
     let mut runtime = Runtime::try_new(bundle)?;
     let method = if args.method == Method::Drt && !runtime.has_drt() {
         Method::Mrt
