@@ -57,6 +57,7 @@ pub mod fetch;
 pub mod lightmap;
 pub mod occluders;
 pub mod packed;
+pub mod packed_gather;
 pub mod probes;
 pub mod runtime;
 #[cfg(feature = "fetch")]

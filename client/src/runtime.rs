@@ -48,6 +48,7 @@ use lightfarm_proto::bundle::{Bundle, BundleError, DeltaSource, ProbeVolume, Tra
 
 use crate::direct::DirectLight;
 use crate::packed::PackedMatrix;
+use crate::packed_gather::PackedGather;
 use crate::probes::ProbeField;
 
 mod sh_apply;
@@ -119,6 +120,8 @@ struct PackedOps {
     delta_mix: Vec<Option<PackedMatrix>>,
     /// Per probe-volume entry.
     probes: Vec<PackedMatrix>,
+    /// The exact clutter gather (DRT, `clutter_gather: exact`).
+    gather: Option<PackedGather>,
     /// Per SH-response entry: `Y` and `Z`, and the scratch their products need.
     sh_y: Vec<PackedMatrix>,
     sh_z: Vec<PackedMatrix>,
@@ -156,6 +159,10 @@ impl PackedOps {
             ops.clutter = d.clutter.iter().map(|c| pack(&c.t_dc)).collect();
             ops.deltas = d.entries.iter().map(|e| pack(&e.matrix)).collect();
             ops.delta_mix = d.entries.iter().map(|e| e.mix.as_ref().map(pack)).collect();
+            ops.gather = d
+                .direct_gather
+                .as_ref()
+                .map(|g| PackedGather::new(g, bundle.layout.n_texels()));
         }
         if let Some(p) = &bundle.probes {
             ops.probes = p.entries.iter().map(|e| pack(&e.matrix)).collect();
@@ -522,7 +529,7 @@ impl Runtime {
             if let Some(d) = &b.drt {
                 bytes += sum(&ops.clutter) + sum(&ops.deltas);
                 bytes += d.entries.iter().map(|e| 4 * e.rows.len()).sum::<usize>();
-                bytes += d.direct_gather.as_ref().map_or(0, |g| 8 * g.values.len());
+                bytes += ops.gather.as_ref().map_or(0, PackedGather::bytes);
             }
         }
         bytes
@@ -888,27 +895,8 @@ impl Runtime {
 
     /// DRT exact clutter gather: sparse rows over the direct light (albedo-free).
     fn add_direct_gather(&self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
-        let Some(g) = self
-            .bundle
-            .drt
-            .as_ref()
-            .and_then(|d| d.direct_gather.as_ref())
-        else {
-            return;
-        };
-        for (i, &row) in g.rows.iter().enumerate() {
-            let (start, end) = (g.row_start[i] as usize, g.row_start[i + 1] as usize);
-            let mut s = [0.0f32; 3];
-            for (&c, &v) in g.cols[start..end].iter().zip(&g.values[start..end]) {
-                let l = direct[c as usize];
-                s[0] += v * l[0];
-                s[1] += v * l[1];
-                s[2] += v * l[2];
-            }
-            let o = &mut out[row as usize];
-            o[0] += s[0];
-            o[1] += s[1];
-            o[2] += s[2];
+        if let Some(g) = &self.ops.gather {
+            g.add_to(direct, out);
         }
     }
 

@@ -1,0 +1,283 @@
+//! The DRT exact gather ([`TexelGather`]) in the form the frame loop reads: sparse rows over the
+//! direct light with narrow column indices and, where the bake's weights allow, 8-bit weights.
+//!
+//! A gather weight is a ray-hit fraction, `hits / rays_per_texel`, so every weight of a bundle
+//! is a small integer times one unit. [`PackedGather::new`] finds that unit (the smallest
+//! positive weight) and keeps the integers in a byte when *every* weight is exactly
+//! `unit · count` in f32 with `count ≤ 255`; column indices are kept in 16 bits when the layout
+//! has at most 65,536 texels. Anything else keeps the bundle's u32 / f32 form. An entry is then
+//! read as 3 bytes instead of 8 (the gather is the largest sparse operator of a DRT frame).
+//!
+//! Invariants:
+//! - Lossless: with 8-bit weights a row is summed as `unit · Σ count · l` instead of `Σ (unit ·
+//!   count) · l`; the two agree exactly when `unit` is a power of two (the usual
+//!   `rays_per_texel`) and to float rounding otherwise.
+//! - Rows are visited in the bundle's order and each row's terms in a fixed order (four
+//!   interleaved partial sums, see `accumulate`) whatever the storage, so results do not depend
+//!   on the CPU. No allocation per call.
+//! - The bundle decoder has validated the gather (column indices < texel count, ascending
+//!   `row_start`), so indexing here cannot go out of bounds.
+
+use lightfarm_proto::bundle::TexelGather;
+
+/// Column indices of the gather's entries.
+#[derive(Clone, Debug, PartialEq)]
+enum Columns {
+    U16(Vec<u16>),
+    U32(Vec<u32>),
+}
+
+/// Weights of the gather's entries.
+#[derive(Clone, Debug, PartialEq)]
+enum Weights {
+    /// `weight = unit · count`.
+    Counts { unit: f32, counts: Vec<u8> },
+    F32(Vec<f32>),
+}
+
+/// A packed exact gather: `out[rows[i]] += Σ_k weight[k] · direct[col[k]]` over
+/// `row_start[i] .. row_start[i + 1]`, per channel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PackedGather {
+    rows: Vec<u32>,
+    row_start: Vec<u32>,
+    cols: Columns,
+    weights: Weights,
+}
+
+/// The unit and byte counts of `values`, when every value is exactly `unit · count` with
+/// `1 ≤ count ≤ 255` (zero weights count 0).
+fn as_counts(values: &[f32]) -> Option<(f32, Vec<u8>)> {
+    let unit = values
+        .iter()
+        .copied()
+        .filter(|v| *v > 0.0)
+        .fold(f32::INFINITY, f32::min);
+    if !unit.is_finite() {
+        return None;
+    }
+    values
+        .iter()
+        .map(|&v| {
+            let count = (v / unit).round();
+            (count >= 0.0 && count <= 255.0 && unit * count == v).then_some(count as u8)
+        })
+        .collect::<Option<Vec<u8>>>()
+        .map(|counts| (unit, counts))
+}
+
+impl PackedGather {
+    /// Packs `gather` over a layout of `n_texels` texels.
+    pub fn new(gather: &TexelGather, n_texels: usize) -> PackedGather {
+        let cols = if n_texels <= 1 << 16 {
+            Columns::U16(gather.cols.iter().map(|&c| c as u16).collect())
+        } else {
+            Columns::U32(gather.cols.clone())
+        };
+        let weights = match as_counts(&gather.values) {
+            Some((unit, counts)) => Weights::Counts { unit, counts },
+            None => Weights::F32(gather.values.clone()),
+        };
+        PackedGather {
+            rows: gather.rows.clone(),
+            row_start: gather.row_start.clone(),
+            cols,
+            weights,
+        }
+    }
+
+    /// Bytes one application reads (entries, row indices and row starts).
+    pub fn bytes(&self) -> usize {
+        let cols = match &self.cols {
+            Columns::U16(c) => 2 * c.len(),
+            Columns::U32(c) => 4 * c.len(),
+        };
+        let weights = match &self.weights {
+            Weights::Counts { counts, .. } => counts.len(),
+            Weights::F32(v) => 4 * v.len(),
+        };
+        cols + weights + 4 * (self.rows.len() + self.row_start.len())
+    }
+
+    /// Whether the weights are kept as 8-bit counts (for reports and tests).
+    pub fn is_8bit(&self) -> bool {
+        matches!(self.weights, Weights::Counts { .. })
+    }
+
+    /// Adds the gather of `direct` (texel radiance, albedo-free) to `out`.
+    pub fn add_to(&self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        match (&self.cols, &self.weights) {
+            (Columns::U16(c), Weights::Counts { unit, counts }) => {
+                self.accumulate(c, counts, *unit, direct, out)
+            }
+            (Columns::U32(c), Weights::Counts { unit, counts }) => {
+                self.accumulate(c, counts, *unit, direct, out)
+            }
+            (Columns::U16(c), Weights::F32(v)) => self.accumulate(c, v, 1.0, direct, out),
+            (Columns::U32(c), Weights::F32(v)) => self.accumulate(c, v, 1.0, direct, out),
+        }
+    }
+
+    /// `out[row] += scale · Σ w · direct[col]` per row; one loop for every storage. Entry `k`
+    /// of a row goes to partial sum `k mod 4` and the partials are added as `(p0 + p1) + (p2 +
+    /// p3)`: four independent chains instead of one hide the adder's latency (one chain bound
+    /// the loop at one entry per 4 cycles), and the order is still fixed by the code.
+    fn accumulate<C, W>(
+        &self,
+        cols: &[C],
+        weights: &[W],
+        scale: f32,
+        direct: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+    ) where
+        C: Copy + Into<u32>,
+        W: Copy + Into<f32>,
+    {
+        #[inline(always)]
+        fn add(p: &mut [f32; 3], w: f32, l: &[f32; 3]) {
+            p[0] += w * l[0];
+            p[1] += w * l[1];
+            p[2] += w * l[2];
+        }
+        for (i, &row) in self.rows.iter().enumerate() {
+            let (start, end) = (self.row_start[i] as usize, self.row_start[i + 1] as usize);
+            let (cols, weights) = (&cols[start..end], &weights[start..end]);
+            let mut p = [[0.0f32; 3]; 4];
+            let mut c4 = cols.chunks_exact(4);
+            let mut w4 = weights.chunks_exact(4);
+            for (c, w) in (&mut c4).zip(&mut w4) {
+                for k in 0..4 {
+                    add(&mut p[k], w[k].into(), &direct[c[k].into() as usize]);
+                }
+            }
+            for (k, (&c, &w)) in c4.remainder().iter().zip(w4.remainder()).enumerate() {
+                add(&mut p[k], w.into(), &direct[c.into() as usize]);
+            }
+            let o = &mut out[row as usize];
+            for ch in 0..3 {
+                o[ch] += scale * ((p[0][ch] + p[1][ch]) + (p[2][ch] + p[3][ch]));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::occluders::tests::Lcg;
+
+    /// A gather of `rows` rows over `n` texels with weights `count / rays`.
+    fn gather(rows: usize, n: usize, rays: u32, rng: &mut Lcg) -> TexelGather {
+        let mut g = TexelGather {
+            row_start: vec![0],
+            ..Default::default()
+        };
+        for r in 0..rows {
+            g.rows.push((r * 3) as u32);
+            let mut col = 0u32;
+            loop {
+                col += 1 + (rng.unit() * 40.0) as u32;
+                if col as usize >= n {
+                    break;
+                }
+                let count = 1 + (rng.unit() * 30.0) as u32;
+                g.cols.push(col);
+                g.values.push((count as f64 / rays as f64) as f32);
+            }
+            g.row_start.push(g.cols.len() as u32);
+        }
+        g
+    }
+
+    /// The bundle's form summed in f64.
+    fn reference(g: &TexelGather, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        for (i, &row) in g.rows.iter().enumerate() {
+            let mut s = [0.0f64; 3];
+            for k in g.row_start[i] as usize..g.row_start[i + 1] as usize {
+                let l = direct[g.cols[k] as usize];
+                for ch in 0..3 {
+                    s[ch] += g.values[k] as f64 * l[ch] as f64;
+                }
+            }
+            for ch in 0..3 {
+                out[row as usize][ch] = (out[row as usize][ch] as f64 + s[ch]) as f32;
+            }
+        }
+    }
+
+    fn assert_close(a: &[[f32; 3]], b: &[[f32; 3]]) {
+        for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+            assert!((x - y).abs() <= 2e-6 * x.abs().max(1.0), "{x} vs {y}");
+        }
+    }
+
+    fn direct(n: usize, rng: &mut Lcg) -> Vec<[f32; 3]> {
+        (0..n)
+            .map(|_| [rng.unit(), 2.0 * rng.unit(), 0.5])
+            .collect()
+    }
+
+    #[test]
+    fn power_of_two_rays_pack_to_bytes_and_match_the_f64_sum() {
+        let mut rng = Lcg(7);
+        let n = 3000;
+        let g = gather(200, n, 1024, &mut rng);
+        let packed = PackedGather::new(&g, n);
+        assert!(packed.is_8bit());
+        assert_eq!(packed.bytes(), 3 * g.values.len() + 4 * (200 + 201));
+        let l = direct(n, &mut rng);
+        let (mut a, mut b) = (vec![[0.1f32; 3]; n], vec![[0.1f32; 3]; n]);
+        reference(&g, &l, &mut a);
+        packed.add_to(&l, &mut b);
+        assert_close(&a, &b);
+        // The 8-bit form sums exactly what the f32 form sums when the unit is a power of two.
+        let wide = PackedGather {
+            weights: Weights::F32(g.values.clone()),
+            ..packed.clone()
+        };
+        let mut c = vec![[0.1f32; 3]; n];
+        wide.add_to(&l, &mut c);
+        assert_eq!(b, c);
+    }
+
+    #[test]
+    fn other_ray_counts_agree_to_rounding() {
+        let mut rng = Lcg(11);
+        let n = 2000;
+        let g = gather(100, n, 1000, &mut rng);
+        let packed = PackedGather::new(&g, n);
+        let l = direct(n, &mut rng);
+        let (mut a, mut b) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
+        reference(&g, &l, &mut a);
+        packed.add_to(&l, &mut b);
+        assert_close(&a, &b);
+    }
+
+    #[test]
+    fn weights_off_a_common_unit_and_large_layouts_keep_the_wide_form() {
+        let mut rng = Lcg(3);
+        let n = 70_000;
+        let mut g = gather(20, n, 1024, &mut rng);
+        g.values[5] = 0.123_456_7;
+        let packed = PackedGather::new(&g, n);
+        assert!(!packed.is_8bit());
+        assert_eq!(
+            packed.bytes(),
+            8 * g.values.len() + 4 * (g.rows.len() + g.row_start.len())
+        );
+        let l = direct(n, &mut rng);
+        let (mut a, mut b) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
+        reference(&g, &l, &mut a);
+        packed.add_to(&l, &mut b);
+        assert_close(&a, &b);
+    }
+
+    #[test]
+    fn counts_above_a_byte_and_empty_gathers_are_handled() {
+        assert_eq!(as_counts(&[]), None);
+        assert_eq!(as_counts(&[0.0, 0.0]), None);
+        assert_eq!(as_counts(&[0.5, 1.0]), Some((0.5, vec![1, 2])));
+        assert_eq!(as_counts(&[1.0, 256.0]), None);
+        assert_eq!(as_counts(&[0.25, 0.0, 0.75]), Some((0.25, vec![1, 0, 3])));
+    }
+}
