@@ -14,11 +14,13 @@
 //!
 //! [`Method::Drt`] (delta radiance transfer; needs the bundle's DRT section):
 //! 1. steps 1–3 of MRT, albedo-free (block texels get `U_b b + transport`, every other texel 0),
-//!    keeping every block's `b`;
+//!    keeping every block's `b`; the section's `replaced` texels (`scene_gather: exact`, minor
+//!    3) are set back to 0, their light being the exact gather alone;
 //! 2. `c_j = t_dc · l_d[texel_offset .. texel_offset + t_dc.cols]` for every clutter object j;
 //! 3. for every delta entry and each of its rows i: `out[rows[i]] += matrix.row(i) · x`, with
 //!    `x` the source block's `b` or the source clutter object's `c`. Entries on block texels
 //!    correct the MRT result; entries on clutter texels are those texels' whole indirect light;
+//!    then the exact gather: `out[rows[i]] += Σ_k values[k] · l_d[cols[k]]`;
 //! 4. multiplies by the receiving texel's albedo.
 //!
 //! [`Method::Full`]: `l_ind = ρ ⊙ (F · l_d)` with the bundle's sparse dense-bounce operator F.
@@ -641,6 +643,7 @@ impl Runtime {
             Method::Drt => {
                 self.project_blocks(&direct.radiance);
                 self.mrt_albedo_free(&mut out.radiance);
+                self.drop_replaced(&mut out.radiance);
                 self.project_clutter();
                 self.add_drt_deltas(&mut out.radiance);
                 self.add_direct_gather(&direct.radiance, &mut out.radiance);
@@ -891,6 +894,15 @@ impl Runtime {
             }
         }
         self.scratch = scratch;
+    }
+
+    /// DRT with `scene_gather: exact`: texels whose light is the gather alone lose MRT's.
+    fn drop_replaced(&self, out: &mut [[f32; 3]]) {
+        if let Some(d) = &self.bundle.drt {
+            for &x in &d.replaced {
+                out[x as usize] = [0.0; 3];
+            }
+        }
     }
 
     /// DRT exact clutter gather: sparse rows over the direct light (albedo-free).
@@ -1244,6 +1256,7 @@ mod tests {
                 entries,
                 buried: vec![3, 12],
                 direct_gather: None,
+                replaced: Vec::new(),
             }),
             probes: None,
             dnrt: None,
@@ -1609,6 +1622,9 @@ mod tests {
             }
         }
         let mut out = reference_mrt_albedo_free(bundle, ld);
+        for &x in &drt.replaced {
+            out[x as usize] = [0.0; 3];
+        }
         for (o, row) in out.iter_mut().zip(&dense) {
             for (d, x) in row.iter().zip(&coefs) {
                 for c in 0..3 {
@@ -1987,6 +2003,60 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn replaced_texels_keep_only_their_drt_terms_and_travel_in_the_minor_3_section() {
+        use lightfarm_proto::bundle::section;
+        let mut rng = Lcg(37);
+        let mut b = drt_bundle(&mut rng, false, true, false);
+        b.drt.as_mut().unwrap().replaced = vec![1, 4, 7];
+        let n = b.layout.n_texels();
+        let ld = direct(&mut rng, n);
+        let want = reference_drt(&b, &ld.radiance);
+        let got = run(b.clone(), Method::Drt, &ld);
+        assert_close(&got, &want);
+        // A replaced texel keeps exactly its DRT terms: DRT without the list, minus MRT.
+        let mrt = run(b.clone(), Method::Mrt, &ld);
+        let mut kept = b.clone();
+        kept.drt.as_mut().unwrap().replaced.clear();
+        let drt = run(kept, Method::Drt, &ld);
+        for x in [1, 4, 7] {
+            assert!(mrt.radiance[x].iter().all(|v| v.abs() > 1e-3));
+            for c in 0..3 {
+                let want = drt.radiance[x][c] - mrt.radiance[x][c];
+                assert!((got.radiance[x][c] - want).abs() < 1e-5, "texel {x}");
+            }
+        }
+        // The section is kind 13 and round-trips; a reader that does not know kind 13 skips
+        // it and lights the scene by MRT alone (never MRT plus the gather).
+        let sections = b.raw_sections();
+        assert!(sections.iter().any(|(k, _)| *k == section::DRT_REPLACING));
+        let decoded = Bundle::decode(&b.encode()).expect("decodes");
+        assert_eq!(decoded, b);
+        let older: Vec<(u32, Vec<u8>)> = sections
+            .into_iter()
+            .filter(|(k, _)| *k != section::DRT_REPLACING)
+            .collect();
+        let older = Bundle::decode(&join_sections(&older)).expect("decodes without DRT");
+        assert!(older.drt.is_none());
+        // Replaced texels must be ascending block texels.
+        for bad in [vec![4, 1], vec![10], vec![2, 2]] {
+            let mut c = b.clone();
+            c.drt.as_mut().unwrap().replaced = bad.clone();
+            assert!(
+                Bundle::decode(&c.encode()).is_err(),
+                "replaced {bad:?} accepted"
+            );
+        }
+    }
+
+    #[test]
+    fn mutated_drt_bundles_with_replaced_texels_never_panic() {
+        let mut rng = Lcg(38);
+        let mut b = drt_bundle(&mut rng, false, true, true);
+        b.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
+        fuzz_bundle(&mut rng, &b, lightfarm_proto::bundle::section::DRT_REPLACING);
     }
 
     #[test]

@@ -27,7 +27,7 @@ pub use sh_responses::{ShEntry, ShResponses};
 
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 pub const BUNDLE_MAJOR: u16 = 1;
-pub const BUNDLE_MINOR: u16 = 2;
+pub const BUNDLE_MINOR: u16 = 3;
 
 /// Section kinds.
 pub mod section {
@@ -49,6 +49,11 @@ pub mod section {
     pub const DRT_LOW_RANK: u32 = 11;
     /// Where mesh surfaces' texels sit in their own lightmap images (minor 2).
     pub const LIGHTMAP: u32 = 12;
+    /// The DRT section of minor 3: the minor-2 layout followed by the block texels whose MRT
+    /// light the exact gather replaces ([`super::DrtOps::replaced`]). Written instead of
+    /// [`DRT_LOW_RANK`] only when that list is not empty, so an older reader skips it and
+    /// lights the scene by MRT alone rather than adding the gather on top of MRT.
+    pub const DRT_REPLACING: u32 = 13;
 }
 
 /// Report name of a section kind.
@@ -65,6 +70,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::SH => "sh",
         section::DRT_LOW_RANK => "drt",
         section::LIGHTMAP => "lightmap",
+        section::DRT_REPLACING => "drt",
         _ => "unknown",
     }
 }
@@ -399,7 +405,12 @@ pub struct DrtOps {
     /// (`clutter_gather: exact`): `out[rows[i]] += Σ_k values[k] · l_d[cols[k]]` over
     /// `row_start[i]..row_start[i+1]`, albedo-free. Replaces C_b's implicit lights, which cannot
     /// hold the clutter's own shadow on the floor next to it (the weakness DRT §6 names).
+    /// With `scene_gather: exact` it also has rows on block texels near clutter.
     pub direct_gather: Option<TexelGather>,
+    /// Block texels (ascending) whose MRT light is dropped before the DRT terms are added: near
+    /// clutter with `scene_gather: exact`, their indirect light is the gather alone (rows of
+    /// `direct_gather`, or `Direct` entries after low-rank compaction). Minor 3; empty otherwise.
+    pub replaced: Vec<u32>,
 }
 
 /// Sparse rows over texels (see [`DrtOps::direct_gather`]).
@@ -686,7 +697,10 @@ impl Bundle {
                 }
                 None => w.u8(0),
             }
-            let kind = if d.entries.iter().any(DeltaEntry::needs_low_rank_format) {
+            let kind = if !d.replaced.is_empty() {
+                w.u32s(&d.replaced);
+                section::DRT_REPLACING
+            } else if d.entries.iter().any(DeltaEntry::needs_low_rank_format) {
                 section::DRT_LOW_RANK
             } else {
                 section::DRT
@@ -770,6 +784,11 @@ impl Bundle {
                 section::TRANSPORT => transport = Some(read_transport(&mut p)?),
                 section::FULL => full = Some(read_full(&mut p)?),
                 section::DRT | section::DRT_LOW_RANK => drt = Some(read_drt(&mut p)?),
+                section::DRT_REPLACING => {
+                    let mut d = read_drt(&mut p)?;
+                    d.replaced = p.u32s()?;
+                    drt = Some(d);
+                }
                 section::PROBES => probes = Some(read_probes(&mut p)?),
                 section::DNRT => dnrt = Some(read_dnrt(&mut p)?),
                 section::SH => sh = Some(sh_responses::read_sh(&mut p)?),
@@ -1010,6 +1029,31 @@ impl Bundle {
             }
             if d.buried.iter().any(|r| *r as u64 >= n_texels) {
                 return bad("drt: buried texel out of range".into());
+            }
+            // Block texels: the ranges the blocks' shapes cover (sorted by start, with the
+            // largest end so far, so each lookup is a binary search).
+            let mut ranges: Vec<(u64, u64)> = self
+                .blocks
+                .iter()
+                .map(|b| {
+                    let n = self.shapes.get(b.shape as usize).map_or(0, |s| s.u_b.rows);
+                    (b.texel_offset as u64, b.texel_offset as u64 + n as u64)
+                })
+                .collect();
+            ranges.sort_unstable();
+            let mut reach = 0;
+            for r in ranges.iter_mut() {
+                reach = reach.max(r.1);
+                r.1 = reach;
+            }
+            let in_block = |t: u32| {
+                let i = ranges.partition_point(|(start, _)| *start <= t as u64);
+                i > 0 && ranges[i - 1].1 > t as u64
+            };
+            if d.replaced.iter().any(|r| !in_block(*r))
+                || d.replaced.windows(2).any(|w| w[1] <= w[0])
+            {
+                return bad("drt: replaced texels are not ascending block texels".into());
             }
             if let Some(g) = &d.direct_gather {
                 let ok = g.row_start.len() == g.rows.len() + 1
@@ -1257,6 +1301,7 @@ fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
         entries,
         buried,
         direct_gather,
+        replaced: Vec::new(),
     })
 }
 

@@ -79,6 +79,26 @@ pub enum ClutterGather {
     Implicit,
 }
 
+/// How block texels that see clutter get their indirect light.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SceneGather {
+    /// MRT plus the paper's deltas: `ΔU_b b + ΔU_c c` (DRT §4.1–§4.2).
+    #[default]
+    Delta,
+    /// Ours: MRT's light on those texels is replaced by an exact one-bounce gather over the
+    /// actual direct light of the texels their cosine rays hit (like `clutter_gather: exact`),
+    /// so MRT's own error there (a dim block lit through openings, a bright patch its prior
+    /// smooths) goes too. Costs a bigger DRT section; bundle minor 3.
+    Exact,
+}
+
+impl SceneGather {
+    fn is_delta(&self) -> bool {
+        *self == SceneGather::Delta
+    }
+}
+
 /// When the bake includes the SH probe volume U_dyn.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "lowercase")]
@@ -133,6 +153,10 @@ pub struct Settings {
     pub clutter_importance: f64,
     /// How clutter texels gather light from the scene.
     pub clutter_gather: ClutterGather,
+    /// How block texels that see clutter get their indirect light. Not serialised when
+    /// `delta` (the default), so bake ids of scenes without it do not change.
+    #[serde(skip_serializing_if = "SceneGather::is_delta")]
+    pub scene_gather: SceneGather,
     /// Ship inter-block transport as one low-rank operator per receiving block (rank from
     /// `tolerance`) instead of the composed per-opening operators.
     pub compact_transport: bool,
@@ -214,6 +238,7 @@ impl Default for Settings {
             probe_volume: ProbeVolumeMode::Auto,
             clutter_importance: 0.25,
             clutter_gather: ClutterGather::Exact,
+            scene_gather: SceneGather::Delta,
             compact_transport: true,
             compact_deltas: true,
             bundle_codec: BundleCodec::Auto,

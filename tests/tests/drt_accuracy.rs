@@ -130,8 +130,18 @@ fn face_constant_and_prior_bases_both_work() {
 
 #[test]
 fn wholly_buried_texels_stay_finite_and_dark() {
+    for mode in [
+        lightfarm_proto::scene::SceneGather::Delta,
+        lightfarm_proto::scene::SceneGather::Exact,
+    ] {
+        wholly_buried_floor_is_finite_and_dark(mode);
+    }
+}
+
+fn wholly_buried_floor_is_finite_and_dark(mode: lightfarm_proto::scene::SceneGather) {
     // The crate covers the whole floor: floor texels have no valid neighbour to inpaint from.
     let mut scene = room_with_box(4, 256, ClutterBasis::Prior);
+    scene.settings.scene_gather = mode;
     scene.clutter[0].box_ = Some(Aabb {
         min: [0.0, 0.0, 0.0],
         max: [4.0, 0.5, 4.0],
@@ -153,7 +163,7 @@ fn wholly_buried_texels_stay_finite_and_dark() {
         for x in t.indirect {
             assert!(
                 x.abs() <= 1e-3 * max_visible,
-                "buried floor texel {} lit: {x}",
+                "{mode:?}: buried floor texel {} lit: {x}",
                 t.index
             );
         }
@@ -162,16 +172,20 @@ fn wholly_buried_texels_stay_finite_and_dark() {
 
 #[test]
 fn drt_bake_is_identical_at_one_and_two_threads() {
-    let scene = room_with_box(4, 128, ClutterBasis::Prior);
+    use lightfarm_proto::scene::SceneGather;
     let dir = scene_dir("cornell");
-    let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| bake_scene(&scene, &dir, Transport::Traced, false).0)
-    };
-    assert!(run(1) == run(2));
+    for mode in [SceneGather::Delta, SceneGather::Exact] {
+        let mut scene = room_with_box(4, 128, ClutterBasis::Prior);
+        scene.settings.scene_gather = mode;
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| bake_scene(&scene, &dir, Transport::Traced, false).0)
+        };
+        assert!(run(1) == run(2), "{mode:?}");
+    }
 }
 
 #[test]
@@ -266,5 +280,56 @@ fn exact_clutter_gather_holds_the_contact_shadow_the_implicit_one_misses() {
         "exact {} vs implicit {}",
         errors[0],
         errors[1]
+    );
+}
+
+#[test]
+fn exact_scene_gather_replaces_mrt_near_the_box_and_matches_the_reference() {
+    use lightfarm_proto::scene::SceneGather;
+    let dir = scene_dir("cornell");
+    let lights = lights();
+    let base = room_with_box(8, 1024, ClutterBasis::Prior);
+    let boxes = [base.clutter[0].box_.unwrap()];
+    let reference = reference_of(&base, &dir, &lights, 8192);
+    // Visible block texels within 1 m of the box (what `compare --near-clutter 1` scores).
+    let near = |r: &ResultFile| {
+        let mut r = not_buried(r, &boxes);
+        r.texels.retain(|t| {
+            let b = &boxes[0];
+            let d2: f64 = (0..3)
+                .map(|k| (b.min[k] - t.position[k]).max(0.0).max(t.position[k] - b.max[k]).powi(2))
+                .sum();
+            t.surface.starts_with("block:") && d2 <= 1.0
+        });
+        r
+    };
+    let mut errors = Vec::new();
+    for mode in [SceneGather::Delta, SceneGather::Exact] {
+        let mut scene = base.clone();
+        scene.settings.scene_gather = mode;
+        let (bytes, report) = bake_scene(&scene, &dir, Transport::Lightfield, false);
+        let gathered = report.drt.as_ref().unwrap().scene_texels_gathered;
+        let replaced = lightfarm_client::decode(&bytes).unwrap().drt.unwrap().replaced;
+        assert_eq!(replaced.len(), gathered);
+        assert_eq!(gathered == 0, mode == SceneGather::Delta, "{mode:?}: {gathered}");
+        let drt = apply(&bytes, &lights, Method::Drt);
+        assert!(drt.texels.iter().all(|t| t.indirect.iter().all(|x| x.is_finite())));
+        assert!(energy_ratio(&drt) <= 1.05, "energy bound {}", energy_ratio(&drt));
+        errors.push(
+            check_against_reference(
+                &format!("block texels within 1 m of the box, {mode:?}"),
+                &near(&drt),
+                &reference,
+                0.2,
+            )
+            .relative_l2,
+        );
+    }
+    // The gather is exact to one bounce: only Monte Carlo noise separates it from the reference.
+    assert!(
+        errors[1] < 0.04 && errors[1] < errors[0],
+        "exact {} vs delta {}",
+        errors[1],
+        errors[0]
     );
 }

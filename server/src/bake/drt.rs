@@ -8,6 +8,10 @@
 //!   `B_j` at the clutter texel they hit: `+ ΔU_c c_j` with `c_j = B_jᵀ l_d`.
 //! - **C_b, clutter gather (§4.3),** and clutter-to-clutter bounce (ours): a clutter texel's rays
 //!   read `L_imp` of the block texel they hit, or `B_j'` of another clutter object's texel.
+//! - **Exact scene gather (ours, `scene_gather: exact`):** a block texel that gets rows instead
+//!   gets a gather over the direct light of the texels its cosine rays hit, and its MRT light is
+//!   dropped (`replaced`): near clutter its light is then exact to one bounce, MRT's own error
+//!   included. Buried texels next to gathered ones copy the first such neighbour's gather.
 //! - **Transport inpainting (§5):** texels buried inside clutter get the average of their valid
 //!   neighbours' shadowed transport minus their own unshadowed transport; with no valid
 //!   neighbour on the face they get exactly minus their MRT transport (they are dark, never NaN).
@@ -26,7 +30,7 @@ use std::collections::BTreeMap;
 use faer::Mat;
 
 use lightfarm_proto::bundle::{DeltaSource, TexelGather};
-use lightfarm_proto::scene::{Aabb, ClutterBasis, ClutterGather, Opening, Scene};
+use lightfarm_proto::scene::{Aabb, ClutterBasis, ClutterGather, Opening, Scene, SceneGather};
 
 use super::clutter_basis::{clutter_basis, prior_lights, ClutterBasisOps};
 use super::drt_rays::{clutter_basis_unit, trace_all, DrtRayCache, RayPass};
@@ -71,6 +75,9 @@ pub struct DrtStats {
     pub buried_scene_texels: usize,
     pub buried_clutter_texels: usize,
     pub inpainted_without_neighbours: usize,
+    /// With `scene_gather: exact`: block texels whose MRT light the exact gather replaces
+    /// (texels with rows, and buried texels that copy a gathered neighbour's row).
+    pub scene_texels_gathered: usize,
     pub clutter_ranks: Vec<usize>,
     /// Texels whose rays were traced in this bake, and texels whose rays an earlier bake's
     /// cache gave (incremental rebake).
@@ -87,6 +94,8 @@ pub struct DrtOperators {
     pub projection_of: Vec<Option<usize>>,
     pub entries: Vec<DeltaBlock>,
     pub buried: Vec<u32>,
+    /// Block texels whose MRT light the gather replaces (`scene_gather: exact`), ascending.
+    pub replaced: Vec<u32>,
     pub stats: DrtStats,
 }
 
@@ -260,6 +269,9 @@ pub fn build_drt(
     // Accumulate per target block: map[(kind, source)][row] = values.
     let mut per_target: Vec<RowsBySource> = (0..n_blocks).map(|_| BTreeMap::new()).collect();
     let mut buried_scene: Vec<bool> = vec![false; g.texels.len()];
+    // `scene_gather: exact`: block texel → the lit texels its cosine rays hit (rays each).
+    let exact_scene = settings.scene_gather == SceneGather::Exact;
+    let mut scene_rows: BTreeMap<u32, Vec<(u32, u32)>> = BTreeMap::new();
     for (&x, r) in block_texels.iter().zip(&rays.block) {
         let (occluded, reflected, clutter_hits) = (&r.occluded, &r.reflected, r.clutter_hits);
         let (target, _) = local(x as u32);
@@ -274,6 +286,11 @@ pub fn build_drt(
             continue;
         }
         stats.scene_texels_with_rows += 1;
+        if exact_scene {
+            // The gather replaces MRT and the deltas on this texel.
+            scene_rows.insert(x as u32, r.hits.clone());
+            continue;
+        }
         for &(t, w) in occluded {
             let (source, l) = local(t);
             // Antiradiance: −L_imp at the wall behind.
@@ -351,6 +368,16 @@ pub fn build_drt(
                     if neighbours.is_empty() {
                         stats.inpainted_without_neighbours += 1;
                     }
+                    // Next to gathered texels: copy the first one's gather (its light is
+                    // the gather alone, so averaging MRT-based values would be brighter).
+                    if let Some(row) = neighbours
+                        .iter()
+                        .find_map(|n| scene_rows.get(&(*n as u32)))
+                    {
+                        let row = row.clone();
+                        scene_rows.insert(x as u32, row);
+                        continue;
+                    }
                     let x_local = x - range.start;
                     for &key in &sources {
                         let width = match source_of(key) {
@@ -402,6 +429,17 @@ pub fn build_drt(
         row_start: vec![0],
         ..Default::default()
     };
+    // Block texel rows first (they precede clutter texels, so rows stay ascending).
+    stats.scene_texels_gathered = scene_rows.len();
+    for (&x, hits) in &scene_rows {
+        gather.rows.push(x);
+        for &(t, n) in hits {
+            gather.cols.push(t);
+            gather.values.push((n as f64 * inv) as f32);
+        }
+        gather.row_start.push(gather.cols.len() as u32);
+    }
+    let replaced: Vec<u32> = scene_rows.keys().copied().collect();
     for (&x, r) in clutter_texels.iter().zip(&rays.clutter) {
         let (hits, back) = (&r.hits, &r.back);
         let (owner, _) = local(x as u32);
@@ -470,7 +508,8 @@ pub fn build_drt(
         }
     }
     Ok(DrtOperators {
-        direct_gather: exact.then_some(gather),
+        direct_gather: (exact || exact_scene).then_some(gather),
+        replaced,
         clutter: clutter.into_iter().map(|(_, p)| p).collect(),
         projection_of,
         entries,

@@ -31,7 +31,7 @@ use std::path::PathBuf;
 
 use rayon::prelude::*;
 
-use lightfarm_proto::scene::{Opening, Scene};
+use lightfarm_proto::scene::{Opening, Scene, SceneGather};
 use lightfarm_proto::wire::{checksum, Reader, WireError, Writer};
 
 use super::clutter_basis::ClutterBasisOps;
@@ -48,8 +48,9 @@ use super::tracer::{Hit, Tracer};
 
 const PURPOSE_DRT_SCENE: u64 = 31;
 const PURPOSE_DRT_CLUTTER: u64 = 32;
+const PURPOSE_DRT_SCENE_GATHER: u64 = 33;
 /// Bumped whenever what a ray pass records for the same inputs changes.
-const CODE_VERSION: &str = "lightfarm-drt-rays-2";
+const CODE_VERSION: &str = "lightfarm-drt-rays-3";
 
 /// An axis-aligned box `[min, max]`, world metres.
 pub type Bounds = [[f64; 3]; 2];
@@ -66,6 +67,9 @@ pub struct BlockTexelRays {
     pub clutter_hits: f64,
     /// Weight of rays whose first hit is the inside of a clutter box.
     pub back_hits: f64,
+    /// With `scene_gather: exact`, for a texel whose view of clutter reaches the tolerance:
+    /// lit texels its cosine rays hit (global texel, rays), ascending; empty otherwise.
+    pub hits: Vec<(u32, u32)>,
     /// The segments from the texel to every first hit.
     pub reach: RayReach,
 }
@@ -316,36 +320,53 @@ impl<'a> RayPass<'a> {
         }
         out.occluded = merge(&occluded);
         out.reflected = merge(&reflected);
+        if settings.scene_gather == SceneGather::Exact
+            && out.clutter_hits > 0.0
+            && out.clutter_hits >= settings.tolerance
+        {
+            let (hits, _) = self.cosine_hits(x, PURPOSE_DRT_SCENE_GATHER, &mut out.reach);
+            out.hits = hits;
+        }
         out
     }
 
-    /// Traces clutter texel `x` (cosine-weighted rays from its lit side).
-    pub fn trace_clutter_texel(&self, x: usize) -> ClutterTexelRays {
+    /// Cosine-weighted rays from texel `x`'s lit side on stream `purpose`: the lit texels they
+    /// hit first (block texels, front faces of clutter texels) with their ray counts, ascending,
+    /// and the share of rays that hit the inside of a clutter box; every segment goes to `reach`.
+    fn cosine_hits(&self, x: usize, purpose: u64, reach: &mut RayReach) -> (Vec<(u32, u32)>, f64) {
         let (g, tracer) = (self.g, self.tracer);
         let settings = &self.scene.settings;
         let sign = |s: u32| g.surfaces[s as usize].normal_sign;
         let rays = settings.rays_per_texel;
         let inv = 1.0 / rays as f64;
         let texel = &g.texels[x];
-        let key = stream_key(settings.seed, PURPOSE_DRT_CLUTTER, x as u64);
+        let key = stream_key(settings.seed, purpose, x as u64);
         let mut hits: BTreeMap<u32, u32> = BTreeMap::new();
-        let mut out = ClutterTexelRays::default();
+        let mut back = 0.0;
         for i in 0..rays {
             let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), texel.normal);
             let Some(hit) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
-                out.reach.add(d, f64::INFINITY);
+                reach.add(d, f64::INFINITY);
                 continue;
             };
-            out.reach.add(d, hit.t);
+            reach.add(d, hit.t);
             match classify(g, tracer, &hit) {
                 Seen::Block(t) | Seen::Clutter { texel: Some(t), .. } => {
                     *hits.entry(t).or_insert(0) += 1
                 }
-                Seen::Clutter { back: true, .. } => out.back += inv,
+                Seen::Clutter { back: true, .. } => back += inv,
                 _ => {}
             }
         }
-        out.hits = hits.into_iter().collect();
+        (hits.into_iter().collect(), back)
+    }
+
+    /// Traces clutter texel `x` (cosine-weighted rays from its lit side).
+    pub fn trace_clutter_texel(&self, x: usize) -> ClutterTexelRays {
+        let mut out = ClutterTexelRays::default();
+        let (hits, back) = self.cosine_hits(x, PURPOSE_DRT_CLUTTER, &mut out.reach);
+        out.hits = hits;
+        out.back = back;
         out
     }
 }
@@ -495,9 +516,15 @@ pub fn trace_block_unit(
                 .iter()
                 .map(|&(k, w)| changes.remap(k, first_clutter).map(|k| (k, w)))
                 .collect();
-            if let Some(reflected) = reflected {
+            let hits: Option<Vec<(u32, u32)>> = cached
+                .hits
+                .iter()
+                .map(|&(k, n)| changes.remap(k, first_clutter).map(|k| (k, n)))
+                .collect();
+            if let (Some(reflected), Some(hits)) = (reflected, hits) {
                 *slot = Some(BlockTexelRays {
                     reflected,
+                    hits,
                     ..cached
                 });
                 reused += 1;
@@ -681,6 +708,12 @@ fn unit_key(
     h.update(&s.rays_per_texel.to_le_bytes());
     h.update(&s.seed.to_le_bytes());
     h.update(&s.clutter_importance.to_bits().to_le_bytes());
+    // Block units with `scene_gather: exact` also hold cosine hits (and the setting decides
+    // which texels trace them with the tolerance).
+    if kind == "block" && s.scene_gather == SceneGather::Exact {
+        h.update(b"scene-gather-exact");
+        h.update(&s.tolerance.to_bits().to_le_bytes());
+    }
     h.update(&(index as u64).to_le_bytes());
     h.update(&(texel_start as u64).to_le_bytes());
     if let Some(shape) = shape {
@@ -865,11 +898,19 @@ impl DrtRayCache {
             };
             let occluded = pairs()?;
             let reflected = pairs()?;
+            let clutter_hits = r.f64()?;
+            let back_hits = r.f64()?;
+            let ts = r.u32s()?;
+            let ns = r.u32s()?;
+            if ts.len() != ns.len() {
+                return Err(WireError::Invalid("hit list".into()));
+            }
             Ok(BlockTexelRays {
                 occluded,
                 reflected,
-                clutter_hits: r.f64()?,
-                back_hits: r.f64()?,
+                clutter_hits,
+                back_hits,
+                hits: ts.into_iter().zip(ns).collect(),
                 reach: read_reach(r)?,
             })
         })
@@ -883,6 +924,8 @@ impl DrtRayCache {
             }
             w.f64(t.clutter_hits);
             w.f64(t.back_hits);
+            w.u32s(&t.hits.iter().map(|p| p.0).collect::<Vec<_>>());
+            w.u32s(&t.hits.iter().map(|p| p.1).collect::<Vec<_>>());
             write_reach(w, &t.reach);
         })
     }

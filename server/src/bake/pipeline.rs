@@ -113,6 +113,7 @@ fn drt_section(
             entries: ops.entries.iter().map(to_entry).collect(),
             buried: ops.buried.clone(),
             direct_gather: ops.direct_gather.clone(),
+            replaced: ops.replaced.clone(),
         };
         return Ok((drt, None));
     }
@@ -153,6 +154,7 @@ fn drt_section(
         entries,
         buried: ops.buried.clone(),
         direct_gather,
+        replaced: ops.replaced.clone(),
     };
     Ok((drt, Some(stats)))
 }

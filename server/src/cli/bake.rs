@@ -65,8 +65,8 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
         );
         if let Some(d) = &report.drt {
             eprintln!(
-                "drt: {} scene texels with rows, {} skipped (view of clutter below tolerance), {} buried scene texels ({} without a valid neighbour), {} buried clutter texels, clutter ranks {:?}",
-                d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.clutter_ranks
+                "drt: {} scene texels with rows, {} skipped (view of clutter below tolerance), {} buried scene texels ({} without a valid neighbour), {} buried clutter texels, {} scene texels gathered exactly, clutter ranks {:?}",
+                d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.scene_texels_gathered, d.clutter_ranks
             );
             eprintln!(
                 "drt rays: {} texels traced, {} reused from the cache (nothing they saw changed)",
