@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# DRT figures (issue 3): mrt vs drt relative L2 (scene texels, texels within 1 m of clutter,
+# DRT figures (issue 3): mrt vs drt (the paper's deltas) vs exact (drt with `scene_gather:
+# exact`) relative L2 (scene texels, texels within 1 m of clutter,
 # clutter texels) over 10 random light sets against a 16k-ray reference, for the Cornell box and
 # the maze with four pillars at T=8, 1024 rays, tolerance 0.01; the bake logs hold the operator
 # build time ("clutter operators" stage) and the DRT section's bytes.
@@ -19,6 +20,9 @@ name = sys.argv[1]
 s = json.load(open(f"{sys.argv[2]}/scenes/{name}/scene.json"))
 s["settings"].update({"texels_per_face": 8, "rays_per_texel": 1024, "tolerance": 0.01, "probe_volume": "always"})
 json.dump(s, open(f"{name}.json", "w"), indent=1)
+s["settings"]["scene_gather"] = "exact"
+json.dump(s, open(f"{name}-exact.json", "w"), indent=1)
+del s["settings"]["scene_gather"]
 boxes = [c["box"] for c in s.get("clutter", []) if "box" in c]
 def clear(p):
     for b in boxes:
@@ -40,10 +44,15 @@ for i in range(10):
 PY
 cp -r "$repo/scenes/$scene/"* . 2>/dev/null || true
 $LF bake $scene.json -o $scene.lfb --no-cache > $scene.bake.log 2>&1
+$LF bake $scene-exact.json -o $scene-exact.lfb --no-cache > $scene-exact.bake.log 2>&1
 for i in $(seq 0 9); do
   $LF reference $scene.json --lights $scene-lights$i.json --rays 16384 -o $scene-ref$i.json > /dev/null 2>&1
-  for m in mrt drt; do
-    $LF eval $scene.lfb --lights $scene-lights$i.json --method $m -o $scene-$m$i.json
+  for m in mrt drt exact; do
+    if [ $m = exact ]; then
+      $LF eval $scene-exact.lfb --lights $scene-lights$i.json --method drt -o $scene-$m$i.json
+    else
+      $LF eval $scene.lfb --lights $scene-lights$i.json --method $m -o $scene-$m$i.json
+    fi
     all=$($LF compare $scene-$m$i.json $scene-ref$i.json --only block: | tail -1)
     near=$($LF compare $scene-$m$i.json $scene-ref$i.json --scene $scene.json --near-clutter 1 | tail -1)
     clut=$($LF compare $scene-$m$i.json $scene-ref$i.json --only clutter: | tail -1)
