@@ -6,8 +6,6 @@
 //! panel zero-padded). A matrix-vector product then keeps 8 rows × 3 channels of accumulators in
 //! registers for a whole panel and never sums across lanes, which is what makes short rows
 //! (ranks of 10–60) fast; the same loop serves wide matrices (T_d→b) and tall ones (U_b).
-//! Panels are summed two per pass over the columns, so the two share each column's broadcasts
-//! of x (per-row summation order unchanged).
 //!
 //! Values are kept in 8 bits when they lie on an 8-bit grid per column or per row — which is
 //! exactly what the bundle's u8 codec decodes to (`offset + scale · q`) — so a u8 operator is
@@ -223,11 +221,12 @@ impl PackedMatrix {
         let (x0, x1, x2) = (&x[0][..cols], &x[1][..cols], &x[2][..cols]);
         match &self.values {
             Values::F32(v) => {
-                for_each_panel(v, cols, x0, x1, x2, |v: f32| v, |p, acc| {
+                for (p, panel) in v.chunks_exact(cols * PANEL).enumerate() {
+                    let acc = panel_sum(panel, x0, x1, x2, |v: f32| v);
                     for lane in 0..PANEL.min(rows - p * PANEL) {
                         emit(p * PANEL + lane, [acc[0][lane], acc[1][lane], acc[2][lane]]);
                     }
-                });
+                }
             }
             Values::U8Columns { q, offset, scale } => {
                 // value = o_j + s_j q: Σ_j (o_j + s_j q_ij) x_j = Σ_j q_ij (s_j x_j) + Σ_j o_j x_j.
@@ -242,8 +241,8 @@ impl PackedMatrix {
                     constant[1] += offset[j] * x1[j];
                     constant[2] += offset[j] * x2[j];
                 }
-                let (xs, ys, zs) = (&*xs, &*ys, &*zs);
-                for_each_panel(q, cols, xs, ys, zs, |v: u8| v as f32, |p, acc| {
+                for (p, panel) in q.chunks_exact(cols * PANEL).enumerate() {
+                    let acc = panel_sum(panel, xs, ys, zs, |v: u8| v as f32);
                     for lane in 0..PANEL.min(rows - p * PANEL) {
                         emit(
                             p * PANEL + lane,
@@ -254,7 +253,7 @@ impl PackedMatrix {
                             ],
                         );
                     }
-                });
+                }
             }
             Values::U8Rows { q, offset, scale } => {
                 // value = o_i + s_i q: row_i · x = s_i Σ_j q_ij x_j + o_i Σ_j x_j.
@@ -264,7 +263,8 @@ impl PackedMatrix {
                     total[1] += x1[j];
                     total[2] += x2[j];
                 }
-                for_each_panel(q, cols, x0, x1, x2, |v: u8| v as f32, |p, acc| {
+                for (p, panel) in q.chunks_exact(cols * PANEL).enumerate() {
+                    let acc = panel_sum(panel, x0, x1, x2, |v: u8| v as f32);
                     for lane in 0..PANEL.min(rows - p * PANEL) {
                         let i = p * PANEL + lane;
                         let (o, s) = (offset[i], scale[i]);
@@ -277,73 +277,10 @@ impl PackedMatrix {
                             ],
                         );
                     }
-                });
+                }
             }
         }
     }
-}
-
-/// Calls `done(p, acc)` for every panel p in ascending order with `acc` as [`panel_sum`] gives
-/// it, computing two panels per pass over the columns: the pair shares each column's three
-/// broadcasts of x (the loads that bound the one-panel loop), and each row's sum is still one
-/// chain with j ascending, so results are bit-identical to one panel at a time.
-#[inline(always)]
-fn for_each_panel<T: Copy>(
-    values: &[T],
-    cols: usize,
-    x0: &[f32],
-    x1: &[f32],
-    x2: &[f32],
-    value: impl Fn(T) -> f32 + Copy,
-    mut done: impl FnMut(usize, &[[f32; PANEL]; 3]),
-) {
-    let panel_len = cols * PANEL;
-    let pairs = values.chunks_exact(2 * panel_len);
-    let last = pairs.remainder();
-    let mut p = 0;
-    for pair in pairs {
-        let (a, b) = pair.split_at(panel_len);
-        let (acc_a, acc_b) = panel_pair_sum(a, b, x0, x1, x2, value);
-        done(p, &acc_a);
-        done(p + 1, &acc_b);
-        p += 2;
-    }
-    if !last.is_empty() {
-        done(p, &panel_sum(last, x0, x1, x2, value));
-    }
-}
-
-/// [`panel_sum`] of two panels in one pass over the columns.
-#[inline(always)]
-fn panel_pair_sum<T: Copy>(
-    a: &[T],
-    b: &[T],
-    x0: &[f32],
-    x1: &[f32],
-    x2: &[f32],
-    value: impl Fn(T) -> f32,
-) -> ([[f32; PANEL]; 3], [[f32; PANEL]; 3]) {
-    let mut acc_a = [[0.0f32; PANEL]; 3];
-    let mut acc_b = [[0.0f32; PANEL]; 3];
-    for ((((ca, cb), &u), &v), &w) in a
-        .chunks_exact(PANEL)
-        .zip(b.chunks_exact(PANEL))
-        .zip(x0)
-        .zip(x1)
-        .zip(x2)
-    {
-        for lane in 0..PANEL {
-            let va = value(ca[lane]);
-            acc_a[0][lane] += va * u;
-            acc_a[1][lane] += va * v;
-            acc_a[2][lane] += va * w;
-            let vb = value(cb[lane]);
-            acc_b[0][lane] += vb * u;
-            acc_b[1][lane] += vb * v;
-            acc_b[2][lane] += vb * w;
-        }
-    }
-    (acc_a, acc_b)
 }
 
 /// `acc[c][lane] = Σ_j value(panel[j·8 + lane]) · x_c[j]`, j ascending.
@@ -496,34 +433,6 @@ mod tests {
     }
 
     /// The AVX2 and portable builds give the same bits.
-    #[test]
-    fn two_panels_per_pass_sum_exactly_like_one() {
-        for (rows, cols) in [(8usize, 5usize), (16, 3), (24, 7), (40, 1), (17, 9)] {
-            let m = matrix(rows.div_ceil(PANEL) * PANEL, cols, rows as u64);
-            let x = matrix(3, cols, 99).data;
-            let (x0, x1, x2) = (&x[..cols], &x[cols..2 * cols], &x[2 * cols..]);
-            // Panel-major values as the packed form stores them.
-            let mut values = Vec::new();
-            for p in 0..m.rows as usize / PANEL {
-                for j in 0..cols {
-                    for lane in 0..PANEL {
-                        values.push(m.data[(p * PANEL + lane) * cols + j]);
-                    }
-                }
-            }
-            let mut paired = Vec::new();
-            for_each_panel(&values, cols, x0, x1, x2, |v: f32| v, |p, acc| {
-                paired.push((p, *acc))
-            });
-            let single: Vec<_> = values
-                .chunks_exact(cols * PANEL)
-                .enumerate()
-                .map(|(p, panel)| (p, panel_sum(panel, x0, x1, x2, |v: f32| v)))
-                .collect();
-            assert_eq!(paired, single, "{rows} × {cols}");
-        }
-    }
-
     #[test]
     fn dispatch_is_bit_identical() {
         let m = matrix(37, 29, 3);
