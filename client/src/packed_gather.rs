@@ -31,7 +31,10 @@ enum Columns {
 #[derive(Clone, Debug, PartialEq)]
 enum Weights {
     /// `weight = unit · count`.
-    Counts { unit: f32, counts: Vec<u8> },
+    Counts {
+        unit: f32,
+        counts: Vec<u8>,
+    },
     F32(Vec<f32>),
 }
 

@@ -2056,7 +2056,11 @@ mod tests {
         let mut rng = Lcg(38);
         let mut b = drt_bundle(&mut rng, false, true, true);
         b.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
-        fuzz_bundle(&mut rng, &b, lightfarm_proto::bundle::section::DRT_REPLACING);
+        fuzz_bundle(
+            &mut rng,
+            &b,
+            lightfarm_proto::bundle::section::DRT_REPLACING,
+        );
     }
 
     #[test]

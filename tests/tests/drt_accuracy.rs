@@ -297,7 +297,12 @@ fn exact_scene_gather_replaces_mrt_near_the_box_and_matches_the_reference() {
         r.texels.retain(|t| {
             let b = &boxes[0];
             let d2: f64 = (0..3)
-                .map(|k| (b.min[k] - t.position[k]).max(0.0).max(t.position[k] - b.max[k]).powi(2))
+                .map(|k| {
+                    (b.min[k] - t.position[k])
+                        .max(0.0)
+                        .max(t.position[k] - b.max[k])
+                        .powi(2)
+                })
                 .sum();
             t.surface.starts_with("block:") && d2 <= 1.0
         });
@@ -309,12 +314,27 @@ fn exact_scene_gather_replaces_mrt_near_the_box_and_matches_the_reference() {
         scene.settings.scene_gather = mode;
         let (bytes, report) = bake_scene(&scene, &dir, Transport::Lightfield, false);
         let gathered = report.drt.as_ref().unwrap().scene_texels_gathered;
-        let replaced = lightfarm_client::decode(&bytes).unwrap().drt.unwrap().replaced;
+        let replaced = lightfarm_client::decode(&bytes)
+            .unwrap()
+            .drt
+            .unwrap()
+            .replaced;
         assert_eq!(replaced.len(), gathered);
-        assert_eq!(gathered == 0, mode == SceneGather::Delta, "{mode:?}: {gathered}");
+        assert_eq!(
+            gathered == 0,
+            mode == SceneGather::Delta,
+            "{mode:?}: {gathered}"
+        );
         let drt = apply(&bytes, &lights, Method::Drt);
-        assert!(drt.texels.iter().all(|t| t.indirect.iter().all(|x| x.is_finite())));
-        assert!(energy_ratio(&drt) <= 1.05, "energy bound {}", energy_ratio(&drt));
+        assert!(drt
+            .texels
+            .iter()
+            .all(|t| t.indirect.iter().all(|x| x.is_finite())));
+        assert!(
+            energy_ratio(&drt) <= 1.05,
+            "energy bound {}",
+            energy_ratio(&drt)
+        );
         errors.push(
             check_against_reference(
                 &format!("block texels within 1 m of the box, {mode:?}"),

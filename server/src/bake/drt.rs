@@ -370,9 +370,7 @@ pub fn build_drt(
                     }
                     // Next to gathered texels: copy the first one's gather (its light is
                     // the gather alone, so averaging MRT-based values would be brighter).
-                    if let Some(row) = neighbours
-                        .iter()
-                        .find_map(|n| scene_rows.get(&(*n as u32)))
+                    if let Some(row) = neighbours.iter().find_map(|n| scene_rows.get(&(*n as u32)))
                     {
                         let row = row.clone();
                         scene_rows.insert(x as u32, row);
