@@ -56,6 +56,41 @@ fn cube_obj(lo: [f64; 3], hi: [f64; 3]) -> String {
 const LO: [f64; 3] = [1.5, 0.0, 1.5];
 const HI: [f64; 3] = [2.5, 1.0, 2.5];
 
+/// Writes `<name>.gltf` + `<name>.bin` in `dir`: one quad (two triangles 0-1-2, 0-2-3) with
+/// `POSITION` and one more float attribute `(name, glTF type, values)`.
+fn write_quad_gltf(dir: &Path, name: &str, pos: &[[f32; 3]; 4], attribute: (&str, &str, &[f32])) {
+    let (attr_name, attr_type, values) = attribute;
+    let idx: [u16; 6] = [0, 1, 2, 0, 2, 3];
+    let mut bin = Vec::new();
+    for v in pos.iter().flatten().chain(values) {
+        bin.extend(v.to_le_bytes());
+    }
+    for i in idx {
+        bin.extend(i.to_le_bytes());
+    }
+    std::fs::write(dir.join(format!("{name}.bin")), &bin).unwrap();
+    let (lo, hi) = (0..3).fold(([f32::MAX; 3], [f32::MIN; 3]), |(mut lo, mut hi), k| {
+        for p in pos {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+        (lo, hi)
+    });
+    let attr_bytes = 4 * values.len();
+    let json = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"{attr_name}":1}},"indices":2}}]}}],
+"buffers":[{{"uri":"{name}.bin","byteLength":{total}}}],
+"bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":48}},{{"buffer":0,"byteOffset":48,"byteLength":{attr_bytes}}},{{"buffer":0,"byteOffset":{idx_offset},"byteLength":12}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":{lo:?},"max":{hi:?}}},
+{{"bufferView":1,"componentType":5126,"count":4,"type":"{attr_type}"}},
+{{"bufferView":2,"componentType":5123,"count":6,"type":"SCALAR"}}]}}"#,
+        total = bin.len(),
+        idx_offset = 48 + attr_bytes,
+    );
+    std::fs::write(dir.join(format!("{name}.gltf")), json).unwrap();
+}
+
 fn lamp() -> lightfarm_proto::lights::LightSet {
     one_light([0.8, 2.4, 1.0], 6.0)
 }
@@ -298,23 +333,8 @@ fn texcoord1_places_the_texels() {
         .iter()
         .map(|p| [(p[2] - 1.0) / 2.0, (p[0] - 1.0) / 2.0])
         .collect();
-    let idx: [u16; 6] = [0, 1, 2, 0, 2, 3];
-    let mut bin = Vec::new();
-    for v in pos.iter().flatten().chain(uv.iter().flatten()) {
-        bin.extend(v.to_le_bytes());
-    }
-    for i in idx {
-        bin.extend(i.to_le_bytes());
-    }
-    std::fs::write(dir.join("quad.bin"), &bin).unwrap();
-    let json = r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
-"meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_1":1},"indices":2}]}],
-"buffers":[{"uri":"quad.bin","byteLength":92}],
-"bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":48},{"buffer":0,"byteOffset":48,"byteLength":32},{"buffer":0,"byteOffset":80,"byteLength":12}],
-"accessors":[{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[1,0.5,1],"max":[3,0.5,3]},
-{"bufferView":1,"componentType":5126,"count":4,"type":"VEC2"},
-{"bufferView":2,"componentType":5123,"count":6,"type":"SCALAR"}]}"#;
-    std::fs::write(dir.join("quad.gltf"), json).unwrap();
+    let uv: Vec<f32> = uv.iter().flatten().copied().collect();
+    write_quad_gltf(&dir, "quad", &pos, ("TEXCOORD_1", "VEC2", &uv));
     let s = scene(
         &room_with(r#"{ "id": "shelf", "mesh": "quad.gltf", "albedo": [0.5, 0.5, 0.5] }"#),
         T,
@@ -406,23 +426,8 @@ fn coloured_mesh_texels_carry_their_albedo() {
     let red = [0.8f32, 0.1, 0.1];
     let blue = [0.1f32, 0.1, 0.8];
     let colours = [red, red, blue, blue];
-    let idx: [u16; 6] = [0, 1, 2, 0, 2, 3];
-    let mut bin = Vec::new();
-    for v in pos.iter().flatten().chain(colours.iter().flatten()) {
-        bin.extend(v.to_le_bytes());
-    }
-    for i in idx {
-        bin.extend(i.to_le_bytes());
-    }
-    std::fs::write(dir.join("shelf.bin"), &bin).unwrap();
-    let json = r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
-"meshes":[{"primitives":[{"attributes":{"POSITION":0,"COLOR_0":1},"indices":2}]}],
-"buffers":[{"uri":"shelf.bin","byteLength":108}],
-"bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":48},{"buffer":0,"byteOffset":48,"byteLength":48},{"buffer":0,"byteOffset":96,"byteLength":12}],
-"accessors":[{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[1,1,1],"max":[3,1,3]},
-{"bufferView":1,"componentType":5126,"count":4,"type":"VEC3"},
-{"bufferView":2,"componentType":5123,"count":6,"type":"SCALAR"}]}"#;
-    std::fs::write(dir.join("shelf.gltf"), json).unwrap();
+    let colours: Vec<f32> = colours.iter().flatten().copied().collect();
+    write_quad_gltf(&dir, "shelf", &pos, ("COLOR_0", "VEC3", &colours));
     let s = scene(
         &room_with(r#"{ "id": "shelf", "mesh": "shelf.gltf", "albedo": [0.5, 0.5, 0.5] }"#),
         T,

@@ -273,7 +273,7 @@ pub fn build_drt(
     let exact_scene = settings.scene_gather == SceneGather::Exact;
     let mut scene_rows: BTreeMap<u32, Vec<(u32, u32)>> = BTreeMap::new();
     for (&x, r) in block_texels.iter().zip(&rays.block) {
-        let (occluded, reflected, clutter_hits) = (&r.occluded, &r.reflected, r.clutter_hits);
+        let (occluded, reflected) = (&r.occluded, &r.reflected);
         let (target, _) = local(x as u32);
         let buried = inside_box(g.texels[x].position, None) || r.back_hits > 0.5;
         buried_scene[x] = buried;
@@ -281,7 +281,7 @@ pub fn build_drt(
             stats.buried_scene_texels += 1;
             continue;
         }
-        if clutter_hits < settings.tolerance || clutter_hits == 0.0 {
+        if !r.sees_clutter(settings.tolerance) {
             stats.scene_texels_skipped += 1;
             continue;
         }

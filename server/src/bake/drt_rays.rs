@@ -74,6 +74,14 @@ pub struct BlockTexelRays {
     pub reach: RayReach,
 }
 
+impl BlockTexelRays {
+    /// Whether the texel's view of clutter reaches `tolerance`: the texels that get DRT rows
+    /// (or, with `scene_gather: exact`, the gather), the rest being skipped.
+    pub fn sees_clutter(&self, tolerance: f64) -> bool {
+        self.clutter_hits > 0.0 && self.clutter_hits >= tolerance
+    }
+}
+
 /// What a clutter texel's rays saw.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ClutterTexelRays {
@@ -320,10 +328,7 @@ impl<'a> RayPass<'a> {
         }
         out.occluded = merge(&occluded);
         out.reflected = merge(&reflected);
-        if settings.scene_gather == SceneGather::Exact
-            && out.clutter_hits > 0.0
-            && out.clutter_hits >= settings.tolerance
-        {
+        if settings.scene_gather == SceneGather::Exact && out.sees_clutter(settings.tolerance) {
             let (hits, _) = self.cosine_hits(x, PURPOSE_DRT_SCENE_GATHER, &mut out.reach);
             out.hits = hits;
         }
@@ -451,6 +456,17 @@ impl Changes {
             .find(|(start, count, _)| t >= *start && t < start + count)
             .and_then(|(start, _, new)| new.map(|n| n + (t - start)))
     }
+
+    /// [`Changes::remap`] of every texel of a cached hit list; None if one's object changed.
+    fn remap_list<W: Copy>(
+        &self,
+        list: &[(u32, W)],
+        first_clutter_texel: u32,
+    ) -> Option<Vec<(u32, W)>> {
+        list.iter()
+            .map(|&(t, w)| self.remap(t, first_clutter_texel).map(|t| (t, w)))
+            .collect()
+    }
 }
 
 /// The current scene's clutter as units record it: (shape, texel offset, texel count).
@@ -511,16 +527,8 @@ pub fn trace_block_unit(
             {
                 continue;
             }
-            let reflected: Option<Vec<(u32, f64)>> = cached
-                .reflected
-                .iter()
-                .map(|&(k, w)| changes.remap(k, first_clutter).map(|k| (k, w)))
-                .collect();
-            let hits: Option<Vec<(u32, u32)>> = cached
-                .hits
-                .iter()
-                .map(|&(k, n)| changes.remap(k, first_clutter).map(|k| (k, n)))
-                .collect();
+            let reflected = changes.remap_list(&cached.reflected, first_clutter);
+            let hits = changes.remap_list(&cached.hits, first_clutter);
             if let (Some(reflected), Some(hits)) = (reflected, hits) {
                 *slot = Some(BlockTexelRays {
                     reflected,
@@ -573,12 +581,7 @@ pub fn trace_clutter_unit(
             if !changes.untouched(g.texels[x].position, &cached.reach) {
                 continue;
             }
-            let hits: Option<Vec<(u32, u32)>> = cached
-                .hits
-                .iter()
-                .map(|&(k, n)| changes.remap(k, first_clutter).map(|k| (k, n)))
-                .collect();
-            if let Some(hits) = hits {
+            if let Some(hits) = changes.remap_list(&cached.hits, first_clutter) {
                 *slot = Some(ClutterTexelRays { hits, ..cached });
                 reused += 1;
             }
