@@ -1,6 +1,8 @@
 //! The two ray passes of DRT (paper 000 §4): what each block texel's rays see of clutter (and
 //! the wall behind it), and what each clutter texel's rays see; and their reuse across bakes,
-//! so a rebake after moving one clutter object traces only the texels that could see it.
+//! so a rebake after moving one clutter object traces only the texels that could see it. With
+//! `scene_gather: exact`, a block texel that sees clutter also traces cosine rays on a stream of
+//! its own and records what they hit, like a clutter texel (kept in the same unit).
 //!
 //! Reuse is exact. A texel's cached rays are taken only when
 //! (a) its rays would be drawn the same: same stream (the unit's key holds the blocks, texel
