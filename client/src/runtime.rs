@@ -204,6 +204,9 @@ pub struct Runtime {
     entry_opening: Vec<usize>,
     /// Scratch: direct radiance, planar, 3 × n_texels.
     ld: Vec<f32>,
+    /// Scratch: direct radiance padded to four lanes, for the exact gather (empty without
+    /// one).
+    direct_padded: Vec<[f32; 4]>,
     /// Scratch: block coefficients, block-major, channel-planar within a block.
     b: Vec<f32>,
     /// Scratch: reduced lightfield coefficients, block-major (see `opening_lf`).
@@ -381,6 +384,10 @@ impl Runtime {
     /// (possible only for a bundle built by hand).
     pub fn try_new(bundle: Bundle) -> Result<Runtime, BundleError> {
         bundle.validate()?;
+        // Blocks instancing a shape through a box symmetry get their own permuted copy, so the
+        // frame loop never permutes (the same memory and per-frame work as a bundle that
+        // stored every orientation).
+        let bundle = bundle.unfold_symmetries();
         let n_texels = bundle.layout.n_texels();
 
         // Transport entries grouped by target block.
@@ -474,6 +481,7 @@ impl Runtime {
             entry_order,
             entry_opening,
             ld: vec![0.0; 3 * n_texels],
+            direct_padded: vec![[0.0; 4]; if ops.gather.is_some() { n_texels } else { 0 }],
             b: vec![0.0; n_coef],
             lf: vec![0.0; n_lf],
             clutter_coef,
@@ -906,9 +914,10 @@ impl Runtime {
     }
 
     /// DRT exact clutter gather: sparse rows over the direct light (albedo-free).
-    fn add_direct_gather(&self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+    fn add_direct_gather(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
         if let Some(g) = &self.ops.gather {
-            g.add_to(direct, out);
+            crate::packed_gather::pad_direct(direct, &mut self.direct_padded);
+            g.add_to_padded(&self.direct_padded, out);
         }
     }
 
@@ -1014,16 +1023,19 @@ mod tests {
         ];
         let blocks = vec![
             BlockOps {
+                symmetry: None,
                 id: "a".into(),
                 shape: 0,
                 texel_offset: 0,
             },
             BlockOps {
+                symmetry: None,
                 id: "b".into(),
                 shape: 1,
                 texel_offset: 4,
             },
             BlockOps {
+                symmetry: None,
                 id: "c".into(),
                 shape: 0,
                 texel_offset: 15,
@@ -1136,11 +1148,13 @@ mod tests {
         ];
         let blocks = vec![
             BlockOps {
+                symmetry: None,
                 id: "a".into(),
                 shape: 0,
                 texel_offset: 0,
             },
             BlockOps {
+                symmetry: None,
                 id: "b".into(),
                 shape: 1,
                 texel_offset: 4,

@@ -74,6 +74,7 @@ fn bundle(n: usize) -> Bundle {
             openings: vec![],
         }],
         blocks: vec![BlockOps {
+            symmetry: None,
             id: "strip".into(),
             shape: 0,
             texel_offset: 0,

@@ -23,11 +23,19 @@ use crate::container::{read_sections, write_container, ContainerError, SectionIn
 use crate::wire::{Reader, WireError, Writer};
 
 mod sh_responses;
+mod symmetric_blocks;
 pub use sh_responses::{ShEntry, ShResponses};
+pub use symmetric_blocks::BlockSymmetry;
 
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
-pub const BUNDLE_MAJOR: u16 = 1;
-pub const BUNDLE_MINOR: u16 = 3;
+/// Format 2.0: blocks may instance a shape through a box symmetry (section kind 14) and 8-bit
+/// matrices may be stored predicted (codec tags 4 and 5). A 1.x reader refuses it by its major
+/// version; this reader still reads 1.x bundles (kind 3 blocks, tags 0–3).
+pub const BUNDLE_MAJOR: u16 = 2;
+pub const BUNDLE_MINOR: u16 = 0;
+/// The oldest major version this reader decodes.
+pub const OLDEST_READABLE_MAJOR: u16 = 1;
+const READABLE_MAJORS: std::ops::RangeInclusive<u16> = OLDEST_READABLE_MAJOR..=BUNDLE_MAJOR;
 
 /// Section kinds.
 pub mod section {
@@ -54,6 +62,9 @@ pub mod section {
     /// [`DRT_LOW_RANK`] only when that list is not empty, so an older reader skips it and
     /// lights the scene by MRT alone rather than adding the gather on top of MRT.
     pub const DRT_REPLACING: u32 = 13;
+    /// Blocks of format 2: [`BLOCKS`]' records plus each block's box symmetry and closed faces
+    /// ([`super::BlockSymmetry`]). Written instead of [`BLOCKS`] by 2.x writers.
+    pub const BLOCKS_SYMMETRIC: u32 = 14;
 }
 
 /// Report name of a section kind.
@@ -71,6 +82,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::DRT_LOW_RANK => "drt",
         section::LIGHTMAP => "lightmap",
         section::DRT_REPLACING => "drt",
+        section::BLOCKS_SYMMETRIC => "blocks",
         _ => "unknown",
     }
 }
@@ -253,6 +265,9 @@ pub struct BlockOps {
     pub id: String,
     pub shape: u32,
     pub texel_offset: u32,
+    /// The box symmetry taking the block's frame to its shape's (None: the identity): block
+    /// texel `x` is the shape's texel `perm[x]` ([`BlockSymmetry::texel_permutation`]).
+    pub symmetry: Option<BlockSymmetry>,
 }
 
 /// Lightfield transport: reduced incoming lightfield at `(target_block, target_face)` from
@@ -634,13 +649,8 @@ impl Bundle {
         sections.push((section::SHAPES, w.bytes));
 
         let mut w = Writer::new();
-        w.u32(self.blocks.len() as u32);
-        for b in &self.blocks {
-            w.str(&b.id);
-            w.u32(b.shape);
-            w.u32(b.texel_offset);
-        }
-        sections.push((section::BLOCKS, w.bytes));
+        symmetric_blocks::write_blocks(&mut w, &self.blocks);
+        sections.push((section::BLOCKS_SYMMETRIC, w.bytes));
 
         if let Some(t) = &self.transport {
             let mut w = Writer::new();
@@ -749,7 +759,7 @@ impl Bundle {
     /// Decodes and validates a whole bundle. Any byte string gives `Ok` or `Err`, never a
     /// panic; a bundle cut short (no table of contents) is an error.
     pub fn decode(bytes: &[u8]) -> Result<Bundle, BundleError> {
-        let sections = read_sections(bytes, BUNDLE_MAJOR, is_known_section, false)?;
+        let sections = read_sections(bytes, READABLE_MAJORS, is_known_section, false)?;
         Bundle::from_sections(sections.sections)
     }
 
@@ -757,7 +767,7 @@ impl Bundle {
     /// before the cut, validated together. Needs the layout, shape and block sections (the
     /// first three); the MRT transport, DRT and probe sections are used when present.
     pub fn decode_prefix(bytes: &[u8]) -> Result<PartialBundle, BundleError> {
-        let sections = read_sections(bytes, BUNDLE_MAJOR, is_known_section, true)?;
+        let sections = read_sections(bytes, READABLE_MAJORS, is_known_section, true)?;
         let present = sections
             .sections
             .iter()
@@ -781,6 +791,7 @@ impl Bundle {
                 section::LAYOUT => layout = Some(Layout::read(&mut p)?),
                 section::SHAPES => shapes = Some(read_shapes(&mut p)?),
                 section::BLOCKS => blocks = Some(read_blocks(&mut p)?),
+                section::BLOCKS_SYMMETRIC => blocks = Some(symmetric_blocks::read_blocks(&mut p)?),
                 section::TRANSPORT => transport = Some(read_transport(&mut p)?),
                 section::FULL => full = Some(read_full(&mut p)?),
                 section::DRT | section::DRT_LOW_RANK => drt = Some(read_drt(&mut p)?),
@@ -907,6 +918,11 @@ impl Bundle {
                 ));
             }
             next_free = b.texel_offset as u64 + shape.u_b.rows as u64;
+            if let Some(sym) = &b.symmetry {
+                if let Err(e) = sym.check(shape) {
+                    return bad(format!("block {}: {e}", b.id));
+                }
+            }
         }
         let block_shape = |i: u32| -> Option<&ShapeOps> {
             self.blocks
@@ -1213,6 +1229,7 @@ fn read_blocks(r: &mut Reader) -> Result<Vec<BlockOps>, BundleError> {
             id: r.str()?,
             shape: r.u32()?,
             texel_offset: r.u32()?,
+            symmetry: None,
         });
     }
     Ok(out)

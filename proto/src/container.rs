@@ -127,6 +127,7 @@ fn write_section(w: &mut Writer, kind: u32, flags: u32, stored: &[u8], raw_len: 
 /// The sections read from a container, in file order, decompressed.
 #[derive(Debug, Default)]
 pub struct Sections {
+    pub major: u16,
     pub minor: u16,
     pub sections: Vec<(u32, Vec<u8>)>,
     /// Whether the closing table of contents (and footer) was present and consistent.
@@ -139,7 +140,7 @@ pub struct Sections {
 /// without it, anything short of a full, consistent container is an error.
 pub fn read_sections(
     bytes: &[u8],
-    major: u16,
+    majors: std::ops::RangeInclusive<u16>,
     known: impl Fn(u32) -> bool,
     allow_truncated: bool,
 ) -> Result<Sections, ContainerError> {
@@ -149,13 +150,14 @@ pub fn read_sections(
     }
     let found = u16::from_le_bytes(r.take(2)?.try_into().unwrap());
     let minor = u16::from_le_bytes(r.take(2)?.try_into().unwrap());
-    if found != major {
+    if !majors.contains(&found) {
         return Err(ContainerError::Version {
             found,
-            known: major,
+            known: *majors.end(),
         });
     }
     let mut out = Sections {
+        major: found,
         minor,
         ..Sections::default()
     };
@@ -294,7 +296,7 @@ mod tests {
         let (bytes, infos) = write_container(1, 0, &sample(), 3);
         assert!(infos[0].compressed && infos[0].stored_len < infos[0].raw_len);
         assert!(!infos[1].compressed, "incompressible payload stored raw");
-        let s = read_sections(&bytes, 1, |k| k != 99, false).unwrap();
+        let s = read_sections(&bytes, 1..=1, |k| k != 99, false).unwrap();
         assert!(s.complete);
         assert_eq!(s.sections, sample()[..2].to_vec());
     }
@@ -304,11 +306,11 @@ mod tests {
         let (bytes, _) = write_container(1, 0, &sample(), 3);
         let mut last = 0;
         for cut in 12..bytes.len() {
-            let s = read_sections(&bytes[..cut], 1, |_| true, true).unwrap();
+            let s = read_sections(&bytes[..cut], 1..=1, |_| true, true).unwrap();
             assert!(!s.complete);
             assert!(s.sections.len() >= last);
             last = s.sections.len();
-            assert!(read_sections(&bytes[..cut], 1, |_| true, false).is_err());
+            assert!(read_sections(&bytes[..cut], 1..=1, |_| true, false).is_err());
         }
         assert_eq!(last, 3);
     }
@@ -317,14 +319,14 @@ mod tests {
     fn other_major_and_flipped_bytes_are_errors() {
         let (bytes, _) = write_container(1, 0, &sample(), 3);
         assert_eq!(
-            read_sections(&bytes, 2, |_| true, false).unwrap_err(),
+            read_sections(&bytes, 2..=2, |_| true, false).unwrap_err(),
             ContainerError::Version { found: 1, known: 2 }
         );
         for k in 12..bytes.len() {
             let mut b = bytes.clone();
             b[k] ^= 0x40;
             assert!(
-                read_sections(&b, 1, |_| true, false).is_err(),
+                read_sections(&b, 1..=1, |_| true, false).is_err(),
                 "flip at {k} went unnoticed"
             );
         }
@@ -335,7 +337,7 @@ mod tests {
         let (mut bytes, _) = write_container(1, 0, &[(1, vec![0u8; 4096])], 3);
         // raw_len sits at offset 12 + 4 + 4 + 8.
         bytes[24..32].copy_from_slice(&(1u64 << 40).to_le_bytes());
-        let err = read_sections(&bytes, 1, |_| true, false).unwrap_err();
+        let err = read_sections(&bytes, 1..=1, |_| true, false).unwrap_err();
         assert!(
             matches!(err, ContainerError::Section { kind: 1, .. }),
             "{err}"
@@ -349,8 +351,8 @@ mod tests {
             let mut b = MAGIC.to_vec();
             b.extend_from_slice(&[1, 0, 0, 0]);
             b.extend_from_slice(&bytes);
-            let _ = read_sections(&b, 1, |_| true, true);
-            let _ = read_sections(&bytes, 1, |_| true, false);
+            let _ = read_sections(&b, 1..=1, |_| true, true);
+            let _ = read_sections(&bytes, 1..=1, |_| true, false);
         }
     }
 }

@@ -15,6 +15,7 @@
 //! Invariant: this crate does no light-transport math and no I/O beyond bytes and strings.
 
 pub mod api;
+pub mod box_symmetry;
 pub mod bundle;
 pub mod codec;
 pub mod container;

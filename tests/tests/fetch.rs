@@ -47,6 +47,7 @@ fn bundle_bytes(seed: u32) -> Vec<u8> {
             openings: vec![],
         }],
         blocks: vec![BlockOps {
+            symmetry: None,
             id: "a".into(),
             shape: 0,
             texel_offset: 0,

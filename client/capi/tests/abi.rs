@@ -46,6 +46,7 @@ fn two_texel_bundle() -> Vec<u8> {
             openings: vec![],
         }],
         blocks: vec![BlockOps {
+            symmetry: None,
             id: "room".into(),
             shape: 0,
             texel_offset: 0,

@@ -67,6 +67,7 @@ fn bundle(n: usize) -> Vec<u8> {
             openings: vec![],
         }],
         blocks: vec![BlockOps {
+            symmetry: None,
             id: "strip".into(),
             shape: 0,
             texel_offset: 0,

@@ -46,6 +46,7 @@ pub mod sh_gather;
 pub mod sh_response;
 pub mod shape;
 pub mod shape_cache;
+pub mod shape_symmetry;
 pub mod tracer;
 pub mod transport;
 pub mod transport_cache;

@@ -31,10 +31,12 @@ use super::progress::Progress;
 use super::sh_response::{build_sh_responses, ShResponseStats};
 use super::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
 use super::shape_cache::{Lookup, ShapeCache};
+use super::shape_symmetry::instance_operators;
 use super::tracer::Tracer;
 use super::transport::{lightfield_transport, traced_transport, MrtTransport, TransportStats};
 use super::transport_cache::{transport_key, CachedTransport, TransportCache};
 use super::transport_compaction::compact_transport;
+use lightfarm_proto::box_symmetry::BoxSymmetry;
 
 /// What to bake beyond the scene's own settings.
 #[derive(Clone, Debug, Default)]
@@ -272,16 +274,75 @@ pub fn surface_atlases_of(g: &Geometry, layout: &Layout) -> Vec<bundle::SurfaceA
         .collect()
 }
 
-/// The scene's blocks' shape operators, deduplicated by content key.
+/// The scene's blocks' shape operators, deduplicated by content key up to box symmetry: blocks
+/// that are rotations or mirror images of one another share one canonical shape
+/// (`ShapeSpec::canonical`), baked, cached and shipped once.
 pub struct ShapePlan {
-    /// One per block.
+    /// One per block: its own spec, in its own frame.
     pub specs: Vec<ShapeSpec>,
-    /// Unique shape keys, in order of first use.
+    /// Unique canonical shape keys, in order of first use.
     pub unique: Vec<String>,
-    /// Per unique shape, the first block (index into `specs`) that uses it.
-    pub unique_spec: Vec<usize>,
+    /// Per unique shape, its canonical spec (what is baked and cached).
+    pub unique_specs: Vec<ShapeSpec>,
     /// Per block, its unique shape.
     pub shape_index: Vec<usize>,
+    /// Per block, the symmetry taking its frame to its shape's.
+    pub symmetry: Vec<BoxSymmetry>,
+}
+
+impl ShapePlan {
+    /// Per block, the key of the operators it applies: its shape's key, and the symmetry when
+    /// it is not the identity (what the transport cache is keyed by).
+    pub fn block_keys(&self) -> Vec<String> {
+        self.shape_index
+            .iter()
+            .zip(&self.symmetry)
+            .map(|(i, g)| {
+                if g.is_identity() {
+                    self.unique[*i].clone()
+                } else {
+                    format!("{}~{}", self.unique[*i], g.code())
+                }
+            })
+            .collect()
+    }
+
+    /// Each block's operators in its own frame, from the unique shapes' (`unique[i]` for shape
+    /// `i`): the shape's own for an identity block, else an instance (one per distinct shape and
+    /// symmetry), returned alongside for the caller to keep.
+    pub fn instances(&self, unique: &[&ShapeOperators]) -> Vec<ShapeOperators> {
+        let mut made: Vec<(usize, BoxSymmetry)> = Vec::new();
+        let mut out = Vec::new();
+        for (b, g) in self.symmetry.iter().enumerate() {
+            let shape = self.shape_index[b];
+            if g.is_identity() || made.contains(&(shape, *g)) {
+                continue;
+            }
+            made.push((shape, *g));
+            out.push(instance_operators(unique[shape], &self.specs[b], *g));
+        }
+        out
+    }
+
+    /// Per block, its operators: `unique[shape]`, or its entry of `instances` (from
+    /// [`ShapePlan::instances`]).
+    pub fn per_block<'a>(
+        &self,
+        unique: &[&'a ShapeOperators],
+        instances: &'a [ShapeOperators],
+    ) -> Vec<&'a ShapeOperators> {
+        let keys = self.block_keys();
+        self.shape_index
+            .iter()
+            .zip(&keys)
+            .map(|(i, key)| {
+                instances
+                    .iter()
+                    .find(|o| o.key == *key)
+                    .unwrap_or(unique[*i])
+            })
+            .collect()
+    }
 }
 
 /// Which shape each block uses, and the unique shapes.
@@ -292,23 +353,27 @@ pub fn shape_plan(scene: &Scene) -> ShapePlan {
         .map(|b| ShapeSpec::for_block(&b.aabb(), &b.open, &scene.settings, &scene.light_regions))
         .collect();
     let mut unique: Vec<String> = Vec::new();
-    let mut unique_spec = Vec::new();
+    let mut unique_specs = Vec::new();
     let mut shape_index: Vec<usize> = Vec::new();
+    let mut symmetry = Vec::new();
     let mut key_to_index: HashMap<String, usize> = HashMap::new();
-    for (b, spec) in specs.iter().enumerate() {
-        let key = spec.key();
+    for spec in &specs {
+        let (canonical, g) = spec.canonical();
+        let key = canonical.key();
         let idx = *key_to_index.entry(key.clone()).or_insert_with(|| {
             unique.push(key);
-            unique_spec.push(b);
+            unique_specs.push(canonical);
             unique.len() - 1
         });
         shape_index.push(idx);
+        symmetry.push(g);
     }
     ShapePlan {
         specs,
         unique,
-        unique_spec,
+        unique_specs,
         shape_index,
+        symmetry,
     }
 }
 
@@ -434,12 +499,11 @@ pub fn bake(
     // Shape operators, deduplicated by content key.
     let plan = shape_plan(scene);
     let ShapePlan {
-        specs,
         unique,
-        unique_spec,
+        unique_specs,
         shape_index,
+        ..
     } = &plan;
-    let unique_specs: Vec<&ShapeSpec> = unique_spec.iter().map(|i| &specs[*i]).collect();
     report.unique_shapes = unique.len();
     let mut shapes: Vec<Arc<ShapeOperators>> = Vec::new();
     let mut to_compute: Vec<usize> = Vec::new();
@@ -463,7 +527,7 @@ pub fn bake(
         .sum();
     progress.stage("shape operators", texels_to_do);
     for i in to_compute {
-        let ops = bake_shape(unique_specs[i], &|n| progress.advance(n))?;
+        let ops = bake_shape(&unique_specs[i], &|n| progress.advance(n))?;
         if let Some(cache) = &options.cache {
             cache.put(&ops)?;
         }
@@ -478,14 +542,16 @@ pub fn bake(
     report.ranks = shapes.iter().map(|s| s.rank()).collect();
     lap(&mut report, "shape operators");
 
-    let per_block: Vec<&ShapeOperators> = shape_index.iter().map(|i| shapes[*i].as_ref()).collect();
+    let unique_refs: Vec<&ShapeOperators> = shapes.iter().map(|s| s.as_ref()).collect();
+    let instances = plan.instances(&unique_refs);
+    let per_block = plan.per_block(&unique_refs, &instances);
     // Inter-block transport: of the blocks alone, so cached by the blocks and their shapes.
     let transport_kind = options.transport.unwrap_or(settings.transport);
     let transport_cache = match &options.cache {
         Some(c) => Some(TransportCache::open(c.dir())?),
         None => None,
     };
-    let block_shape_keys: Vec<String> = shape_index.iter().map(|i| unique[*i].clone()).collect();
+    let block_shape_keys = plan.block_keys();
     let transport_key = transport_key(scene, transport_kind, &block_shape_keys);
     let cached = transport_cache.as_ref().and_then(|c| c.get(&transport_key));
     report.transport_from_cache = cached.is_some();
@@ -578,6 +644,10 @@ pub fn bake(
             .iter()
             .enumerate()
             .map(|(b, block)| bundle::BlockOps {
+                symmetry: (!plan.symmetry[b].is_identity()).then(|| bundle::BlockSymmetry {
+                    symmetry: plan.symmetry[b],
+                    closed: bundle::BlockSymmetry::mask(&block.closed_faces()),
+                }),
                 id: block.id.clone(),
                 shape: shape_index[b] as u32,
                 texel_offset: full_geometry.block_texels[b].start as u32,

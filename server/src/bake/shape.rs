@@ -21,6 +21,7 @@ use std::time::Instant;
 use faer::Mat;
 use rayon::prelude::*;
 
+use lightfarm_proto::box_symmetry::BoxSymmetry;
 use lightfarm_proto::scene::{Aabb, Settings};
 use lightfarm_proto::wire::{Reader, WireError, Writer};
 use lightfarm_proto::Face;
@@ -117,6 +118,73 @@ impl ShapeSpec {
         }
     }
 
+    /// The same shape seen in the frame `g` takes this one's to: extents permuted, open faces
+    /// and the light region mapped (`lightfarm_proto::box_symmetry`).
+    pub fn transformed(&self, g: BoxSymmetry) -> ShapeSpec {
+        let mut open: Vec<Face> = self.open.iter().map(|f| g.map_face(*f)).collect();
+        open.sort();
+        let light_region = self.light_region.map(|r| {
+            let a = g.map_point(r.min, self.extent);
+            let b = g.map_point(r.max, self.extent);
+            Aabb {
+                min: [a[0].min(b[0]), a[1].min(b[1]), a[2].min(b[2])],
+                max: [a[0].max(b[0]), a[1].max(b[1]), a[2].max(b[2])],
+            }
+        });
+        ShapeSpec {
+            extent: g.map_extent(self.extent),
+            open,
+            light_region,
+            ..self.clone()
+        }
+    }
+
+    /// The canonical member of this shape's orbit under the 48 box symmetries and the symmetry
+    /// taking this shape's frame to it. Blocks that are rotations or mirror images of one
+    /// another get the same canonical spec, so their operators are baked, cached and shipped
+    /// once (`super::shape_symmetry`).
+    ///
+    /// The choice depends on the shape's form, never on its size: the orbit member with the
+    /// smallest [`ShapeSpec::form`] (how the extents compare, which faces are open, the light
+    /// region relative to the extents), the first symmetry in code order on ties. A level
+    /// scaled by any factor picks the same orientation, so its operators scale with it.
+    pub fn canonical(&self) -> (ShapeSpec, BoxSymmetry) {
+        let mut best: Option<(Form, ShapeSpec, BoxSymmetry)> = None;
+        for g in BoxSymmetry::all() {
+            let spec = self.transformed(g);
+            let form = spec.form();
+            if best.as_ref().is_none_or(|(f, _, _)| form.precedes(f)) {
+                best = Some((form, spec, g));
+            }
+        }
+        let (_, spec, g) = best.expect("48 symmetries");
+        (spec, g)
+    }
+
+    /// What orders the members of an orbit, free of the shape's scale.
+    fn form(&self) -> Form {
+        let e = self.extent;
+        let order = [
+            e[0].total_cmp(&e[1]),
+            e[0].total_cmp(&e[2]),
+            e[1].total_cmp(&e[2]),
+        ];
+        let open = self.open.iter().fold(0u8, |m, f| m | 1 << f.index());
+        let region = self.light_region.map(|r| {
+            let mut v = [0.0; 6];
+            for k in 0..3 {
+                v[k] = r.min[k] / e[k];
+                v[3 + k] = r.max[k] / e[k];
+            }
+            v
+        });
+        Form {
+            order,
+            open,
+            region,
+        }
+    }
+
     /// Content key: a hash of everything the operators depend on, and the code version.
     pub fn key(&self) -> String {
         let mut h = blake3::Hasher::new();
@@ -186,6 +254,30 @@ impl ShapeSpec {
             cells: self.lightfield_cells,
             dirs: self.lightfield_directions,
         }
+    }
+}
+
+/// A shape's form for choosing the canonical orientation ([`ShapeSpec::canonical`]).
+struct Form {
+    order: [std::cmp::Ordering; 3],
+    open: u8,
+    region: Option<[f64; 6]>,
+}
+
+impl Form {
+    fn precedes(&self, other: &Form) -> bool {
+        let region = |f: &Form| f.region.map_or([f64::NEG_INFINITY; 6], |r| r);
+        let (a, b) = (region(self), region(other));
+        let regions = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| x.total_cmp(y))
+            .find(|o| o.is_ne())
+            .unwrap_or(std::cmp::Ordering::Equal);
+        (self.order, self.open)
+            .cmp(&(other.order, other.open))
+            .then(regions)
+            .is_lt()
     }
 }
 

@@ -128,11 +128,7 @@ pub fn unit_inputs(
 }
 
 fn transport_file(scene: &Scene, shapes: &super::pipeline::ShapePlan) -> PathBuf {
-    let keys: Vec<String> = shapes
-        .shape_index
-        .iter()
-        .map(|i| shapes.unique[*i].clone())
-        .collect();
+    let keys = shapes.block_keys();
     TransportCache::relative_path(&transport_key(scene, scene.settings.transport, &keys))
 }
 
@@ -210,7 +206,7 @@ pub fn run_unit(
         BakeUnit::Shape { index } => {
             let key = shapes.unique.get(*index).ok_or_else(|| unknown(unit))?;
             if !matches!(cache.get(key), Lookup::Hit(_)) {
-                let spec = &shapes.specs[shapes.unique_spec[*index]];
+                let spec = &shapes.unique_specs[*index];
                 progress.stage("shape operators", spec.n_texels() as u64);
                 let ops = bake_shape(spec, &|n| progress.advance(n))?;
                 cache.put(&ops)?;
@@ -218,11 +214,7 @@ pub fn run_unit(
         }
         BakeUnit::Transport => {
             let transport_cache = TransportCache::open(cache.dir())?;
-            let keys: Vec<String> = shapes
-                .shape_index
-                .iter()
-                .map(|i| shapes.unique[*i].clone())
-                .collect();
+            let keys = shapes.block_keys();
             let key = transport_key(scene, scene.settings.transport, &keys);
             if transport_cache.get(&key).is_none() {
                 let mut unique: Vec<ShapeOperators> = Vec::new();
@@ -236,8 +228,9 @@ pub fn run_unit(
                         }
                     }
                 }
-                let per_block: Vec<&ShapeOperators> =
-                    shapes.shape_index.iter().map(|i| &unique[*i]).collect();
+                let unique_refs: Vec<&ShapeOperators> = unique.iter().collect();
+                let instances = shapes.instances(&unique_refs);
+                let per_block = shapes.per_block(&unique_refs, &instances);
                 let computed = mrt_transport(
                     scene,
                     &Geometry::blocks_only(scene),
