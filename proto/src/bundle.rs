@@ -17,7 +17,8 @@
 //! is consistent and finite, so the runtime can index without checks; it never panics.
 
 use crate::codec::{
-    choose_encoding, read_matrix, u8_step_name, write_matrix_step, CodecPolicy, MatrixCodec,
+    choose_encoding, read_matrix, smaller_u8_form, u8_step_name, write_matrix_step, CodecPolicy,
+    MatrixCodec,
 };
 use crate::container::{read_sections, write_container, ContainerError, SectionInfo};
 use crate::wire::{Reader, WireError, Writer};
@@ -148,13 +149,18 @@ impl MatrixEncoder {
     fn write(&mut self, w: &mut Writer, m: &Matrix) {
         let (rows, cols) = (m.rows as usize, m.cols as usize);
         let (codec, step, error) = choose_encoding(&m.data, rows, cols, self.policy);
+        // Lossless: an 8-bit matrix's q go plain or as prediction residuals, whichever is
+        // smaller; both decode to the same values.
+        let codec = smaller_u8_form(&m.data, rows, cols, codec, step);
         write_matrix_step(w, &m.data, rows, cols, codec, step);
-        let name = match codec {
-            MatrixCodec::U8Columns | MatrixCodec::U8Rows => u8_step_name(step),
-            _ => codec.name(),
+        let name = if codec.is_u8() {
+            u8_step_name(step)
+        } else {
+            codec.name()
         };
         let usage = self.report.codecs.entry(name).or_default();
         usage.matrices += 1;
+        usage.predicted += codec.is_predicted() as u64;
         usage.values += (rows * cols) as u64;
         usage.bytes += codec.value_bytes(rows, cols) as u64;
         self.report.max_codec_error = self.report.max_codec_error.max(error);
@@ -185,6 +191,8 @@ impl Default for EncodeOptions {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct CodecUsage {
     pub matrices: u64,
+    /// Of those, 8-bit matrices stored as prediction residuals (codec tags 4 and 5).
+    pub predicted: u64,
     pub values: u64,
     /// Bytes of the values before compression.
     pub bytes: u64,
@@ -195,7 +203,8 @@ pub struct CodecUsage {
 pub struct EncodeReport {
     /// Per section in file order: its name and sizes.
     pub sections: Vec<(&'static str, SectionInfo)>,
-    /// Per codec name (`f32`, `f16`, `u8`).
+    /// Per codec name (`f32`, `f16`, `u8` or a coarser 8-bit grid's [`u8_step_name`]; plain
+    /// and predicted 8-bit matrices count under the same name).
     pub codecs: std::collections::BTreeMap<&'static str, CodecUsage>,
     /// Largest relative RMS error a codec added to one matrix.
     pub max_codec_error: f64,

@@ -101,7 +101,14 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
         let codecs: Vec<String> = encoded
             .codecs
             .iter()
-            .map(|(n, u)| format!("{n} {} matrices {} values", u.matrices, u.values))
+            .map(|(n, u)| {
+                let predicted = if u.predicted > 0 {
+                    format!(" ({} predicted)", u.predicted)
+                } else {
+                    String::new()
+                };
+                format!("{n} {} matrices{predicted} {} values", u.matrices, u.values)
+            })
             .collect();
         eprintln!(
             "codecs: {}; largest codec error {:.2e}",
