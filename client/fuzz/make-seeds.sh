@@ -2,6 +2,8 @@
 # Regenerates the decode fuzz seeds (tiny bundles in every codec and both transports) from
 # seed-scene.json after a bundle-format change. Run from the repository root after
 # `cargo build --release`.
+# tiny-u8-format1.lfb is kept as it is: a 1.x bundle (kind-3 blocks, CSR gather), so the
+# fuzzer still reaches the reader's 1.x paths.
 set -euo pipefail
 out=client/fuzz/corpus/decode
 bin=${LIGHTFARM_BIN:-./target/release/lightfarm}

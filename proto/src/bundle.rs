@@ -23,6 +23,7 @@ use crate::codec::{
 use crate::container::{read_sections, write_container, ContainerError, SectionInfo};
 use crate::wire::{Reader, WireError, Writer};
 
+mod gather_encoding;
 mod sh_responses;
 mod symmetric_blocks;
 pub use sh_responses::{ShEntry, ShResponses};
@@ -706,16 +707,7 @@ impl Bundle {
             }
             write_entries(&mut w, &d.entries, enc);
             w.u32s(&d.buried);
-            match &d.direct_gather {
-                Some(g) => {
-                    w.u8(1);
-                    w.u32s(&g.rows);
-                    w.u32s(&g.row_start);
-                    w.u32s(&g.cols);
-                    w.f32s(&g.values);
-                }
-                None => w.u8(0),
-            }
+            gather_encoding::write_gather(&mut w, d.direct_gather.as_ref());
             let kind = if !d.replaced.is_empty() {
                 w.u32s(&d.replaced);
                 section::DRT_REPLACING
@@ -1308,20 +1300,7 @@ fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
     }
     let entries = read_entries(r)?;
     let buried = r.u32s()?;
-    let direct_gather = match r.u8()? {
-        0 => None,
-        1 => Some(TexelGather {
-            rows: r.u32s()?,
-            row_start: r.u32s()?,
-            cols: r.u32s()?,
-            values: r.f32s()?,
-        }),
-        k => {
-            return Err(BundleError::Invalid(format!(
-                "drt: unknown gather flag {k}"
-            )))
-        }
-    };
+    let direct_gather = gather_encoding::read_gather(r)?;
     Ok(DrtOps {
         clutter,
         entries,

@@ -114,7 +114,8 @@ fn drt_section(
             clutter,
             entries: ops.entries.iter().map(to_entry).collect(),
             buried: ops.buried.clone(),
-            direct_gather: ops.direct_gather.clone(),
+            // In the form the bundle stores it (rows by column), so it decodes as it is here.
+            direct_gather: ops.direct_gather.as_ref().map(|g| g.sorted()),
             replaced: ops.replaced.clone(),
         };
         return Ok((drt, None));
@@ -149,7 +150,7 @@ fn drt_section(
         let (gathered, rest) =
             compact_gather(g, &ranges, settings.tolerance, &mut stats).map_err(low_rank)?;
         entries.extend(gathered);
-        direct_gather = rest;
+        direct_gather = rest.map(|g| g.sorted());
     }
     let drt = bundle::DrtOps {
         clutter,

@@ -165,9 +165,9 @@ impl ShapeSpec {
     fn form(&self) -> Form {
         let e = self.extent;
         let order = [
-            e[0].total_cmp(&e[1]),
-            e[0].total_cmp(&e[2]),
-            e[1].total_cmp(&e[2]),
+            compare_lengths(e[0], e[1]),
+            compare_lengths(e[0], e[2]),
+            compare_lengths(e[1], e[2]),
         ];
         let open = self.open.iter().fold(0u8, |m, f| m | 1 << f.index());
         let region = self.light_region.map(|r| {
@@ -257,6 +257,17 @@ impl ShapeSpec {
     }
 }
 
+/// Orders two lengths, equal within a relative 1e-9: extents computed as `max − min` at
+/// another scale round differently (`7s − 4s` vs `3s`), and the canonical orientation must not
+/// change with them.
+fn compare_lengths(a: f64, b: f64) -> std::cmp::Ordering {
+    if (a - b).abs() <= 1e-9 * a.abs().max(b.abs()) {
+        std::cmp::Ordering::Equal
+    } else {
+        a.total_cmp(&b)
+    }
+}
+
 /// A shape's form for choosing the canonical orientation ([`ShapeSpec::canonical`]).
 struct Form {
     order: [std::cmp::Ordering; 3],
@@ -271,7 +282,7 @@ impl Form {
         let regions = a
             .iter()
             .zip(&b)
-            .map(|(x, y)| x.total_cmp(y))
+            .map(|(x, y)| compare_lengths(*x, *y))
             .find(|o| o.is_ne())
             .unwrap_or(std::cmp::Ordering::Equal);
         (self.order, self.open)

@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# Bytes against error for the maze with its four pillars at 8 texels per face (issue 6): bakes
+# it at several rank tolerances and codec budgets and prints each bundle's bytes per section and
+# its mean relative L2 (all texels, texels within 1 m of clutter, clutter texels) over seeded
+# random light sets (the generator of scripts/drt_figures.sh) against 16k-ray references.
+# Usage: scripts/bundle_error_sweep.sh [OUT_DIR] [SETS]   (needs `cargo build --release`;
+# about 1 min per set for the references, then seconds per variant)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+repo=$PWD
+LF=$repo/target/release/lightfarm
+out=${1:-out/bundle-error-sweep}
+sets=${2:-7}
+mkdir -p "$out"
+cd "$out"
+python3 - "$repo" "$sets" <<'PY'
+import json, sys, random
+repo, sets = sys.argv[1], int(sys.argv[2])
+s = json.load(open(f"{repo}/scenes/maze/scene.json"))
+s["settings"].update({"texels_per_face": 8, "rays_per_texel": 1024, "tolerance": 0.01})
+json.dump(s, open("maze.json", "w"), indent=1)
+boxes = [c["box"] for c in s["clutter"]]
+def clear(p):
+    return all(not all(b["min"][k] - 0.3 < p[k] < b["max"][k] + 0.3 for k in range(3)) for b in boxes)
+for i in range(sets):
+    rng = random.Random(1000 * len("maze") + i)
+    lights = []
+    for _ in range(1 + rng.randrange(4)):
+        for _ in range(1000):
+            b = rng.choice(s["blocks"])
+            p = [rng.uniform(b["min"][k] + 0.3, b["max"][k] - 0.3) for k in range(3)]
+            if clear(p):
+                break
+        base = rng.uniform(2.0, 20.0)
+        lights.append({"kind": "point", "position": p, "intensity": [base * rng.uniform(0.8, 1.0) for _ in range(3)]})
+    json.dump({"lights": lights, "poses": []}, open(f"lights{i}.json", "w"), indent=1)
+for tol in ["0.01", "0.02", "0.03"]:
+    for budget in ["0.02", "0.05"]:
+        v = json.loads(json.dumps(s))
+        v["settings"].update({"tolerance": float(tol), "codec_error": float(budget)})
+        json.dump(v, open(f"maze-t{tol}-c{budget}.json", "w"), indent=1)
+PY
+for i in $(seq 0 $((sets - 1))); do
+  [ -f "ref$i.json" ] || $LF reference maze.json --lights "lights$i.json" --rays 16384 -o "ref$i.json" > /dev/null 2>&1
+done
+echo "| tolerance | codec_error | bytes | shapes | transport | drt | all texels | within 1 m of clutter | clutter texels |"
+echo "|---|---|---:|---:|---:|---:|---:|---:|---:|"
+for v in maze-t*.json; do
+  log=$($LF bake "$v" -o "${v%.json}.lfb" --cache cache 2>&1)
+  bytes=$(echo "$log" | sed -n 's/.*bytes=\([0-9]*\).*/\1/p')
+  sec() { echo "$log" | sed -n "s/.*[ ,]$1 \([0-9]*\)\/.*/\1/p"; }
+  errs=$(for i in $(seq 0 $((sets - 1))); do
+    $LF eval "${v%.json}.lfb" --lights "lights$i.json" -o "res$i.json" > /dev/null
+    a=$($LF compare "res$i.json" "ref$i.json" | tail -1 | sed 's/relative_l2=\([^ ]*\).*/\1/')
+    n=$($LF compare "res$i.json" "ref$i.json" --scene maze.json --near-clutter 1 | tail -1 | sed 's/relative_l2=\([^ ]*\).*/\1/')
+    c=$($LF compare "res$i.json" "ref$i.json" --only clutter: | tail -1 | sed 's/relative_l2=\([^ ]*\).*/\1/')
+    echo "$a $n $c"
+  done | awk '{a+=$1; n+=$2; c+=$3} END {printf "%.4f | %.4f | %.4f", a/NR, n/NR, c/NR}')
+  t=$(echo "$v" | sed 's/maze-t\(.*\)-c\(.*\).json/\1 | \2/')
+  echo "| $t | $bytes | $(sec shapes) | $(sec transport) | $(sec drt) | $errs |"
+done
