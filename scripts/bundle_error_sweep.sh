@@ -13,33 +13,19 @@ out=${1:-out/bundle-error-sweep}
 sets=${2:-7}
 mkdir -p "$out"
 cd "$out"
-python3 - "$repo" "$sets" <<'PY'
-import json, sys, random
-repo, sets = sys.argv[1], int(sys.argv[2])
+python3 - "$repo" <<'PY'
+import json, sys
+repo = sys.argv[1]
 s = json.load(open(f"{repo}/scenes/maze/scene.json"))
 s["settings"].update({"texels_per_face": 8, "rays_per_texel": 1024, "tolerance": 0.01})
 json.dump(s, open("maze.json", "w"), indent=1)
-boxes = [c["box"] for c in s["clutter"]]
-def clear(p):
-    return all(not all(b["min"][k] - 0.3 < p[k] < b["max"][k] + 0.3 for k in range(3)) for b in boxes)
-for i in range(sets):
-    rng = random.Random(1000 * len("maze") + i)
-    lights = []
-    for _ in range(1 + rng.randrange(4)):
-        for _ in range(1000):
-            b = rng.choice(s["blocks"])
-            p = [rng.uniform(b["min"][k] + 0.3, b["max"][k] - 0.3) for k in range(3)]
-            if clear(p):
-                break
-        base = rng.uniform(2.0, 20.0)
-        lights.append({"kind": "point", "position": p, "intensity": [base * rng.uniform(0.8, 1.0) for _ in range(3)]})
-    json.dump({"lights": lights, "poses": []}, open(f"lights{i}.json", "w"), indent=1)
 for tol in ["0.01", "0.02", "0.03"]:
     for budget in ["0.02", "0.05"]:
         v = json.loads(json.dumps(s))
         v["settings"].update({"tolerance": float(tol), "codec_error": float(budget)})
         json.dump(v, open(f"maze-t{tol}-c{budget}.json", "w"), indent=1)
 PY
+python3 "$repo/scripts/light_sets.py" maze.json maze "$sets" lights
 for i in $(seq 0 $((sets - 1))); do
   [ -f "ref$i.json" ] || $LF reference maze.json --lights "lights$i.json" --rays 16384 -o "ref$i.json" > /dev/null 2>&1
 done

@@ -15,7 +15,7 @@ cd "$out"
 rm -f results.txt
 for scene in cornell maze; do
 python3 - "$scene" "$repo" <<'PY'
-import json, sys, random
+import json, sys
 name = sys.argv[1]
 s = json.load(open(f"{sys.argv[2]}/scenes/{name}/scene.json"))
 s["settings"].update({"texels_per_face": 8, "rays_per_texel": 1024, "tolerance": 0.01, "probe_volume": "always"})
@@ -23,25 +23,8 @@ json.dump(s, open(f"{name}.json", "w"), indent=1)
 s["settings"]["scene_gather"] = "exact"
 json.dump(s, open(f"{name}-exact.json", "w"), indent=1)
 del s["settings"]["scene_gather"]
-boxes = [c["box"] for c in s.get("clutter", []) if "box" in c]
-def clear(p):
-    for b in boxes:
-        if all(b["min"][k] - 0.3 < p[k] < b["max"][k] + 0.3 for k in range(3)):
-            return False
-    return True
-for i in range(10):
-    rng = random.Random(1000 * len(name) + i)
-    lights = []
-    for _ in range(1 + rng.randrange(4)):
-        for _ in range(1000):
-            b = rng.choice(s["blocks"])
-            p = [rng.uniform(b["min"][k] + 0.3, b["max"][k] - 0.3) for k in range(3)]
-            if clear(p):
-                break
-        base = rng.uniform(2.0, 20.0)
-        lights.append({"kind": "point", "position": p, "intensity": [base * rng.uniform(0.8, 1.0) for _ in range(3)]})
-    json.dump({"lights": lights, "poses": []}, open(f"{name}-lights{i}.json", "w"), indent=1)
 PY
+python3 "$repo/scripts/light_sets.py" "$scene.json" "$scene" 10 "$scene-lights"
 cp -r "$repo/scenes/$scene/"* . 2>/dev/null || true
 $LF bake $scene.json -o $scene.lfb --no-cache > $scene.bake.log 2>&1
 $LF bake $scene-exact.json -o $scene-exact.lfb --no-cache > $scene-exact.bake.log 2>&1

@@ -18,7 +18,7 @@
 //! - The bundle decoder has validated the gather (column indices < texel count, ascending
 //!   `row_start`), so indexing here cannot go out of bounds.
 
-use lightfarm_proto::bundle::TexelGather;
+use lightfarm_proto::bundle::{gather_counts, TexelGather};
 
 /// Column indices of the gather's entries.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,27 +48,6 @@ pub struct PackedGather {
     weights: Weights,
 }
 
-/// The unit and byte counts of `values`, when every value is exactly `unit · count` with
-/// `1 ≤ count ≤ 255` (zero weights count 0).
-fn as_counts(values: &[f32]) -> Option<(f32, Vec<u8>)> {
-    let unit = values
-        .iter()
-        .copied()
-        .filter(|v| *v > 0.0)
-        .fold(f32::INFINITY, f32::min);
-    if !unit.is_finite() {
-        return None;
-    }
-    values
-        .iter()
-        .map(|&v| {
-            let count = (v / unit).round();
-            (count >= 0.0 && count <= 255.0 && unit * count == v).then_some(count as u8)
-        })
-        .collect::<Option<Vec<u8>>>()
-        .map(|counts| (unit, counts))
-}
-
 impl PackedGather {
     /// Packs `gather` over a layout of `n_texels` texels.
     pub fn new(gather: &TexelGather, n_texels: usize) -> PackedGather {
@@ -77,7 +56,7 @@ impl PackedGather {
         } else {
             Columns::U32(gather.cols.clone())
         };
-        let weights = match as_counts(&gather.values) {
+        let weights = match gather_counts(&gather.values) {
             Some((unit, counts)) => Weights::Counts { unit, counts },
             None => Weights::F32(gather.values.clone()),
         };
@@ -366,10 +345,13 @@ mod tests {
 
     #[test]
     fn counts_above_a_byte_and_empty_gathers_are_handled() {
-        assert_eq!(as_counts(&[]), None);
-        assert_eq!(as_counts(&[0.0, 0.0]), None);
-        assert_eq!(as_counts(&[0.5, 1.0]), Some((0.5, vec![1, 2])));
-        assert_eq!(as_counts(&[1.0, 256.0]), None);
-        assert_eq!(as_counts(&[0.25, 0.0, 0.75]), Some((0.25, vec![1, 0, 3])));
+        assert_eq!(gather_counts(&[]), None);
+        assert_eq!(gather_counts(&[0.0, 0.0]), None);
+        assert_eq!(gather_counts(&[0.5, 1.0]), Some((0.5, vec![1, 2])));
+        assert_eq!(gather_counts(&[1.0, 256.0]), None);
+        assert_eq!(
+            gather_counts(&[0.25, 0.0, 0.75]),
+            Some((0.25, vec![1, 0, 3]))
+        );
     }
 }

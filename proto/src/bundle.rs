@@ -26,6 +26,7 @@ use crate::wire::{Reader, WireError, Writer};
 mod gather_encoding;
 mod sh_responses;
 mod symmetric_blocks;
+pub use gather_encoding::gather_counts;
 pub use sh_responses::{ShEntry, ShResponses};
 pub use symmetric_blocks::BlockSymmetry;
 

@@ -88,7 +88,7 @@ pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) {
     }
     w.u64(varints.len() as u64);
     w.bytes.extend_from_slice(&varints);
-    match as_counts(&values) {
+    match gather_counts(&values) {
         Some((unit, counts)) => {
             w.u8(1);
             w.f32(unit);
@@ -189,8 +189,10 @@ fn read_varint(r: &mut Reader) -> Result<u32, WireError> {
     Err(WireError::Invalid("varint longer than 5 bytes".into()))
 }
 
-/// `(unit, counts)` when every value is exactly `unit · count` with `1 ≤ count ≤ 255`.
-fn as_counts(values: &[f32]) -> Option<(f32, Vec<u8>)> {
+/// `(unit, counts)` when every value is exactly `unit · count` with `count ≤ 255` (the unit is
+/// the smallest positive value; zero weights count 0): how the bundle stores gather weights and
+/// how the client keeps them in memory.
+pub fn gather_counts(values: &[f32]) -> Option<(f32, Vec<u8>)> {
     let unit = values
         .iter()
         .copied()
@@ -203,7 +205,7 @@ fn as_counts(values: &[f32]) -> Option<(f32, Vec<u8>)> {
         .iter()
         .map(|&v| {
             let count = (v / unit).round();
-            ((1.0..=255.0).contains(&count) && unit * count == v).then_some(count as u8)
+            ((0.0..=255.0).contains(&count) && unit * count == v).then_some(count as u8)
         })
         .collect::<Option<Vec<u8>>>()
         .map(|counts| (unit, counts))
