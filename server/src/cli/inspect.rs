@@ -32,7 +32,11 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
         bundle.shapes.len()
     );
     let (mut u_b, mut t_db, mut u_r) = (Tally::default(), Tally::default(), Tally::default());
-    for s in &bundle.shapes {
+    for (k, s) in bundle.shapes.iter().enumerate() {
+        let users = bundle.blocks.iter().filter(|b| b.shape as usize == k);
+        let (blocks, turned) = users.fold((0, 0), |(n, t), b| {
+            (n + 1, t + usize::from(b.symmetry.is_some()))
+        });
         u_b.add(&s.u_b);
         t_db.add(&s.t_db);
         for o in &s.openings {
@@ -40,7 +44,7 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
         }
         let q: Vec<u32> = s.openings.iter().map(|o| o.u_r.cols).collect();
         println!(
-            "  shape {}: {} texels, rank {}, opening ranks {q:?}",
+            "  shape {}: {} texels, rank {}, opening ranks {q:?}, {blocks} blocks ({turned} rotated or mirrored)",
             &s.key[..s.key.len().min(12)],
             s.u_b.rows,
             s.u_b.cols
