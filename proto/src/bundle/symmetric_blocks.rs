@@ -45,7 +45,7 @@ impl BlockSymmetry {
     /// Texels per face side `T` when the closed faces tile `rows` texels as `faces · T²`.
     fn texels_per_side(&self, rows: u32) -> Option<usize> {
         let faces = self.closed.count_ones() as usize;
-        if faces == 0 || self.closed >> 6 != 0 || rows as usize % faces != 0 {
+        if faces == 0 || self.closed >> 6 != 0 || !(rows as usize).is_multiple_of(faces) {
             return None;
         }
         let per_face = rows as usize / faces;
