@@ -91,6 +91,17 @@ impl BoxSymmetry {
         self.0 == 0
     }
 
+    /// The key naming a shape's operators seen through this symmetry: the shape's own key for
+    /// the identity, else `key~code` (the bake's per-block operators and the client's unfolded
+    /// shapes are named alike).
+    pub fn instance_key(self, shape_key: &str) -> String {
+        if self.is_identity() {
+            shape_key.to_string()
+        } else {
+            format!("{shape_key}~{}", self.0)
+        }
+    }
+
     /// The canonical axis block axis `k` becomes.
     pub fn axis(self, k: usize) -> usize {
         PERMUTATIONS[(self.0 / 8) as usize][k]

@@ -17,8 +17,7 @@
 //! is consistent and finite, so the runtime can index without checks; it never panics.
 
 use crate::codec::{
-    choose_encoding, read_matrix, smaller_u8_form, u8_step_name, write_matrix_step, CodecPolicy,
-    MatrixCodec,
+    choose_encoding, read_matrix, u8_step_name, write_matrix_smallest, CodecPolicy, MatrixCodec,
 };
 use crate::container::{read_sections, write_container, ContainerError, SectionInfo};
 use crate::wire::{Reader, WireError, Writer};
@@ -153,8 +152,7 @@ impl MatrixEncoder {
         let (codec, step, error) = choose_encoding(&m.data, rows, cols, self.policy);
         // Lossless: an 8-bit matrix's q go plain or as prediction residuals, whichever is
         // smaller; both decode to the same values.
-        let codec = smaller_u8_form(&m.data, rows, cols, codec, step);
-        write_matrix_step(w, &m.data, rows, cols, codec, step);
+        let codec = write_matrix_smallest(w, &m.data, rows, cols, codec, step);
         let name = if codec.is_u8() {
             u8_step_name(step)
         } else {

@@ -27,7 +27,7 @@
 //! that one; with none, 0. `width` 0 predicts the previous value on the line (0 for the first).
 //! The bundle writer stores an 8-bit matrix predicted when the order-0 entropy of its residuals
 //! (best of width 0 and [`PREDICTOR_WIDTHS`]) is below that of the plain q
-//! ([`smaller_u8_form`]); with T × T faces the width T wins, and zstd codes the operators in
+//! ([`write_matrix_smallest`]); with T × T faces the width T wins, and zstd codes the operators in
 //! fewer bytes (maze at T = 8: shapes −25%, transport −19%, DRT −9%).
 //!
 //! The error a codec adds to a matrix is its relative RMS error `‖Q(M) − M‖_F / ‖M‖_F`
@@ -373,17 +373,95 @@ pub fn write_matrix_step(
         }
         MatrixCodec::U8Columns | MatrixCodec::U8Rows => {
             let (params, q) = quantize_matrix(data, rows, cols, codec.per_column(), step);
-            write_header(w, rows, cols, codec);
-            write_pairs(w, &params);
-            w.bytes.extend_from_slice(&q);
+            write_plain(w, rows, cols, codec, &params, &q);
         }
         MatrixCodec::U8ColumnsPredicted | MatrixCodec::U8RowsPredicted => {
             let (params, q) = quantize_matrix(data, rows, cols, codec.per_column(), step);
-            let lines = to_lines(&q, rows, cols, codec.per_column());
-            let (width, _) = best_predictor_width(&lines, line_len(rows, cols, codec));
-            write_predicted(w, rows, cols, codec, &params, &lines, width);
+            write_predicted_from_q(w, rows, cols, codec, &params, &q, None);
         }
     }
+}
+
+/// Writes a matrix in `codec` on the grid `step`, an 8-bit one in the smaller of its plain and
+/// predicted forms: the predicted one (tag 4/5) when the order-0 entropy of its residuals, plus
+/// the 16 bits of the width, is below that of the plain q bytes. Returns the codec written. The matrix is
+/// quantized once and its predictor width searched once: what the bundle writer calls.
+pub fn write_matrix_smallest(
+    w: &mut Writer,
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    codec: MatrixCodec,
+    step: u8,
+) -> MatrixCodec {
+    if !codec.is_u8() || rows * cols == 0 {
+        write_matrix_step(w, data, rows, cols, codec, step);
+        return codec;
+    }
+    let plain = codec.unpredicted();
+    let (params, q) = quantize_matrix(data, rows, cols, plain.per_column(), step);
+    let ((chosen, width), lines) = u8_form(&q, rows, cols, plain);
+    if chosen.is_predicted() {
+        write_predicted(w, rows, cols, chosen, &params, &lines, width);
+    } else {
+        write_plain(w, rows, cols, chosen, &params, &q);
+    }
+    chosen
+}
+
+/// Of an 8-bit matrix's plain codec `plain` and its predicted form, the smaller by the
+/// order-0 entropy estimate (the predicted one only when its residuals, plus the 16 bits of
+/// the width, take fewer bits than the plain q), with the predictor width; and the q line by
+/// line (what a predicted form stores; a plain one ignores the order).
+fn u8_form(
+    q: &[u8],
+    rows: usize,
+    cols: usize,
+    plain: MatrixCodec,
+) -> ((MatrixCodec, u16), Vec<u8>) {
+    let mut hist = [0u64; 256];
+    for &b in q {
+        hist[b as usize] += 1;
+    }
+    let plain_bits = entropy_bits(&hist);
+    let lines = to_lines(q, rows, cols, plain.per_column());
+    let (width, predicted_bits) = best_predictor_width(&lines, line_len(rows, cols, plain));
+    if predicted_bits + 16.0 < plain_bits {
+        ((plain.predicted(), width), lines)
+    } else {
+        ((plain, 0), lines)
+    }
+}
+
+/// Writes the plain 8-bit form (tag 2/3) from its pairs and row-major q.
+fn write_plain(
+    w: &mut Writer,
+    rows: usize,
+    cols: usize,
+    codec: MatrixCodec,
+    params: &[(f32, f32)],
+    q: &[u8],
+) {
+    write_header(w, rows, cols, codec);
+    write_pairs(w, params);
+    w.bytes.extend_from_slice(q);
+}
+
+/// Writes a predicted matrix (tag 4/5) from its pairs and row-major q, with `width`, or with
+/// the best width ([`best_predictor_width`]) when None.
+fn write_predicted_from_q(
+    w: &mut Writer,
+    rows: usize,
+    cols: usize,
+    codec: MatrixCodec,
+    params: &[(f32, f32)],
+    q: &[u8],
+    width: Option<u16>,
+) {
+    let lines = to_lines(q, rows, cols, codec.per_column());
+    let width =
+        width.unwrap_or_else(|| best_predictor_width(&lines, line_len(rows, cols, codec)).0);
+    write_predicted(w, rows, cols, codec, params, &lines, width);
 }
 
 /// [`write_matrix_step`] in a predicted codec (tag 4 or 5; the 8-bit codec of the same side
@@ -401,8 +479,7 @@ pub fn write_matrix_predicted(
     let codec = codec.predicted();
     debug_assert!(codec.is_predicted(), "{codec:?}");
     let (params, q) = quantize_matrix(data, rows, cols, codec.per_column(), step);
-    let lines = to_lines(&q, rows, cols, codec.per_column());
-    write_predicted(w, rows, cols, codec, &params, &lines, width);
+    write_predicted_from_q(w, rows, cols, codec, &params, &q, Some(width));
 }
 
 /// `rows, cols, codec`.
@@ -571,36 +648,6 @@ pub fn best_predictor_width(lines: &[u8], n: usize) -> (u16, f64) {
         }
     }
     best
-}
-
-/// The smaller wire form of a matrix in an 8-bit `codec` on the grid `step`: its predicted
-/// form (tag 4/5) when the order-0 entropy of the residuals, plus the 16 bits of the width,
-/// is below that of the plain q bytes, else `codec` itself. Other codecs are returned as they
-/// are. Both forms decode to the same values.
-pub fn smaller_u8_form(
-    data: &[f32],
-    rows: usize,
-    cols: usize,
-    codec: MatrixCodec,
-    step: u8,
-) -> MatrixCodec {
-    if !codec.is_u8() || rows * cols == 0 {
-        return codec;
-    }
-    let plain = codec.unpredicted();
-    let (_, q) = quantize_matrix(data, rows, cols, plain.per_column(), step);
-    let mut hist = [0u64; 256];
-    for &b in &q {
-        hist[b as usize] += 1;
-    }
-    let plain_bits = entropy_bits(&hist);
-    let lines = to_lines(&q, rows, cols, plain.per_column());
-    let (_, predicted_bits) = best_predictor_width(&lines, line_len(rows, cols, plain));
-    if predicted_bits + 16.0 < plain_bits {
-        plain.predicted()
-    } else {
-        plain
-    }
 }
 
 /// A decoded matrix: `(rows, cols, row-major values, codec)`. Values may be non-finite only if
@@ -1008,7 +1055,8 @@ mod tests {
             ] {
                 let (codec, step, _) = choose_encoding(data, rows, cols, policy);
                 assert_eq!(codec, plain);
-                let chosen = smaller_u8_form(data, rows, cols, codec, step);
+                let chosen =
+                    write_matrix_smallest(&mut Writer::new(), data, rows, cols, codec, step);
                 assert_eq!(chosen, plain.predicted(), "{plain:?} step {step}");
                 let (_, q) = quantize_matrix(data, rows, cols, plain.per_column(), step);
                 let lines = to_lines(&q, rows, cols, plain.per_column());
@@ -1044,15 +1092,18 @@ mod tests {
             .collect();
         for (rows, cols) in [(64, 8), (8, 64)] {
             let codec = MatrixCodec::u8_for(rows, cols);
-            assert_eq!(smaller_u8_form(&data, rows, cols, codec, 1), codec);
+            assert_eq!(
+                write_matrix_smallest(&mut Writer::new(), &data, rows, cols, codec, 1),
+                codec
+            );
         }
         // Non-8-bit codecs and empty matrices are left alone.
         assert_eq!(
-            smaller_u8_form(&data, 64, 8, MatrixCodec::F16, 1),
+            write_matrix_smallest(&mut Writer::new(), &data, 64, 8, MatrixCodec::F16, 1),
             MatrixCodec::F16
         );
         assert_eq!(
-            smaller_u8_form(&[], 0, 8, MatrixCodec::U8Columns, 1),
+            write_matrix_smallest(&mut Writer::new(), &[], 0, 8, MatrixCodec::U8Columns, 1),
             MatrixCodec::U8Columns
         );
     }

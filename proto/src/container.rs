@@ -147,7 +147,6 @@ fn write_section(w: &mut Writer, kind: u32, flags: u32, stored: &[u8], raw_len: 
 /// The sections read from a container, in file order, decompressed.
 #[derive(Debug, Default)]
 pub struct Sections {
-    pub major: u16,
     pub minor: u16,
     pub sections: Vec<(u32, Vec<u8>)>,
     /// Whether the closing table of contents (and footer) was present and consistent.
@@ -177,7 +176,6 @@ pub fn read_sections(
         });
     }
     let mut out = Sections {
-        major: found,
         minor,
         ..Sections::default()
     };

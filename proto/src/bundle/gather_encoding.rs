@@ -26,6 +26,14 @@ use crate::wire::{Reader, WireError, Writer};
 use super::{BundleError, TexelGather};
 
 impl TexelGather {
+    /// Whether every row's columns strictly ascend (the form [`TexelGather::sorted`] gives).
+    pub fn is_sorted(&self) -> bool {
+        (0..self.rows.len()).all(|i| {
+            let (s, e) = (self.row_start[i] as usize, self.row_start[i + 1] as usize);
+            self.cols[s..e].windows(2).all(|w| w[0] < w[1])
+        })
+    }
+
     /// The same gather with each row's entries in ascending column order and repeated columns
     /// merged (their weights added): the form the bundle stores, so a bake that keeps its
     /// gather sorted decodes to exactly what it wrote.
@@ -66,14 +74,21 @@ pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) {
         return;
     };
     w.u8(2);
+    // The bake keeps its gather sorted: re-sort (a copy) only a gather that is not.
+    let sorted;
     let TexelGather {
         rows,
         row_start,
         cols,
         values,
-    } = g.sorted();
-    w.u32s(&rows);
-    w.u32s(&row_start);
+    } = if g.is_sorted() {
+        g
+    } else {
+        sorted = g.sorted();
+        &sorted
+    };
+    w.u32s(rows);
+    w.u32s(row_start);
     let mut varints = Vec::with_capacity(cols.len());
     for i in 0..rows.len() {
         let mut previous: Option<u32> = None;
@@ -88,7 +103,7 @@ pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) {
     }
     w.u64(varints.len() as u64);
     w.bytes.extend_from_slice(&varints);
-    match gather_counts(&values) {
+    match gather_counts(values) {
         Some((unit, counts)) => {
             w.u8(1);
             w.f32(unit);
@@ -97,7 +112,7 @@ pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) {
         }
         None => {
             w.u8(0);
-            w.f32s(&values);
+            w.f32s(values);
         }
     }
 }

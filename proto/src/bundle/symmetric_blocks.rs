@@ -163,7 +163,7 @@ fn instance(shape: &ShapeOps, s: &BlockSymmetry) -> ShapeOps {
         .collect();
     openings.sort_by_key(|o| o.face);
     ShapeOps {
-        key: format!("{}~{}", shape.key, s.symmetry.code()),
+        key: s.symmetry.instance_key(&shape.key),
         u_b: permute_rows(&shape.u_b, &perm),
         t_db: permute_cols(&shape.t_db, &perm),
         openings,

@@ -298,49 +298,46 @@ impl ShapePlan {
         self.shape_index
             .iter()
             .zip(&self.symmetry)
-            .map(|(i, g)| {
-                if g.is_identity() {
-                    self.unique[*i].clone()
-                } else {
-                    format!("{}~{}", self.unique[*i], g.code())
-                }
-            })
+            .map(|(i, g)| g.instance_key(&self.unique[*i]))
             .collect()
     }
 
-    /// Each block's operators in its own frame, from the unique shapes' (`unique[i]` for shape
-    /// `i`): the shape's own for an identity block, else an instance (one per distinct shape and
-    /// symmetry), returned alongside for the caller to keep.
-    pub fn instances(&self, unique: &[&ShapeOperators]) -> Vec<ShapeOperators> {
-        let mut made: Vec<(usize, BoxSymmetry)> = Vec::new();
-        let mut out = Vec::new();
+    /// The operators of the blocks that see their shape through a symmetry, one per distinct
+    /// (shape, symmetry), from the unique shapes' (`unique[i]` for shape `i`); the caller keeps
+    /// them for [`ShapePlan::per_block`].
+    pub fn instances(
+        &self,
+        unique: &[&ShapeOperators],
+    ) -> Vec<((usize, BoxSymmetry), ShapeOperators)> {
+        let mut out: Vec<((usize, BoxSymmetry), ShapeOperators)> = Vec::new();
         for (b, g) in self.symmetry.iter().enumerate() {
             let shape = self.shape_index[b];
-            if g.is_identity() || made.contains(&(shape, *g)) {
+            if g.is_identity() || out.iter().any(|(k, _)| *k == (shape, *g)) {
                 continue;
             }
-            made.push((shape, *g));
-            out.push(instance_operators(unique[shape], &self.specs[b], *g));
+            out.push((
+                (shape, *g),
+                instance_operators(unique[shape], &self.specs[b], *g),
+            ));
         }
         out
     }
 
-    /// Per block, its operators: `unique[shape]`, or its entry of `instances` (from
-    /// [`ShapePlan::instances`]).
+    /// Per block, its operators: `unique[shape]` for an identity block, else its entry of
+    /// `instances` (from [`ShapePlan::instances`]).
     pub fn per_block<'a>(
         &self,
         unique: &[&'a ShapeOperators],
-        instances: &'a [ShapeOperators],
+        instances: &'a [((usize, BoxSymmetry), ShapeOperators)],
     ) -> Vec<&'a ShapeOperators> {
-        let keys = self.block_keys();
         self.shape_index
             .iter()
-            .zip(&keys)
-            .map(|(i, key)| {
+            .zip(&self.symmetry)
+            .map(|(&shape, g)| {
                 instances
                     .iter()
-                    .find(|o| o.key == *key)
-                    .unwrap_or(unique[*i])
+                    .find(|(k, _)| *k == (shape, *g))
+                    .map_or(unique[shape], |(_, ops)| ops)
             })
             .collect()
     }

@@ -115,7 +115,7 @@ pub fn instance_operators(
     openings.sort_by_key(|o| o.face);
     let t = &canonical.t_db;
     ShapeOperators {
-        key: format!("{}~{}", canonical.key, g.code()),
+        key: g.instance_key(&canonical.key),
         u_b: rows_of(&canonical.u_b),
         t_db: Mat::from_fn(t.nrows(), t.ncols(), |k, x| t[(k, sigma[x] as usize)]),
         l_imp: rows_of(&canonical.l_imp),
