@@ -142,8 +142,31 @@ impl Matrix {
 
 /// Picks each operator matrix's codec by the [`EncodeOptions`] and tallies what it chose.
 struct MatrixEncoder {
+    /// The policy of the matrices being written now.
     policy: CodecPolicy,
+    /// The policy of every matrix outside the transport section.
+    operator_policy: CodecPolicy,
+    /// The policy of the transport section's matrices.
+    transport_policy: CodecPolicy,
     report: EncodeReport,
+}
+
+impl MatrixEncoder {
+    fn new(options: &EncodeOptions) -> MatrixEncoder {
+        MatrixEncoder {
+            policy: options.codec,
+            operator_policy: options.codec,
+            transport_policy: options.transport_codec.unwrap_or(options.codec),
+            report: EncodeReport::default(),
+        }
+    }
+
+    /// Writes the transport section's matrices (inside `write`) under the transport policy.
+    fn with_transport_policy(&mut self, write: impl FnOnce(&mut MatrixEncoder)) {
+        self.policy = self.transport_policy;
+        write(self);
+        self.policy = self.operator_policy;
+    }
 }
 
 impl MatrixEncoder {
@@ -172,6 +195,11 @@ impl MatrixEncoder {
 pub struct EncodeOptions {
     /// Codec of every operator matrix (fixed, or chosen per matrix from an error budget).
     pub codec: CodecPolicy,
+    /// Codec of the transport section's matrices, when it differs from `codec`. Transport into
+    /// a block stacks the coefficients of all its source blocks in one matrix, so a relative
+    /// budget is spent on the strongest source and the weak ones, which are all the light a
+    /// block far from every light gets, keep the least precision; they may need a tighter one.
+    pub transport_codec: Option<CodecPolicy>,
     /// zstd level for section payloads (0: store raw). A payload is stored raw whenever
     /// compression would not shrink it.
     pub zstd_level: i32,
@@ -182,6 +210,7 @@ impl Default for EncodeOptions {
     fn default() -> Self {
         EncodeOptions {
             codec: CodecPolicy::Fixed(MatrixCodec::F32),
+            transport_codec: None,
             zstd_level: 3,
         }
     }
@@ -598,10 +627,7 @@ impl Bundle {
 
     /// Encodes the bundle with the given codecs and compression.
     pub fn encode_with(&self, options: &EncodeOptions) -> (Vec<u8>, EncodeReport) {
-        let mut enc = MatrixEncoder {
-            policy: options.codec,
-            report: EncodeReport::default(),
-        };
+        let mut enc = MatrixEncoder::new(options);
         let sections = self.encode_sections(&mut enc);
         // Always the writer's minor version, whatever sections this bundle has: a streamed
         // prefix (MRT sections only) and the whole bundle must share their header bytes.
@@ -619,10 +645,11 @@ impl Bundle {
     /// The uncompressed f32 payload of every section, in file order (what
     /// [`write_container`] frames; for tools and tests that edit sections).
     pub fn raw_sections(&self) -> Vec<(u32, Vec<u8>)> {
-        let mut enc = MatrixEncoder {
-            policy: CodecPolicy::Fixed(MatrixCodec::F32),
-            report: EncodeReport::default(),
-        };
+        let mut enc = MatrixEncoder::new(&EncodeOptions {
+            codec: CodecPolicy::Fixed(MatrixCodec::F32),
+            transport_codec: None,
+            zstd_level: 0,
+        });
         self.encode_sections(&mut enc)
     }
 
@@ -663,7 +690,7 @@ impl Bundle {
 
         if let Some(t) = &self.transport {
             let mut w = Writer::new();
-            match t {
+            enc.with_transport_policy(|enc| match t {
                 TransportOps::Lightfield(entries) => {
                     w.u8(0);
                     w.u32(entries.len() as u32);
@@ -693,7 +720,7 @@ impl Bundle {
                         e.z.write(&mut w, enc);
                     }
                 }
-            }
+            });
             sections.push((section::TRANSPORT, w.bytes));
         }
         if let Some(d) = &self.drt {

@@ -886,6 +886,14 @@ fn settings_codec_error_outside_zero_one() {
         setting("codec_error", json!(1.5)),
         "settings: codec_error (1.5) must be in (0, 1)",
     );
+    check_exact(
+        setting("transport_codec_error", json!(-0.01)),
+        "settings: transport_codec_error (-0.01) must be in (0, 1)",
+    );
+    check_exact(
+        setting("transport_codec_error", json!(1.0)),
+        "settings: transport_codec_error (1) must be in (0, 1)",
+    );
 }
 
 #[test]

@@ -4,7 +4,7 @@
 //! never make the decoder or runtime panic.
 
 use lightfarm_client::{DirectLight, IndirectLight, Method, Runtime};
-use lightfarm_proto::bundle::{Bundle, EncodeOptions};
+use lightfarm_proto::bundle::{Bundle, EncodeOptions, Matrix, TransportOps};
 use lightfarm_proto::codec::{CodecPolicy, MatrixCodec};
 use lightfarm_proto::result::compare;
 use lightfarm_proto::scene::Transport;
@@ -74,6 +74,7 @@ fn every_codec_round_trips_with_the_error_it_reports_and_shrinks_the_bundle() {
     ] {
         let (bytes, report) = bundle.encode_with(&EncodeOptions {
             codec: CodecPolicy::Fixed(codec),
+            transport_codec: None,
             zstd_level: 9,
         });
         let decoded = Bundle::decode(&bytes).unwrap();
@@ -102,9 +103,111 @@ fn every_codec_round_trips_with_the_error_it_reports_and_shrinks_the_bundle() {
     // The budget picks per matrix: a budget between the u8 and f16 errors mixes codecs.
     let (_, report) = bundle.encode_with(&EncodeOptions {
         codec: CodecPolicy::Budget(0.01),
+        transport_codec: None,
         zstd_level: 9,
     });
     assert!(report.max_codec_error <= 0.01, "{report:?}");
+}
+
+/// Relative Frobenius error of `decoded` against `exact`, per matrix pair.
+fn matrix_errors<'a>(pairs: impl Iterator<Item = (&'a Matrix, &'a Matrix)>) -> Vec<f64> {
+    pairs
+        .map(|(decoded, exact)| {
+            let (mut d, mut n) = (0.0f64, 0.0f64);
+            for (a, b) in decoded.data.iter().zip(&exact.data) {
+                d += (*a as f64 - *b as f64).powi(2);
+                n += (*b as f64).powi(2);
+            }
+            if n == 0.0 {
+                0.0
+            } else {
+                (d / n).sqrt()
+            }
+        })
+        .collect()
+}
+
+fn transport_matrices(bundle: &Bundle) -> Vec<&Matrix> {
+    match bundle
+        .transport
+        .as_ref()
+        .expect("the corridor has transport")
+    {
+        TransportOps::Compact(e) => e.iter().flat_map(|e| [&e.y, &e.z]).collect(),
+        TransportOps::Lightfield(e) => e.iter().map(|e| &e.matrix).collect(),
+        TransportOps::Traced(e) => e.iter().map(|e| &e.matrix).collect(),
+    }
+}
+
+fn shape_matrices(bundle: &Bundle) -> Vec<&Matrix> {
+    bundle
+        .shapes
+        .iter()
+        .flat_map(|s| [&s.u_b, &s.t_db])
+        .collect()
+}
+
+/// Transport matrices are coded within their own budget (`EncodeOptions::transport_codec`),
+/// every other matrix within the general one; the scene settings give transport the smaller.
+#[test]
+fn transport_matrices_are_coded_within_their_own_budget() {
+    let (scene, _) = load_scene("corridor", 4, 128);
+    let options = BakeOptions {
+        cache: None,
+        full: false,
+        transport: None,
+    };
+    let (bundle, _) = bake(&scene, &scene_dir("corridor"), &options, &NoProgress).unwrap();
+    let encode = |transport_budget: f64| {
+        let (bytes, _) = bundle.encode_with(&EncodeOptions {
+            codec: CodecPolicy::Budget(0.05),
+            transport_codec: Some(CodecPolicy::Budget(transport_budget)),
+            zstd_level: 3,
+        });
+        let decoded = Bundle::decode(&bytes).unwrap();
+        let largest = |of: fn(&Bundle) -> Vec<&Matrix>| {
+            matrix_errors(of(&decoded).into_iter().zip(of(&bundle)))
+                .into_iter()
+                .fold(0.0, f64::max)
+        };
+        (
+            largest(transport_matrices),
+            largest(shape_matrices),
+            bytes.len(),
+        )
+    };
+    let (tight_transport, tight_shapes, tight_bytes) = encode(0.005);
+    let (loose_transport, loose_shapes, loose_bytes) = encode(0.05);
+    eprintln!(
+        "transport budget 0.005: transport {tight_transport:.2e}, shapes {tight_shapes:.2e}, {tight_bytes} B; \
+         0.05: transport {loose_transport:.2e}, shapes {loose_shapes:.2e}, {loose_bytes} B"
+    );
+    assert!(
+        tight_transport > 0.0 && tight_transport <= 0.005,
+        "{tight_transport}"
+    );
+    assert!(
+        loose_transport > 0.005 && loose_transport <= 0.05,
+        "{loose_transport}"
+    );
+    // The shapes follow the general budget whatever the transport's.
+    assert!(
+        tight_shapes > 0.005 && tight_shapes <= 0.05,
+        "{tight_shapes}"
+    );
+    assert_eq!(tight_shapes, loose_shapes);
+    assert!(tight_bytes > loose_bytes, "{tight_bytes} vs {loose_bytes}");
+
+    // From the settings: `transport_codec_error` caps transport below `codec_error`.
+    let mut settings = scene.settings.clone();
+    settings.codec_error = 0.05;
+    settings.transport_codec_error = 0.005;
+    let options = lightfarm_server::bake::bundle_encoding::encode_options(&settings, None);
+    assert_eq!(options.codec, CodecPolicy::Budget(0.05));
+    assert_eq!(options.transport_codec, Some(CodecPolicy::Budget(0.005)));
+    settings.codec_error = 0.001;
+    let options = lightfarm_server::bake::bundle_encoding::encode_options(&settings, None);
+    assert_eq!(options.transport_codec, Some(CodecPolicy::Budget(0.001)));
 }
 
 #[test]
@@ -189,6 +292,7 @@ fn the_rayon_path_is_bit_identical_to_one_thread() {
     // And through eval: the u8 bundle's result stays close to the f32 one on the real lights.
     let (u8_bytes, _) = bundle.encode_with(&EncodeOptions {
         codec: CodecPolicy::Fixed(MatrixCodec::U8Columns),
+        transport_codec: None,
         zstd_level: 3,
     });
     let a = apply(&bundle.encode(), &lights, Method::Drt);
@@ -204,6 +308,7 @@ fn mutated_real_bundles_never_panic() {
     let (bundle, _) = cornell();
     let (bytes, _) = bundle.encode_with(&EncodeOptions {
         codec: CodecPolicy::Budget(0.01),
+        transport_codec: None,
         zstd_level: 3,
     });
     let mut state = 0x9e3779b97f4a7c15u64;

@@ -275,6 +275,7 @@ fn sh_section_round_trips_in_every_codec_and_validation_names_the_problem() {
     for (codec, budget) in [(MatrixCodec::F16, 1e-3), (MatrixCodec::U8Columns, 0.05)] {
         let (coded, _) = bundle.encode_with(&EncodeOptions {
             codec: CodecPolicy::Fixed(codec),
+            transport_codec: None,
             zstd_level: 3,
         });
         let back = Bundle::decode(&coded).unwrap().sh.unwrap();

@@ -13,14 +13,21 @@ pub const BUNDLE_ZSTD_LEVEL: i32 = 9;
 
 /// The encode options for `codec` (the scene's `bundle_codec` unless overridden).
 pub fn encode_options(settings: &Settings, codec: Option<BundleCodec>) -> EncodeOptions {
-    let policy = match codec.unwrap_or(settings.bundle_codec) {
-        BundleCodec::Auto => CodecPolicy::Budget(settings.codec_error),
-        BundleCodec::F32 => CodecPolicy::Fixed(MatrixCodec::F32),
-        BundleCodec::F16 => CodecPolicy::Fixed(MatrixCodec::F16),
-        BundleCodec::U8 => CodecPolicy::Fixed(MatrixCodec::U8Columns),
+    let fixed = |codec| (CodecPolicy::Fixed(codec), None);
+    let (policy, transport_policy) = match codec.unwrap_or(settings.bundle_codec) {
+        BundleCodec::Auto => (
+            CodecPolicy::Budget(settings.codec_error),
+            Some(CodecPolicy::Budget(
+                settings.codec_error.min(settings.transport_codec_error),
+            )),
+        ),
+        BundleCodec::F32 => fixed(MatrixCodec::F32),
+        BundleCodec::F16 => fixed(MatrixCodec::F16),
+        BundleCodec::U8 => fixed(MatrixCodec::U8Columns),
     };
     EncodeOptions {
         codec: policy,
+        transport_codec: transport_policy,
         zstd_level: BUNDLE_ZSTD_LEVEL,
     }
 }
