@@ -86,17 +86,10 @@ impl PackedGather {
         matches!(self.weights, Weights::Counts { .. })
     }
 
-    /// Adds the gather of `direct` (texel radiance, albedo-free) to `out`. Allocates a padded
-    /// copy of `direct`; the frame loop keeps one and calls [`PackedGather::add_to_padded`].
-    pub fn add_to(&self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
-        let mut padded = vec![[0.0f32; 4]; direct.len()];
-        pad_direct(direct, &mut padded);
-        self.add_to_padded(&padded, out);
-    }
-
-    /// [`PackedGather::add_to`] over `direct` padded to four lanes ([`pad_direct`]): one
-    /// 16-byte load per entry, so each entry is a load, a broadcast weight, a multiply and an
-    /// add on four lanes (the fourth unused) instead of three scalar multiply-adds.
+    /// Adds the gather of `direct` (texel radiance, albedo-free, padded to four lanes by
+    /// [`pad_direct`] into a buffer the caller keeps) to `out`: one 16-byte load per entry, so
+    /// each entry is a load, a broadcast weight, a multiply and an add on four lanes (the
+    /// fourth unused) instead of three scalar multiply-adds.
     pub fn add_to_padded(&self, direct: &[[f32; 4]], out: &mut [[f32; 3]]) {
         match (&self.cols, &self.weights) {
             (Columns::U16(c), Weights::Counts { unit, counts }) => {
@@ -233,6 +226,15 @@ mod tests {
             let a = row_sum(&cols, &counts, &direct);
             let b = row_sum_portable(&cols, &counts, &direct);
             assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "length {len}");
+        }
+    }
+
+    impl PackedGather {
+        /// `add_to_padded` over unpadded direct light (allocates; tests only).
+        fn add_to(&self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+            let mut padded = vec![[0.0f32; 4]; direct.len()];
+            pad_direct(direct, &mut padded);
+            self.add_to_padded(&padded, out);
         }
     }
 

@@ -144,8 +144,6 @@ impl Matrix {
 struct MatrixEncoder {
     /// The policy of the matrices being written now.
     policy: CodecPolicy,
-    /// The policy of every matrix outside the transport section.
-    operator_policy: CodecPolicy,
     /// The policy of the transport section's matrices.
     transport_policy: CodecPolicy,
     report: EncodeReport,
@@ -155,7 +153,6 @@ impl MatrixEncoder {
     fn new(options: &EncodeOptions) -> MatrixEncoder {
         MatrixEncoder {
             policy: options.codec,
-            operator_policy: options.codec,
             transport_policy: options.transport_codec.unwrap_or(options.codec),
             report: EncodeReport::default(),
         }
@@ -163,13 +160,11 @@ impl MatrixEncoder {
 
     /// Writes the transport section's matrices (inside `write`) under the transport policy.
     fn with_transport_policy(&mut self, write: impl FnOnce(&mut MatrixEncoder)) {
-        self.policy = self.transport_policy;
+        let operator_policy = std::mem::replace(&mut self.policy, self.transport_policy);
         write(self);
-        self.policy = self.operator_policy;
+        self.policy = operator_policy;
     }
-}
 
-impl MatrixEncoder {
     fn write(&mut self, w: &mut Writer, m: &Matrix) {
         let (rows, cols) = (m.rows as usize, m.cols as usize);
         let (codec, step, error) = choose_encoding(&m.data, rows, cols, self.policy);
@@ -645,11 +640,8 @@ impl Bundle {
     /// The uncompressed f32 payload of every section, in file order (what
     /// [`write_container`] frames; for tools and tests that edit sections).
     pub fn raw_sections(&self) -> Vec<(u32, Vec<u8>)> {
-        let mut enc = MatrixEncoder::new(&EncodeOptions {
-            codec: CodecPolicy::Fixed(MatrixCodec::F32),
-            transport_codec: None,
-            zstd_level: 0,
-        });
+        // The default options store every matrix as f32.
+        let mut enc = MatrixEncoder::new(&EncodeOptions::default());
         self.encode_sections(&mut enc)
     }
 

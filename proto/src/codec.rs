@@ -221,6 +221,13 @@ fn u8_params(data: &[f32], rows: usize, cols: usize, per_column: bool) -> Vec<(f
         .collect()
 }
 
+/// The value of row-major element `k` of a `cols`-wide 8-bit matrix with line pairs `params`.
+#[inline]
+fn u8_value(params: &[(f32, f32)], per_column: bool, cols: usize, k: usize, q: u8) -> f32 {
+    let (offset, scale) = params[if per_column { k % cols } else { k / cols }];
+    offset + scale * q as f32
+}
+
 /// The values a matrix decodes to after a round trip through `codec`.
 pub fn round_trip(data: &[f32], rows: usize, cols: usize, codec: MatrixCodec) -> Vec<f32> {
     round_trip_step(data, rows, cols, codec, 1)
@@ -242,16 +249,11 @@ pub fn round_trip_step(
             .collect(),
         _ => {
             let per_column = codec.per_column();
-            let params = u8_params(data, rows, cols, per_column);
-            let mut out = Vec::with_capacity(data.len());
-            for i in 0..rows {
-                for j in 0..cols {
-                    let (offset, scale) = params[if per_column { j } else { i }];
-                    let q = quantize_u8(data[i * cols + j], offset, scale, step);
-                    out.push(offset + scale * q as f32);
-                }
-            }
-            out
+            let (params, q) = quantize_matrix(data, rows, cols, per_column, step);
+            q.iter()
+                .enumerate()
+                .map(|(k, q)| u8_value(&params, per_column, cols, k, *q))
+                .collect()
         }
     }
 }
@@ -627,7 +629,6 @@ fn entropy_bits(hist: &[u64; 256]) -> f64 {
 /// and ≥ n predict exactly like 0 and are never chosen.
 pub fn best_predictor_width(lines: &[u8], n: usize) -> (u16, f64) {
     let mut best = (0u16, f64::INFINITY);
-    let mut residuals = Vec::with_capacity(n);
     for width in std::iter::once(0).chain(PREDICTOR_WIDTHS) {
         if width != 0 && width as usize >= n {
             continue;
@@ -635,10 +636,8 @@ pub fn best_predictor_width(lines: &[u8], n: usize) -> (u16, f64) {
         let mut hist = [0u64; 256];
         if n > 0 {
             for line in lines.chunks_exact(n) {
-                residuals.clear();
-                push_residuals(line, width as usize, &mut residuals);
-                for &r in &residuals {
-                    hist[r as usize] += 1;
+                for k in 0..n {
+                    hist[line[k].wrapping_sub(predict(line, k, width as usize)) as usize] += 1;
                 }
             }
         }
@@ -707,10 +706,7 @@ pub fn read_matrix(r: &mut Reader) -> Result<DecodedMatrix, WireError> {
             }
             let bytes = r.take(n)?;
             let cols = cols as usize;
-            let value = |k: usize, q: u8| {
-                let (offset, scale) = params[if per_column { k % cols } else { k / cols }];
-                offset + scale * q as f32
-            };
+            let value = |k: usize, q: u8| u8_value(&params, per_column, cols, k, q);
             if !codec.is_predicted() {
                 bytes
                     .iter()

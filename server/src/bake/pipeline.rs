@@ -302,42 +302,23 @@ impl ShapePlan {
             .collect()
     }
 
-    /// The operators of the blocks that see their shape through a symmetry, one per distinct
-    /// (shape, symmetry), from the unique shapes' (`unique[i]` for shape `i`); the caller keeps
-    /// them for [`ShapePlan::per_block`].
-    pub fn instances(
-        &self,
-        unique: &[&ShapeOperators],
-    ) -> Vec<((usize, BoxSymmetry), ShapeOperators)> {
-        let mut out: Vec<((usize, BoxSymmetry), ShapeOperators)> = Vec::new();
-        for (b, g) in self.symmetry.iter().enumerate() {
-            let shape = self.shape_index[b];
-            if g.is_identity() || out.iter().any(|(k, _)| *k == (shape, *g)) {
-                continue;
-            }
-            out.push((
-                (shape, *g),
-                instance_operators(unique[shape], &self.specs[b], *g),
-            ));
-        }
-        out
-    }
-
-    /// Per block, its operators: `unique[shape]` for an identity block, else its entry of
-    /// `instances` (from [`ShapePlan::instances`]).
-    pub fn per_block<'a>(
-        &self,
-        unique: &[&'a ShapeOperators],
-        instances: &'a [((usize, BoxSymmetry), ShapeOperators)],
-    ) -> Vec<&'a ShapeOperators> {
-        self.shape_index
-            .iter()
-            .zip(&self.symmetry)
-            .map(|(&shape, g)| {
+    /// Per block, the operators it applies, from the unique shapes' (`unique[i]` for shape
+    /// `i`): the shape's own for an identity block, else the shape's seen through the block's
+    /// symmetry, made once per distinct (shape, symmetry) and shared by the blocks using it.
+    pub fn block_operators(&self, unique: &[Arc<ShapeOperators>]) -> Vec<Arc<ShapeOperators>> {
+        let mut instances: HashMap<(usize, BoxSymmetry), Arc<ShapeOperators>> = HashMap::new();
+        (0..self.specs.len())
+            .map(|b| {
+                let (shape, g) = (self.shape_index[b], self.symmetry[b]);
+                if g.is_identity() {
+                    return unique[shape].clone();
+                }
                 instances
-                    .iter()
-                    .find(|(k, _)| *k == (shape, *g))
-                    .map_or(unique[shape], |(_, ops)| ops)
+                    .entry((shape, g))
+                    .or_insert_with(|| {
+                        Arc::new(instance_operators(&unique[shape], &self.specs[b], g))
+                    })
+                    .clone()
             })
             .collect()
     }
@@ -540,9 +521,8 @@ pub fn bake(
     report.ranks = shapes.iter().map(|s| s.rank()).collect();
     lap(&mut report, "shape operators");
 
-    let unique_refs: Vec<&ShapeOperators> = shapes.iter().map(|s| s.as_ref()).collect();
-    let instances = plan.instances(&unique_refs);
-    let per_block = plan.per_block(&unique_refs, &instances);
+    let block_operators = plan.block_operators(&shapes);
+    let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
     // Inter-block transport: of the blocks alone, so cached by the blocks and their shapes.
     let transport_kind = options.transport.unwrap_or(settings.transport);
     let transport_cache = match &options.cache {

@@ -60,19 +60,21 @@ pub fn instance_operators(
         |m: &Mat<f64>| Mat::from_fn(m.nrows(), m.ncols(), |x, k| m[(sigma[x] as usize, k)]);
     let (cells, dirs) = (block.lightfield_cells, block.lightfield_directions);
     let inverse = g.inverse();
-    let permutations: Vec<(Face, Vec<u32>)> = block
+    // Per block opening: its face, π and π⁻¹.
+    let permutations: Vec<(Face, Vec<u32>, Vec<u32>)> = block
         .open
         .iter()
-        .map(|f| (*f, lightfield_permutation(g, *f, cells, dirs)))
+        .map(|f| {
+            let pi = lightfield_permutation(g, *f, cells, dirs);
+            let inv = inverse_permutation(&pi);
+            (*f, pi, inv)
+        })
         .collect();
-    let to_block = |canonical_face: Face| -> (Face, Vec<u32>) {
-        let f = inverse.map_face(canonical_face);
-        let pi = &permutations
+    let of_block_face = |f: Face| {
+        permutations
             .iter()
-            .find(|(b, _)| *b == f)
+            .find(|(b, _, _)| *b == f)
             .expect("every canonical opening is a block opening")
-            .1;
-        (f, inverse_permutation(pi))
     };
     let mut openings: Vec<OpeningOperators> = block
         .open
@@ -82,17 +84,13 @@ pub fn instance_operators(
             let o = canonical
                 .opening(image)
                 .expect("the canonical shape has the block's openings");
-            let pi = &permutations
-                .iter()
-                .find(|(b, _)| b == f)
-                .expect("own face")
-                .1;
-            let inv_here = inverse_permutation(pi);
+            let (_, pi, inv_here) = of_block_face(*f);
             let pass_from = o
                 .pass_from
                 .iter()
                 .map(|(from_c, triplets)| {
-                    let (from_b, inv_from) = to_block(*from_c);
+                    let from_b = inverse.map_face(*from_c);
+                    let (_, _, inv_from) = of_block_face(from_b);
                     let mut mapped: Vec<(u32, u32, f64)> = triplets
                         .iter()
                         .map(|&(r, c, v)| (inv_here[r as usize], inv_from[c as usize], v))

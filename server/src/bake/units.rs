@@ -12,6 +12,7 @@
 //! the operator cache directory (the one [`ShapeCache`] opens).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use lightfarm_proto::scene::Scene;
 
@@ -217,10 +218,10 @@ pub fn run_unit(
             let keys = shapes.block_keys();
             let key = transport_key(scene, scene.settings.transport, &keys);
             if transport_cache.get(&key).is_none() {
-                let mut unique: Vec<ShapeOperators> = Vec::new();
+                let mut unique: Vec<Arc<ShapeOperators>> = Vec::new();
                 for k in &shapes.unique {
                     match cache.get(k) {
-                        Lookup::Hit(ops) => unique.push(*ops),
+                        Lookup::Hit(ops) => unique.push(Arc::from(ops)),
                         _ => {
                             return Err(BakeError::Drt(format!(
                                 "transport needs shape {k}, which is not in the cache"
@@ -228,9 +229,9 @@ pub fn run_unit(
                         }
                     }
                 }
-                let unique_refs: Vec<&ShapeOperators> = unique.iter().collect();
-                let instances = shapes.instances(&unique_refs);
-                let per_block = shapes.per_block(&unique_refs, &instances);
+                let block_operators = shapes.block_operators(&unique);
+                let per_block: Vec<&ShapeOperators> =
+                    block_operators.iter().map(|s| s.as_ref()).collect();
                 let computed = mrt_transport(
                     scene,
                     &Geometry::blocks_only(scene),
