@@ -4,14 +4,15 @@
 
 use std::path::{Path, PathBuf};
 
-use lightfarm_client::Method;
+use lightfarm_client::{Bounces, Method};
+use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{compare, Comparison, ResultFile};
 use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::bake::geometry::Geometry;
 use lightfarm_server::bake::pipeline::{bake, BakeOptions, BakeReport};
 use lightfarm_server::bake::progress::NoProgress;
-use lightfarm_server::bake::reference::reference;
+use lightfarm_server::bake::reference::{reference, ReferenceSettings};
 use lightfarm_server::cli::eval::evaluate;
 
 /// `scenes/<name>` in the repository.
@@ -52,14 +53,15 @@ pub fn bake_scene(
 /// Applies a bundle as a game would.
 pub fn apply(bundle: &[u8], lights: &LightSet, method: Method) -> ResultFile {
     let bundle = lightfarm_client::decode(bundle).expect("decode");
-    evaluate(bundle, lights, method).expect("evaluate")
+    evaluate(bundle, lights, method, Bounces::One).expect("evaluate")
 }
 
 /// The reference solution of a scene.
 pub fn reference_of(scene: &Scene, dir: &Path, lights: &LightSet, rays: u32) -> ResultFile {
     let mut g = Geometry::from_scene(scene, dir).unwrap();
     g.add_posed_dynamic(scene, dir, &lights.poses).unwrap();
-    reference(&g, &lights.lights, rays, 1234, &|_| {})
+    let settings = ReferenceSettings::new(rays, BounceCount::ONE, 1234);
+    reference(&g, &lights.lights, &settings, &|_| {})
 }
 
 /// The one accuracy check every test uses: `ours` against `reference` within `tolerance`

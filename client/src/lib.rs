@@ -5,14 +5,15 @@
 //!
 //! ```no_run
 //! # fn frame(bytes: &[u8], lights: &[lightfarm_proto::lights::Light]) -> Result<(), Box<dyn std::error::Error>> {
-//! use lightfarm_client::{decode, direct_from_point_lights, irradiance_at, IndirectLight, Method,
-//!     Occluders, ProbeField, Runtime};
+//! use lightfarm_client::{decode, direct_from_point_lights, irradiance_at, Bounces, IndirectLight,
+//!     Method, Occluders, ProbeField, Runtime};
 //! let bundle = decode(bytes)?;
 //! let occluders = Occluders::from_layout(&bundle.layout);
 //! let direct = direct_from_point_lights(&bundle.layout, &occluders, lights);
 //! let mut runtime = Runtime::new(bundle);
 //! let mut indirect = IndirectLight::default();
-//! runtime.apply(Method::Mrt, &direct, &mut indirect)?;
+//! // All bounces (the default Converged mode); `Bounces::Feedback` costs one application a frame.
+//! runtime.apply(Method::Mrt, Bounces::default(), &direct, &mut indirect)?;
 //! // Dynamic objects: irradiance at any point and normal from the probe volume.
 //! let mut field = ProbeField::default();
 //! if runtime.has_probes() {
@@ -75,7 +76,10 @@ pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};
 pub use occluders::Occluders;
 pub use probes::{irradiance_at, irradiance_sh_at, radiance_sh_at, ProbeField};
-pub use runtime::{ApplyError, IndirectLight, Method, Runtime, ShLight};
+pub use runtime::{
+    Applied, ApplyError, Bounces, IndirectLight, Method, Runtime, ShLight, DEFAULT_TOLERANCE,
+    MAX_BOUNCES,
+};
 #[cfg(feature = "fetch")]
 pub use service::{ServiceClient, ServiceError};
 

@@ -31,14 +31,30 @@
 //! `x` as in DRT step 3 and `rows[i] = probe · 9 + coefficient`. No albedo: a probe holds
 //! incident radiance at a point, not a surface's outgoing radiance (see [`crate::probes`]).
 //!
+//! Bounces ([`Bounces`]): every method above is one linear map `A` from the radiance leaving
+//! texels to the one-bounce indirect radiance leaving them (same units in and out, albedo
+//! included), so bounce k+1 is `A` applied to bounce k, and all bounces are the Neumann series
+//! `I = Σ_{k≥1} A^k L_d` (the fixed point `I = A (L_d + I)`; Wavelet Radiance Transport §3, the
+//! global transport operator). [`Bounces::One`] is the papers' light; [`Bounces::Fixed`] sums
+//! exactly n bounces; [`Bounces::Converged`] (the default) adds bounces until the bounces left
+//! would add less than `tolerance` of the light summed so far (the energy of a bounce is the sum
+//! of its RGB values over every texel; the rest is estimated from the last bounce's energy e and
+//! its ratio λ to the one before as e·λ/(1−λ)); [`Bounces::Feedback`] applies `A` once per call to the
+//! direct light plus the previous call's indirect light (Enlighten's radiosity feedback), so
+//! repeated calls with steady lights converge to `Converged` at one application each.
+//!
 //! Invariants:
 //! - A [`Runtime`] only exists for a bundle whose sizes and indices are consistent (checked in
 //!   [`Runtime::try_new`]; always true of a bundle from `Bundle::decode`), so `apply` and
 //!   `apply_probes` index without further checks and their only errors are the ones in
 //!   [`ApplyError`].
-//! - `apply` and `apply_probes` are deterministic: the same direct light gives bit-identical
-//!   output every call, whatever was applied before (they share scratch but each refills what
-//!   it reads).
+//! - `apply` (except with [`Bounces::Feedback`], whose state is the previous output) and
+//!   `apply_probes` are deterministic: the same direct light gives bit-identical output every
+//!   call, whatever was applied before (they share scratch but each refills what it reads).
+//! - Bounce loops end: `Converged` stops at [`MAX_BOUNCES`], or as soon as a bounce keeps
+//!   ≥ 0.999 of the last one's energy (an operator with gain near or above 1, e.g. albedo 1 in a
+//!   closed room), with [`ApplyError::NotConverging`], and any non-finite value is refused with
+//!   [`ApplyError::NonFinite`]; the output is then zero, never NaN.
 //! - Scratch vectors are channel-planar (channel c of an n-vector at `c·n .. (c+1)·n`), so
 //!   every matrix row is one contiguous pass accumulating all three channels. Per-block scratch
 //!   (coefficients `b`, opening lightfields) is block-major, so each block's work writes only
@@ -67,6 +83,60 @@ pub enum Method {
     Drt,
 }
 
+/// How many bounces of indirect light [`Runtime::apply`] sums (see the module doc).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Bounces {
+    /// The first bounce only: the papers' one-bounce indirect light.
+    One,
+    /// Exactly this many bounces (1 is [`Bounces::One`]; 0 is refused).
+    Fixed(u32),
+    /// Bounces until the light the remaining bounces would add is estimated below `tolerance` ×
+    /// the light summed so far (0 < tolerance < 1; see [`Applied::remaining_fraction`]). The
+    /// default, with [`DEFAULT_TOLERANCE`].
+    Converged { tolerance: f32 },
+    /// One application per call of the direct light plus the previous call's indirect light
+    /// (zero after [`Runtime::reset_feedback`], a method change or a new runtime).
+    Feedback,
+}
+
+/// The default tolerance of [`Bounces::Converged`]: the bounces left out carry about 0.1% of the
+/// light.
+pub const DEFAULT_TOLERANCE: f32 = 1e-3;
+
+/// Bounces [`Bounces::Converged`] and [`Bounces::Fixed`] sum at the most.
+pub const MAX_BOUNCES: u32 = 1000;
+
+impl Default for Bounces {
+    fn default() -> Bounces {
+        Bounces::Converged {
+            tolerance: DEFAULT_TOLERANCE,
+        }
+    }
+}
+
+impl From<lightfarm_proto::bounces::BounceCount> for Bounces {
+    /// `1` → [`Bounces::One`], `n` → [`Bounces::Fixed`], `all` → the default `Converged`.
+    fn from(b: lightfarm_proto::bounces::BounceCount) -> Bounces {
+        use lightfarm_proto::bounces::BounceCount;
+        match b {
+            BounceCount::Fixed(1) => Bounces::One,
+            BounceCount::Fixed(n) => Bounces::Fixed(n),
+            BounceCount::All => Bounces::default(),
+        }
+    }
+}
+
+/// What one [`Runtime::apply`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Applied {
+    /// Applications of the one-bounce operator (bounces summed; 1 for `One` and `Feedback`).
+    pub bounces: u32,
+    /// Estimated energy of the bounces not summed over the energy summed: the last bounce's
+    /// energy times `λ/(1−λ)`, λ its ratio to the bounce before (0 for a single bounce or
+    /// feedback).
+    pub remaining_fraction: f32,
+}
+
 /// Indirect outgoing radiance, one RGB value per layout texel.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct IndirectLight {
@@ -74,7 +144,7 @@ pub struct IndirectLight {
 }
 
 /// Why [`Runtime::apply`] could not run.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ApplyError {
     #[error("this bundle has no dense operator; bake it with --full")]
     MissingFull,
@@ -86,6 +156,21 @@ pub enum ApplyError {
     MissingProbes,
     #[error("this bundle has no SH responses; bake with settings.sh_responses")]
     MissingSh,
+    #[error("bounces: Fixed(0) sums no bounce; use Fixed(n ≥ 1), One, Converged or Feedback")]
+    NoBounces,
+    #[error(
+        "bounces: the Converged tolerance must lie in (0, 1), got {0} (the default is {DEFAULT_TOLERANCE})"
+    )]
+    BadTolerance(f32),
+    #[error(
+        "bounces: light does not converge (after {bounces} bounces each still keeps {ratio:.4} of \
+         the last; an albedo of 1 in a closed room reflects forever); use Fixed(n) or One"
+    )]
+    NotConverging { bounces: u32, ratio: f32 },
+    #[error(
+        "bounces: bounce {bounce} produced a non-finite value (check albedo and direct light)"
+    )]
+    NonFinite { bounce: u32 },
 }
 
 /// Where one block's data sits in the block-major scratch vectors.
@@ -222,6 +307,28 @@ pub struct Runtime {
     scratch: Vec<f32>,
     /// Whether per-block work runs on the current rayon pool (feature `rayon`).
     parallel: bool,
+    /// Scratch of the bounce loop: the light one bounce leaves and the next bounce's output
+    /// (n_texels each).
+    bounce_in: Vec<[f32; 3]>,
+    bounce_out: Vec<[f32; 3]>,
+    /// [`Bounces::Feedback`]: the previous output and the method it was made with.
+    feedback: Vec<[f32; 3]>,
+    feedback_method: Option<Method>,
+}
+
+/// [`Bounces::Converged`] refuses an operator whose bounces keep at least this fraction of the
+/// last one's energy (it would need thousands of bounces, or never converge)...
+const MAX_CONVERGING_GAIN: f64 = 0.999;
+/// ...once this many bounces are summed (the first bounces' ratios are transients).
+const GAIN_CHECK_FROM: u32 = 8;
+
+/// The energy of a bounce: the sum of every texel's R, G and B (f64, so the sum of a large
+/// level keeps its digits).
+fn energy(light: &[[f32; 3]]) -> f64 {
+    light
+        .iter()
+        .map(|v| v[0] as f64 + v[1] as f64 + v[2] as f64)
+        .sum()
 }
 
 /// The three channel slices `[offset, offset + len)` of a planar 3 × `stride` vector.
@@ -505,7 +612,18 @@ impl Runtime {
             ],
             ops,
             bundle,
+            bounce_in: vec![[0.0; 3]; n_texels],
+            bounce_out: vec![[0.0; 3]; n_texels],
+            feedback: vec![[0.0; 3]; n_texels],
+            feedback_method: None,
         })
+    }
+
+    /// Forgets the light [`Bounces::Feedback`] feeds back (the next call starts from one
+    /// bounce, as after a cut to another level).
+    pub fn reset_feedback(&mut self) {
+        self.feedback.fill([0.0; 3]);
+        self.feedback_method = None;
     }
 
     /// Runs the per-block work of [`Runtime::apply`] on the current rayon thread pool
@@ -616,14 +734,17 @@ impl Runtime {
         self.scratch = scratch;
     }
 
-    /// Turns direct light into indirect light by `method`, writing every texel of `out`
-    /// (resized to the texel count if its length is wrong; otherwise no allocation).
+    /// Turns direct light into indirect light by `method`, summing `bounces` bounces (see the
+    /// module doc), and writes every texel of `out` (resized to the texel count if its length
+    /// is wrong; otherwise no allocation). On an error `out` holds zeros (or is untouched for
+    /// the argument errors, checked first).
     pub fn apply(
         &mut self,
         method: Method,
+        bounces: Bounces,
         direct: &DirectLight,
         out: &mut IndirectLight,
-    ) -> Result<(), ApplyError> {
+    ) -> Result<Applied, ApplyError> {
         let n = self.n_texels;
         if direct.radiance.len() != n {
             return Err(ApplyError::DirectLength {
@@ -637,28 +758,160 @@ impl Runtime {
         if method == Method::Drt && self.bundle.drt.is_none() {
             return Err(ApplyError::MissingDrt);
         }
+        match bounces {
+            Bounces::Fixed(0) => return Err(ApplyError::NoBounces),
+            Bounces::Converged { tolerance } if !(tolerance > 0.0 && tolerance < 1.0) => {
+                return Err(ApplyError::BadTolerance(tolerance))
+            }
+            _ => {}
+        }
         if out.radiance.len() != n {
             out.radiance.clear();
             out.radiance.resize(n, [0.0; 3]);
         }
+        let result = match bounces {
+            Bounces::One | Bounces::Fixed(1) => {
+                self.apply_once(method, &direct.radiance, &mut out.radiance);
+                Ok(Applied {
+                    bounces: 1,
+                    remaining_fraction: 0.0,
+                })
+            }
+            Bounces::Fixed(count) => {
+                self.sum_bounces(method, &direct.radiance, &mut out.radiance, count, None)
+            }
+            Bounces::Converged { tolerance } => self.sum_bounces(
+                method,
+                &direct.radiance,
+                &mut out.radiance,
+                MAX_BOUNCES,
+                Some(tolerance),
+            ),
+            Bounces::Feedback => self.apply_feedback(method, &direct.radiance, &mut out.radiance),
+        };
+        if result.is_err() {
+            out.radiance.fill([0.0; 3]);
+        }
+        result
+    }
+
+    /// One application of the one-bounce operator: `out = A(light)`.
+    fn apply_once(&mut self, method: Method, light: &[[f32; 3]], out: &mut [[f32; 3]]) {
         match method {
-            Method::Full => self.apply_full(&direct.radiance, &mut out.radiance),
+            Method::Full => self.apply_full(light, out),
             Method::Mrt => {
-                self.project_blocks(&direct.radiance);
-                self.mrt_albedo_free(&mut out.radiance);
-                self.multiply_albedo(&mut out.radiance);
+                self.project_blocks(light);
+                self.mrt_albedo_free(out);
+                self.multiply_albedo(out);
             }
             Method::Drt => {
-                self.project_blocks(&direct.radiance);
-                self.mrt_albedo_free(&mut out.radiance);
-                self.drop_replaced(&mut out.radiance);
+                self.project_blocks(light);
+                self.mrt_albedo_free(out);
+                self.drop_replaced(out);
                 self.project_clutter();
-                self.add_drt_deltas(&mut out.radiance);
-                self.add_direct_gather(&direct.radiance, &mut out.radiance);
-                self.multiply_albedo(&mut out.radiance);
+                self.add_drt_deltas(out);
+                self.add_direct_gather(light, out);
+                self.multiply_albedo(out);
             }
         }
-        Ok(())
+    }
+
+    /// `out = Σ_{k=1..} A^k(direct)`: up to `max` bounces, fewer when a `tolerance` is given
+    /// and a bounce's energy falls to `tolerance` × the energy summed so far.
+    fn sum_bounces(
+        &mut self,
+        method: Method,
+        direct: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+        max: u32,
+        tolerance: Option<f32>,
+    ) -> Result<Applied, ApplyError> {
+        self.apply_once(method, direct, out);
+        let mut total = energy(out);
+        if !total.is_finite() {
+            return Err(ApplyError::NonFinite { bounce: 1 });
+        }
+        let mut light = std::mem::take(&mut self.bounce_in);
+        let mut next = std::mem::take(&mut self.bounce_out);
+        light.copy_from_slice(out);
+        let mut last = total;
+        let mut result = Ok(Applied {
+            bounces: 1,
+            remaining_fraction: 0.0,
+        });
+        for bounce in 2..=max {
+            self.apply_once(method, &light, &mut next);
+            for (o, v) in out.iter_mut().zip(&next) {
+                o[0] += v[0];
+                o[1] += v[1];
+                o[2] += v[2];
+            }
+            let e = energy(&next);
+            total += e;
+            if !e.is_finite() || !total.is_finite() {
+                result = Err(ApplyError::NonFinite { bounce });
+                break;
+            }
+            // Each bounce keeps λ of the last one's energy; the bounces not summed carry about
+            // e·λ/(1−λ) (the tail of the geometric series).
+            let gain = if last > 0.0 { e / last } else { 0.0 };
+            last = e;
+            let remaining = if gain < 1.0 {
+                e * gain / (1.0 - gain)
+            } else {
+                f64::INFINITY
+            };
+            let fraction = if total > 0.0 { remaining / total } else { 0.0 };
+            result = Ok(Applied {
+                bounces: bounce,
+                remaining_fraction: fraction as f32,
+            });
+            std::mem::swap(&mut light, &mut next);
+            let Some(tolerance) = tolerance else {
+                continue;
+            };
+            if fraction <= tolerance as f64 {
+                break;
+            }
+            if (bounce >= GAIN_CHECK_FROM && gain >= MAX_CONVERGING_GAIN) || bounce == max {
+                result = Err(ApplyError::NotConverging {
+                    bounces: bounce,
+                    ratio: gain as f32,
+                });
+                break;
+            }
+        }
+        self.bounce_in = light;
+        self.bounce_out = next;
+        result
+    }
+
+    /// [`Bounces::Feedback`]: `out = A(direct + previous out)`, then remembers `out`.
+    fn apply_feedback(
+        &mut self,
+        method: Method,
+        direct: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+    ) -> Result<Applied, ApplyError> {
+        if self.feedback_method != Some(method) {
+            self.feedback.fill([0.0; 3]);
+            self.feedback_method = Some(method);
+        }
+        let mut light = std::mem::take(&mut self.bounce_in);
+        for ((l, d), f) in light.iter_mut().zip(direct).zip(&self.feedback) {
+            *l = [d[0] + f[0], d[1] + f[1], d[2] + f[2]];
+        }
+        self.apply_once(method, &light, out);
+        self.bounce_in = light;
+        if !energy(out).is_finite() {
+            self.reset_feedback();
+            return Err(ApplyError::NonFinite { bounce: 1 });
+        }
+        self.feedback.copy_from_slice(out);
+        Ok(Applied {
+            bounces: 1,
+            remaining_fraction: 0.0,
+        })
     }
 
     fn apply_full(&self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
@@ -1684,7 +1937,7 @@ mod tests {
     fn run(bundle: Bundle, method: Method, ld: &DirectLight) -> IndirectLight {
         let mut rt = Runtime::new(bundle);
         let mut out = IndirectLight::default();
-        rt.apply(method, ld, &mut out).unwrap();
+        rt.apply(method, Bounces::One, ld, &mut out).unwrap();
         out
     }
 
@@ -1770,7 +2023,9 @@ mod tests {
         assert!(!rt.has_full());
         let ld = direct(&mut rng, 21);
         let mut out = IndirectLight::default();
-        let err = rt.apply(Method::Full, &ld, &mut out).unwrap_err();
+        let err = rt
+            .apply(Method::Full, Bounces::One, &ld, &mut out)
+            .unwrap_err();
         assert_eq!(err, ApplyError::MissingFull);
         assert_eq!(
             err.to_string(),
@@ -1788,7 +2043,7 @@ mod tests {
             let ld = direct(&mut rng, len);
             // Drt too: the length is checked before whether the bundle has the section.
             for method in [Method::Mrt, Method::Full, Method::Drt] {
-                let err = rt.apply(method, &ld, &mut out).unwrap_err();
+                let err = rt.apply(method, Bounces::One, &ld, &mut out).unwrap_err();
                 assert_eq!(
                     err,
                     ApplyError::DirectLength {
@@ -1837,23 +2092,23 @@ mod tests {
                 let mut out = IndirectLight {
                     radiance: vec![[9.0; 3]; 5],
                 };
-                rt.apply(method, &ld, &mut out).unwrap();
+                rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
                 let first = out.clone();
                 let before = allocs();
-                rt.apply(method, &ld, &mut out).unwrap();
-                rt.apply(method, &ld, &mut out).unwrap();
+                rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
+                rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
                 assert_eq!(allocs(), before, "{method:?}: apply allocated");
                 assert_eq!(out, first, "{method:?}: not deterministic");
                 // Stale values in `out` do not leak into the result.
                 out.radiance.fill([f32::NAN; 3]);
-                rt.apply(method, &ld, &mut out).unwrap();
+                rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
                 assert_eq!(out, first);
                 firsts.push(first);
             }
             // Nor does one method's scratch leak into another's result.
             let mut out = IndirectLight::default();
             for (&method, first) in methods.iter().zip(&firsts).rev() {
-                rt.apply(method, &ld, &mut out).unwrap();
+                rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
                 assert_eq!(&out, first, "{method:?} after another method");
             }
             if !has_probes {
@@ -1875,10 +2130,10 @@ mod tests {
             assert_eq!(field, first, "stale values leak into apply_probes");
             // apply and apply_probes share scratch without changing each other's results.
             for (&method, first_out) in methods.iter().zip(&firsts) {
-                rt.apply(method, &ld, &mut out).unwrap();
+                rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
                 rt.apply_probes(&ld, &mut field).unwrap();
                 assert_eq!(field, first, "apply_probes after {method:?}");
-                rt.apply(method, &ld, &mut out).unwrap();
+                rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
                 assert_eq!(&out, first_out, "{method:?} after apply_probes");
             }
             assert_eq!(allocs(), before, "apply or apply_probes allocated");
@@ -2081,8 +2336,8 @@ mod tests {
             let ld = direct(&mut rng, n);
             let mut rt = Runtime::new(b);
             let (mut drt, mut mrt) = (IndirectLight::default(), IndirectLight::default());
-            rt.apply(Method::Drt, &ld, &mut drt).unwrap();
-            rt.apply(Method::Mrt, &ld, &mut mrt).unwrap();
+            rt.apply(Method::Drt, Bounces::One, &ld, &mut drt).unwrap();
+            rt.apply(Method::Mrt, Bounces::One, &ld, &mut mrt).unwrap();
             assert_eq!(drt.radiance[..10], mrt.radiance[..10], "block texels");
             assert!(drt.radiance[..10].iter().flatten().any(|&v| v != 0.0));
             assert!(
@@ -2103,7 +2358,9 @@ mod tests {
         assert!(!rt.has_drt());
         let ld = direct(&mut rng, 21);
         let mut out = IndirectLight::default();
-        let err = rt.apply(Method::Drt, &ld, &mut out).unwrap_err();
+        let err = rt
+            .apply(Method::Drt, Bounces::One, &ld, &mut out)
+            .unwrap_err();
         assert_eq!(err, ApplyError::MissingDrt);
         assert_eq!(
             err.to_string(),
@@ -2313,7 +2570,7 @@ mod tests {
         };
         let mut out = IndirectLight::default();
         for method in [Method::Mrt, Method::Full, Method::Drt] {
-            let _ = rt.apply(method, &ld, &mut out);
+            let _ = rt.apply(method, Bounces::One, &ld, &mut out);
         }
         let mut field = ProbeField::default();
         if rt.apply_probes(&ld, &mut field).is_ok() {
@@ -2414,5 +2671,309 @@ mod tests {
             decoded > 0 && decoded < tried,
             "{decoded} of {tried} decoded"
         );
+    }
+
+    // ---- Bounces -------------------------------------------------------------------------
+
+    /// `Σ_{k=1..n} A^k ld` in f64 with `one` the dense one-bounce reference of the method.
+    fn reference_bounces(
+        bundle: &Bundle,
+        ld: &[[f32; 3]],
+        n: u32,
+        one: fn(&Bundle, &[[f32; 3]]) -> Vec<[f64; 3]>,
+    ) -> Vec<[f64; 3]> {
+        let mut light: Vec<[f32; 3]> = ld.to_vec();
+        let mut sum = vec![[0.0f64; 3]; ld.len()];
+        for _ in 0..n {
+            let next = one(bundle, &light);
+            for (s, v) in sum.iter_mut().zip(&next) {
+                for c in 0..3 {
+                    s[c] += v[c];
+                }
+            }
+            light = next.iter().map(|v| v.map(|x| x as f32)).collect();
+        }
+        sum
+    }
+
+    /// A bundle whose one-bounce gain is about `gain` for every method: every operator value is
+    /// scaled so the dense operator's largest row sum times the largest albedo is `gain`.
+    fn with_gain(mut b: Bundle, gain: f32) -> Bundle {
+        let f = b.full.as_mut().expect("a full operator");
+        let n = f.n as usize;
+        let row_max = (0..n)
+            .map(|i| {
+                f.values[f.row_start[i] as usize..f.row_start[i + 1] as usize]
+                    .iter()
+                    .sum::<f32>()
+            })
+            .fold(0.0f32, f32::max);
+        let rho_max = b
+            .layout
+            .albedo
+            .iter()
+            .flatten()
+            .fold(0.0f32, |m, &x| m.max(x));
+        let scale = gain / (row_max * rho_max);
+        for v in &mut f.values {
+            *v *= scale;
+        }
+        b
+    }
+
+    #[test]
+    fn fixed_bounces_equal_the_sum_of_explicit_bounces() {
+        let mut rng = Lcg(41);
+        // MRT (traced and lightfield transport), DRT and the dense operator, against f64
+        // references iterated by hand.
+        let (t, l) = (traced(&mut rng), lightfield(&mut rng));
+        let cases: Vec<(Bundle, Method, fn(&Bundle, &[[f32; 3]]) -> Vec<[f64; 3]>)> = vec![
+            (bundle(&mut rng, Some(t), false), Method::Mrt, reference_mrt),
+            (bundle(&mut rng, Some(l), false), Method::Mrt, reference_mrt),
+            (
+                drt_bundle(&mut rng, true, true, false),
+                Method::Drt,
+                reference_drt,
+            ),
+            (
+                with_gain(bundle(&mut rng, None, true), 0.7),
+                Method::Full,
+                reference_full,
+            ),
+        ];
+        for (b, method, one) in cases {
+            let n = b.layout.n_texels();
+            let ld = direct(&mut rng, n);
+            let mut rt = Runtime::new(b.clone());
+            let mut out = IndirectLight::default();
+            for bounces in [1u32, 2, 4] {
+                let mode = if bounces == 1 {
+                    Bounces::One
+                } else {
+                    Bounces::Fixed(bounces)
+                };
+                let applied = rt.apply(method, mode, &ld, &mut out).unwrap();
+                assert_eq!(applied.bounces, bounces, "{method:?}");
+                let want = reference_bounces(&b, &ld.radiance, bounces, one);
+                // Relative to the largest value: the iterated random operators grow.
+                let scale = want.iter().flatten().fold(1.0f64, |m, &x| m.max(x.abs()));
+                for (g, w) in out.radiance.iter().zip(&want) {
+                    for c in 0..3 {
+                        assert!(
+                            (g[c] as f64 - w[c]).abs() <= 2e-5 * scale,
+                            "{method:?} {bounces} bounces: {} vs {}",
+                            g[c],
+                            w[c]
+                        );
+                    }
+                }
+            }
+            assert_eq!(
+                rt.apply(method, Bounces::Fixed(0), &ld, &mut out),
+                Err(ApplyError::NoBounces)
+            );
+        }
+    }
+
+    #[test]
+    fn converged_is_the_sum_of_as_many_explicit_bounces_and_stops_at_its_tolerance() {
+        let mut rng = Lcg(43);
+        let b = with_gain(bundle(&mut rng, None, true), 0.6);
+        let ld = direct(&mut rng, b.layout.n_texels());
+        let mut rt = Runtime::new(b);
+        let (mut converged, mut fixed) = (IndirectLight::default(), IndirectLight::default());
+        let mut previous = 0;
+        let mut many = IndirectLight::default();
+        rt.apply(Method::Full, Bounces::Fixed(200), &ld, &mut many)
+            .unwrap();
+        let e_all = energy(&many.radiance);
+        for tolerance in [1e-2f32, 1e-3, 1e-5] {
+            let applied = rt
+                .apply(
+                    Method::Full,
+                    Bounces::Converged { tolerance },
+                    &ld,
+                    &mut converged,
+                )
+                .unwrap();
+            assert!(applied.remaining_fraction <= tolerance, "{applied:?}");
+            assert!(
+                applied.bounces > previous,
+                "a tighter tolerance takes more bounces"
+            );
+            previous = applied.bounces;
+            rt.apply(
+                Method::Full,
+                Bounces::Fixed(applied.bounces),
+                &ld,
+                &mut fixed,
+            )
+            .unwrap();
+            assert_eq!(converged, fixed, "bit-identical to the explicit sum");
+            // The estimate of what was left out holds: the true rest is within 3× of it.
+            let rest = (e_all - energy(&fixed.radiance)) / e_all;
+            assert!(
+                rest >= 0.0 && rest <= 3.0 * tolerance as f64 + 1e-6,
+                "{rest} vs {tolerance}"
+            );
+        }
+        // Gain 0.6: about log(1e-5 · 0.4)/log(0.6) ≈ 24 bounces at most.
+        assert!(previous <= 30, "{previous} bounces at 1e-5");
+        for bad in [0.0f32, 1.0, -1.0, f32::NAN] {
+            assert!(matches!(
+                rt.apply(
+                    Method::Full,
+                    Bounces::Converged { tolerance: bad },
+                    &ld,
+                    &mut fixed
+                ),
+                Err(ApplyError::BadTolerance(_))
+            ));
+        }
+    }
+
+    #[test]
+    fn an_operator_with_gain_one_is_refused_not_looped_and_never_nan() {
+        let mut rng = Lcg(47);
+        for gain in [1.0f32, 1.5, 0.9999] {
+            // A perfect reflector (albedo 1) whose every row sums to `gain`: the operator's
+            // gain is exactly `gain`, like a closed white room.
+            let mut b = bundle(&mut rng, None, true);
+            let f = b.full.as_mut().unwrap();
+            let mut rows = SparseRows {
+                n: f.n,
+                row_start: vec![0],
+                cols: vec![],
+                values: vec![],
+            };
+            for i in 0..f.n as usize {
+                let (s, e) = (f.row_start[i] as usize, f.row_start[i + 1] as usize);
+                let sum: f32 = f.values[s..e].iter().sum();
+                if sum > 0.0 {
+                    rows.cols.extend_from_slice(&f.cols[s..e]);
+                    rows.values
+                        .extend(f.values[s..e].iter().map(|v| v * gain / sum));
+                } else {
+                    rows.cols.push(i as u32);
+                    rows.values.push(gain);
+                }
+                rows.row_start.push(rows.cols.len() as u32);
+            }
+            *f = rows;
+            b.layout.albedo.fill([1.0; 3]);
+            let ld = direct(&mut rng, b.layout.n_texels());
+            let mut rt = Runtime::new(b);
+            let mut out = IndirectLight::default();
+            let err = rt
+                .apply(Method::Full, Bounces::default(), &ld, &mut out)
+                .unwrap_err();
+            match err {
+                ApplyError::NotConverging { bounces, .. } => {
+                    assert!(bounces <= MAX_BOUNCES, "{bounces}")
+                }
+                ApplyError::NonFinite { .. } => {}
+                other => panic!("gain {gain}: {other}"),
+            }
+            assert!(err.to_string().contains("bounces"), "{err}");
+            assert!(out.radiance.iter().flatten().all(|&x| x == 0.0));
+        }
+    }
+
+    #[test]
+    fn feedback_converges_to_converged_and_stays_bounded_while_lights_move() {
+        let mut rng = Lcg(53);
+        for (b, method) in [
+            (with_gain(bundle(&mut rng, None, true), 0.65), Method::Full),
+            (drt_bundle(&mut rng, false, true, false), Method::Drt),
+        ] {
+            let n = b.layout.n_texels();
+            let ld = direct(&mut rng, n);
+            let mut rt = Runtime::new(b);
+            let tight = Bounces::Converged { tolerance: 1e-6 };
+            let mut converged = IndirectLight::default();
+            if rt.apply(method, tight, &ld, &mut converged).is_err() {
+                // The random DRT operators may have gain ≥ 1; then feedback is not defined
+                // either. The dense case always runs.
+                assert_eq!(method, Method::Drt);
+                continue;
+            }
+            let mut out = IndirectLight::default();
+            let e_conv = energy(&converged.radiance);
+            let mut frames_to_1pct = None;
+            for frame in 1..=200 {
+                rt.apply(method, Bounces::Feedback, &ld, &mut out).unwrap();
+                let diff: f64 = out
+                    .radiance
+                    .iter()
+                    .zip(&converged.radiance)
+                    .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs() as f64).sum::<f64>())
+                    .sum();
+                if frames_to_1pct.is_none() && diff <= 0.01 * e_conv {
+                    frames_to_1pct = Some(frame);
+                }
+            }
+            let frames = frames_to_1pct.expect("feedback reaches 1% of Converged");
+            assert!(frames < 60, "{method:?}: {frames} frames");
+            for (a, b) in out.radiance.iter().zip(&converged.radiance) {
+                for c in 0..3 {
+                    assert!(
+                        (a[c] - b[c]).abs() <= 1e-4 * (1.0 + b[c].abs()),
+                        "{a:?} {b:?}"
+                    );
+                }
+            }
+            // A light that jumps every frame: feedback stays within the converged light of the
+            // brightest frame (all light is non-negative, the operator monotone).
+            rt.reset_feedback();
+            let lights: Vec<DirectLight> = (0..8).map(|_| direct(&mut rng, n)).collect();
+            let mut bound = 0.0f64;
+            for l in &lights {
+                rt.apply(method, tight, l, &mut converged).unwrap();
+                bound = bound.max(energy(&converged.radiance));
+            }
+            let brightest = DirectLight {
+                radiance: (0..n)
+                    .map(|t| {
+                        std::array::from_fn(|c| {
+                            lights.iter().map(|l| l.radiance[t][c]).fold(0.0, f32::max)
+                        })
+                    })
+                    .collect(),
+            };
+            rt.apply(method, tight, &brightest, &mut converged).unwrap();
+            let ceiling = energy(&converged.radiance);
+            assert!(ceiling >= bound);
+            for frame in 0..400 {
+                rt.apply(method, Bounces::Feedback, &lights[frame % 8], &mut out)
+                    .unwrap();
+                let e = energy(&out.radiance);
+                assert!(
+                    e.is_finite() && e <= ceiling * (1.0 + 1e-4),
+                    "frame {frame}: {e}"
+                );
+            }
+        }
+    }
+
+    #[cfg(feature = "rayon")]
+    #[test]
+    fn converged_is_bit_identical_at_one_and_two_threads() {
+        let mut rng = Lcg(59);
+        let b = drt_bundle(&mut rng, true, true, false);
+        let ld = direct(&mut rng, b.layout.n_texels());
+        let mut outputs = Vec::new();
+        for threads in [1usize, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut rt = Runtime::new(b.clone());
+            rt.set_parallel(threads > 1);
+            let mut out = IndirectLight::default();
+            pool.install(|| rt.apply(Method::Drt, Bounces::Fixed(6), &ld, &mut out))
+                .unwrap();
+            outputs.push(out);
+        }
+        assert_eq!(outputs[0], outputs[1]);
     }
 }

@@ -4,6 +4,7 @@
 //! - [`api`]: the bake service's HTTP API types (`/v1`).
 //! - [`scene`]: the scene description `lightfarm.scene/1`, its validation and JSON Schema.
 //! - [`lights`]: LIGHTS.json (point lights, dynamic-object poses).
+//! - [`bounces`]: how many bounces of indirect light a result sums (`--bounces N|all`).
 //! - [`result`]: RESULT.json (per-texel direct and indirect radiance) and `compare`.
 //! - [`bundle`]: the operator bundle the server writes and the client reads.
 //!   `bundle/sh_responses.rs`: its SH responses section (normal-mapped surfaces, minor 2).
@@ -15,6 +16,7 @@
 //! Invariant: this crate does no light-transport math and no I/O beyond bytes and strings.
 
 pub mod api;
+pub mod bounces;
 pub mod box_symmetry;
 pub mod bundle;
 pub mod codec;

@@ -3,7 +3,8 @@
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand, ValueEnum};
-use lightfarm_client::Method;
+use lightfarm_client::{Bounces, Method};
+use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::scene::{BundleCodec, Transport};
 use lightfarm_server::cli;
 
@@ -50,6 +51,22 @@ impl From<CodecArg> for BundleCodec {
     }
 }
 
+/// `--bounces` of `frame-time`: a bounce count or Enlighten-style feedback.
+#[derive(Clone, Copy, Debug)]
+struct BouncesArg(Bounces);
+
+impl std::str::FromStr for BouncesArg {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<BouncesArg, String> {
+        if s.trim().eq_ignore_ascii_case("feedback") {
+            return Ok(BouncesArg(Bounces::Feedback));
+        }
+        let count: BounceCount = s.parse().map_err(|e| format!("{e}, or \"feedback\""))?;
+        Ok(BouncesArg(count.into()))
+    }
+}
+
 impl From<MethodArg> for Method {
     fn from(m: MethodArg) -> Method {
         match m {
@@ -93,6 +110,11 @@ enum Command {
         lights: PathBuf,
         #[arg(long, value_enum, default_value = "drt")]
         method: MethodArg,
+        /// Bounces: a whole number ≥ 1, `all` (Converged) or `feedback` (one application per
+        /// frame, the previous frame's indirect light fed back); several, comma-separated, are
+        /// timed side by side in interleaved rounds (one line each).
+        #[arg(long, default_value = "all", value_delimiter = ',')]
+        bounces: Vec<BouncesArg>,
         #[arg(long, default_value_t = 1000)]
         frames: usize,
         /// Runtime threads (1: the single-thread path; more: the rayon path).
@@ -108,6 +130,9 @@ enum Command {
         lights: PathBuf,
         #[arg(long, value_enum, default_value = "drt")]
         method: MethodArg,
+        /// Bounces of indirect light: a whole number ≥ 1 or `all` (iterated until converged).
+        #[arg(long, default_value = "all")]
+        bounces: BounceCount,
         #[arg(short, long)]
         out: PathBuf,
         /// Also write the indirect lightmap atlas as PNG (8-bit sRGB, auto exposure).
@@ -124,13 +149,20 @@ enum Command {
         #[arg(long)]
         sh_out: Option<PathBuf>,
     },
-    /// Brute-force one-bounce reference.
+    /// Brute-force reference: path tracing with next-event estimation on the full geometry.
     Reference {
         scene: PathBuf,
         #[arg(long)]
         lights: PathBuf,
         #[arg(long, default_value_t = 4096)]
         rays: u32,
+        /// Bounces of indirect light: a whole number ≥ 1 or `all`.
+        #[arg(long, default_value = "all")]
+        bounces: BounceCount,
+        /// Trace every K-th texel of each surface only (K = 1: all); the others are left out
+        /// of RESULT.json, and `compare` matches the ones present.
+        #[arg(long, default_value_t = 1)]
+        texel_stride: u32,
         #[arg(short, long)]
         out: PathBuf,
     },
@@ -230,12 +262,14 @@ fn main() -> anyhow::Result<()> {
             bundle,
             lights,
             method,
+            bounces,
             frames,
             threads,
         } => cli::frame_time::run(cli::frame_time::FrameTimeArgs {
             bundle,
             lights,
             method: method.into(),
+            bounces: bounces.into_iter().map(|b| b.0).collect(),
             frames,
             threads,
         }),
@@ -264,6 +298,7 @@ fn main() -> anyhow::Result<()> {
             bundle,
             lights,
             method,
+            bounces,
             out,
             png,
             png_lit,
@@ -273,6 +308,7 @@ fn main() -> anyhow::Result<()> {
             bundle,
             lights,
             method: method.into(),
+            bounces: bounces.into(),
             out,
             lightmaps: cli::lightmap_files::LightmapFiles {
                 png_indirect: png,
@@ -285,11 +321,15 @@ fn main() -> anyhow::Result<()> {
             scene,
             lights,
             rays,
+            bounces,
+            texel_stride,
             out,
         } => cli::reference::run(cli::reference::ReferenceArgs {
             scene,
             lights,
             rays,
+            bounces,
+            texel_stride,
             out,
         }),
         Command::Compare {

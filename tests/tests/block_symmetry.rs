@@ -3,7 +3,7 @@
 //! as if it had its own operators. Also the versioning around it: a 1.x bundle (kind-3 blocks)
 //! still decodes, and a newer major version is a clear error.
 
-use lightfarm_client::{DirectLight, IndirectLight, Method, Runtime};
+use lightfarm_client::{Bounces, DirectLight, IndirectLight, Method, Runtime};
 use lightfarm_proto::bundle::{section, Bundle, BUNDLE_MAJOR};
 use lightfarm_proto::container::write_container;
 use lightfarm_proto::scene::Scene;
@@ -62,7 +62,8 @@ fn mirror_image_blocks_share_one_shape_and_light_as_mirror_images() {
     };
     let mut rt = Runtime::try_new(bundle.clone()).unwrap();
     let mut out = IndirectLight::default();
-    rt.apply(Method::Mrt, &direct, &mut out).unwrap();
+    rt.apply(Method::Mrt, Bounces::One, &direct, &mut out)
+        .unwrap();
     // Every west texel has an east texel at its mirror image, with the same light.
     let (mut diff, mut norm, mut pairs) = (0.0f64, 0.0f64, 0);
     for (t, p) in layout.positions.iter().enumerate() {

@@ -3,7 +3,7 @@
 //! the runtime's rayon path is bit-identical to the single-thread path, and mutated bundles
 //! never make the decoder or runtime panic.
 
-use lightfarm_client::{DirectLight, IndirectLight, Method, Runtime};
+use lightfarm_client::{Bounces, DirectLight, IndirectLight, Method, Runtime};
 use lightfarm_proto::bundle::{Bundle, EncodeOptions, Matrix, TransportOps};
 use lightfarm_proto::codec::{CodecPolicy, MatrixCodec};
 use lightfarm_proto::result::compare;
@@ -42,7 +42,7 @@ fn indirect(bundle: Bundle, method: Method) -> Vec<[f32; 3]> {
     let mut rt = Runtime::try_new(bundle).unwrap();
     let direct = direct_for(&rt);
     let mut out = IndirectLight::default();
-    rt.apply(method, &direct, &mut out).unwrap();
+    rt.apply(method, Bounces::One, &direct, &mut out).unwrap();
     out.radiance
 }
 
@@ -257,7 +257,9 @@ fn a_truncated_bundle_lights_the_scene_from_the_sections_that_arrived() {
             let mut rt = Runtime::try_new(partial.bundle).unwrap();
             let direct = direct_for(&rt);
             let mut out = IndirectLight::default();
-            assert!(rt.apply(Method::Drt, &direct, &mut out).is_err());
+            assert!(rt
+                .apply(Method::Drt, Bounces::One, &direct, &mut out)
+                .is_err());
         }
     }
     assert!(saw_mrt_only && saw_drt);
@@ -277,7 +279,7 @@ fn the_rayon_path_is_bit_identical_to_one_thread() {
             .unwrap();
         rt.set_parallel(true);
         let mut out = IndirectLight::default();
-        pool.install(|| rt.apply(method, &direct, &mut out))
+        pool.install(|| rt.apply(method, Bounces::One, &direct, &mut out))
             .unwrap();
         rt.set_parallel(false);
         assert!(
@@ -326,7 +328,7 @@ fn mutated_real_bundles_never_panic() {
             };
             let mut out = IndirectLight::default();
             for m in [Method::Mrt, Method::Drt, Method::Full] {
-                let _ = rt.apply(m, &direct, &mut out);
+                let _ = rt.apply(m, Bounces::One, &direct, &mut out);
             }
         }
         let _ = Bundle::decode_prefix(b);

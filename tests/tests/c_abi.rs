@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use lightfarm_client::{
-    direct_from_point_lights_averaged, IndirectLight, Light, Method, Occluders, Runtime,
+    direct_from_point_lights_averaged, Bounces, IndirectLight, Light, Method, Occluders, Runtime,
 };
 use lightfarm_proto::lights::LightKind;
 use lightfarm_proto::scene::Transport;
@@ -137,7 +137,9 @@ fn c_example_matches_the_rust_client() {
     let mut runtime = Runtime::try_new(bundle).unwrap();
     assert!(runtime.has_drt(), "the Cornell box has clutter");
     let mut indirect = IndirectLight::default();
-    runtime.apply(Method::Drt, &direct, &mut indirect).unwrap();
+    runtime
+        .apply(Method::Drt, Bounces::One, &direct, &mut indirect)
+        .unwrap();
     let sum = |v: &[[f32; 3]]| v.iter().flatten().map(|&x| x as f64).sum::<f64>();
     let max = indirect
         .radiance

@@ -154,6 +154,12 @@ fn a_pose_without_a_grid_is_an_error_naming_it() {
     let mut wrong = lights.clone();
     wrong.poses[0].id = "blue_cube".into();
     let bundle = lightfarm_client::decode(&bundle).expect("decode");
-    let err = lightfarm_server::cli::eval::evaluate(bundle, &wrong, Method::Mrt).unwrap_err();
+    let err = lightfarm_server::cli::eval::evaluate(
+        bundle,
+        &wrong,
+        Method::Mrt,
+        lightfarm_client::Bounces::One,
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("\"blue_cube\""), "{err}");
 }

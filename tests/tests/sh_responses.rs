@@ -7,7 +7,7 @@
 use std::f64::consts::PI;
 
 use lightfarm_client::{
-    direct_from_point_lights_averaged, IndirectLight, Method, Occluders, Runtime, ShLight,
+    direct_from_point_lights_averaged, Bounces, IndirectLight, Method, Occluders, Runtime, ShLight,
 };
 use lightfarm_proto::bundle::{Bundle, DeltaSource, EncodeOptions};
 use lightfarm_proto::codec::{CodecPolicy, MatrixCodec};
@@ -60,7 +60,9 @@ fn apply_both(bundle: Bundle, lights: &LightSet) -> (IndirectLight, ShLight, Vec
     }
     let mut runtime = Runtime::new(bundle);
     let mut scalar = IndirectLight::default();
-    runtime.apply(Method::Drt, &direct, &mut scalar).unwrap();
+    runtime
+        .apply(Method::Drt, Bounces::One, &direct, &mut scalar)
+        .unwrap();
     let mut sh = ShLight::default();
     runtime.apply_sh(&direct, &mut sh).unwrap();
     // A second call gives the same bits (scratch is refilled, not accumulated).

@@ -9,6 +9,8 @@
 //! size_t n = 3 * lf_runtime_texel_count(rt);             /* floats per RGB vector */
 //! lf_runtime_direct_from_point_lights(rt, lights, n_lights, direct, n);
 //! int32_t method = lf_runtime_has_drt(rt) ? LF_METHOD_DRT : LF_METHOD_MRT;
+//! lf_runtime_set_bounces(rt, LF_BOUNCES_FEEDBACK, 0.0f);  /* optional: all bounces (converged)
+//!                                                            is the default */
 //! if (lf_runtime_apply(rt, method, direct, n, indirect, n) != LF_STATUS_OK) { ... }
 //! lf_runtime_free(rt);
 //! ```
@@ -18,6 +20,7 @@
 //!   scratch) and the entry points that create, query, apply and free it.
 //! - [`direct`]: [`LfPointLight`] and direct light from point lights at every texel.
 //! - [`method`]: [`LfMethod`], the C names of the client's methods.
+//! - [`bounces`]: [`LfBounces`], the C names of the client's bounce modes.
 //! - [`status`]: [`LfStatus`], the codes every fallible entry point returns, and [`CapiError`],
 //!   the error behind each.
 //! - [`last_error`]: the thread-local message of the last failure and [`lf_last_error`].
@@ -34,6 +37,7 @@
 //! - An [`LfRuntime`] may move between threads but must not be used by two threads at once.
 //! - This crate only wraps `lightfarm_client`; it adds no light-transport math.
 
+pub mod bounces;
 mod boundary;
 pub mod direct;
 pub mod last_error;
@@ -41,11 +45,13 @@ pub mod method;
 pub mod runtime;
 pub mod status;
 
+pub use bounces::LfBounces;
 pub use direct::{lf_runtime_direct_from_point_lights, LfPointLight, LF_DIRECT_SAMPLES_PER_EDGE};
 pub use last_error::lf_last_error;
 pub use method::LfMethod;
 pub use runtime::{
-    lf_runtime_apply, lf_runtime_free, lf_runtime_has_drt, lf_runtime_has_full, lf_runtime_new,
-    lf_runtime_texel_count, LfRuntime,
+    lf_runtime_apply, lf_runtime_free, lf_runtime_has_drt, lf_runtime_has_full,
+    lf_runtime_last_bounces, lf_runtime_new, lf_runtime_set_bounces, lf_runtime_texel_count,
+    LfRuntime,
 };
 pub use status::{CapiError, LfStatus};

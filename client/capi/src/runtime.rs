@@ -9,9 +9,10 @@
 //! - C only ever sees `LfRuntime*` from [`lf_runtime_new`] (a leaked `Box`), and
 //!   [`lf_runtime_free`] is the only place that box is dropped.
 
-use lightfarm_client::{DirectLight, IndirectLight, Occluders, Runtime};
+use lightfarm_client::{Bounces, DirectLight, IndirectLight, Occluders, Runtime};
 use lightfarm_proto::bundle::Bundle;
 
+use crate::bounces::LfBounces;
 use crate::boundary::{pointer_call, slice, slice_mut, status_call, value_call};
 use crate::method::LfMethod;
 use crate::status::CapiError;
@@ -25,6 +26,10 @@ pub struct LfRuntime {
     direct: DirectLight,
     /// Scratch: the indirect light `apply` writes, one RGB value per texel.
     indirect: IndirectLight,
+    /// The bounce mode of `lf_runtime_apply` (all bounces until `lf_runtime_set_bounces`).
+    bounces: Bounces,
+    /// One-bounce applications the last successful `lf_runtime_apply` made.
+    last_bounces: u32,
 }
 
 impl LfRuntime {
@@ -43,6 +48,8 @@ impl LfRuntime {
             indirect: IndirectLight {
                 radiance: vec![[0.0; 3]; n],
             },
+            bounces: Bounces::default(),
+            last_bounces: 0,
         })
     }
 
@@ -150,7 +157,48 @@ pub unsafe extern "C" fn lf_runtime_has_full(rt: *const LfRuntime) -> bool {
     })
 }
 
-/// Turns direct light into indirect light with `method` (an `LfMethod`); allocates nothing.
+/// Picks how many bounces `lf_runtime_apply` sums: `mode` is an `LfBounces`; `tolerance` is
+/// `LF_BOUNCES_CONVERGED`'s (stop when a bounce adds less than this fraction of the light so
+/// far; 0 for the default 1e-3) and ignored otherwise. A new runtime starts at
+/// `LF_BOUNCES_CONVERGED` with the default. Choosing `LF_BOUNCES_FEEDBACK` (again) starts its
+/// feedback from zero.
+///
+/// Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_BOUNCES` (unknown mode, or
+/// a tolerance outside `[0, 1)`: the mode is then unchanged) or `LF_STATUS_PANIC`.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+/// the call.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_set_bounces(
+    rt: *mut LfRuntime,
+    mode: i32,
+    tolerance: f32,
+) -> i32 {
+    status_call("lf_runtime_set_bounces", || {
+        // SAFETY: NULL or live and unshared, per the contract.
+        let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
+        rt.bounces = LfBounces::from_raw(mode)?.bounces(tolerance)?;
+        rt.runtime.reset_feedback();
+        Ok(())
+    })
+}
+
+/// One-bounce operator applications the last successful `lf_runtime_apply` on `rt` made (the
+/// bounces `LF_BOUNCES_CONVERGED` needed; 1 for the other modes); 0 before any, or for NULL.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_last_bounces(rt: *const LfRuntime) -> u32 {
+    value_call("lf_runtime_last_bounces", 0, || {
+        // SAFETY: NULL or live, per the contract.
+        unsafe { rt.as_ref() }.map_or(0, |rt| rt.last_bounces)
+    })
+}
+
+/// Turns direct light into indirect light with `method` (an `LfMethod`), summing the bounces
+/// `lf_runtime_set_bounces` chose (all, by default); allocates nothing.
 ///
 /// `direct_rgb` and `out_rgb` hold `3 x texels` floats each (`direct_len`, `out_len` must be
 /// exactly that), texel-major RGB in layout order; direct light is outgoing radiance, as
@@ -159,8 +207,9 @@ pub unsafe extern "C" fn lf_runtime_has_full(rt: *const LfRuntime) -> bool {
 ///
 /// Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, or a buffer with a non-zero
 /// length, is NULL), `LF_STATUS_BAD_METHOD`, `LF_STATUS_BAD_LENGTH`,
-/// `LF_STATUS_MISSING_OPERATOR` (see `lf_runtime_has_drt`, `lf_runtime_has_full`) or
-/// `LF_STATUS_PANIC`. `out_rgb` is written only on success.
+/// `LF_STATUS_MISSING_OPERATOR` (see `lf_runtime_has_drt`, `lf_runtime_has_full`),
+/// `LF_STATUS_NOT_CONVERGING` (the bounces do not converge: an albedo near 1 in a closed room)
+/// or `LF_STATUS_PANIC`. `out_rgb` is written only on success.
 ///
 /// # Safety
 /// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread
@@ -198,7 +247,10 @@ pub unsafe extern "C" fn lf_runtime_apply(
                 *d = [v[0], v[1], v[2]];
             }
         }
-        rt.runtime.apply(method, &rt.direct, &mut rt.indirect)?;
+        let applied = rt
+            .runtime
+            .apply(method, rt.bounces, &rt.direct, &mut rt.indirect)?;
+        rt.last_bounces = applied.bounces;
         // SAFETY: `out_len` writable floats, per the contract; no other slice is alive.
         let out = unsafe { slice_mut(out_rgb, out_len, "out_rgb") }?;
         for (o, v) in out.chunks_exact_mut(3).zip(&rt.indirect.radiance) {

@@ -28,6 +28,11 @@ pub enum LfStatus {
     BadBundle = -6,
     /// An internal panic was caught at the boundary (a bug in lightfarm).
     Panic = -7,
+    /// The bounce mode is not one of `LfBounces`, or its tolerance is outside `[0, 1)`.
+    BadBounces = -8,
+    /// The bounces did not converge (albedo near 1 in a closed room) or produced a non-finite
+    /// value; the output was not written (`lf_last_error` says which).
+    NotConverging = -9,
 }
 
 /// Why an `lf_*` call failed.
@@ -43,6 +48,14 @@ pub enum CapiError {
     },
     #[error("unknown method {0}: use LF_METHOD_MRT, LF_METHOD_DRT or LF_METHOD_FULL")]
     BadMethod(i32),
+    #[error(
+        "unknown bounce mode {0}: use LF_BOUNCES_ONE, LF_BOUNCES_CONVERGED or LF_BOUNCES_FEEDBACK"
+    )]
+    BadBounces(i32),
+    #[error("tolerance {0}: LF_BOUNCES_CONVERGED takes 0 (the default) or a value in (0, 1)")]
+    BadTolerance(f32),
+    #[error(transparent)]
+    NotConverging(ApplyError),
     #[error(transparent)]
     MissingOperator(ApplyError),
     #[error("lights[{index}]: {reason}")]
@@ -60,6 +73,8 @@ impl CapiError {
             CapiError::NullPointer(_) => LfStatus::NullPointer,
             CapiError::BadLength { .. } => LfStatus::BadLength,
             CapiError::BadMethod(_) => LfStatus::BadMethod,
+            CapiError::BadBounces(_) | CapiError::BadTolerance(_) => LfStatus::BadBounces,
+            CapiError::NotConverging(_) => LfStatus::NotConverging,
             CapiError::MissingOperator(_) => LfStatus::MissingOperator,
             CapiError::InvalidLight { .. } => LfStatus::InvalidLight,
             CapiError::BadBundle(_) => LfStatus::BadBundle,
@@ -70,7 +85,8 @@ impl CapiError {
 
 impl From<ApplyError> for CapiError {
     /// `DirectLength` cannot reach here (lengths are checked before `apply`), but is mapped
-    /// to `CapiError::BadLength` all the same.
+    /// to `CapiError::BadLength` all the same; nor can `NoBounces` (C cannot ask for zero
+    /// bounces), which falls to `MissingOperator`.
     fn from(e: ApplyError) -> CapiError {
         match e {
             ApplyError::DirectLength { expected, got } => CapiError::BadLength {
@@ -78,6 +94,10 @@ impl From<ApplyError> for CapiError {
                 expected: 3 * expected,
                 got: 3 * got,
             },
+            e @ (ApplyError::NotConverging { .. } | ApplyError::NonFinite { .. }) => {
+                CapiError::NotConverging(e)
+            }
+            ApplyError::BadTolerance(t) => CapiError::BadTolerance(t),
             other => CapiError::MissingOperator(other),
         }
     }

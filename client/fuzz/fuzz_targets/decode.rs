@@ -8,7 +8,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use lightfarm_client::{DirectLight, IndirectLight, Method, Runtime};
+use lightfarm_client::{Bounces, DirectLight, IndirectLight, Method, Runtime};
 use lightfarm_proto::bundle::Bundle;
 
 fuzz_target!(|bytes: &[u8]| {
@@ -20,7 +20,7 @@ fuzz_target!(|bytes: &[u8]| {
         };
         let mut out = IndirectLight::default();
         for method in [Method::Mrt, Method::Drt, Method::Full] {
-            let _ = runtime.apply(method, &direct, &mut out);
+            let _ = runtime.apply(method, Bounces::One, &direct, &mut out);
         }
     }
 });

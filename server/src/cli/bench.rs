@@ -31,7 +31,8 @@ use super::bench_reference_cache::{mesh_bytes, reference_key, CachedReference, R
 use super::bench_throughput::{measure_throughput, Throughput};
 use super::write_json;
 use crate::bake::geometry::Geometry;
-use crate::bake::reference::reference;
+use crate::bake::reference::{reference, ReferenceSettings};
+use lightfarm_proto::bounces::BounceCount;
 
 /// Which sweep to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -344,7 +345,8 @@ fn cached_reference(
     let start = Instant::now();
     let mut geometry = Geometry::from_scene(scene, dir)?;
     geometry.add_posed_dynamic(scene, dir, &lights.poses)?;
-    let result = reference(&geometry, &lights.lights, rays, seed, &|_| {});
+    let settings = ReferenceSettings::new(rays, BounceCount::ONE, seed);
+    let result = reference(&geometry, &lights.lights, &settings, &|_| {});
     let entry = CachedReference {
         seconds: start.elapsed().as_secs_f64(),
         result,

@@ -14,7 +14,7 @@
 use std::collections::HashMap;
 use std::time::Instant;
 
-use lightfarm_client::{Bundle, IndirectLight, Method, Occluders, Runtime};
+use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, Runtime};
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{compare, ResultFile};
 use lightfarm_proto::scene::{Aabb, BundleCodec, Scene, Transport};
@@ -285,7 +285,12 @@ pub fn measure_setting(
                 let mut p95 = Vec::new();
                 for (lights, reference) in bench.light_sets.iter().zip(references) {
                     let lights = lights_for(method, lights);
-                    let mut ours = evaluate(decoded.clone(), &lights, method.client_method())?;
+                    let mut ours = evaluate(
+                        decoded.clone(),
+                        &lights,
+                        method.client_method(),
+                        Bounces::One,
+                    )?;
                     drop_buried(&mut ours, &boxes);
                     let c = compare(&ours, reference);
                     anyhow::ensure!(c.matched > 0, "{}: no texels to compare", method.label());
@@ -344,7 +349,15 @@ fn time_apply(
     let occluders = Occluders::from_layout(&bundle.layout);
     let direct = operator_direct(&bundle.layout, &occluders, &lights);
     let mut runtime = Runtime::try_new(bundle.clone())?;
-    let apply = time_frames(&mut runtime, &direct, method.client_method(), frames, 1)?;
+    let apply = time_frames(
+        &mut runtime,
+        &direct,
+        method.client_method(),
+        &[Bounces::One],
+        frames,
+        1,
+    )?
+    .remove(0);
     if method != BenchMethod::Dnrt {
         return Ok(apply.median_ms);
     }
@@ -352,7 +365,7 @@ fn time_apply(
     let mut sink = IndirectLight::default();
     for _ in 0..frames.clamp(3, 50) {
         let start = Instant::now();
-        let delta = dnrt_delta(&mut runtime, &direct, &occluders, lights)?;
+        let delta = dnrt_delta(&mut runtime, &direct, false, &occluders, lights)?;
         times.push(start.elapsed().as_secs_f64() * 1e3);
         sink.radiance = delta.unwrap_or_default();
     }

@@ -1,14 +1,20 @@
-//! `lightfarm eval OUT.lfb --lights LIGHTS.json [--method full|mrt] -o RESULT.json`: apply a
-//! bundle through the client crate, exactly as a game would, and write per-texel radiance.
-//! Dynamic objects listed in `poses` add their DNRT reflection and occlusion to `indirect`.
+//! `lightfarm eval OUT.lfb --lights LIGHTS.json [--method full|mrt|drt] [--bounces N|all]
+//! -o RESULT.json`: apply a bundle through the client crate, exactly as a game would, and write
+//! per-texel radiance. Dynamic objects listed in `poses` add their DNRT reflection and
+//! occlusion to `indirect`.
+//!
+//! With more than one bounce, everything downstream of the texels sees the bounced light: the
+//! probe volume (MRT's clutter shading, DNRT's input) is fed the radiance leaving the texels,
+//! direct plus indirect, and a dynamic object reflects the point lights plus the probes'
+//! irradiance. One bounce reproduces the papers' light exactly as before.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
 use lightfarm_client::{
-    direct_from_point_lights, direct_from_point_lights_averaged, irradiance_at,
-    point_light_irradiance_sh, radiance_sh_at, Bundle, DirectLight, DnrtInstance, DnrtVolume,
-    IndirectLight, Method, Occluders, ProbeField, Runtime,
+    direct_from_point_lights, direct_from_point_lights_averaged, irradiance_at, irradiance_sh_at,
+    point_light_irradiance_sh, radiance_sh_at, Applied, Bounces, Bundle, DirectLight, DnrtInstance,
+    DnrtVolume, IndirectLight, Method, Occluders, ProbeField, Runtime,
 };
 use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::lights::LightSet;
@@ -23,6 +29,7 @@ pub struct EvalArgs {
     pub bundle: PathBuf,
     pub lights: PathBuf,
     pub method: Method,
+    pub bounces: Bounces,
     pub out: PathBuf,
     pub lightmaps: LightmapFiles,
     /// Also write every texel's SH incident radiance (`eval_sh`); needs an `sh` section.
@@ -38,8 +45,24 @@ pub fn operator_direct(layout: &Layout, occluders: &Occluders, lights: &LightSet
     direct_from_point_lights_averaged(layout, occluders, &lights.lights, DIRECT_SAMPLES_PER_EDGE)
 }
 
-/// Applies a bundle to a light set; returns the records the method models.
-pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Result<ResultFile> {
+/// Applies a bundle to a light set with `bounces` bounces; returns the records the method
+/// models.
+pub fn evaluate(
+    bundle: Bundle,
+    lights: &LightSet,
+    method: Method,
+    bounces: Bounces,
+) -> anyhow::Result<ResultFile> {
+    Ok(evaluate_with_report(bundle, lights, method, bounces)?.0)
+}
+
+/// [`evaluate`], also saying how many bounces the runtime summed.
+pub fn evaluate_with_report(
+    bundle: Bundle,
+    lights: &LightSet,
+    method: Method,
+    bounces: Bounces,
+) -> anyhow::Result<(ResultFile, Applied)> {
     let occluders = Occluders::from_layout(&bundle.layout);
     // RESULT.json reports direct light at texel centres; the operators are fed the texel
     // average, which is what a ray landing in the texel sees.
@@ -53,12 +76,27 @@ pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Re
         method
     };
     let mut indirect = IndirectLight::default();
-    runtime.apply(method, &averaged, &mut indirect)?;
+    let applied = runtime.apply(method, bounces, &averaged, &mut indirect)?;
+    // What the probe volume sees: the radiance leaving the texels, direct plus the bounced
+    // indirect light (direct alone for one bounce, the papers' U_dyn).
+    let bounced = !matches!(bounces, Bounces::One | Bounces::Fixed(1));
+    let leaving = if bounced {
+        DirectLight {
+            radiance: averaged
+                .radiance
+                .iter()
+                .zip(&indirect.radiance)
+                .map(|(d, i)| [d[0] + i[0], d[1] + i[1], d[2] + i[2]])
+                .collect(),
+        }
+    } else {
+        averaged.clone()
+    };
     // MRT shades clutter from the probe volume (U_dyn), as the MRT paper does; DRT gathers.
     let mut probe_lit: Option<Vec<[f32; 3]>> = None;
     if method == Method::Mrt && runtime.has_probes() {
         let mut field = ProbeField::default();
-        runtime.apply_probes(&averaged, &mut field)?;
+        runtime.apply_probes(&leaving, &mut field)?;
         let layout = &runtime.bundle().layout;
         let volume = runtime.probe_volume().expect("has probes");
         probe_lit = Some(
@@ -70,7 +108,7 @@ pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Re
                 .collect(),
         );
     }
-    let dnrt = dnrt_delta(&mut runtime, &averaged, &occluders, lights)?;
+    let dnrt = dnrt_delta(&mut runtime, &leaving, bounced, &occluders, lights)?;
     let layout = &runtime.bundle().layout;
     let mut texels = Vec::with_capacity(layout.n_texels());
     for surface in &layout.surfaces {
@@ -100,19 +138,24 @@ pub fn evaluate(bundle: Bundle, lights: &LightSet, method: Method) -> anyhow::Re
             });
         }
     }
-    Ok(ResultFile { texels })
+    Ok((ResultFile { texels }, applied))
 }
 
 /// DNRT (paper 003) for every posed dynamic object: per texel, the light the objects add and
-/// take away, consistent with the one-bounce solution: an object reflects the point lights'
-/// direct light (their irradiance lobe at its centre) and hides the radiance of the direct-lit
-/// surfaces behind it (the probe volume's radiance SH at its centre, Appendix B.2). Light the
-/// object would reflect from the walls is a second bounce, and a point light it hides is its
-/// direct shadow; neither is part of one-bounce indirect light.
+/// take away. `leaving` is the radiance leaving the texels that the probe volume is fed.
+/// One bounce (`bounced` false, `leaving` the direct light), consistent with the one-bounce
+/// solution: an object reflects the point lights' direct light (their irradiance lobe at its
+/// centre) and hides the radiance of the direct-lit surfaces behind it (the probe volume's
+/// radiance SH at its centre, Appendix B.2); light the object would reflect from the walls is a
+/// second bounce. All bounces (`bounced`, `leaving` direct plus indirect): the object also
+/// reflects the walls' light (the probes' irradiance at its centre, the full light-probe input
+/// the paper assumes) and hides their bounced light too. A point light it hides is its direct
+/// shadow, never indirect light.
 /// `None` when there are no poses; an error when a pose names an object without a grid.
 pub fn dnrt_delta(
     runtime: &mut Runtime,
-    direct: &DirectLight,
+    leaving: &DirectLight,
+    bounced: bool,
     occluders: &Occluders,
     lights: &LightSet,
 ) -> anyhow::Result<Option<Vec<[f32; 3]>>> {
@@ -121,7 +164,7 @@ pub fn dnrt_delta(
         return Ok(None);
     }
     let mut field = ProbeField::default();
-    runtime.apply_probes(direct, &mut field)?;
+    runtime.apply_probes(leaving, &mut field)?;
     let bundle = runtime.bundle();
     let volume = bundle
         .probes
@@ -137,7 +180,15 @@ pub fn dnrt_delta(
         let zero = [[0.0; 9]; 3];
         let at = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, zero, zero);
         let centre = at.centre_world();
-        let lit = point_light_irradiance_sh(occluders, &lights.lights, centre);
+        let mut lit = point_light_irradiance_sh(occluders, &lights.lights, centre);
+        if bounced {
+            let walls = irradiance_sh_at(volume, &field, centre);
+            for (l, w) in lit.iter_mut().zip(walls) {
+                for (a, b) in l.iter_mut().zip(w) {
+                    *a += b;
+                }
+            }
+        }
         let hidden = radiance_sh_at(volume, &field, centre);
         let instance = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, lit, hidden);
         instance.apply_texels(&bundle.layout, &mut out)?;
@@ -153,11 +204,15 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.lights.display()))?;
     let layout = bundle.layout.clone();
     if let Some(path) = &args.sh_out {
-        let sh = super::eval_sh::sh_incident(bundle.clone(), &lights)?;
+        let sh = super::eval_sh::sh_incident(bundle.clone(), &lights, args.bounces)?;
         super::eval_sh::write_sh_file(path, &sh)?;
     }
     let surface_atlases = bundle.surface_atlases.clone();
-    let result = evaluate(bundle, &lights, args.method)?;
+    let (result, applied) = evaluate_with_report(bundle, &lights, args.method, args.bounces)?;
+    eprintln!(
+        "bounces: {} applied (the rest estimated at {:.2e} of the total)",
+        applied.bounces, applied.remaining_fraction
+    );
     write_json(&args.out, &result)?;
     if !args.lightmaps.is_empty() {
         eprintln!(

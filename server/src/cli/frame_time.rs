@@ -1,8 +1,11 @@
-//! `lightfarm frame-time BUNDLE --lights LIGHTS.json`: how long one frame of the client runtime
-//! takes (median over many frames), next to the memory-traffic bound.
+//! `lightfarm frame-time BUNDLE --lights LIGHTS.json [--bounces 1,all,feedback]`: how long one
+//! frame of the client runtime takes (median over many frames), next to the memory-traffic
+//! bound.
 //!
 //! Direct light is computed once (the engine's job, not timed); each timed frame is one
-//! `Runtime::apply`. The bound is the operator bytes one frame reads divided by the read
+//! `Runtime::apply` with the bounce mode. Several modes are timed side by side: rounds of 10
+//! frames of each mode in turn, so the machine's noise falls on all of them alike; one line per
+//! mode, in the order given. The bound is the operator bytes one frame reads divided by the read
 //! bandwidth measured here with a streaming sum over a buffer much larger than the caches: no
 //! implementation that reads every operator value once per frame can beat it.
 
@@ -10,7 +13,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use lightfarm_client::{Bundle, IndirectLight, Method, Occluders, Runtime};
+use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, Runtime};
 use lightfarm_proto::lights::LightSet;
 
 use super::eval::operator_direct;
@@ -21,55 +24,93 @@ pub struct FrameTimeArgs {
     pub bundle: PathBuf,
     pub lights: PathBuf,
     pub method: Method,
+    /// Bounce modes, timed side by side.
+    pub bounces: Vec<Bounces>,
     pub frames: usize,
     /// Threads of the runtime's rayon pool (1: the single-thread path).
     pub threads: usize,
 }
 
-/// Frame-time figures.
+/// Frame-time figures of one bounce mode.
 #[derive(Clone, Debug)]
 pub struct FrameTimes {
     pub median_ms: f64,
     pub p10_ms: f64,
     pub p90_ms: f64,
     pub operator_bytes: usize,
+    /// One-bounce applications per frame (the last frame's; Converged's count).
+    pub bounces: u32,
 }
 
-/// Times `frames` applications of `method` on `threads` threads.
+/// Frames of one mode per round when several modes are timed side by side.
+const ROUND: usize = 10;
+
+/// Times `frames` applications of `method` with each of `modes` on `threads` threads,
+/// interleaved in rounds; one result per mode, in order.
 pub fn time_frames(
     runtime: &mut Runtime,
     direct: &lightfarm_client::DirectLight,
     method: Method,
+    modes: &[Bounces],
     frames: usize,
     threads: usize,
-) -> anyhow::Result<FrameTimes> {
+) -> anyhow::Result<Vec<FrameTimes>> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
         .build()?;
     runtime.set_parallel(threads > 1);
     let mut out = IndirectLight::default();
-    let mut times = Vec::with_capacity(frames);
+    let mut times = vec![Vec::with_capacity(frames); modes.len()];
+    let mut bounces = vec![0u32; modes.len()];
     pool.install(|| -> anyhow::Result<()> {
         // Warm-up: caches, page faults, the output's allocation.
-        for _ in 0..frames.min(20) {
-            runtime.apply(method, direct, &mut out)?;
+        for &mode in modes {
+            for _ in 0..frames.min(20) {
+                runtime.apply(method, mode, direct, &mut out)?;
+            }
         }
-        for _ in 0..frames {
-            let start = Instant::now();
-            runtime.apply(method, direct, &mut out)?;
-            times.push(start.elapsed().as_secs_f64() * 1e3);
+        let mut done = 0;
+        while done < frames {
+            let round = ROUND.min(frames - done);
+            for (k, &mode) in modes.iter().enumerate() {
+                for _ in 0..round {
+                    let start = Instant::now();
+                    let applied = runtime.apply(method, mode, direct, &mut out)?;
+                    times[k].push(start.elapsed().as_secs_f64() * 1e3);
+                    bounces[k] = applied.bounces;
+                }
+            }
+            done += round;
         }
         Ok(())
     })?;
     runtime.set_parallel(false);
-    times.sort_by(f64::total_cmp);
-    let at = |q: f64| times[((times.len() - 1) as f64 * q).round() as usize];
-    Ok(FrameTimes {
-        median_ms: at(0.5),
-        p10_ms: at(0.1),
-        p90_ms: at(0.9),
-        operator_bytes: runtime.operator_bytes_per_frame(method),
-    })
+    let operator_bytes = runtime.operator_bytes_per_frame(method);
+    Ok(times
+        .into_iter()
+        .zip(bounces)
+        .map(|(mut times, bounces)| {
+            times.sort_by(f64::total_cmp);
+            let at = |q: f64| times[((times.len() - 1) as f64 * q).round() as usize];
+            FrameTimes {
+                median_ms: at(0.5),
+                p10_ms: at(0.1),
+                p90_ms: at(0.9),
+                operator_bytes,
+                bounces,
+            }
+        })
+        .collect())
+}
+
+/// The name of a bounce mode in `frame-time`'s lines.
+pub fn mode_name(mode: Bounces) -> String {
+    match mode {
+        Bounces::One => "one".to_string(),
+        Bounces::Fixed(n) => n.to_string(),
+        Bounces::Converged { tolerance } => format!("converged({tolerance:e})"),
+        Bounces::Feedback => "feedback".to_string(),
+    }
 }
 
 /// Single-thread streaming read bandwidth (bytes/s) over a 256 MiB buffer, best of 5 passes.
@@ -106,19 +147,37 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     } else {
         args.method
     };
-    let t = time_frames(&mut runtime, &direct, method, args.frames, args.threads)?;
-    let bandwidth = read_bandwidth();
-    let bound_ms = t.operator_bytes as f64 / bandwidth * 1e3;
-    println!(
-        "method={method:?} threads={} frames={} median_ms={:.4} p10_ms={:.4} p90_ms={:.4} \
-         operator_bytes={} read_bandwidth_gbs={:.2} bound_ms={bound_ms:.4}",
-        args.threads,
+    let modes = if args.bounces.is_empty() {
+        vec![Bounces::default()]
+    } else {
+        args.bounces.clone()
+    };
+    let results = time_frames(
+        &mut runtime,
+        &direct,
+        method,
+        &modes,
         args.frames,
-        t.median_ms,
-        t.p10_ms,
-        t.p90_ms,
-        t.operator_bytes,
-        bandwidth / 1e9
-    );
+        args.threads,
+    )?;
+    let bandwidth = read_bandwidth();
+    for (mode, t) in modes.iter().zip(&results) {
+        // The bound: one pass over the operators per one-bounce application.
+        let bound_ms = t.bounces as f64 * t.operator_bytes as f64 / bandwidth * 1e3;
+        println!(
+            "method={method:?} bounces={} applications={} threads={} frames={} median_ms={:.4} \
+             p10_ms={:.4} p90_ms={:.4} operator_bytes={} read_bandwidth_gbs={:.2} \
+             bound_ms={bound_ms:.4}",
+            mode_name(*mode),
+            t.bounces,
+            args.threads,
+            args.frames,
+            t.median_ms,
+            t.p10_ms,
+            t.p90_ms,
+            t.operator_bytes,
+            bandwidth / 1e9
+        );
+    }
     Ok(())
 }

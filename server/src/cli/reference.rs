@@ -1,8 +1,10 @@
-//! `lightfarm reference SCENE.json --lights LIGHTS.json --rays N -o RESULT.json`: brute-force
-//! one-bounce indirect on the full geometry (blocks, clutter, posed dynamic objects).
+//! `lightfarm reference SCENE.json --lights LIGHTS.json --rays N [--bounces N|all]
+//! [--texel-stride K] -o RESULT.json`: brute-force indirect light (all bounces by default) on the
+//! full geometry (blocks, clutter, posed dynamic objects).
 
 use std::path::PathBuf;
 
+use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
 
 use super::bake::load_scene;
@@ -10,13 +12,16 @@ use super::progress_bar::Bar;
 use super::{read_text, write_json};
 use crate::bake::geometry::Geometry;
 use crate::bake::progress::Progress;
-use crate::bake::reference::reference;
+use crate::bake::reference::{reference, ReferenceSettings};
 
 /// Arguments of `reference`.
 pub struct ReferenceArgs {
     pub scene: PathBuf,
     pub lights: PathBuf,
     pub rays: u32,
+    pub bounces: BounceCount,
+    /// Every K-th texel of each surface (1: all).
+    pub texel_stride: u32,
     pub out: PathBuf,
 }
 
@@ -27,14 +32,16 @@ pub fn run(args: ReferenceArgs) -> anyhow::Result<()> {
     let mut geometry = Geometry::from_scene(&scene, &dir)?;
     geometry.add_posed_dynamic(&scene, &dir, &lights.poses)?;
     let bar = Bar::new();
-    bar.stage("reference", geometry.texels.len() as u64);
-    let result = reference(
-        &geometry,
-        &lights.lights,
-        args.rays,
-        scene.settings.seed,
-        &|n| bar.advance(n),
-    );
+    let stride = args.texel_stride.max(1);
+    let selected = geometry.texels.iter().filter(|t| t.index % stride == 0);
+    bar.stage("reference", selected.count() as u64);
+    let settings = ReferenceSettings {
+        rays: args.rays,
+        bounces: args.bounces,
+        seed: scene.settings.seed,
+        texel_stride: args.texel_stride,
+    };
+    let result = reference(&geometry, &lights.lights, &settings, &|n| bar.advance(n));
     bar.finish();
     write_json(&args.out, &result)
 }

@@ -1,0 +1,77 @@
+//! The C names of the client's bounce modes ([`lightfarm_client::Bounces`]) and the setter
+//! that picks one for a runtime.
+//!
+//! Invariants: the values are part of the ABI and never change; C passes a mode as `int32_t`,
+//! so [`LfBounces::from_raw`] refuses unknown values instead of trusting them. A new runtime
+//! sums all bounces (`LF_BOUNCES_CONVERGED` at the default tolerance), like the Rust client.
+
+use lightfarm_client::{Bounces, DEFAULT_TOLERANCE};
+
+use crate::status::CapiError;
+
+/// How many bounces of indirect light `lf_runtime_apply` sums (passed as `int32_t`).
+#[repr(i32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum LfBounces {
+    /// The first bounce only (the papers' light).
+    One = 0,
+    /// Bounces until the last adds less than the tolerance times the light so far (default).
+    Converged = 1,
+    /// One application per call of the direct light plus the previous call's indirect light:
+    /// all bounces for the cost of one once lights hold still (a moving light lags a few frames).
+    Feedback = 2,
+}
+
+impl LfBounces {
+    /// The mode C passed, or `CapiError::BadBounces`.
+    pub fn from_raw(raw: i32) -> Result<LfBounces, CapiError> {
+        [LfBounces::One, LfBounces::Converged, LfBounces::Feedback]
+            .into_iter()
+            .find(|m| *m as i32 == raw)
+            .ok_or(CapiError::BadBounces(raw))
+    }
+
+    /// The client's mode; `tolerance` is used by `Converged` only, where 0 means the default
+    /// and anything outside `[0, 1)` (or NaN) is refused.
+    pub fn bounces(self, tolerance: f32) -> Result<Bounces, CapiError> {
+        Ok(match self {
+            LfBounces::One => Bounces::One,
+            LfBounces::Feedback => Bounces::Feedback,
+            LfBounces::Converged if tolerance == 0.0 => Bounces::Converged {
+                tolerance: DEFAULT_TOLERANCE,
+            },
+            LfBounces::Converged if tolerance > 0.0 && tolerance < 1.0 => {
+                Bounces::Converged { tolerance }
+            }
+            LfBounces::Converged => return Err(CapiError::BadTolerance(tolerance)),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn modes_map_and_bad_values_are_refused() {
+        assert_eq!(LfBounces::from_raw(0).unwrap(), LfBounces::One);
+        assert_eq!(LfBounces::from_raw(2).unwrap(), LfBounces::Feedback);
+        assert!(matches!(
+            LfBounces::from_raw(7),
+            Err(CapiError::BadBounces(7))
+        ));
+        assert_eq!(
+            LfBounces::Converged.bounces(0.0).unwrap(),
+            Bounces::default()
+        );
+        assert_eq!(
+            LfBounces::Converged.bounces(0.01).unwrap(),
+            Bounces::Converged { tolerance: 0.01 }
+        );
+        for bad in [-0.1, 1.0, f32::NAN, f32::INFINITY] {
+            assert!(LfBounces::Converged.bounces(bad).is_err(), "{bad}");
+        }
+        // The tolerance is ignored where it means nothing.
+        assert_eq!(LfBounces::One.bounces(f32::NAN).unwrap(), Bounces::One);
+    }
+}
