@@ -54,6 +54,15 @@ enum LfStatus
    * An internal panic was caught at the boundary (a bug in lightfarm).
    */
   LF_STATUS_PANIC = -7,
+  /**
+   * The bounce mode is not one of `LfBounces`, or its tolerance is outside `[0, 1)`.
+   */
+  LF_STATUS_BAD_BOUNCES = -8,
+  /**
+   * The bounces did not converge (albedo near 1 in a closed room) or produced a non-finite
+   * value; the output was not written (`lf_last_error` says which).
+   */
+  LF_STATUS_NOT_CONVERGING = -9,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -197,7 +206,33 @@ bool lf_runtime_has_drt(const LfRuntime *rt);
 bool lf_runtime_has_full(const LfRuntime *rt);
 
 /**
- * Turns direct light into indirect light with `method` (an `LfMethod`); allocates nothing.
+ * Picks how many bounces `lf_runtime_apply` sums: `mode` is an `LfBounces`; `tolerance` is
+ * `LF_BOUNCES_CONVERGED`'s (stop when a bounce adds less than this fraction of the light so
+ * far; 0 for the default 1e-3) and ignored otherwise. A new runtime starts at
+ * `LF_BOUNCES_CONVERGED` with the default. Choosing `LF_BOUNCES_FEEDBACK` (again) starts its
+ * feedback from zero.
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_BOUNCES` (unknown mode, or
+ * a tolerance outside `[0, 1)`: the mode is then unchanged) or `LF_STATUS_PANIC`.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call.
+ */
+int32_t lf_runtime_set_bounces(LfRuntime *rt, int32_t mode, float tolerance);
+
+/**
+ * One-bounce operator applications the last successful `lf_runtime_apply` on `rt` made (the
+ * bounces `LF_BOUNCES_CONVERGED` needed; 1 for the other modes); 0 before any, or for NULL.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`.
+ */
+uint32_t lf_runtime_last_bounces(const LfRuntime *rt);
+
+/**
+ * Turns direct light into indirect light with `method` (an `LfMethod`), summing the bounces
+ * `lf_runtime_set_bounces` chose (all, by default); allocates nothing.
  *
  * `direct_rgb` and `out_rgb` hold `3 x texels` floats each (`direct_len`, `out_len` must be
  * exactly that), texel-major RGB in layout order; direct light is outgoing radiance, as
@@ -206,8 +241,9 @@ bool lf_runtime_has_full(const LfRuntime *rt);
  *
  * Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, or a buffer with a non-zero
  * length, is NULL), `LF_STATUS_BAD_METHOD`, `LF_STATUS_BAD_LENGTH`,
- * `LF_STATUS_MISSING_OPERATOR` (see `lf_runtime_has_drt`, `lf_runtime_has_full`) or
- * `LF_STATUS_PANIC`. `out_rgb` is written only on success.
+ * `LF_STATUS_MISSING_OPERATOR` (see `lf_runtime_has_drt`, `lf_runtime_has_full`),
+ * `LF_STATUS_NOT_CONVERGING` (the bounces do not converge: an albedo near 1 in a closed room)
+ * or `LF_STATUS_PANIC`. `out_rgb` is written only on success.
  *
  * # Safety
  * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread

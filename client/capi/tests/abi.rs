@@ -1,6 +1,8 @@
 //! Every entry point called as C calls it, on a hand-built two-texel bundle whose MRT output is
 //! known exactly: results, then every error path (garbage bytes, wrong lengths, NULL
-//! pointers, unknown methods, missing operators, invalid lights) and the last-error contract.
+//! pointers, unknown methods, missing operators, invalid lights) and the last-error contract;
+//! then the bounce modes (all bounces by default, one, feedback) against the geometric series
+//! of the same operator.
 
 use std::ffi::CStr;
 use std::ptr::{null, null_mut};
@@ -66,7 +68,16 @@ fn two_texel_bundle() -> Vec<u8> {
 struct Rt(*mut LfRuntime);
 
 impl Rt {
+    /// The two-texel bundle, set to one bounce (the exact values below are one bounce's).
     fn load() -> Rt {
+        let rt = Rt::load_default();
+        // SAFETY: live runtime.
+        assert_eq!(unsafe { lf_runtime_set_bounces(rt.0, LfBounces::One as i32, 0.0) }, OK);
+        rt
+    }
+
+    /// The two-texel bundle with the runtime's default bounce mode (all bounces).
+    fn load_default() -> Rt {
         let bytes = two_texel_bundle();
         // SAFETY: `bytes` is live for the call.
         let rt = unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) };
@@ -375,4 +386,90 @@ fn invalid_lights_are_refused() {
         );
     }
     assert_eq!(out, [7.0; 6]);
+}
+
+/// All bounces of the two-texel operator in f64: `x_{k+1} = ρ ⊙ mean(x_k)` summed.
+fn all_bounces(direct: &[f32; 6]) -> [f64; 6] {
+    let rho = [0.5, 0.5, 0.5, 0.25, 0.5, 1.0];
+    let mut x: Vec<f64> = direct.iter().map(|&v| v as f64).collect();
+    let mut sum = [0.0; 6];
+    for _ in 0..200 {
+        let next: Vec<f64> = (0..6)
+            .map(|i| rho[i] * (x[i % 3] + x[3 + i % 3]) / 2.0)
+            .collect();
+        for i in 0..6 {
+            sum[i] += next[i];
+        }
+        x = next;
+    }
+    sum
+}
+
+#[test]
+fn a_new_runtime_sums_all_bounces_and_says_how_many() {
+    let rt = Rt::load_default();
+    // SAFETY: live runtime.
+    assert_eq!(unsafe { lf_runtime_last_bounces(rt.0) }, 0);
+    let mut out = [f32::NAN; 6];
+    assert_eq!(rt.apply(LfMethod::Mrt as i32, &DIRECT, &mut out), OK);
+    let want = all_bounces(&DIRECT);
+    for (o, w) in out.iter().zip(want) {
+        // The default tolerance leaves about 1e-3 of the light out.
+        assert!((*o as f64 - w).abs() <= 3e-3 * w, "{o} vs {w}");
+    }
+    // SAFETY: live runtime.
+    let bounces = unsafe { lf_runtime_last_bounces(rt.0) };
+    assert!((5..60).contains(&bounces), "{bounces}");
+    // A tighter tolerance: more bounces, closer.
+    // SAFETY: live runtime.
+    assert_eq!(
+        unsafe { lf_runtime_set_bounces(rt.0, LfBounces::Converged as i32, 1e-6) },
+        OK
+    );
+    assert_eq!(rt.apply(LfMethod::Mrt as i32, &DIRECT, &mut out), OK);
+    for (o, w) in out.iter().zip(want) {
+        assert!((*o as f64 - w).abs() <= 1e-5 * w, "{o} vs {w}");
+    }
+    // SAFETY: live runtime.
+    assert!(unsafe { lf_runtime_last_bounces(rt.0) } > bounces);
+    assert_eq!(unsafe { lf_runtime_last_bounces(null()) }, 0);
+}
+
+#[test]
+fn feedback_reaches_all_bounces_one_application_per_call() {
+    let rt = Rt::load_default();
+    // SAFETY: live runtime.
+    assert_eq!(
+        unsafe { lf_runtime_set_bounces(rt.0, LfBounces::Feedback as i32, 0.0) },
+        OK
+    );
+    let mut out = [0.0f32; 6];
+    assert_eq!(rt.apply(LfMethod::Mrt as i32, &DIRECT, &mut out), OK);
+    assert_eq!(out, MRT, "the first call is one bounce");
+    for _ in 0..100 {
+        assert_eq!(rt.apply(LfMethod::Mrt as i32, &DIRECT, &mut out), OK);
+        // SAFETY: live runtime.
+        assert_eq!(unsafe { lf_runtime_last_bounces(rt.0) }, 1);
+    }
+    for (o, w) in out.iter().zip(all_bounces(&DIRECT)) {
+        assert!((*o as f64 - w).abs() <= 1e-5 * w, "{o} vs {w}");
+    }
+}
+
+#[test]
+fn unknown_bounce_modes_and_tolerances_are_refused() {
+    let rt = Rt::load();
+    for (mode, tolerance) in [(3, 0.0f32), (-1, 0.0), (1, 1.0), (1, -0.5), (1, f32::NAN)] {
+        // SAFETY: live runtime.
+        let status = unsafe { lf_runtime_set_bounces(rt.0, mode, tolerance) };
+        assert_eq!(status, LfStatus::BadBounces as i32, "{mode} {tolerance}");
+        assert!(last_error().starts_with("lf_runtime_set_bounces: "));
+    }
+    // SAFETY: NULL is refused, not dereferenced.
+    let status = unsafe { lf_runtime_set_bounces(null_mut(), 0, 0.0) };
+    assert_eq!(status, LfStatus::NullPointer as i32);
+    // The mode is unchanged by the refusals: still one bounce.
+    let mut out = [0.0f32; 6];
+    assert_eq!(rt.apply(LfMethod::Mrt as i32, &DIRECT, &mut out), OK);
+    assert_eq!(out, MRT);
 }
