@@ -72,7 +72,10 @@ impl Rt {
     fn load() -> Rt {
         let rt = Rt::load_default();
         // SAFETY: live runtime.
-        assert_eq!(unsafe { lf_runtime_set_bounces(rt.0, LfBounces::One as i32, 0.0) }, OK);
+        assert_eq!(
+            unsafe { lf_runtime_set_bounces(rt.0, LfBounces::One as i32, 0.0) },
+            OK
+        );
         rt
     }
 
