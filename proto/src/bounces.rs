@@ -23,7 +23,7 @@ pub enum BounceCount {
 
 /// Why a bounce count could not be read.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("bounces: expected a whole number ≥ 1 or \"all\", got \"{0}\"")]
+#[error("bounces: expected a whole number ≥ 1, \"one\" or \"all\", got \"{0}\"")]
 pub struct BounceCountError(pub String);
 
 impl BounceCount {
@@ -55,6 +55,9 @@ impl FromStr for BounceCount {
         let t = s.trim();
         if t.eq_ignore_ascii_case("all") {
             return Ok(BounceCount::All);
+        }
+        if t.eq_ignore_ascii_case("one") {
+            return Ok(BounceCount::ONE);
         }
         match t.parse::<u32>() {
             Ok(n) if n >= 1 => Ok(BounceCount::Fixed(n)),
@@ -113,6 +116,7 @@ mod tests {
             ("7", BounceCount::Fixed(7)),
             ("all", BounceCount::All),
             ("ALL", BounceCount::All),
+            ("one", BounceCount::ONE),
         ] {
             let parsed: BounceCount = text.parse().unwrap();
             assert_eq!(parsed, value);

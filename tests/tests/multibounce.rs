@@ -1,0 +1,137 @@
+//! All bounces end to end: a closed box of uniform albedo ρ lit by one point light of intensity
+//! I, baked and applied through the client like a game would. Every reflected photon hits a wall
+//! again, so the indirect light leaving the walls carries exactly ρ²·4πI/(1−ρ) over all bounces
+//! (ρ²·4πI at one bounce). The reference, `full`, `mrt` and `drt` (with a floating clutter cube,
+//! whose faces are walls of the same closed system) must match it within 3%.
+//!
+//! Flux of a result: `Σ π L_ind A_texel` over every texel, with the texel area of its surface
+//! (the block's faces are 2 m squares, the clutter cube's six faces 0.5 m squares).
+
+use std::collections::HashMap;
+use std::f64::consts::PI;
+
+use lightfarm_client::{Bounces, Method};
+use lightfarm_proto::bounces::BounceCount;
+use lightfarm_proto::lights::LightSet;
+use lightfarm_proto::result::ResultFile;
+use lightfarm_proto::scene::{Scene, Transport};
+use lightfarm_server::bake::geometry::Geometry;
+use lightfarm_server::bake::reference::{reference, ReferenceSettings};
+use lightfarm_server::cli::eval::evaluate;
+use lightfarm_tests::bake_scene;
+
+const RHO: f64 = 0.5;
+const SIDE: f64 = 2.0;
+const CLUTTER_SIDE: f64 = 0.5;
+const INTENSITY: f64 = 1.0;
+
+fn closed_box(clutter: bool) -> Scene {
+    let clutter = if clutter {
+        format!(
+            r#"[{{"id": "cube", "box": {{"min": [0.9, 0.6, 1.0], "max": [{x}, {y}, {z}]}},
+                 "albedo": [{RHO}, {RHO}, {RHO}]}}]"#,
+            x = 0.9 + CLUTTER_SIDE,
+            y = 0.6 + CLUTTER_SIDE,
+            z = 1.0 + CLUTTER_SIDE
+        )
+    } else {
+        "[]".to_string()
+    };
+    let json = format!(
+        r#"{{"format": "lightfarm.scene/1", "name": "closed",
+            "settings": {{"texels_per_face": 8, "rays_per_texel": 512, "tolerance": 0.001}},
+            "blocks": [{{"id": "box", "min": [0, 0, 0], "max": [{SIDE}, {SIDE}, {SIDE}],
+                         "open": [], "albedo": [{RHO}, {RHO}, {RHO}]}}],
+            "clutter": {clutter}}}"#
+    );
+    Scene::from_json(&json).expect("scene")
+}
+
+fn lights() -> LightSet {
+    LightSet::from_json(&format!(
+        r#"{{"lights": [{{"kind": "point", "position": [0.55, 1.45, 0.6],
+             "intensity": [{INTENSITY}, {INTENSITY}, {INTENSITY}]}}], "poses": []}}"#
+    ))
+    .expect("lights")
+}
+
+/// `Σ π L_ind A` (red channel; the scene is grey), each surface's area shared by its texels.
+fn indirect_flux(result: &ResultFile) -> f64 {
+    let mut count: HashMap<&str, usize> = HashMap::new();
+    for t in &result.texels {
+        *count.entry(t.surface.as_str()).or_default() += 1;
+    }
+    result
+        .texels
+        .iter()
+        .map(|t| {
+            let area = if t.surface.starts_with("clutter:") {
+                6.0 * CLUTTER_SIDE * CLUTTER_SIDE
+            } else {
+                SIDE * SIDE
+            };
+            PI * t.indirect[0] * area / count[t.surface.as_str()] as f64
+        })
+        .sum()
+}
+
+fn expected(bounces: BounceCount) -> f64 {
+    let phi = 4.0 * PI * INTENSITY;
+    match bounces {
+        BounceCount::All => RHO * RHO * phi / (1.0 - RHO),
+        BounceCount::Fixed(n) => RHO * RHO * phi * (1.0 - RHO.powi(n as i32)) / (1.0 - RHO),
+    }
+}
+
+fn assert_flux(label: &str, result: &ResultFile, bounces: BounceCount) {
+    assert!(
+        result
+            .texels
+            .iter()
+            .all(|t| t.indirect.iter().all(|x| x.is_finite() && *x >= 0.0)),
+        "{label}: negative or non-finite indirect light"
+    );
+    let (flux, want) = (indirect_flux(result), expected(bounces));
+    eprintln!(
+        "{label} ({bounces} bounces): flux {flux:.5} vs {want:.5} ({:+.2}%)",
+        100.0 * (flux / want - 1.0)
+    );
+    assert!(
+        (flux - want).abs() <= 0.03 * want,
+        "{label} ({bounces} bounces): indirect flux {flux} vs the geometric series {want}"
+    );
+}
+
+#[test]
+fn closed_box_matches_the_geometric_series_for_the_reference_full_mrt_and_drt() {
+    let dir = std::env::temp_dir();
+    let lights = lights();
+    for clutter in [false, true] {
+        let scene = closed_box(clutter);
+        let label = if clutter { "with clutter" } else { "empty" };
+        let mut g = Geometry::from_scene(&scene, &dir).expect("geometry");
+        g.add_posed_dynamic(&scene, &dir, &lights.poses).unwrap();
+        for bounces in [BounceCount::ONE, BounceCount::All] {
+            let settings = ReferenceSettings::new(256, bounces, 7);
+            let r = reference(&g, &lights.lights, &settings, &|_| {});
+            assert_flux(&format!("reference {label}"), &r, bounces);
+        }
+        let (bytes, _) = bake_scene(&scene, &dir, Transport::Lightfield, true);
+        let methods: &[Method] = if clutter {
+            &[Method::Full, Method::Drt]
+        } else {
+            &[Method::Full, Method::Mrt]
+        };
+        for &method in methods {
+            for (bounces, mode) in [
+                (BounceCount::ONE, Bounces::One),
+                (BounceCount::Fixed(4), Bounces::Fixed(4)),
+                (BounceCount::All, Bounces::default()),
+            ] {
+                let bundle = lightfarm_client::decode(&bytes).expect("decode");
+                let r = evaluate(bundle, &lights, method, mode).expect("evaluate");
+                assert_flux(&format!("{method:?} {label}"), &r, bounces);
+            }
+        }
+    }
+}
