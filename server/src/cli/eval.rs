@@ -209,10 +209,13 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     }
     let surface_atlases = bundle.surface_atlases.clone();
     let (result, applied) = evaluate_with_report(bundle, &lights, args.method, args.bounces)?;
-    eprintln!(
-        "bounces: {} applied (the rest estimated at {:.2e} of the total)",
-        applied.bounces, applied.remaining_fraction
-    );
+    match lightfarm_client::Bounces::from(args.bounces) {
+        lightfarm_client::Bounces::Converged { .. } => eprintln!(
+            "bounces: all, {} applied (operator applications; estimated error {:.2e})",
+            applied.bounces, applied.remaining_fraction
+        ),
+        _ => eprintln!("bounces: {} applied", applied.bounces),
+    }
     write_json(&args.out, &result)?;
     if !args.lightmaps.is_empty() {
         eprintln!(

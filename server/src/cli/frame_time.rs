@@ -8,6 +8,10 @@
 //! mode, in the order given. The bound is the operator bytes one frame reads divided by the read
 //! bandwidth measured here with a streaming sum over a buffer much larger than the caches: no
 //! implementation that reads every operator value once per frame can beat it.
+//!
+//! With `feedback` among the modes, it also prints how many feedback frames the light takes to
+//! come within 1% (relative L2) of `Converged` at 1e-5 after the lights switch on from dark (the
+//! largest jump a light can make), and within 0.1%.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -179,5 +183,66 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             bandwidth / 1e9
         );
     }
+    if modes.contains(&Bounces::Feedback) {
+        let (to_1pct, to_01pct) = feedback_frames(&mut runtime, &direct, method)?;
+        println!(
+            "method={method:?} feedback_frames_to_1pct={} feedback_frames_to_0.1pct={} \
+             (after the lights switch on, against Converged at 1e-5)",
+            fmt_frames(to_1pct),
+            fmt_frames(to_01pct)
+        );
+    }
     Ok(())
+}
+
+fn fmt_frames(frames: Option<usize>) -> String {
+    frames.map_or_else(|| format!(">{FEEDBACK_FRAMES}"), |f| f.to_string())
+}
+
+/// Frames [`feedback_frames`] runs at the most.
+const FEEDBACK_FRAMES: usize = 500;
+
+/// Feedback frames from dark until the output is within 1% and 0.1% (relative L2 over texels
+/// and channels) of `Converged` at 1e-5 (None: not within [`FEEDBACK_FRAMES`]).
+pub fn feedback_frames(
+    runtime: &mut Runtime,
+    direct: &lightfarm_client::DirectLight,
+    method: Method,
+) -> anyhow::Result<(Option<usize>, Option<usize>)> {
+    let mut converged = IndirectLight::default();
+    runtime.apply(
+        method,
+        Bounces::Converged { tolerance: 1e-5 },
+        direct,
+        &mut converged,
+    )?;
+    let norm: f64 = converged
+        .radiance
+        .iter()
+        .flatten()
+        .map(|&v| (v as f64).powi(2))
+        .sum();
+    runtime.reset_feedback();
+    let mut out = IndirectLight::default();
+    let (mut to_1pct, mut to_01pct) = (None, None);
+    for frame in 1..=FEEDBACK_FRAMES {
+        runtime.apply(method, Bounces::Feedback, direct, &mut out)?;
+        let diff: f64 = out
+            .radiance
+            .iter()
+            .flatten()
+            .zip(converged.radiance.iter().flatten())
+            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+            .sum();
+        let rel = (diff / norm.max(f64::MIN_POSITIVE)).sqrt();
+        if to_1pct.is_none() && rel <= 0.01 {
+            to_1pct = Some(frame);
+        }
+        if rel <= 0.001 {
+            to_01pct = Some(frame);
+            break;
+        }
+    }
+    runtime.reset_feedback();
+    Ok((to_1pct, to_01pct))
 }
