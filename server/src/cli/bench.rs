@@ -204,8 +204,8 @@ pub fn plan(preset: Preset, bounces: BounceCount) -> SweepPlan {
             left_out: vec![
                 "the maze (only its geometry is used, for the ray throughput)".into(),
                 "texels per face 16 and 32, rays per texel above 256, tolerance 1e-4".into(),
-                "a high-ray reference above 1024 rays per texel (errors below ~1% are not \
-                 resolved)"
+                "a high-ray reference above 1024 rays per texel (errors below ~1% at one bounce, \
+                 ~3% at all bounces, are not resolved: longer paths are noisier)"
                     .into(),
             ],
             bounces,
@@ -894,7 +894,7 @@ mod tests {
             md.contains("| full | 8 | 256 | 1e-3 | auto | 12/7.5 | 3.00 | 40.0 KiB | all | 14 | 0.500 | 0.0500 | 0.1000 | 68, 1.18 | 2.4k× | bas |"),
             "{md}"
         );
-        let r_one = 0.04 / (0.0009 - 0.04 / 1024.0);
+        let r_one: f64 = 0.04 / (0.0009 - 0.04 / 1024.0);
         let cheaper_one = (0.5 + 0.01 * r_one) / 0.04e-3;
         assert!((cheaper_one - 24_115.25).abs() < 0.01, "{cheaper_one}");
         assert!(
@@ -974,6 +974,10 @@ mod tests {
             ratio > 1.8 && ratio < 3.2,
             "all ÷ one bounce energy {ratio}"
         );
+        // So the yardsticks are far apart: a perfect one-bounce answer is ~0.6 off all bounces.
+        let apart = compare(&measured[1].references[0], &measured[0].references[0]).relative_l2;
+        eprintln!("energy all ÷ one {ratio:.3}; one-bounce reference vs all-bounce {apart:.3}");
+        assert!(apart > 0.4, "{apart}");
         assert_eq!(measured[0].brute_force.bounces, BounceCount::All);
         assert_eq!(measured[1].brute_force.bounces, BounceCount::ONE);
         let setting = BakeSetting {
@@ -1013,10 +1017,10 @@ mod tests {
                 // Each bounce keeps about 0.6 of the light: ~14 bounces to 1e-3.
                 assert!((5..=40).contains(&p.iterations), "{}", p.iterations);
             }
-            // Against the matching yardstick the operators are close (the one-bounce runtime
-            // against the all-bounce reference would be ~0.6 off).
+            // Against the matching yardstick the operators are close (0.12–0.16 at T4 against a
+            // 256-ray reference), far closer than the yardsticks are to each other.
             assert!(
-                p.relative_l2 < 0.25,
+                p.relative_l2 < 0.2,
                 "{} {}: {}",
                 p.method.label(),
                 p.bounces,

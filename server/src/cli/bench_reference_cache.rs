@@ -182,7 +182,8 @@ mod tests {
     const PINNED_CORNELL_KEY: &str =
         "768c23954a04433f8a7f45fecfe85d8f3070e5907f64580dcaac66a463ba485b";
     /// The all-bounce key of the same scene, lights, rays and seed.
-    const PINNED_CORNELL_ALL_BOUNCES_KEY: &str = "TODO";
+    const PINNED_CORNELL_ALL_BOUNCES_KEY: &str =
+        "1617d7cc3a22f480447f9c3870e85bfc38e88c96095d47630b55f5694f440557";
 
     /// A one-bounce and an all-bounce reference of the same scene, lights, rays and seed are
     /// different results and must never share an entry; nor may two fixed counts.
