@@ -213,6 +213,11 @@ enum Command {
         /// Only rewrite the plots and markdown from OUT/results.json (no measuring).
         #[arg(long)]
         replot: bool,
+        /// Bounces of the references, the runtime's mode and the path tracer at equal error: a
+        /// whole number ≥ 1 or `all` (the runtime converges). Unless 1, every point is also
+        /// measured at one bounce against one-bounce references, as rows of their own.
+        #[arg(long, default_value = "all")]
+        bounces: BounceCount,
     },
     /// Print the JSON Schema of the scene description.
     Schema,
@@ -376,6 +381,7 @@ fn main() -> anyhow::Result<()> {
             python,
             embree_script,
             replot,
+            bounces,
         } => cli::bench::run(cli::bench::BenchArgs {
             preset: if quick {
                 cli::bench::Preset::Quick
@@ -390,6 +396,7 @@ fn main() -> anyhow::Result<()> {
             embree: (!no_embree).then_some((python, embree_script)),
             command_line: std::env::args().collect::<Vec<_>>().join(" "),
             replot,
+            bounces,
         }),
         Command::Schema => {
             println!(

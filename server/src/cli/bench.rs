@@ -1,7 +1,14 @@
-//! `lightfarm bench [--quick] --out DIR`: speed against error. Sweeps scenes × methods × bake
-//! settings, measures each point (`bench_measure`), the reference path tracer at equal error
-//! (`bench_equal_error`) and ray throughput against Embree (`bench_throughput`), and writes
-//! `results.json`, plots (`bench_plots`) and BENCHMARKS.md-ready markdown (`bench_report`).
+//! `lightfarm bench [--quick] [--bounces N|all] --out DIR`: speed against error. Sweeps scenes ×
+//! methods × bake settings, measures each point (`bench_measure`), the reference path tracer at
+//! equal error (`bench_equal_error`) and ray throughput against Embree (`bench_throughput`), and
+//! writes `results.json`, plots (`bench_plots`) and BENCHMARKS.md-ready markdown
+//! (`bench_report`).
+//!
+//! Yardsticks: every point is measured against references at `--bounces` (default all bounces,
+//! what other bakers converge to) with the runtime at the matching bounce mode, and — unless
+//! that count is already one — again against one-bounce references with the runtime at one
+//! bounce (the papers' yardstick), as rows of their own. The path tracer at equal error runs at
+//! each yardstick's bounce count.
 //!
 //! Owns the two presets (what is swept, and what is left out and why) and the order of work.
 //!
@@ -25,7 +32,8 @@ use super::bake::load_scene;
 use super::bench_equal_error::{BruteForceFit, BruteForceRun};
 use super::bench_lights::random_light_set;
 use super::bench_measure::{
-    drop_buried, measure_setting, BakeSetting, BenchMethod, BenchPoint, BenchScene,
+    bounces_label, drop_buried, measure_setting, BakeSetting, BenchMethod, BenchPoint, BenchScene,
+    Yardstick,
 };
 use super::bench_reference_cache::{mesh_bytes, reference_key, CachedReference, ReferenceCache};
 use super::bench_throughput::{measure_throughput, Throughput};
@@ -63,6 +71,8 @@ pub struct BenchArgs {
     pub command_line: String,
     /// Only rewrite the plots and markdown from OUT/results.json (no measuring).
     pub replot: bool,
+    /// Bounces of the main yardstick (references, runtime mode, brute force).
+    pub bounces: BounceCount,
 }
 
 /// What one scene sweeps.
@@ -89,6 +99,28 @@ pub struct SweepPlan {
     pub throughput_rays: usize,
     /// What the preset leaves out, for the report.
     pub left_out: Vec<String>,
+    /// Bounces of the main yardstick. Results written before bounces existed were one-bounce.
+    #[serde(default = "one_bounce")]
+    pub bounces: BounceCount,
+    /// Whether every point is also measured at one bounce against one-bounce references (rows
+    /// of their own); meaningless when `bounces` is one.
+    #[serde(default)]
+    pub one_bounce_rows: bool,
+}
+
+fn one_bounce() -> BounceCount {
+    BounceCount::ONE
+}
+
+impl SweepPlan {
+    /// The bounce counts every point is measured at, the main one first.
+    pub fn yardsticks(&self) -> Vec<BounceCount> {
+        if self.one_bounce_rows && self.bounces != BounceCount::ONE {
+            vec![self.bounces, BounceCount::ONE]
+        } else {
+            vec![self.bounces]
+        }
+    }
 }
 
 /// Every `(texels per face, rays per texel)` of `grid` at tolerance 1e-3 and codec `auto`;
@@ -139,11 +171,11 @@ fn plan_scene(name: &str, methods: &[BenchMethod], settings: Vec<BakeSetting>) -
     }
 }
 
-/// The sweep of a preset.
-pub fn plan(preset: Preset) -> SweepPlan {
+/// The sweep of a preset with `bounces` as the main yardstick.
+pub fn plan(preset: Preset, bounces: BounceCount) -> SweepPlan {
     use BenchMethod::*;
     let static_methods = [Full, MrtLightfield, MrtTraced, Drt];
-    match preset {
+    let mut plan = match preset {
         Preset::Quick => SweepPlan {
             preset,
             scenes: vec![
@@ -172,10 +204,12 @@ pub fn plan(preset: Preset) -> SweepPlan {
             left_out: vec![
                 "the maze (only its geometry is used, for the ray throughput)".into(),
                 "texels per face 16 and 32, rays per texel above 256, tolerance 1e-4".into(),
-                "a high-ray reference above 1024 rays per texel (errors below ~1% are not \
-                 resolved)"
+                "a high-ray reference above 1024 rays per texel (errors below ~1% at one bounce, \
+                 ~3% at all bounces, are not resolved: longer paths are noisier)"
                     .into(),
             ],
+            bounces,
+            one_bounce_rows: true,
         },
         Preset::Full => SweepPlan {
             preset,
@@ -229,15 +263,28 @@ pub fn plan(preset: Preset) -> SweepPlan {
                  client's multi-threaded apply path is not timed"
                     .into(),
             ],
+            bounces,
+            one_bounce_rows: true,
         },
+    };
+    if plan.bounces != BounceCount::ONE {
+        plan.left_out.push(
+            "Feedback (one application per frame, the previous frame's indirect light fed back) \
+             is not timed here: `lightfarm frame-time --bounces 1,all,feedback` times it"
+                .into(),
+        );
     }
+    plan
 }
 
-/// The equal-error fit of one scene at one texel count.
+/// The equal-error fit of one scene at one texel count and bounce count.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct BruteForce {
     pub scene: String,
     pub texels_per_face: u32,
+    /// Bounces the path tracer (the ladder and the high-ray reference) sums.
+    #[serde(default = "one_bounce")]
+    pub bounces: BounceCount,
     pub runs: Vec<(u32, f64, f64)>,
     /// `e(r) = scale · r^-exponent` (plus the reference's noise in quadrature).
     pub scale: f64,
@@ -258,6 +305,16 @@ pub struct Row {
     /// Rays per texel the reference solver needs for the same error (None: below its noise).
     pub brute_force_rays: Option<f64>,
     pub brute_force_seconds: Option<f64>,
+}
+
+impl Row {
+    /// How many times cheaper one relight by the operators (one frame, `apply_ms`) is than
+    /// path tracing the same light set to the same error at the same bounce count (None when
+    /// the path tracer cannot be fitted there).
+    pub fn times_cheaper_than_path_tracing(&self) -> Option<f64> {
+        let seconds = self.brute_force_seconds?;
+        (self.point.apply_ms > 0.0).then(|| seconds / (self.point.apply_ms * 1e-3))
+    }
 }
 
 /// The machine the numbers come from.
@@ -325,10 +382,10 @@ fn load_bench_scene(
     })
 }
 
-/// The reference of `lights` at `rays` (cached by content).
 /// Seconds of reference runs read from the cache in this run (what a cold run adds).
 static SECONDS_FROM_CACHE: std::sync::Mutex<f64> = std::sync::Mutex::new(0.0);
 
+/// The reference of `lights` at `rays` and `bounces` (cached by content).
 fn cached_reference(
     cache: &ReferenceCache,
     scene: &Scene,
@@ -336,8 +393,9 @@ fn cached_reference(
     lights: &LightSet,
     rays: u32,
     seed: u64,
+    bounces: BounceCount,
 ) -> anyhow::Result<CachedReference> {
-    let key = reference_key(scene, &mesh_bytes(scene, dir)?, lights, rays, seed);
+    let key = reference_key(scene, &mesh_bytes(scene, dir)?, lights, rays, seed, bounces);
     if let Some(hit) = cache.get(&key) {
         *SECONDS_FROM_CACHE.lock().expect("not poisoned") += hit.seconds;
         return Ok(hit);
@@ -345,7 +403,7 @@ fn cached_reference(
     let start = Instant::now();
     let mut geometry = Geometry::from_scene(scene, dir)?;
     geometry.add_posed_dynamic(scene, dir, &lights.poses)?;
-    let settings = ReferenceSettings::new(rays, BounceCount::ONE, seed);
+    let settings = ReferenceSettings::new(rays, bounces, seed);
     let result = reference(&geometry, &lights.lights, &settings, &|_| {});
     let entry = CachedReference {
         seconds: start.elapsed().as_secs_f64(),
@@ -353,6 +411,15 @@ fn cached_reference(
     };
     cache.put(&key, &entry)?;
     Ok(entry)
+}
+
+/// The references of one scene at one texel count and bounce count, and the fit of the path
+/// tracer at equal error against them.
+struct MeasuredYardstick {
+    bounces: BounceCount,
+    references: Vec<ResultFile>,
+    fit: BruteForceFit,
+    brute_force: BruteForce,
 }
 
 /// The bench's progress: an indicatif bar on a terminal, one timestamped line per step
@@ -408,6 +475,103 @@ fn texel_counts(settings: &[BakeSetting]) -> Vec<u32> {
     out
 }
 
+/// The high-ray references of every light set of `bench` at `scene_t`'s texel count and
+/// `bounces`, and the path tracer's ladder at the same bounce count fitted against them.
+fn measure_yardstick(
+    cache: &ReferenceCache,
+    bench: &BenchScene,
+    scene_t: &Scene,
+    plan: &SweepPlan,
+    bounces: BounceCount,
+    bar: &BenchProgress,
+) -> anyhow::Result<MeasuredYardstick> {
+    let boxes: Vec<Aabb> = bench.scene.clutter.iter().filter_map(|c| c.box_).collect();
+    let t = scene_t.settings.texels_per_face;
+    let seed = scene_t.settings.seed;
+    let label = bounces_label(bounces);
+    let mut references: Vec<ResultFile> = Vec::new();
+    let mut reference_seconds = 0.0;
+    let mut runs = Vec::new();
+    for (k, lights) in bench.light_sets.iter().enumerate() {
+        bar.message(&format!("{} T{t} reference {k}, {label}", bench.name));
+        let high = cached_reference(
+            cache,
+            scene_t,
+            &bench.dir,
+            lights,
+            plan.reference_rays,
+            seed,
+            bounces,
+        )?;
+        bar.inc();
+        reference_seconds += high.seconds / bench.light_sets.len() as f64;
+        for &rays in &plan.brute_force_rays {
+            bar.message(&format!(
+                "{} T{t} brute force {rays} rays, set {k}, {label}",
+                bench.name
+            ));
+            // An independent seed, so the two estimators' errors add in quadrature.
+            let low = cached_reference(
+                cache,
+                scene_t,
+                &bench.dir,
+                lights,
+                rays,
+                seed.wrapping_add(1),
+                bounces,
+            )?;
+            let mut low_result = low.result;
+            drop_buried(&mut low_result, &boxes);
+            let c = compare(&low_result, &high.result);
+            runs.push(BruteForceRun {
+                rays,
+                error: c.relative_l2,
+                seconds: low.seconds,
+            });
+            bar.inc();
+        }
+        references.push(high.result);
+    }
+    let fit = BruteForceFit::fit(&runs, plan.reference_rays)
+        .ok_or_else(|| anyhow::anyhow!("the brute-force fit needs two ray counts"))?;
+    let brute_force = BruteForce {
+        scene: bench.name.clone(),
+        texels_per_face: t,
+        bounces,
+        runs: runs.iter().map(|r| (r.rays, r.error, r.seconds)).collect(),
+        scale: fit.scale,
+        exponent: fit.exponent,
+        seconds_fixed: fit.seconds_fixed,
+        seconds_per_ray: fit.seconds_per_ray,
+        noise_floor: fit.noise_floor(),
+        reference_seconds,
+        texels: references[0].texels.len(),
+    };
+    Ok(MeasuredYardstick {
+        bounces,
+        references,
+        fit,
+        brute_force,
+    })
+}
+
+/// The row of a measured point: the path tracer at its error, from the fit of its own bounce
+/// count.
+fn row_of(point: BenchPoint, yardsticks: &[MeasuredYardstick]) -> Row {
+    let fit = yardsticks
+        .iter()
+        .find(|y| y.bounces == point.bounces)
+        .map(|y| y.fit);
+    let brute_force_rays = fit.and_then(|f| f.rays_for_error(point.relative_l2));
+    Row {
+        brute_force_seconds: fit
+            .zip(brute_force_rays)
+            .map(|(f, r)| f.seconds_for_rays(r)),
+        brute_force_rays,
+        point,
+    }
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     if args.replot {
         let path = args.out.join("results.json");
@@ -416,7 +580,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         return write_outputs(&results, &args);
     }
     let started = Instant::now();
-    let plan = plan(args.preset);
+    let plan = plan(args.preset, args.bounces);
     std::fs::create_dir_all(&args.out)?;
     let cache = ReferenceCache::open(&args.reference_cache)?;
     let scenes: Vec<BenchScene> = plan
@@ -424,11 +588,15 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         .iter()
         .map(|p| load_bench_scene(&args.scenes, p, plan.light_sets, args.seed))
         .collect::<anyhow::Result<_>>()?;
+    let bounce_counts = plan.yardsticks();
     let reference_jobs: usize = plan
         .scenes
         .iter()
         .map(|p| {
-            texel_counts(&p.settings).len() * plan.light_sets * (1 + plan.brute_force_rays.len())
+            texel_counts(&p.settings).len()
+                * bounce_counts.len()
+                * plan.light_sets
+                * (1 + plan.brute_force_rays.len())
         })
         .sum();
     let setting_jobs: usize = plan.scenes.iter().map(|p| p.settings.len()).sum();
@@ -436,83 +604,31 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     let mut brute_force = Vec::new();
     for (scene_plan, bench) in plan.scenes.iter().zip(&scenes) {
-        let boxes: Vec<Aabb> = bench.scene.clutter.iter().filter_map(|c| c.box_).collect();
         for t in texel_counts(&scene_plan.settings) {
             let mut scene_t = bench.scene.clone();
             scene_t.settings.texels_per_face = t;
-            let seed = scene_t.settings.seed;
-            let mut references: Vec<ResultFile> = Vec::new();
-            let mut reference_seconds = 0.0;
-            let mut runs = Vec::new();
-            for (k, lights) in bench.light_sets.iter().enumerate() {
-                bar.message(&format!("{} T{t} reference {k}", bench.name));
-                let high = cached_reference(
-                    &cache,
-                    &scene_t,
-                    &bench.dir,
-                    lights,
-                    plan.reference_rays,
-                    seed,
-                )?;
-                bar.inc();
-                reference_seconds += high.seconds / bench.light_sets.len() as f64;
-                for &rays in &plan.brute_force_rays {
-                    bar.message(&format!(
-                        "{} T{t} brute force {rays} rays, set {k}",
-                        bench.name
-                    ));
-                    // An independent seed, so the two estimators' errors add in quadrature.
-                    let low = cached_reference(
-                        &cache,
-                        &scene_t,
-                        &bench.dir,
-                        lights,
-                        rays,
-                        seed.wrapping_add(1),
-                    )?;
-                    let mut low_result = low.result;
-                    drop_buried(&mut low_result, &boxes);
-                    let c = compare(&low_result, &high.result);
-                    runs.push(BruteForceRun {
-                        rays,
-                        error: c.relative_l2,
-                        seconds: low.seconds,
-                    });
-                    bar.inc();
-                }
-                references.push(high.result);
-            }
-            let fit = BruteForceFit::fit(&runs, plan.reference_rays)
-                .ok_or_else(|| anyhow::anyhow!("the brute-force fit needs two ray counts"))?;
-            brute_force.push(BruteForce {
-                scene: bench.name.clone(),
-                texels_per_face: t,
-                runs: runs.iter().map(|r| (r.rays, r.error, r.seconds)).collect(),
-                scale: fit.scale,
-                exponent: fit.exponent,
-                seconds_fixed: fit.seconds_fixed,
-                seconds_per_ray: fit.seconds_per_ray,
-                noise_floor: fit.noise_floor(),
-                reference_seconds,
-                texels: references[0].texels.len(),
-            });
+            let measured: Vec<MeasuredYardstick> = bounce_counts
+                .iter()
+                .map(|&b| measure_yardstick(&cache, bench, &scene_t, &plan, b, &bar))
+                .collect::<anyhow::Result<_>>()?;
+            brute_force.extend(measured.iter().map(|y| y.brute_force.clone()));
+            let yardsticks: Vec<Yardstick> = measured
+                .iter()
+                .map(|y| Yardstick {
+                    bounces: y.bounces,
+                    references: &y.references,
+                })
+                .collect();
             for setting in scene_plan
                 .settings
                 .iter()
                 .filter(|s| s.texels_per_face == t)
             {
-                let points = measure_setting(bench, setting, &references, plan.frames, &|m| {
+                let points = measure_setting(bench, setting, &yardsticks, plan.frames, &|m| {
                     bar.message(m)
                 })?;
                 bar.inc();
-                for point in points {
-                    let brute_force_rays = fit.rays_for_error(point.relative_l2);
-                    rows.push(Row {
-                        brute_force_seconds: brute_force_rays.map(|r| fit.seconds_for_rays(r)),
-                        brute_force_rays,
-                        point,
-                    });
-                }
+                rows.extend(points.into_iter().map(|p| row_of(p, &measured)));
             }
         }
     }
@@ -585,4 +701,332 @@ fn throughput_of(
     );
     let _ = std::fs::remove_dir_all(&scratch);
     measured
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn yardsticks_follow_the_bounce_count() {
+        use BounceCount::{All, Fixed};
+        assert_eq!(plan(Preset::Quick, All).yardsticks(), vec![All, Fixed(1)]);
+        assert_eq!(plan(Preset::Full, All).yardsticks(), vec![All, Fixed(1)]);
+        assert_eq!(plan(Preset::Quick, Fixed(1)).yardsticks(), vec![Fixed(1)]);
+        assert_eq!(
+            plan(Preset::Full, Fixed(3)).yardsticks(),
+            vec![Fixed(3), Fixed(1)]
+        );
+        // Without one-bounce rows only the main count is measured.
+        let mut only_main = plan(Preset::Quick, All);
+        only_main.one_bounce_rows = false;
+        assert_eq!(only_main.yardsticks(), vec![All]);
+    }
+
+    fn point(method: BenchMethod, bounces: BounceCount, l2: f64, apply_ms: f64) -> BenchPoint {
+        BenchPoint {
+            scene: "cornell".into(),
+            method,
+            texels_per_face: 8,
+            rays_per_texel: 256,
+            tolerance: 1e-3,
+            codec: "auto".into(),
+            rank_max: 12,
+            rank_mean: 7.5,
+            bake_seconds: 3.0,
+            bundle_bytes: 40_960,
+            apply_ms,
+            relative_l2: l2,
+            p95: 2.0 * l2,
+            relative_l2_per_set: vec![l2],
+            bounces,
+            iterations: if bounces == BounceCount::ONE { 1 } else { 14 },
+        }
+    }
+
+    fn fit(scale: f64) -> BruteForceFit {
+        BruteForceFit {
+            scale,
+            exponent: 0.5,
+            reference_rays: 1024,
+            seconds_fixed: 0.5,
+            seconds_per_ray: 0.01,
+        }
+    }
+
+    fn yardstick(bounces: BounceCount, scale: f64) -> MeasuredYardstick {
+        let f = fit(scale);
+        MeasuredYardstick {
+            bounces,
+            references: vec![],
+            fit: f,
+            brute_force: BruteForce {
+                scene: "cornell".into(),
+                texels_per_face: 8,
+                bounces,
+                runs: vec![(16, f.error_at(16.0), 0.66), (64, f.error_at(64.0), 1.14)],
+                scale,
+                exponent: 0.5,
+                seconds_fixed: 0.5,
+                seconds_per_ray: 0.01,
+                noise_floor: f.noise_floor(),
+                reference_seconds: 10.74,
+                texels: 600,
+            },
+        }
+    }
+
+    /// A point's path-tracer cost comes from the fit of its own bounce count: the same error
+    /// costs more rays against a noisier (all-bounce) path tracer.
+    #[test]
+    fn rows_take_the_path_tracer_of_their_own_bounce_count() {
+        use BounceCount::All;
+        // a = 0.4 at all bounces, 0.2 at one; R = 1024 (noise floors 0.0125 and 0.00625).
+        let yardsticks = [yardstick(All, 0.4), yardstick(BounceCount::ONE, 0.2)];
+        let all = row_of(point(BenchMethod::Full, All, 0.05, 0.5), &yardsticks);
+        let one = row_of(
+            point(BenchMethod::Full, BounceCount::ONE, 0.05, 0.5),
+            &yardsticks,
+        );
+        // r = a² / (e² − a²/R): 0.16 / (0.0025 − 0.16/1024) = 68.27; 0.04 / (0.0025 − 0.04/1024).
+        let r_all = 0.16 / (0.0025 - 0.16 / 1024.0);
+        let r_one = 0.04 / (0.0025 - 0.04 / 1024.0);
+        assert!((all.brute_force_rays.unwrap() - r_all).abs() < 1e-9);
+        assert!((one.brute_force_rays.unwrap() - r_one).abs() < 1e-9);
+        assert!((all.brute_force_seconds.unwrap() - (0.5 + 0.01 * r_all)).abs() < 1e-12);
+        // One frame of 0.5 ms against 1.1827 s of path tracing: 2365× cheaper.
+        let cheaper = all.times_cheaper_than_path_tracing().unwrap();
+        assert!((cheaper - (0.5 + 0.01 * r_all) / 0.5e-3).abs() < 1e-6);
+        assert!((cheaper - 2365.3).abs() < 0.1, "{cheaper}");
+        // Below the all-bounce noise floor (0.0125) there is no path-tracer cost.
+        let fine = row_of(point(BenchMethod::Full, All, 0.01, 0.5), &yardsticks);
+        assert_eq!(fine.brute_force_rays, None);
+        assert_eq!(fine.times_cheaper_than_path_tracing(), None);
+        // A bounce count without a yardstick gets none either.
+        let three = row_of(
+            point(BenchMethod::Full, BounceCount::Fixed(3), 0.05, 0.5),
+            &yardsticks,
+        );
+        assert_eq!(three.brute_force_seconds, None);
+    }
+
+    /// Results written before bounces existed were one-bounce and read as such.
+    #[test]
+    fn results_without_bounce_fields_read_as_one_bounce() {
+        let row = serde_json::json!({
+            "scene": "cornell", "method": "drt", "texels_per_face": 8, "rays_per_texel": 64,
+            "tolerance": 0.001, "codec": "auto", "rank_max": 3, "rank_mean": 2.0,
+            "bake_seconds": 1.0, "bundle_bytes": 100, "apply_ms": 0.25, "relative_l2": 0.1,
+            "p95": 0.2, "relative_l2_per_set": [0.1],
+            "brute_force_rays": 12.0, "brute_force_seconds": 0.75
+        });
+        let row: Row = serde_json::from_value(row).unwrap();
+        assert_eq!(row.point.bounces, BounceCount::ONE);
+        assert_eq!(row.point.iterations, 1);
+        assert_eq!(row.times_cheaper_than_path_tracing(), Some(3000.0));
+        let mut old_plan = serde_json::to_value(plan(Preset::Quick, BounceCount::All)).unwrap();
+        let fields = old_plan.as_object_mut().unwrap();
+        fields.remove("bounces");
+        fields.remove("one_bounce_rows");
+        let old_plan: SweepPlan = serde_json::from_value(old_plan).unwrap();
+        assert_eq!(old_plan.yardsticks(), vec![BounceCount::ONE]);
+    }
+
+    fn results_with_both_yardsticks() -> BenchResults {
+        use BounceCount::All;
+        let yardsticks = [yardstick(All, 0.4), yardstick(BounceCount::ONE, 0.2)];
+        let rows = [
+            point(BenchMethod::Full, All, 0.05, 0.5),
+            point(BenchMethod::Full, BounceCount::ONE, 0.03, 0.04),
+            point(BenchMethod::Drt, All, 0.08, 0.2),
+            point(BenchMethod::Drt, BounceCount::ONE, 0.04, 0.02),
+        ]
+        .into_iter()
+        .map(|p| row_of(p, &yardsticks))
+        .collect();
+        BenchResults {
+            plan: plan(Preset::Quick, All),
+            machine: Machine {
+                cpu: "test".into(),
+                nproc: 2,
+            },
+            command_line: "lightfarm bench --quick".into(),
+            wall_seconds: 60.0,
+            reference_seconds_from_cache: 0.0,
+            rows,
+            brute_force: yardsticks.iter().map(|y| y.brute_force.clone()).collect(),
+            throughput: None,
+        }
+    }
+
+    /// `bench --replot` reads the results.json the new code writes, and the report and plots
+    /// it writes name every figure's bounce count.
+    #[test]
+    fn replot_reads_new_results_and_labels_every_figure_with_its_bounces() {
+        let out = std::env::temp_dir().join(format!("lf-bench-replot-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir_all(&out).unwrap();
+        let written = results_with_both_yardsticks();
+        write_json(&out.join("results.json"), &written).unwrap();
+        let text = std::fs::read_to_string(out.join("results.json")).unwrap();
+        assert!(text.contains(r#""bounces":"all""#) && text.contains(r#""bounces":1"#));
+        assert!(text.contains(r#""iterations":14"#));
+        run(BenchArgs {
+            preset: Preset::Quick,
+            out: out.clone(),
+            markdown: None,
+            reference_cache: out.join("refs"),
+            scenes: PathBuf::from("unused"),
+            seed: 1,
+            embree: None,
+            command_line: String::new(),
+            replot: true,
+            bounces: BounceCount::All,
+        })
+        .unwrap();
+        let md = std::fs::read_to_string(out.join("BENCHMARKS.md")).unwrap();
+        // Rows labelled by bounces and iterations, side by side; × cheaper = path tracer s /
+        // apply s: full all bounces 1.1827 s / 0.5 ms, full one bounce
+        // (0.5 + 0.01·0.04/(0.0009 − 0.04/1024)) s / 0.04 ms. Pareto fronts are per bounce
+        // count: mixed with the one-bounce rows (same bake, lower error) full at all bounces
+        // would be off every front.
+        assert!(
+            md.contains("| full | 8 | 256 | 1e-3 | auto | 12/7.5 | 3.00 | 40.0 KiB | all | 14 | 0.500 | 0.0500 | 0.1000 | 68, 1.18 | 2.4k× | bas |"),
+            "{md}"
+        );
+        let r_one: f64 = 0.04 / (0.0009 - 0.04 / 1024.0);
+        let cheaper_one = (0.5 + 0.01 * r_one) / 0.04e-3;
+        assert!((cheaper_one - 24_115.25).abs() < 0.01, "{cheaper_one}");
+        assert!(
+            md.contains("| full | 8 | 256 | 1e-3 | auto | 12/7.5 | 3.00 | 40.0 KiB | 1 | 1 | 0.040 | 0.0300 | 0.0600 | 46, 0.96 | 24k× | bas |"),
+            "{md}"
+        );
+        assert!(md.contains("- **cornell, all bounces**: lowest error 0.0500"));
+        assert!(md.contains("- **cornell, 1 bounce**: lowest error 0.0300"));
+        assert!(md.contains("rows with bounces = all"));
+        // Both path-tracer fits, each with its bounce count.
+        assert!(md.contains("| cornell | 8 | all | 600 |"));
+        assert!(md.contains("| cornell | 8 | 1 | 600 |"));
+        for stem in ["cornell-all-bounces", "cornell-1-bounce"] {
+            for axis in ["bake", "apply", "bytes"] {
+                assert!(out.join(format!("{stem}-error-vs-{axis}.svg")).exists());
+                assert!(md.contains(&format!("({stem}-error-vs-{axis}.png)")));
+            }
+        }
+        let svg =
+            std::fs::read_to_string(out.join("cornell-all-bounces-error-vs-bake.svg")).unwrap();
+        assert!(svg.contains("cornell, all bounces: error vs bake time"));
+        // And replot twice gives the same markdown (nothing measured, nothing lost).
+        run(BenchArgs {
+            preset: Preset::Quick,
+            out: out.clone(),
+            markdown: Some(out.join("again.md")),
+            reference_cache: out.join("refs"),
+            scenes: PathBuf::from("unused"),
+            seed: 1,
+            embree: None,
+            command_line: String::new(),
+            replot: true,
+            bounces: BounceCount::ONE,
+        })
+        .unwrap();
+        assert_eq!(md, std::fs::read_to_string(out.join("again.md")).unwrap());
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+
+    /// The whole chain on cornell at 4 texels per face, one light set: all-bounce references
+    /// carry the extra light of the later bounces, each point is measured against the
+    /// reference of its own bounce count with the runtime at the matching mode, and the
+    /// runtime's iterations are recorded.
+    #[test]
+    fn cornell_points_are_measured_against_the_reference_of_their_bounce_count() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let scene_plan = ScenePlan {
+            name: "cornell".into(),
+            methods: vec![BenchMethod::Full, BenchMethod::Drt],
+            settings: vec![],
+        };
+        let bench = load_bench_scene(&root.join("scenes"), &scene_plan, 1, 1).unwrap();
+        let mut plan = plan(Preset::Quick, BounceCount::All);
+        plan.reference_rays = 256;
+        plan.brute_force_rays = vec![16, 64];
+        plan.light_sets = 1;
+        let cache_dir =
+            std::env::temp_dir().join(format!("lf-bench-yardsticks-{}", std::process::id()));
+        let cache = ReferenceCache::open(&cache_dir).unwrap();
+        let mut scene_t = bench.scene.clone();
+        scene_t.settings.texels_per_face = 4;
+        let bar = BenchProgress::new(100);
+        let measured: Vec<MeasuredYardstick> = plan
+            .yardsticks()
+            .into_iter()
+            .map(|b| measure_yardstick(&cache, &bench, &scene_t, &plan, b, &bar).unwrap())
+            .collect();
+        let energy = |r: &ResultFile| -> f64 {
+            r.texels
+                .iter()
+                .map(|t| t.indirect.iter().sum::<f64>())
+                .sum()
+        };
+        let ratio = energy(&measured[0].references[0]) / energy(&measured[1].references[0]);
+        // Mitsuba puts cornell's all-bounce indirect energy at 2.45× one bounce (issue 18).
+        assert!(
+            ratio > 1.8 && ratio < 3.2,
+            "all ÷ one bounce energy {ratio}"
+        );
+        // So the yardsticks are far apart: a perfect one-bounce answer is ~0.6 off all bounces.
+        let apart = compare(&measured[1].references[0], &measured[0].references[0]).relative_l2;
+        eprintln!("energy all ÷ one {ratio:.3}; one-bounce reference vs all-bounce {apart:.3}");
+        assert!(apart > 0.4, "{apart}");
+        assert_eq!(measured[0].brute_force.bounces, BounceCount::All);
+        assert_eq!(measured[1].brute_force.bounces, BounceCount::ONE);
+        let setting = BakeSetting {
+            texels_per_face: 4,
+            rays_per_texel: 64,
+            tolerance: 1e-3,
+            codecs: vec![BundleCodec::Auto],
+        };
+        let yardsticks: Vec<Yardstick> = measured
+            .iter()
+            .map(|y| Yardstick {
+                bounces: y.bounces,
+                references: &y.references,
+            })
+            .collect();
+        let points = measure_setting(&bench, &setting, &yardsticks, 3, &|_| {}).unwrap();
+        let labels: Vec<(BenchMethod, BounceCount)> =
+            points.iter().map(|p| (p.method, p.bounces)).collect();
+        use BenchMethod::{Drt, Full};
+        use BounceCount::All;
+        let one = BounceCount::ONE;
+        assert_eq!(
+            labels,
+            vec![(Full, All), (Full, one), (Drt, All), (Drt, one)]
+        );
+        for p in &points {
+            eprintln!(
+                "{} {}: error {:.4}, iterations {}",
+                p.method.label(),
+                p.bounces,
+                p.relative_l2,
+                p.iterations
+            );
+            if p.bounces == one {
+                assert_eq!(p.iterations, 1);
+            } else {
+                // Each bounce keeps about 0.6 of the light: ~14 bounces to 1e-3.
+                assert!((5..=40).contains(&p.iterations), "{}", p.iterations);
+            }
+            // Against the matching yardstick the operators are close (0.12–0.16 at T4 against a
+            // 256-ray reference), far closer than the yardsticks are to each other.
+            assert!(
+                p.relative_l2 < 0.2,
+                "{} {}: {}",
+                p.method.label(),
+                p.bounces,
+                p.relative_l2
+            );
+        }
+        std::fs::remove_dir_all(&cache_dir).unwrap();
+    }
 }

@@ -2,6 +2,13 @@
 //! seconds, brute force needs to reach the error a baked setting reaches, both measured against
 //! the same high-ray reference.
 //!
+//! The peer sums the same bounces as the reference it is fitted against (`bench --bounces`,
+//! all bounces by default; the one-bounce rows get a one-bounce peer): the fit below knows
+//! nothing of bounces, the ladder it is given does. So the bench can say how many times
+//! cheaper relighting by the operators is than path tracing to the same all-bounce error.
+//! All-bounce paths are longer, so both the seconds per ray and the noise (the scale `a`)
+//! grow with the bounce count.
+//!
 //! Model, fitted to a measured ladder of ray counts. The reference estimator at `r` rays per
 //! texel has error `a · r^-α`; measured against the high-ray reference (`R` rays, independent
 //! seed) the two errors add in quadrature: `e(r)² = a² (r^-2α + R^-2α)`. Monte Carlo gives

@@ -1,13 +1,17 @@
 //! One sweep point of `lightfarm bench`: bake a scene at one (texels per face, rays per texel,
 //! tolerance), encode it with each codec, and measure every method on it — bake seconds,
-//! bundle bytes, apply time per frame and error against the high-ray reference.
+//! bundle bytes, apply time per frame and error against the high-ray reference — once per
+//! yardstick (bounce count): the runtime runs at the bounce mode matching the reference's
+//! count (`all` → `Bounces::default()`, i.e. Converged; `N` → `Fixed(N)`; `1` → `One`).
 //!
 //! Invariants:
 //! - Errors are measured on the *decoded* bundle, through the client crate (`eval`'s
 //!   `evaluate`), as a game would see it; block texels buried inside clutter boxes are left out
 //!   (as `compare --scene` does), since nothing ever sees them.
 //! - Bakes run without the shape cache (cold), so bake seconds are what a first bake costs.
-//! - One bake serves several methods: a method's bake seconds are the engine's stages it needs
+//! - A point's error is only ever against the reference of its own bounce count, and its apply
+//!   time and iterations are of the same bounce mode.
+//! - One bake serves several methods and yardsticks: a method's bake seconds are the engine's stages it needs
 //!   (`BakeReport::stage_seconds`) plus the encode, and its bytes are the stored sections it
 //!   reads plus the container's own bytes.
 
@@ -15,12 +19,13 @@ use std::collections::HashMap;
 use std::time::Instant;
 
 use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, Runtime};
+use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{compare, ResultFile};
 use lightfarm_proto::scene::{Aabb, BundleCodec, Scene, Transport};
 use serde::{Deserialize, Serialize};
 
-use super::eval::{dnrt_delta, evaluate, operator_direct};
+use super::eval::{dnrt_delta, evaluate, is_bounced, leaving_light, operator_direct};
 use super::frame_time::time_frames;
 use crate::bake::bundle_encoding::encode_options;
 use crate::bake::pipeline::{bake, BakeOptions, BakeReport};
@@ -156,6 +161,37 @@ pub struct BenchPoint {
     pub relative_l2: f64,
     pub p95: f64,
     pub relative_l2_per_set: Vec<f64>,
+    /// Bounces of the reference this point is measured against, and of the runtime's mode.
+    /// Results written before bounces existed were one-bounce, hence the default.
+    #[serde(default = "one_bounce")]
+    pub bounces: BounceCount,
+    /// One-bounce applications per timed frame (`Applied::bounces`): 1 for one bounce, N for
+    /// `Fixed(N)`, the iterations Converged needed for `all`.
+    #[serde(default = "one_iteration")]
+    pub iterations: u32,
+}
+
+fn one_bounce() -> BounceCount {
+    BounceCount::ONE
+}
+
+fn one_iteration() -> u32 {
+    1
+}
+
+/// "1 bounce", "3 bounces", "all bounces": how reports and plots name a yardstick.
+pub fn bounces_label(bounces: BounceCount) -> String {
+    match bounces {
+        BounceCount::Fixed(1) => "1 bounce".to_string(),
+        other => format!("{other} bounces"),
+    }
+}
+
+/// The references one point is measured against: a bounce count and, per light set, the
+/// reference at that count and the point's texel count.
+pub struct Yardstick<'a> {
+    pub bounces: BounceCount,
+    pub references: &'a [ResultFile],
 }
 
 impl BenchPoint {
@@ -210,12 +246,13 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Measures every method of `bench` at `setting`; `references[k]` is the reference of light
-/// set k at this texel count.
+/// Measures every method of `bench` at `setting` against each yardstick (one point per method,
+/// codec and yardstick, the yardsticks of a method next to each other); a yardstick's
+/// `references[k]` is the reference of light set k at this texel count.
 pub fn measure_setting(
     bench: &BenchScene,
     setting: &BakeSetting,
-    references: &[ResultFile],
+    yardsticks: &[Yardstick],
     frames: usize,
     on_method: &dyn Fn(&str),
 ) -> anyhow::Result<Vec<BenchPoint>> {
@@ -281,39 +318,41 @@ pub fn measure_setting(
                         .filter(|(n, _)| method.sections().contains(n))
                         .map(|(_, i)| i.stored_len)
                         .sum::<u64>();
-                let mut l2 = Vec::new();
-                let mut p95 = Vec::new();
-                for (lights, reference) in bench.light_sets.iter().zip(references) {
-                    let lights = lights_for(method, lights);
-                    let mut ours = evaluate(
-                        decoded.clone(),
-                        &lights,
-                        method.client_method(),
-                        Bounces::One,
-                    )?;
-                    drop_buried(&mut ours, &boxes);
-                    let c = compare(&ours, reference);
-                    anyhow::ensure!(c.matched > 0, "{}: no texels to compare", method.label());
-                    l2.push(c.relative_l2);
-                    p95.push(c.p95);
+                for yardstick in yardsticks {
+                    let bounces = Bounces::from(yardstick.bounces);
+                    let mut l2 = Vec::new();
+                    let mut p95 = Vec::new();
+                    for (lights, reference) in bench.light_sets.iter().zip(yardstick.references) {
+                        let lights = lights_for(method, lights);
+                        let mut ours =
+                            evaluate(decoded.clone(), &lights, method.client_method(), bounces)?;
+                        drop_buried(&mut ours, &boxes);
+                        let c = compare(&ours, reference);
+                        anyhow::ensure!(c.matched > 0, "{}: no texels to compare", method.label());
+                        l2.push(c.relative_l2);
+                        p95.push(c.p95);
+                    }
+                    let timed =
+                        time_apply(&decoded, method, &bench.light_sets[0], bounces, frames)?;
+                    points.push(BenchPoint {
+                        scene: bench.name.clone(),
+                        method,
+                        texels_per_face: setting.texels_per_face,
+                        rays_per_texel: setting.rays_per_texel,
+                        tolerance: setting.tolerance,
+                        codec: codec_name(codec).to_string(),
+                        rank_max: report.ranks.iter().copied().max().unwrap_or(0),
+                        rank_mean: mean_rank(&report),
+                        bake_seconds,
+                        bundle_bytes,
+                        apply_ms: timed.median_ms,
+                        relative_l2: l2.iter().sum::<f64>() / l2.len() as f64,
+                        p95: p95.iter().sum::<f64>() / p95.len() as f64,
+                        relative_l2_per_set: l2,
+                        bounces: yardstick.bounces,
+                        iterations: timed.iterations,
+                    });
                 }
-                let apply_ms = time_apply(&decoded, method, &bench.light_sets[0], frames)?;
-                points.push(BenchPoint {
-                    scene: bench.name.clone(),
-                    method,
-                    texels_per_face: setting.texels_per_face,
-                    rays_per_texel: setting.rays_per_texel,
-                    tolerance: setting.tolerance,
-                    codec: codec_name(codec).to_string(),
-                    rank_max: report.ranks.iter().copied().max().unwrap_or(0),
-                    rank_mean: mean_rank(&report),
-                    bake_seconds,
-                    bundle_bytes,
-                    apply_ms,
-                    relative_l2: l2.iter().sum::<f64>() / l2.len() as f64,
-                    p95: p95.iter().sum::<f64>() / p95.len() as f64,
-                    relative_l2_per_set: l2,
-                });
             }
         }
     }
@@ -338,37 +377,63 @@ fn lights_for(method: BenchMethod, lights: &LightSet) -> LightSet {
     lights
 }
 
-/// Median milliseconds of one frame: `Runtime::apply` as `frame-time` times it, plus for
-/// `dnrt` the median of the DNRT pass (probe field, SH at each object, per-texel grid lookups).
+/// One point's timed frames.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TimedApply {
+    /// Median milliseconds of one frame.
+    pub median_ms: f64,
+    /// One-bounce applications per frame (`Applied::bounces` of the timed frames).
+    pub iterations: u32,
+}
+
+/// Median milliseconds of one frame: `Runtime::apply` at `bounces` as `frame-time` times it,
+/// plus for `dnrt` the median of the DNRT pass (probe field, SH at each object, per-texel grid
+/// lookups), fed the light leaving the texels at that bounce mode as `eval` feeds it.
 fn time_apply(
     bundle: &Bundle,
     method: BenchMethod,
     lights: &LightSet,
+    bounces: Bounces,
     frames: usize,
-) -> anyhow::Result<f64> {
+) -> anyhow::Result<TimedApply> {
     let occluders = Occluders::from_layout(&bundle.layout);
-    let direct = operator_direct(&bundle.layout, &occluders, &lights);
+    let direct = operator_direct(&bundle.layout, &occluders, lights);
     let mut runtime = Runtime::try_new(bundle.clone())?;
     let apply = time_frames(
         &mut runtime,
         &direct,
         method.client_method(),
-        &[Bounces::One],
+        &[bounces],
         frames,
         1,
     )?
     .remove(0);
+    let timed = TimedApply {
+        median_ms: apply.median_ms,
+        iterations: apply.bounces,
+    };
     if method != BenchMethod::Dnrt {
-        return Ok(apply.median_ms);
+        return Ok(timed);
     }
+    let bounced = is_bounced(bounces);
+    let leaving = if bounced {
+        let mut indirect = IndirectLight::default();
+        runtime.apply(method.client_method(), bounces, &direct, &mut indirect)?;
+        leaving_light(&direct, &indirect)
+    } else {
+        direct
+    };
     let mut times = Vec::new();
     let mut sink = IndirectLight::default();
     for _ in 0..frames.clamp(3, 50) {
         let start = Instant::now();
-        let delta = dnrt_delta(&mut runtime, &direct, false, &occluders, lights)?;
+        let delta = dnrt_delta(&mut runtime, &leaving, bounced, &occluders, lights)?;
         times.push(start.elapsed().as_secs_f64() * 1e3);
         sink.radiance = delta.unwrap_or_default();
     }
     std::hint::black_box(&sink);
-    Ok(apply.median_ms + median(times))
+    Ok(TimedApply {
+        median_ms: timed.median_ms + median(times),
+        ..timed
+    })
 }

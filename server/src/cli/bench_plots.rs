@@ -1,7 +1,10 @@
-//! The bench's plots (plotters, SVG and PNG): per scene, relative L2 error against bake
-//! seconds, apply milliseconds and bundle bytes, log-log, one colour per method, the Pareto
-//! front joined by a line, and on the bake-time plot the reference solver's fitted cost at
-//! equal error (seconds per light set, one dashed curve per texel count).
+//! The bench's plots (plotters, SVG and PNG): per scene and yardstick (bounce count), relative
+//! L2 error against bake seconds, apply milliseconds and bundle bytes, log-log, one colour per
+//! method, the Pareto front joined by a line, and on the bake-time plot the reference solver's
+//! fitted cost at equal error at the same bounce count (seconds per light set, one dashed curve
+//! per texel count). The bounce count is in every title and file name
+//! (`<scene>-<bounces>-error-vs-<axis>`, e.g. `cornell-all-bounces-error-vs-bake.svg`): errors
+//! against different yardsticks never share a plot or a front.
 //!
 //! Text is drawn with the bundled DejaVu Sans (`server/assets/fonts`, through plotters'
 //! `ab_glyph` feature), so a headless machine needs no fontconfig.
@@ -14,8 +17,9 @@ use plotters::prelude::*;
 
 use super::bench::BenchResults;
 use super::bench_equal_error::BruteForceFit;
-use super::bench_measure::BenchMethod;
+use super::bench_measure::{bounces_label, BenchMethod};
 use super::bench_pareto::pareto_front;
+use lightfarm_proto::bounces::BounceCount;
 
 static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
 
@@ -59,6 +63,7 @@ impl CostAxis {
 #[derive(Clone, Debug)]
 pub struct PlotFiles {
     pub scene: String,
+    pub bounces: BounceCount,
     pub axis: CostAxis,
     pub svg: PathBuf,
     pub png: PathBuf,
@@ -94,6 +99,8 @@ fn short(v: f64) -> String {
 struct PlotData {
     title: String,
     x_label: &'static str,
+    /// Names the yardstick: "relative L2 error vs the all-bounce reference …".
+    y_label: String,
     /// (cost, error, method, on the front)
     points: Vec<(f64, f64, BenchMethod, bool)>,
     /// Dashed reference curves: label and (cost, error) points.
@@ -133,7 +140,7 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, data: &PlotData) -> an
     chart
         .configure_mesh()
         .x_desc(data.x_label)
-        .y_desc("relative L2 error (mean over light sets)")
+        .y_desc(data.y_label.as_str())
         .x_labels(8)
         .y_labels(8)
         .x_label_formatter(&|v| short(*v))
@@ -238,21 +245,28 @@ fn register_font() {
     });
 }
 
-/// Writes `<scene>-error-vs-<axis>.{svg,png}` into `out` for every scene and axis.
+/// `all-bounces`, `1-bounce`, `3-bounces`: a bounce count in a file name.
+pub fn bounces_slug(bounces: BounceCount) -> String {
+    bounces_label(bounces).replace(' ', "-")
+}
+
+/// Writes `<scene>-<bounces>-error-vs-<axis>.{svg,png}` into `out` for every scene, yardstick
+/// and axis.
 pub fn write_plots(results: &BenchResults, out: &Path) -> anyhow::Result<Vec<PlotFiles>> {
     register_font();
     let mut files = Vec::new();
-    let mut scenes: Vec<&str> = Vec::new();
+    let mut groups: Vec<(&str, BounceCount)> = Vec::new();
     for row in &results.rows {
-        if !scenes.contains(&row.point.scene.as_str()) {
-            scenes.push(&row.point.scene);
+        let group = (row.point.scene.as_str(), row.point.bounces);
+        if !groups.contains(&group) {
+            groups.push(group);
         }
     }
-    for scene in scenes {
+    for (scene, bounces) in groups {
         let rows: Vec<_> = results
             .rows
             .iter()
-            .filter(|r| r.point.scene == scene)
+            .filter(|r| r.point.scene == scene && r.point.bounces == bounces)
             .collect();
         for axis in CostAxis::ALL {
             let coordinates: Vec<(f64, f64)> = rows
@@ -268,7 +282,11 @@ pub fn write_plots(results: &BenchResults, out: &Path) -> anyhow::Result<Vec<Plo
                 .collect();
             let mut curves = Vec::new();
             if axis == CostAxis::BakeSeconds {
-                for fit in results.brute_force.iter().filter(|b| b.scene == scene) {
+                for fit in results
+                    .brute_force
+                    .iter()
+                    .filter(|b| b.scene == scene && b.bounces == bounces)
+                {
                     let model = BruteForceFit {
                         scale: fit.scale,
                         exponent: fit.exponent,
@@ -282,20 +300,29 @@ pub fn write_plots(results: &BenchResults, out: &Path) -> anyhow::Result<Vec<Plo
                         .collect();
                     curves.push((
                         format!(
-                            "reference solver T{} (s per light set)",
-                            fit.texels_per_face
+                            "path tracer T{}, {} (s per light set)",
+                            fit.texels_per_face,
+                            bounces_label(bounces)
                         ),
                         curve,
                     ));
                 }
             }
             let data = PlotData {
-                title: format!("{scene}: error vs {}", axis.description()),
+                title: format!(
+                    "{scene}, {}: error vs {}",
+                    bounces_label(bounces),
+                    axis.description()
+                ),
                 x_label: axis.description(),
+                y_label: format!(
+                    "relative L2 vs the reference at {} (mean over light sets)",
+                    bounces_label(bounces)
+                ),
                 points,
                 curves,
             };
-            let stem = format!("{scene}-error-vs-{}", axis.slug());
+            let stem = format!("{scene}-{}-error-vs-{}", bounces_slug(bounces), axis.slug());
             let svg = out.join(format!("{stem}.svg"));
             let png = out.join(format!("{stem}.png"));
             draw(SVGBackend::new(&svg, (860, 580)).into_drawing_area(), &data)?;
@@ -305,6 +332,7 @@ pub fn write_plots(results: &BenchResults, out: &Path) -> anyhow::Result<Vec<Plo
             )?;
             files.push(PlotFiles {
                 scene: scene.to_string(),
+                bounces,
                 axis,
                 svg,
                 png,

@@ -3,11 +3,18 @@
 //! Everything here is generated from [`BenchResults`]: the tables, the machine, the command,
 //! and a reading whose sentences are templates filled from the numbers. A human edit would be
 //! lost at the next run, and the file says so at the top.
+//!
+//! Every figure names its yardstick: each table row has a `bounces` column (the bounce count of
+//! its reference and of the runtime's mode), the reading and the Pareto fronts are per scene
+//! *and* bounce count, and plots are linked under the bounce count they show.
 
 use std::fmt::Write as _;
 use std::path::{Component, Path, PathBuf};
 
+use lightfarm_proto::bounces::BounceCount;
+
 use super::bench::{BenchResults, Row};
+use super::bench_measure::bounces_label;
 use super::bench_pareto::pareto_front;
 use super::bench_plots::{CostAxis, PlotFiles};
 
@@ -19,6 +26,80 @@ fn scenes(results: &BenchResults) -> Vec<&str> {
         }
     }
     out
+}
+
+/// The bounce counts measured on `scene`, in the order of the rows (the main yardstick first).
+fn bounce_counts(results: &BenchResults, scene: &str) -> Vec<BounceCount> {
+    let mut out = Vec::new();
+    for row in results.rows.iter().filter(|r| r.point.scene == scene) {
+        if !out.contains(&row.point.bounces) {
+            out.push(row.point.bounces);
+        }
+    }
+    out
+}
+
+/// The rows of one scene at one bounce count.
+fn rows_at<'a>(results: &'a BenchResults, scene: &str, bounces: BounceCount) -> Vec<&'a Row> {
+    results
+        .rows
+        .iter()
+        .filter(|r| r.point.scene == scene && r.point.bounces == bounces)
+        .collect()
+}
+
+/// Per row of a scene (any mix of bounce counts): its Pareto marks, the fronts taken among the
+/// rows of its own bounce count only.
+fn fronts_by_bounces(rows: &[&Row]) -> Vec<[bool; 3]> {
+    let mut marks = vec![[false; 3]; rows.len()];
+    let mut counts: Vec<BounceCount> = Vec::new();
+    for row in rows {
+        if !counts.contains(&row.point.bounces) {
+            counts.push(row.point.bounces);
+        }
+    }
+    for bounces in counts {
+        let index: Vec<usize> = (0..rows.len())
+            .filter(|&i| rows[i].point.bounces == bounces)
+            .collect();
+        let group: Vec<&Row> = index.iter().map(|&i| rows[i]).collect();
+        for (i, m) in index.into_iter().zip(fronts(&group)) {
+            marks[i] = m;
+        }
+    }
+    marks
+}
+
+/// Median, smallest and largest of how many times cheaper a relight is than path tracing to
+/// the same error (over the rows where the path tracer is fitted).
+pub fn times_cheaper_spread(rows: &[&Row]) -> Option<(f64, f64, f64)> {
+    let mut v: Vec<f64> = rows
+        .iter()
+        .filter_map(|r| r.times_cheaper_than_path_tracing())
+        .collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let median = if v.len() % 2 == 1 {
+        v[v.len() / 2]
+    } else {
+        0.5 * (v[v.len() / 2 - 1] + v[v.len() / 2])
+    };
+    Some((median, v[0], v[v.len() - 1]))
+}
+
+/// "12.3k×": a large ratio in a few characters.
+fn times(x: f64) -> String {
+    if x >= 1e6 {
+        format!("{:.1}M×", x / 1e6)
+    } else if x >= 1e4 {
+        format!("{:.0}k×", x / 1e3)
+    } else if x >= 1e3 {
+        format!("{:.1}k×", x / 1e3)
+    } else {
+        format!("{x:.0}×")
+    }
 }
 
 /// Per row of a scene: on the Pareto front of error against bake time, apply time, bytes.
@@ -118,7 +199,8 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
          - {} seeded random light sets per scene (1–4 point lights, 2–20 W/sr, 0.25 m from \
          walls and clutter; poses of dynamic objects); high-ray reference {} rays per texel \
          (cached by content); brute-force runs at {:?} rays per texel; apply time = median of \
-         {} frames of `Runtime::apply` on one thread\n",
+         {} frames of `Runtime::apply` on one thread\n\
+         - yardsticks: {}\n",
         results.machine.cpu,
         results.machine.nproc,
         results.command_line,
@@ -129,15 +211,16 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
         plan.light_sets,
         plan.reference_rays,
         plan.brute_force_rays,
-        plan.frames
+        plan.frames,
+        yardsticks_sentence(results)
     );
     let _ = writeln!(w, "## Reading (generated from the numbers)\n");
-    for scene in scenes(results) {
-        let rows: Vec<&Row> = results
-            .rows
-            .iter()
-            .filter(|r| r.point.scene == scene)
-            .collect();
+    for (scene, bounces) in scenes(results)
+        .into_iter()
+        .flat_map(|s| bounce_counts(results, s).into_iter().map(move |b| (s, b)))
+    {
+        let rows = rows_at(results, scene, bounces);
+        let label = bounces_label(bounces);
         let marks = fronts(&rows);
         let best = rows
             .iter()
@@ -145,8 +228,8 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
             .expect("a scene has rows");
         let _ = writeln!(
             w,
-            "- **{scene}**: lowest error {:.4} ({} {}). Pareto front, error against bake time: {}. \
-             Against apply time: {}. Against bytes: {}.",
+            "- **{scene}, {label}**: lowest error {:.4} ({} {}). Pareto front, error against \
+             bake time: {}. Against apply time: {}. Against bytes: {}.",
             best.point.relative_l2,
             best.point.method.label(),
             best.point.setting_label(),
@@ -162,14 +245,25 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
             })
             .collect();
         let unreachable = rows.iter().filter(|r| r.brute_force_rays.is_none()).count();
+        let cheaper = match times_cheaper_spread(&rows) {
+            Some((median, lo, hi)) => format!(
+                " One relight by the operators ({label}) is {} cheaper than path tracing the \
+                 light set to the same error at {label} (median over points; {} to {}).",
+                times(median),
+                times(lo),
+                times(hi)
+            ),
+            None => String::new(),
+        };
         let _ = writeln!(
             w,
-            "  Brute force at equal error: for {} of {} points one reference render of a light \
-             set is cheaper than the bake (the bake pays off after that many light changes); \
-             {} points are more accurate than the high-ray reference can resolve.",
+            "  Path tracer ({label}) at equal error: for {} of {} points one reference render \
+             of a light set is cheaper than the bake (the bake pays off after that many light \
+             changes); {} points are more accurate than the high-ray reference can resolve.{}",
             beaten.len(),
             rows.len(),
-            unreachable
+            unreachable,
+            cheaper
         );
     }
     if let Some(t) = &results.throughput {
@@ -205,6 +299,15 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
     let _ = writeln!(
         w,
         "## Definitions\n\n\
+         - *bounces*: the yardstick of the row. The reference sums that many bounces of \
+         indirect light (`all`: path tracing with Russian roulette, every bounce), and the \
+         runtime applies the operators at the matching mode (`all` → `Converged` at tolerance \
+         1e-3, `N` → `Fixed(N)`, `1` → `One`, the papers' single bounce); a row's error, apply \
+         time, Pareto marks and path-tracer cost are all at its own bounce count. *iterations*: \
+         one-bounce applications per timed frame (`Applied::bounces`).\n\
+         - *× cheaper*: path-tracer seconds for one light set at the row's error and bounce \
+         count, divided by the row's apply time: how many times cheaper relighting by the \
+         operators is than path tracing to the same error.\n\
          - *relative L2*: `sqrt(Σ|ours − ref|² / Σ|ref|²)` of indirect radiance over the texels \
          the method models (block texels inside clutter boxes left out), mean over light sets; \
          *p95*: 95th percentile of the per-texel error over the mean reference magnitude.\n\
@@ -215,8 +318,8 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
          - *full*: the dense per-texel operator (Hašan et al. 2006 style, the paper's \
          baseline); *drt*/*dnrt* are on the lightfield bake; *mrt-\\** ignore clutter and \
          dynamic objects (which the reference contains); *dnrt* = MRT plus the DNRT grids.\n\
-         - *brute force at equal error*: the reference solver's error against the high-ray \
-         reference (independent seed) is measured on a ladder of ray counts and fitted as \
+         - *brute force at equal error*: the reference solver (the path tracer, at the row's \
+         bounce count) and its error against the high-ray reference (independent seed) is measured on a ladder of ray counts and fitted as \
          `e(r)² = a² (r^-2α + R^-2α)` (a power law plus the high-ray reference's own noise; α is \
          fitted, not assumed to be 1/2, because the scrambled Sobol' sequence converges faster \
          than plain Monte Carlo), its time as `t₀ + k r`; the column gives the rays per texel \
@@ -232,13 +335,16 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
             .iter()
             .filter(|r| r.point.scene == scene)
             .collect();
-        let marks = fronts(&rows);
+        let marks = fronts_by_bounces(&rows);
         let _ = writeln!(w, "## {scene}\n");
         let _ = writeln!(
             w,
-            "| method | T | rays | tolerance | codec | rank max/mean | bake s | bytes | apply ms | relative L2 | p95 | brute force: rays, s/light set | Pareto |"
+            "| method | T | rays | tolerance | codec | rank max/mean | bake s | bytes | bounces | iterations | apply ms | relative L2 | p95 | brute force: rays, s/light set | × cheaper | Pareto |"
         );
-        let _ = writeln!(w, "|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+        let _ = writeln!(
+            w,
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+        );
         for (row, mark) in rows.iter().zip(&marks) {
             let p = &row.point;
             let brute = match (row.brute_force_rays, row.brute_force_seconds) {
@@ -250,9 +356,12 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
                 .zip(mark)
                 .map(|(l, &m)| if m { *l } else { "" })
                 .collect();
+            let cheaper = row
+                .times_cheaper_than_path_tracing()
+                .map_or_else(|| "—".to_string(), times);
             let _ = writeln!(
                 w,
-                "| {} | {} | {} | {:.0e} | {} | {}/{:.1} | {:.2} | {} | {:.3} | {:.4} | {:.4} | {} | {} |",
+                "| {} | {} | {} | {:.0e} | {} | {}/{:.1} | {:.2} | {} | {} | {} | {:.3} | {:.4} | {:.4} | {} | {} | {} |",
                 p.method.label(),
                 p.texels_per_face,
                 p.rays_per_texel,
@@ -262,10 +371,13 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
                 p.rank_mean,
                 p.bake_seconds,
                 bytes(p.bundle_bytes),
+                p.bounces,
+                p.iterations,
                 p.apply_ms,
                 p.relative_l2,
                 p.p95,
                 brute,
+                cheaper,
                 pareto
             );
         }
@@ -275,7 +387,8 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
             let svg = relative_to(&plot.svg, base);
             let _ = writeln!(
                 w,
-                "![{scene}: error vs {}]({}) ([SVG]({}))\n",
+                "![{scene}, {}: error vs {}]({}) ([SVG]({}))\n",
+                bounces_label(plot.bounces),
                 plot.axis.description(),
                 png.display(),
                 svg.display()
@@ -285,9 +398,9 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
     let _ = writeln!(w, "## Reference solver (brute force) fits\n");
     let _ = writeln!(
         w,
-        "| scene | T | texels | runs (rays: error, s) | a | α | s fixed | s per ray | noise floor | high-ray reference s/light set |"
+        "| scene | T | bounces | texels | runs (rays: error, s) | a | α | s fixed | s per ray | noise floor | high-ray reference s/light set |"
     );
-    let _ = writeln!(w, "|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(w, "|---|---|---|---|---|---|---|---|---|---|---|");
     for b in &results.brute_force {
         let runs: Vec<String> = b
             .runs
@@ -296,9 +409,10 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
             .collect();
         let _ = writeln!(
             w,
-            "| {} | {} | {} | {} | {:.4} | {:.3} | {:.3} | {:.2e} | {:.4} | {:.1} |",
+            "| {} | {} | {} | {} | {} | {:.4} | {:.3} | {:.3} | {:.2e} | {:.4} | {:.1} |",
             b.scene,
             b.texels_per_face,
+            b.bounces,
             b.texels,
             runs.join("; "),
             b.scale,
@@ -358,6 +472,31 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
     md
 }
 
+/// What the run measured against, in one sentence.
+fn yardsticks_sentence(results: &BenchResults) -> String {
+    let main = results.plan.bounces;
+    let main_text = match main {
+        BounceCount::All => "all-bounce references, the runtime converged (`Converged`, \
+                             tolerance 1e-3) and the path tracer at all bounces"
+            .to_string(),
+        BounceCount::Fixed(1) => "one-bounce references, the runtime at one bounce (`One`) \
+                                  and the path tracer at one bounce"
+            .to_string(),
+        BounceCount::Fixed(n) => format!(
+            "{n}-bounce references, the runtime at `Fixed({n})` and the path tracer at {n} \
+             bounces"
+        ),
+    };
+    if results.plan.yardsticks().len() > 1 {
+        format!(
+            "{main_text} (rows with bounces = {main}); every point again at one bounce against \
+             one-bounce references (rows with bounces = 1)"
+        )
+    } else {
+        format!("{main_text} (rows with bounces = {main})")
+    }
+}
+
 /// A few lines for the terminal.
 pub fn summary(results: &BenchResults) -> String {
     let mut s = format!(
@@ -367,17 +506,19 @@ pub fn summary(results: &BenchResults) -> String {
         results.wall_seconds / 60.0
     );
     for scene in scenes(results) {
-        let rows: Vec<&Row> = results
-            .rows
-            .iter()
-            .filter(|r| r.point.scene == scene)
-            .collect();
-        let marks = fronts(&rows);
-        let _ = write!(
-            s,
-            "\n{scene}: Pareto (error vs bake time): {}",
-            front_settings(&rows, &marks, 0).join("; ")
-        );
+        for bounces in bounce_counts(results, scene) {
+            let rows = rows_at(results, scene, bounces);
+            let marks = fronts(&rows);
+            let cheaper = times_cheaper_spread(&rows).map_or_else(String::new, |(m, _, _)| {
+                format!("; relight {} cheaper than path tracing (median)", times(m))
+            });
+            let _ = write!(
+                s,
+                "\n{scene}, {}: Pareto (error vs bake time): {}{cheaper}",
+                bounces_label(bounces),
+                front_settings(&rows, &marks, 0).join("; ")
+            );
+        }
     }
     if let Some(t) = &results.throughput {
         let _ = match t.embree_rays_per_second {

@@ -79,16 +79,9 @@ pub fn evaluate_with_report(
     let applied = runtime.apply(method, bounces, &averaged, &mut indirect)?;
     // What the probe volume sees: the radiance leaving the texels, direct plus the bounced
     // indirect light (direct alone for one bounce, the papers' U_dyn).
-    let bounced = !matches!(bounces, Bounces::One | Bounces::Fixed(1));
+    let bounced = is_bounced(bounces);
     let leaving = if bounced {
-        DirectLight {
-            radiance: averaged
-                .radiance
-                .iter()
-                .zip(&indirect.radiance)
-                .map(|(d, i)| [d[0] + i[0], d[1] + i[1], d[2] + i[2]])
-                .collect(),
-        }
+        leaving_light(&averaged, &indirect)
     } else {
         averaged.clone()
     };
@@ -139,6 +132,24 @@ pub fn evaluate_with_report(
         }
     }
     Ok((ResultFile { texels }, applied))
+}
+
+/// Whether `bounces` sums more than the first bounce (then the probe volume and DNRT are fed
+/// the bounced light, [`leaving_light`]).
+pub fn is_bounced(bounces: Bounces) -> bool {
+    !matches!(bounces, Bounces::One | Bounces::Fixed(1))
+}
+
+/// The radiance leaving the texels: direct plus indirect.
+pub fn leaving_light(direct: &DirectLight, indirect: &IndirectLight) -> DirectLight {
+    DirectLight {
+        radiance: direct
+            .radiance
+            .iter()
+            .zip(&indirect.radiance)
+            .map(|(d, i)| [d[0] + i[0], d[1] + i[1], d[2] + i[2]])
+            .collect(),
+    }
 }
 
 /// DNRT (paper 003) for every posed dynamic object: per texel, the light the objects add and
