@@ -1014,8 +1014,9 @@ mod tests {
             if p.bounces == one {
                 assert_eq!(p.iterations, 1);
             } else {
-                // Each bounce keeps about 0.6 of the light: ~14 bounces to 1e-3.
-                assert!((5..=40).contains(&p.iterations), "{}", p.iterations);
+                // Each bounce keeps about 0.6 of the light: summing bounces takes ~14 to 1e-3,
+                // GMRES fewer; more than one either way.
+                assert!((3..=40).contains(&p.iterations), "{}", p.iterations);
             }
             // Against the matching yardstick the operators are close (0.12–0.16 at T4 against a
             // 256-ray reference), far closer than the yardsticks are to each other.
