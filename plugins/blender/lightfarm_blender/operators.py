@@ -75,10 +75,9 @@ def poll_job():
         state.bake_id = status["bake_id"]
     context = bpy.context
     if status["object_errors"]:
-        export = scene_export.export_scene(_job_scene)
-        problems = [(export.objects.get(("block", name)) or export.objects.get(("clutter", name))
-                     or name, message) for name, message in status["object_errors"]]
-        set_problems(state, [(p[0], p[1]) for p in problems])
+        # Object ids are object names; keep what export found, add what the service refused.
+        found = [(p.name, p.message) for p in state.problems]
+        set_problems(state, found + [e for e in status["object_errors"] if e not in found])
     _redraw(context)
     if status["state"] in ("succeeded", "failed", "cancelled"):
         _status_text(context, None)

@@ -369,7 +369,7 @@ class Service(unittest.TestCase):
                                          method="POST")
         with urllib.request.urlopen(request) as response:
             created = json.load(response)
-        self.assertEqual((created["format"], created["triangles"]), ("glb", 320))
+        self.assertEqual((created["format"], created["triangles"]), ("glb", 80))
         self.assertEqual(service.upload_asset(export.meshes["ball"]), created["hash"])
         state = run_bake(scene)
         self.assertEqual(state.state, "succeeded", state.message)
