@@ -43,20 +43,26 @@ def current_job():
     return _job
 
 
-def _status_text(context, text):
-    workspace = getattr(context, "workspace", None)
-    if workspace is not None:
+def _windows():
+    manager = getattr(bpy.context, "window_manager", None)
+    return list(manager.windows) if manager is not None else []
+
+
+def _status_text(text):
+    """The status bar of every window (None clears it). Timers have no window in their
+    context, so the windows are reached through the window manager."""
+    for window in _windows():
         try:
-            workspace.status_text_set(text)
+            window.workspace.status_text_set(text)
         except (RuntimeError, AttributeError):
             pass
 
 
-def _redraw(context):
-    screen = getattr(context, "screen", None)
-    for area in screen.areas if screen is not None else []:
-        if area.type == "VIEW_3D":
-            area.tag_redraw()
+def _redraw():
+    for window in _windows():
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
 
 
 def poll_job():
@@ -73,17 +79,16 @@ def poll_job():
     state.message = status["message"] or ""
     if status["bake_id"]:
         state.bake_id = status["bake_id"]
-    context = bpy.context
     if status["object_errors"]:
         # Object ids are object names; keep what export found, add what the service refused.
         found = [(p.name, p.message) for p in state.problems]
         set_problems(state, found + [e for e in status["object_errors"] if e not in found])
-    _redraw(context)
+    _redraw()
     if status["state"] in ("succeeded", "failed", "cancelled"):
-        _status_text(context, None)
+        _status_text(None)
         _job = None
         return None
-    _status_text(context, f"lightfarm: {status['stage']} {100 * status['progress']:.0f}%")
+    _status_text(f"lightfarm: {status['stage']} {100 * status['progress']:.0f}%")
     return 0.5
 
 
