@@ -82,17 +82,17 @@ def main():
             links.new(mix.outputs["Shader"], output.inputs["Surface"])
         camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
         scene.collection.objects.link(camera)
-        camera.location = (9.0, -22.0, 24.0)
-        camera.rotation_euler = (math.radians(38), 0.0, 0.0)
-        camera.data.lens = 30
+        camera.location = (9.0, -30.0, 22.0)
+        camera.rotation_euler = (math.radians(42), 0.0, 0.0)
+        camera.data.lens = 34
         scene.camera = camera
         scene.render.engine = "CYCLES"
         scene.cycles.device = "CPU"
         scene.cycles.samples = 16
         scene.cycles.max_bounces = 0
         scene.render.resolution_x, scene.render.resolution_y = 960, 720
-        scene.view_settings.view_transform = "Standard"
-        scene.view_settings.exposure = 1.0
+        scene.view_settings.view_transform = "AgX"
+        scene.view_settings.exposure = 1.5
         scene.world = bpy.data.worlds.new("black")
         scene.world.color = (0.0, 0.0, 0.0)
         scene.render.filepath = args.out
