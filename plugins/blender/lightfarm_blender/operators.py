@@ -19,6 +19,9 @@ from .bake_job import BakeJob
 from .props import preferences, set_problems
 from .service import Service, ServiceError
 
+# Custom property holding the service's complaint about an object, until the next bake.
+ERROR_PROPERTY = "lightfarm_error"
+
 # The running bake (one per Blender session) and the scene it belongs to.
 _job = None
 _job_scene = None
@@ -80,9 +83,14 @@ def poll_job():
     if status["bake_id"]:
         state.bake_id = status["bake_id"]
     if status["object_errors"]:
-        # Object ids are object names; keep what export found, add what the service refused.
+        # Object ids are object names; keep what export found, add what the service refused,
+        # and mark the objects themselves (Object properties > Custom Properties).
         found = [(p.name, p.message) for p in state.problems]
         set_problems(state, found + [e for e in status["object_errors"] if e not in found])
+        for name, message in status["object_errors"]:
+            obj = bpy.data.objects.get(name)
+            if obj is not None:
+                obj[ERROR_PROPERTY] = message
     _redraw()
     if status["state"] in ("succeeded", "failed", "cancelled"):
         _status_text(None)
@@ -167,6 +175,9 @@ class LIGHTFARM_OT_bake(bpy.types.Operator):
     def execute(self, context):
         global _job, _job_scene
         state = context.scene.lightfarm
+        for obj in context.scene.objects:
+            if ERROR_PROPERTY in obj:
+                del obj[ERROR_PROPERTY]
         export = scene_export.export_scene(context.scene)
         set_problems(state, export.problems)
         if not export.scene["blocks"]:
@@ -226,5 +237,24 @@ class LIGHTFARM_OT_apply(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (LIGHTFARM_OT_export, LIGHTFARM_OT_import, LIGHTFARM_OT_bake, LIGHTFARM_OT_cancel,
+class LIGHTFARM_OT_select(bpy.types.Operator):
+    """Select the object a problem names and make it active"""
+    bl_idname = "lightfarm.select"
+    bl_label = "Select object"
+
+    name: bpy.props.StringProperty()
+
+    def execute(self, context):
+        obj = bpy.data.objects.get(self.name)
+        if obj is None or obj.name not in context.view_layer.objects:
+            self.report({"WARNING"}, f"no object \"{self.name}\" in this view layer")
+            return {"CANCELLED"}
+        for other in context.view_layer.objects:
+            other.select_set(False)
+        obj.select_set(True)
+        context.view_layer.objects.active = obj
+        return {"FINISHED"}
+
+
+CLASSES = (LIGHTFARM_OT_select, LIGHTFARM_OT_export, LIGHTFARM_OT_import, LIGHTFARM_OT_bake, LIGHTFARM_OT_cancel,
            LIGHTFARM_OT_apply)

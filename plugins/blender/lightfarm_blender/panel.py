@@ -1,6 +1,7 @@
 """The sidebar panel (3D viewport, N panel, tab "lightfarm"): export/import, bake settings,
 Bake/Cancel with stage and progress, Apply lighting with its mode, and the problems list
-(every object that did not map or that the service refused, by name).
+(every object that did not map or that the service refused, by name; clicking the name
+selects the object).
 """
 
 import bpy
@@ -49,7 +50,9 @@ class LIGHTFARM_PT_panel(bpy.types.Panel):
             box.label(text=f"{len(state.problems)} problems", icon="ERROR")
             for problem in state.problems:
                 row = box.row()
-                row.label(text=problem.name, icon="OBJECT_DATA")
+                select = row.operator("lightfarm.select", text=problem.name,
+                                      icon="RESTRICT_SELECT_OFF")
+                select.name = problem.name
                 row.label(text=problem.message)
 
 

@@ -322,6 +322,13 @@ class BadInput(unittest.TestCase):
         self.assertIn("albedo", state.message)
         self.assertEqual([p.name for p in state.problems], ["pillar"])
         self.assertIn("clutter \"pillar\"", state.problems[0].message)
+        self.assertIn("albedo", bpy.data.objects["pillar"]["lightfarm_error"])
+        self.assertEqual(bpy.ops.lightfarm.select(name="pillar"), {"FINISHED"})
+        self.assertEqual(bpy.context.view_layer.objects.active.name, "pillar")
+        # Fixed and baked again: the mark is gone.
+        bpy.data.objects["pillar"].data.materials[0] = material("grey", (0.5, 0.5, 0.5))
+        self.assertEqual(run_bake(scene).state, "succeeded")
+        self.assertNotIn("lightfarm_error", bpy.data.objects["pillar"])
 
     def test_service_down_gives_a_message(self):
         scene = build_two_rooms()
