@@ -75,7 +75,11 @@ def poll_job():
     if _job is None or _job_scene is None:
         return None
     status = _job.snapshot()
-    state = _job_scene.lightfarm
+    try:
+        state = _job_scene.lightfarm
+    except ReferenceError:  # another file was opened: the service bakes on, unwatched here
+        _job = None
+        return None
     state.state = status["state"]
     state.stage = status["stage"] or ""
     state.progress = status["progress"]

@@ -12,7 +12,8 @@ What is checked: the exported scene JSON of a two-room level built with bpy agai
 float32 rounding), texel orientation through the mesh's own ``lightmap`` UVs, relighting
 after a light moved without a rebake; a rotated block and a non-manifold clutter mesh
 reported by name; a 422 shown on the object it names; the service down as a message; cancel;
-a mesh clutter uploaded as GLB; the maze round trip through import and export.
+a mesh clutter uploaded as GLB; opening another file mid-bake (the timer stops watching, no
+traceback); the maze round trip through import and export.
 """
 
 import argparse
@@ -360,6 +361,14 @@ class Service(unittest.TestCase):
         self.assertEqual(bpy.ops.lightfarm.cancel(), {"FINISHED"})
         state = run_bake_wait(scene)
         self.assertEqual(state.state, "cancelled", state.message)
+
+    def test_opening_another_file_during_a_bake_stops_watching_it(self):
+        scene = build_two_rooms()
+        self.assertEqual(bpy.ops.lightfarm.bake(), {"FINISHED"})
+        bpy.ops.wm.read_factory_settings(use_empty=True)  # the baked scene is freed
+        self.assertIsNone(operators.poll_job())
+        self.assertIsNone(operators.current_job())
+        del scene
 
     def test_mesh_clutter_is_uploaded_as_glb(self):
         scene = build_two_rooms()
