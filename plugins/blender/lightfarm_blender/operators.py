@@ -228,15 +228,17 @@ class LIGHTFARM_OT_apply(bpy.types.Operator):
             return {"CANCELLED"}
         export = scene_export.export_scene(context.scene)
         try:
-            result = service_of(context).evaluate(state.bake_id, export.lights, state.method)
+            result, summed = service_of(context).evaluate(
+                state.bake_id, export.lights, state.method, state.bounces or "all")
         except ServiceError as error:
             state.message = error.message
             self.report({"ERROR"}, error.message)
             return {"CANCELLED"}
         lit, problems = apply.apply_result(result, export.objects, state.mode, context.scene)
         set_problems(state, export.problems + problems)
+        bounces = f", {summed} bounce{'' if summed == 1 else 's'}" if summed else ""
         state.message = (f"lit {len(lit)} objects from {len(export.lights['lights'])} "
-                         f"point lights ({state.mode})")
+                         f"point lights ({state.mode}{bounces})")
         self.report({"INFO"}, state.message)
         return {"FINISHED"}
 

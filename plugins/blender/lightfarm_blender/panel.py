@@ -42,6 +42,7 @@ class LIGHTFARM_PT_panel(bpy.types.Panel):
         box = layout.box()
         box.label(text="Lighting", icon="SHADING_RENDERED")
         box.prop(state, "method")
+        box.prop(state, "bounces", text="Bounces (0: all)")
         box.prop(state, "mode")
         box.operator("lightfarm.apply", icon="CHECKMARK")
 

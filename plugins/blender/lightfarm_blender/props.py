@@ -1,5 +1,6 @@
 """The add-on's stored settings: preferences (service URL, team token) and per-scene state
-(bake overrides, the last bake, the apply mode, problems found) shown by the panel.
+(bake overrides, the last bake, the apply method, bounces and mode, problems found) shown by
+the panel.
 
 Invariant: only the UI thread writes these (the bake thread's status is copied in by the
 operators' timer).
@@ -40,6 +41,10 @@ class LightfarmSceneState(bpy.types.PropertyGroup):
         name="Method", default="drt",
         items=[("drt", "DRT", "Blocks and clutter (clutter operators)"),
                ("mrt", "MRT", "Blocks only; clutter shaded from the probe volume")])
+    bounces: bpy.props.IntProperty(
+        name="Bounces", default=0, min=0, max=1000,
+        description="Bounces of indirect light Apply sums (0: all of them, until the rest is "
+        "below 0.1%; 1: the papers' one-bounce light)")
     mode: bpy.props.EnumProperty(
         name="Lightmap", default="emission",
         items=[("emission", "Emission", "The map holds outgoing radiance, shown as emission"),

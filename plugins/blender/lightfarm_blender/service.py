@@ -35,7 +35,7 @@ class Service:
         self.token = token.strip()
 
     def _request(self, method, path, body=None, content_type="application/json"):
-        """Sends one request; returns (status, parsed JSON or None)."""
+        """Sends one request; returns (status, parsed JSON or None, response headers)."""
         headers = {"Accept": "application/json"}
         if self.token:
             headers["Authorization"] = "Bearer " + self.token
@@ -48,7 +48,7 @@ class Service:
         try:
             with urllib.request.urlopen(request, timeout=TIMEOUT_SECONDS) as response:
                 text = response.read()
-                return response.status, (json.loads(text) if text else None)
+                return response.status, (json.loads(text) if text else None), response.headers
         except urllib.error.HTTPError as error:
             raw = error.read()
             try:
@@ -67,18 +67,18 @@ class Service:
 
     def upload_asset(self, glb):
         """``POST /v1/assets`` with GLB bytes; returns the asset's hash."""
-        _, answer = self._request("POST", "/v1/assets", glb, "model/gltf-binary")
+        _, answer, _ = self._request("POST", "/v1/assets", glb, "model/gltf-binary")
         return answer["hash"]
 
     def create_scene(self, scene):
         """``POST /v1/scenes``; returns the scene id. A 422 names the object at fault."""
-        _, answer = self._request("POST", "/v1/scenes", scene)
+        _, answer, _ = self._request("POST", "/v1/scenes", scene)
         return answer["id"]
 
     def submit_bake(self, scene_id, settings=None):
         """``POST /v1/bakes``; returns (status dict, cached): cached when the same bake
         finished before (200)."""
-        code, answer = self._request("POST", "/v1/bakes",
+        code, answer, _ = self._request("POST", "/v1/bakes",
                                      {"scene": scene_id, "settings": settings or {}})
         return answer, code == 200
 
@@ -90,7 +90,13 @@ class Service:
         """``DELETE /v1/bakes/{id}``."""
         return self._request("DELETE", "/v1/bakes/" + bake_id)[1]
 
-    def evaluate(self, bake_id, lights, method=None):
-        """``POST /v1/bakes/{id}/evaluate``: the RESULT.json document for LIGHTS.json."""
-        query = "?method=" + method if method else ""
-        return self._request("POST", f"/v1/bakes/{bake_id}/evaluate{query}", lights)[1]
+    def evaluate(self, bake_id, lights, method=None, bounces=None):
+        """``POST /v1/bakes/{id}/evaluate``: returns (the RESULT.json document for LIGHTS.json,
+        the bounces the service summed or None). ``bounces``: a whole number >= 1 or "all"
+        (None: the service's default, all)."""
+        query = "&".join(f"{key}={value}" for key, value in
+                         (("method", method), ("bounces", bounces)) if value)
+        path = f"/v1/bakes/{bake_id}/evaluate" + ("?" + query if query else "")
+        _, result, headers = self._request("POST", path, lights)
+        summed = headers.get("lightfarm-bounces")
+        return result, int(summed) if summed and summed.isdigit() else None

@@ -8,10 +8,10 @@ its store in a temporary directory and stopped at the end. Bakes are small (``T`
 
 What is checked: the exported scene JSON of a two-room level built with bpy against
 ``data/two_rooms.scene.json``; bake, reuse (200), Apply, the lightmap pixels against
-``lightfarm eval`` of the same bundle and lights (within 1/255; float images agree to
-float32 rounding), texel orientation through the mesh's own ``lightmap`` UVs, relighting
-after a light moved without a rebake; a rotated block and a non-manifold clutter mesh
-reported by name; a 422 shown on the object it names; the service down as a message; cancel;
+``lightfarm eval`` of the same bundle and lights, all bounces and one (within 1/255; float
+images agree to float32 rounding), texel orientation through the mesh's own ``lightmap`` UVs,
+relighting after a light moved without a rebake; a rotated block and a non-manifold clutter
+mesh reported by name; a 422 shown on the object it names; the service down as a message; cancel;
 a mesh clutter uploaded as GLB; opening another file mid-bake (the timer stops watching, no
 traceback); the maze round trip through import and export.
 """
@@ -159,7 +159,7 @@ def run_bake(scene, timeout=300):
     return scene.lightfarm
 
 
-def cli_eval(bundle_hash, lights, method="drt"):
+def cli_eval(bundle_hash, lights, method="drt", bounces="all"):
     """``lightfarm eval`` of the service's bundle with ``lights``: RESULT.json."""
     work = tempfile.mkdtemp(prefix="lf-eval-")
     bundle = os.path.join(work, "bundle.lfb")
@@ -171,7 +171,7 @@ def cli_eval(bundle_hash, lights, method="drt"):
         json.dump(lights, out)
     result = os.path.join(work, "result.json")
     subprocess.run([LIGHTFARM, "eval", bundle, "--lights", lights_path, "--method", method,
-                    "-o", result], check=True, stdout=subprocess.DEVNULL)
+                    "--bounces", bounces, "-o", result], check=True, stdout=subprocess.DEVNULL)
     with open(result) as f:
         return json.load(f)
 
@@ -232,6 +232,17 @@ class TwoRooms(unittest.TestCase):
             state.mode = mode
             self.assertEqual(bpy.ops.lightfarm.apply(), {"FINISHED"})
             self.check_against_eval(scene, bundle_hash, mode)
+        # All bounces by default; one bounce when asked (the papers' light), and less of it.
+        summed_all = int(state.message.split(" bounce")[0].rsplit(" ", 1)[1])
+        self.assertGreater(summed_all, 1, state.message)
+        all_pixels = list(lightmap_image(bpy.data.objects["room_b"]).pixels)
+        state.bounces = 1
+        self.assertEqual(bpy.ops.lightfarm.apply(), {"FINISHED"})
+        self.assertIn("1 bounce)", state.message)
+        self.check_against_eval(scene, bundle_hash, "multiply", bounces="1")
+        one_pixels = list(lightmap_image(bpy.data.objects["room_b"]).pixels)
+        self.assertLess(sum(one_pixels), sum(all_pixels))
+        state.bounces = 0
 
         # Move the light: Apply again relights from the same bake (no rebake).
         bakes_before = len(os.listdir(os.path.join(SERVER.data, "jobs")))
@@ -244,9 +255,9 @@ class TwoRooms(unittest.TestCase):
         self.check_against_eval(scene, bundle_hash, "emission")
         self.assertEqual(len(os.listdir(os.path.join(SERVER.data, "jobs"))), bakes_before)
 
-    def check_against_eval(self, scene, bundle_hash, mode):
+    def check_against_eval(self, scene, bundle_hash, mode, bounces="all"):
         export = scene_export.export_scene(scene)
-        expected = cli_eval(bundle_hash, export.lights)
+        expected = cli_eval(bundle_hash, export.lights, bounces=bounces)
         t = texels_per_face(expected)
         self.assertEqual(t, FAST["texels_per_face"])
         layout = BoxLightmap(t)
