@@ -1,6 +1,7 @@
 """Renders ``docs/maze.png``: the maze imported into Blender, baked on a real
 ``lightfarm serve`` (T = 8, 256 rays per texel), lit with its four lamps through
-"Apply lighting" (emission mode) and rendered headless with Cycles on the CPU.
+"Apply lighting" (emission mode, all bounces: the panel's default) and rendered headless with
+Cycles on the CPU.
 
 Cycles runs with zero bounces, so every pixel shows the lightmap exactly as applied (the
 picture is the baked light, not Cycles' own). For the picture only, after the lighting is
