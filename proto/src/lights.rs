@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 /// The lights and object poses of one frame.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct LightSet {
     pub lights: Vec<Light>,
@@ -17,6 +18,7 @@ pub struct LightSet {
 
 /// Kinds of light.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "lowercase")]
 pub enum LightKind {
     Point,
@@ -24,6 +26,7 @@ pub enum LightKind {
 
 /// One light.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct Light {
     pub kind: LightKind,
@@ -34,6 +37,7 @@ pub struct Light {
 
 /// The pose of a dynamic object this frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(deny_unknown_fields)]
 pub struct Pose {
     pub id: String,

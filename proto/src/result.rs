@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 /// One texel's record.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct TexelRecord {
     pub surface: String,
     pub index: u32,
@@ -21,6 +22,7 @@ pub struct TexelRecord {
 
 /// The whole RESULT.json.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct ResultFile {
     pub texels: Vec<TexelRecord>,
 }

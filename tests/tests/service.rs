@@ -556,6 +556,128 @@ fn corrupt_stored_bundle_is_dropped_and_rebaked() {
     let _ = std::fs::remove_dir_all(&data);
 }
 
+/// `POST /v1/bakes/{id}/evaluate` answers exactly what `lightfarm eval` writes for the bake's
+/// bundle and the same lights (both methods; all bounces by default, or a fixed count), says
+/// in its headers how many bounces it summed, and names what is wrong otherwise.
+#[test]
+fn evaluate_endpoint_equals_cli_eval() {
+    use lightfarm_server::cli::eval::{run, EvalArgs};
+    use lightfarm_server::cli::lightmap_files::LightmapFiles;
+
+    let data = data_dir("evaluate");
+    let server = Server::start(&data, None);
+    let client = server.client();
+    let scene = client.create_scene(&scene_text("cornell")).unwrap().id;
+    let job = client.submit_bake(&scene, fast_settings()).unwrap();
+    let hash = wait(&client, &job.id).bundle.unwrap();
+    let fetched = client
+        .fetcher(data.join("cache"))
+        .fetch(&client.bundle_url(&hash))
+        .unwrap();
+    let bundle_path = data.join("cornell.lfb");
+    std::fs::write(&bundle_path, &fetched.bytes).unwrap();
+    // A light that is not the scene's own, so nothing could be precomputed for it.
+    let lights = json!({"lights": [
+        {"kind": "point", "position": [1.5, 4.0, 3.5], "intensity": [7.0, 5.0, 3.0]}
+    ]})
+    .to_string();
+    let lights_path = data.join("lights.json");
+    std::fs::write(&lights_path, &lights).unwrap();
+    let agent: ureq::Agent = ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .build()
+        .into();
+    let url = format!("{}/v1/bakes/{}/evaluate", client.base(), job.id);
+    // Cornell at T=6 has no probe volume, so MRT leaves the two clutter boxes out.
+    use lightfarm_client::{Bounces, Method};
+    let all = Bounces::default();
+    let cases = [
+        ("", Method::Drt, all, 3 * 6 * 36),
+        ("?method=mrt", Method::Mrt, all, 6 * 36),
+        ("?bounces=1", Method::Drt, Bounces::One, 3 * 6 * 36),
+        ("?bounces=one&method=mrt", Method::Mrt, Bounces::One, 6 * 36),
+        (
+            "?method=mrt&bounces=3",
+            Method::Mrt,
+            Bounces::Fixed(3),
+            6 * 36,
+        ),
+        ("?bounces=all", Method::Drt, all, 3 * 6 * 36),
+    ];
+    for (query, method, bounces, n_texels) in cases {
+        let out = data.join(format!("result{}.json", query.len()));
+        run(EvalArgs {
+            bundle: bundle_path.clone(),
+            lights: lights_path.clone(),
+            method,
+            bounces,
+            out: out.clone(),
+            lightmaps: LightmapFiles::default(),
+            sh_out: None,
+        })
+        .unwrap();
+        let cli: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+        let mut r = agent
+            .post(format!("{url}{query}"))
+            .header("content-type", "application/json")
+            .send(lights.as_bytes())
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 200, "{query}");
+        let summed: u32 = r.headers()["lightfarm-bounces"]
+            .to_str()
+            .unwrap()
+            .parse()
+            .unwrap();
+        match bounces {
+            Bounces::One => assert_eq!(summed, 1, "{query}"),
+            Bounces::Fixed(n) => assert_eq!(summed, n, "{query}"),
+            _ => assert!(summed > 1, "{query}: all bounces summed {summed}"),
+        }
+        let remaining: f32 = r.headers()["lightfarm-remaining-fraction"]
+            .to_str()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!((0.0..1.0).contains(&remaining), "{query}: {remaining}");
+        let served: serde_json::Value =
+            serde_json::from_slice(&r.body_mut().read_to_vec().unwrap()).unwrap();
+        // One closed block of 6 faces, and two clutter boxes of 6 faces each.
+        assert_eq!(cli["texels"].as_array().unwrap().len(), n_texels, "{query}");
+        assert_eq!(served, cli, "{query}: the service and the CLI disagree");
+    }
+    // Bad lights name the field; an unknown bake and a bad method are refused.
+    let bad = json!({"lights": [
+        {"kind": "point", "position": [1.0, 1.0, 1.0], "intensity": [1.0, -2.0, 1.0]}
+    ]});
+    let mut r = agent.post(&url).send(bad.to_string().as_bytes()).unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    let text = r.body_mut().read_to_string().unwrap();
+    assert!(text.contains("lights[0]: intensity"), "{text}");
+    let posed = json!({"lights": [], "poses": [{"id": "ghost", "translation": [1.0, 1.0, 1.0]}]});
+    let mut r = agent.post(&url).send(posed.to_string().as_bytes()).unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    let text = r.body_mut().read_to_string().unwrap();
+    assert!(text.contains("poses[0].id"), "{text}");
+    let mut r = agent
+        .post(format!("{url}?method=full"))
+        .send(lights.as_bytes())
+        .unwrap();
+    let text = r.body_mut().read_to_string().unwrap();
+    assert!(text.contains("method"), "{text}");
+    let mut r = agent
+        .post(format!("{url}?bounces=0"))
+        .send(lights.as_bytes())
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    let text = r.body_mut().read_to_string().unwrap();
+    assert!(text.contains("bounces"), "{text}");
+    let unknown = format!("{}/v1/bakes/{}/evaluate", client.base(), "0".repeat(64));
+    let r = agent.post(&unknown).send(lights.as_bytes()).unwrap();
+    assert_eq!(r.status().as_u16(), 404);
+    drop(server);
+    let _ = std::fs::remove_dir_all(&data);
+}
+
 #[test]
 fn bundle_streams_mrt_sections_before_drt() {
     let data = data_dir("stream");

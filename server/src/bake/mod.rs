@@ -7,14 +7,21 @@
 //! - [`tracer`]: the obvhs BVH and exact rectangle/triangle intersection.
 //! - [`one_bounce`]: sparse one-bounce gather rows (traced transport, the dense operator).
 //! - [`lighting_prior`], [`low_rank`], [`lightfield`], [`shape`]: MRT shape operators.
-//! - [`shape_cache`]: content-addressed on-disk cache of shape operators.
+//! - [`shape_cache`]: content-addressed on-disk cache of shape operators;
+//!   [`shape_symmetry`]: a block's operators from its canonical shape's (rotation, mirror).
 //! - [`transport`]: inter-block transport (lightfield composition or traced);
-//!   [`transport_compaction`]: per target block, the low-rank form the runtime applies.
+//!   [`transport_compaction`]: per target block, the low-rank form the runtime applies;
+//!   [`transport_cache`]: its on-disk cache, keyed by the blocks and transport settings.
+//! - [`drt`]: Delta Radiance Transfer (clutter): [`drt_rays`] (the two ray passes and their
+//!   reuse across bakes, bounded by [`ray_reach`]), [`clutter_sampling`] (importance sampling
+//!   toward clutter), [`clutter_basis`] (the basis for direct light on clutter),
+//!   [`delta_compaction`] (low-rank deltas); [`mesh_albedo`]: a mesh's albedo per hit.
 //! - [`reference`]: the brute-force one-bounce reference solver.
 //! - [`sh_gather`], [`sh_response`]: SH gathering of implicit radiance (shared with
 //!   [`probe_volume`]) and the per-texel SH responses for normal-mapped surfaces.
 //! - [`dnrt`], [`dnrt_cache`]: DNRT transfer grids of dynamic objects and their disk cache.
-//! - [`pipeline`]: scene → bundle; [`progress`]: how long work reports progress.
+//! - [`pipeline`]: scene → bundle; [`progress`]: how long work reports progress;
+//!   [`units`]: a bake cut into deterministic cache-filling units (the farm).
 //! - [`bundle_encoding`]: the codecs and compression a bundle is stored with.
 //!
 //! **Invariant:** nothing here imports axum, tokio or serde_json; everything is deterministic

@@ -1,6 +1,15 @@
 //! The `lightfarm` subcommands. Each file holds one command; `main.rs` parses arguments with
 //! clap and calls `run`. Commands read and write files and print; the math lives in
 //! [`crate::bake`] and the client crate.
+//!
+//! # Layout
+//! - [`bake`], [`inspect`], [`eval`] (with [`eval_sh`] and [`lightmap_files`]), [`reference`],
+//!   [`compare`], [`frame_time`]: the offline commands.
+//! - [`serve`], [`worker`]: the bake service and a farm worker.
+//! - [`bench`] and its parts: [`bench_lights`], [`bench_measure`], [`bench_reference_cache`],
+//!   [`bench_equal_error`], [`bench_pareto`], [`bench_throughput`], [`bench_plots`],
+//!   [`bench_report`].
+//! - [`progress_bar`]: the terminal progress bar the long commands share.
 
 pub mod bake;
 pub mod bench;

@@ -5,7 +5,8 @@
 //! # Layout
 //! - [`auth`]: the calling team; [`error`]: the error response.
 //! - [`assets`], [`scenes`], [`bakes`], [`events`], [`bundles`], [`bake_bundle`] (a bundle
-//!   streamed while it is written): the `/v1` resources.
+//!   streamed while it is written), [`evaluate`] (a bake's bundle applied to lights): the `/v1`
+//!   resources.
 //! - [`ops`]: health, readiness, metrics, shapes; [`openapi`]: `/openapi.json`.
 
 pub mod assets;
@@ -14,6 +15,7 @@ pub mod bake_bundle;
 pub mod bakes;
 pub mod bundles;
 pub mod error;
+pub mod evaluate;
 pub mod events;
 pub mod openapi;
 pub mod ops;
@@ -90,6 +92,7 @@ pub fn router(state: AppState) -> Router {
             get(bakes::bake_status).delete(bakes::cancel_bake),
         )
         .route("/v1/bakes/{id}/events", get(events::bake_events))
+        .route("/v1/bakes/{id}/evaluate", post(evaluate::evaluate_bake))
         .route(
             "/v1/bakes/{id}/bundle",
             get(bake_bundle::stream_bake_bundle),

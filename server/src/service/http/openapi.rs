@@ -9,6 +9,8 @@ use lightfarm_proto::api::{
     ApiError, AssetCreated, BakeEvent, BakeStatus, JobState, SceneCreated, ShapeEntry, StageTiming,
     SubmitBake,
 };
+use lightfarm_proto::lights::LightSet;
+use lightfarm_proto::result::ResultFile;
 
 struct Security;
 
@@ -32,6 +34,7 @@ impl Modify for Security {
         super::bakes::bake_status,
         super::bakes::cancel_bake,
         super::events::bake_events,
+        super::evaluate::evaluate_bake,
         super::bake_bundle::stream_bake_bundle,
         super::bundles::get_bundle,
         super::ops::list_shapes,
@@ -41,7 +44,7 @@ impl Modify for Security {
     ),
     components(schemas(
         ApiError, AssetCreated, BakeEvent, BakeStatus, JobState, SceneCreated, ShapeEntry,
-        StageTiming, SubmitBake
+        StageTiming, SubmitBake, LightSet, ResultFile
     )),
     modifiers(&Security)
 )]
@@ -93,6 +96,7 @@ mod tests {
             "/v1/bakes",
             "/v1/bakes/{id}",
             "/v1/bakes/{id}/events",
+            "/v1/bakes/{id}/evaluate",
             "/v1/bakes/{id}/bundle",
             "/v1/bundles/{hash}",
             "/v1/shapes",

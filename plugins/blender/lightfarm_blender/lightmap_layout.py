@@ -1,0 +1,116 @@
+"""Where each lightfarm texel of a box lands in the object's lightmap image, and the UV of
+any point on the box. Pure Python (no bpy), so the ordering is testable on its own.
+
+Texel ordering (``proto/src/face.rs``, ``server/src/bake/geometry.rs``): texel ``(i, j)`` of a
+``T×T`` face has index ``j·T + i``, ``i`` along the face's first tangent axis and ``j`` along
+the second (both ascending lightfarm world axes; ``frames.tangent_axes``), its centre at
+``min + (i + ½, j + ½)·extent/T``. A block face is the surface ``block:<id>/<face>`` (indices
+``0 … T²−1``); a clutter box is one surface ``clutter:<id>`` holding its six faces in canonical
+order (``-x +x -y +y -z +z``), face ``f`` at indices ``f·T² + j·T + i``.
+
+Image layout (Blender images: pixel row 0 at the bottom, UV (0, 0) the bottom-left corner):
+the six faces are ``T×T`` tiles on a 3 × 2 grid (face ``f`` in column ``f mod 3``, row
+``f div 3``), each with a one-pixel border repeating its edge texels, so bilinear filtering
+never mixes faces; texel ``(i, j)`` is pixel ``(tile x + i, tile y + j)``, the face's first
+tangent axis running along image x. One extra row at the top stays black: polygons with no
+texels (open faces) are mapped there.
+
+Invariant: every texel of a face maps to exactly one interior pixel of its tile, and the UV of
+a texel's centre is that pixel's centre.
+"""
+
+from . import frames
+
+
+class BoxLightmap:
+    """The image layout of one box with ``T×T`` texels per face."""
+
+    def __init__(self, texels_per_face):
+        self.t = texels_per_face
+        self.pitch = texels_per_face + 2
+        self.width = 3 * self.pitch
+        self.height = 2 * self.pitch + 1
+
+    def tile_origin(self, face):
+        """Pixel (x, y) of texel (0, 0) of ``face``."""
+        slot = frames.FACES.index(face)
+        return (slot % 3) * self.pitch + 1, (slot // 3) * self.pitch + 1
+
+    def texel_pixel(self, face, index):
+        """Pixel (x, y) of texel ``index`` (``j·T + i``) of ``face``."""
+        x0, y0 = self.tile_origin(face)
+        return x0 + index % self.t, y0 + index // self.t
+
+    def uv(self, face, point, lo, hi):
+        """UV of a lightfarm-frame point on ``face`` of the box ``lo``–``hi``."""
+        u, v = frames.tangent_axes(face)
+        s = (point[u] - lo[u]) / (hi[u] - lo[u])
+        t = (point[v] - lo[v]) / (hi[v] - lo[v])
+        x0, y0 = self.tile_origin(face)
+        return (x0 + s * self.t) / self.width, (y0 + t * self.t) / self.height
+
+    def unlit_uv(self):
+        """UV of the black row, for polygons without texels."""
+        return 0.5 / self.width, (self.height - 0.5) / self.height
+
+    def pixels(self, faces):
+        """RGBA floats (``width·height·4``, rows bottom to top) from ``faces``: face name ->
+        list of ``T²`` RGB values in texel index order. Borders repeat the edge texels;
+        missing faces and the top row are black."""
+        out = [0.0] * (self.width * self.height * 4)
+        for k in range(self.width * self.height):
+            out[4 * k + 3] = 1.0
+        t = self.t
+        for face, values in faces.items():
+            x0, y0 = self.tile_origin(face)
+            for y in range(-1, t + 1):
+                for x in range(-1, t + 1):
+                    i, j = min(max(x, 0), t - 1), min(max(y, 0), t - 1)
+                    rgb = values[j * t + i]
+                    at = 4 * ((y0 + y) * self.width + x0 + x)
+                    out[at:at + 3] = rgb
+        return out
+
+
+def texels_by_face(result, texels_per_face):
+    """RESULT.json texels -> {(kind, id): {face: [texel records in index order]}} for blocks
+    (``block:<id>/<face>``) and clutter boxes (``clutter:<id>``, six faces of ``T²`` texels).
+    Mesh clutter (not ``6·T²`` texels) is left out."""
+    t2 = texels_per_face * texels_per_face
+    surfaces = {}
+    for record in result["texels"]:
+        surfaces.setdefault(record["surface"], []).append(record)
+    out = {}
+    for name, records in surfaces.items():
+        records.sort(key=lambda r: r["index"])
+        kind, _, rest = name.partition(":")
+        if kind == "block":
+            block_id, _, face = rest.rpartition("/")
+            if len(records) == t2:
+                out.setdefault(("block", block_id), {})[face] = records
+        elif kind == "clutter" and len(records) == 6 * t2:
+            out[("clutter", rest)] = {
+                face: records[f * t2:(f + 1) * t2] for f, face in enumerate(frames.FACES)}
+    return out
+
+
+def texels_per_face(result):
+    """T, from the size of block face surfaces (all block faces have ``T²`` texels)."""
+    counts = {}
+    for record in result["texels"]:
+        if record["surface"].startswith("block:"):
+            counts[record["surface"]] = counts.get(record["surface"], 0) + 1
+    if not counts:
+        return 0
+    n = max(counts.values())
+    return int(round(n ** 0.5))
+
+
+def texel_value(record, mode):
+    """The RGB a lightmap pixel holds: ``emission``: outgoing radiance (direct + indirect,
+    W/(sr·m²)); ``multiply``: that radiance divided by the albedo (what base colour × map
+    gives back; 0 where the albedo is 0)."""
+    lit = [d + i for d, i in zip(record["direct"], record["indirect"])]
+    if mode == "multiply":
+        return [v / a if a > 0.0 else 0.0 for v, a in zip(lit, record["albedo"])]
+    return lit

@@ -1,0 +1,450 @@
+"""Headless tests of the lightfarm Blender add-on, with Blender's own Python module (``bpy``)
+against a real ``lightfarm serve`` on a loopback port.
+
+Run (what ``.ci/run`` does): ``VENV/bin/python plugins/blender/tests/test_addon.py
+--lightfarm target/release/lightfarm``. The service is started once for the module with
+its store in a temporary directory and stopped at the end. Bakes are small (``T`` = 6,
+128 rays per texel) and take seconds.
+
+What is checked: the exported scene JSON of a two-room level built with bpy against
+``data/two_rooms.scene.json``; bake, reuse (200), Apply, the lightmap pixels against
+``lightfarm eval`` of the same bundle and lights, all bounces and one (within 1/255; float
+images agree to float32 rounding), texel orientation through the mesh's own ``lightmap`` UVs,
+relighting after a light moved without a rebake; a rotated block and a non-manifold clutter
+mesh reported by name; a 422 shown on the object it names; the service down as a message; cancel;
+a mesh clutter uploaded as GLB; opening another file mid-bake (the timer stops watching, no
+traceback); the maze round trip through import and export.
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import unittest
+import urllib.request
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.abspath(os.path.join(HERE, "..", "..", ".."))
+sys.path.insert(0, os.path.abspath(os.path.join(HERE, "..")))
+
+import bpy  # noqa: E402  (first: it puts Blender's own modules on the path)
+import addon_utils  # noqa: E402
+
+from lightfarm_blender import frames, operators, scene_export  # noqa: E402
+from lightfarm_blender.lightmap_layout import (  # noqa: E402
+    BoxLightmap, texel_value, texels_by_face, texels_per_face)
+
+LIGHTFARM = None
+SERVER = None
+# Bake overrides that keep every bake to seconds.
+FAST = {"texels_per_face": 6, "rays_per_texel": 128}
+TOLERANCE = 1.0 / 255.0
+
+
+class Server:
+    """``lightfarm serve`` on 127.0.0.1:0 with a temporary store."""
+
+    def __init__(self, binary):
+        self.data = tempfile.mkdtemp(prefix="lf-blender-")
+        self.process = subprocess.Popen(
+            [binary, "serve", "--addr", "127.0.0.1:0", "--data", self.data],
+            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        line = self.process.stdout.readline().strip()
+        prefix = "lightfarm: listening on "
+        if not line.startswith(prefix):
+            raise RuntimeError(f"lightfarm serve said {line!r}")
+        self.url = line[len(prefix):]
+
+    def stop(self):
+        self.process.terminate()
+        self.process.wait(timeout=30)
+
+
+def setUpModule():
+    global SERVER
+    SERVER = Server(LIGHTFARM)
+    addon_utils.enable("lightfarm_blender", default_set=True)
+
+
+def tearDownModule():
+    SERVER.stop()
+
+
+def fresh_scene(url=None):
+    """An empty Blender scene, the add-on's preferences pointing at ``url``."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    addon_utils.enable("lightfarm_blender", default_set=True)
+    prefs = bpy.context.preferences.addons["lightfarm_blender"].preferences
+    prefs.url = url or SERVER.url
+    prefs.token = ""
+    state = bpy.context.scene.lightfarm
+    state.texels_per_face = FAST["texels_per_face"]
+    state.rays_per_texel = FAST["rays_per_texel"]
+    return bpy.context.scene
+
+
+def collection(name):
+    found = bpy.data.collections.get(name)
+    if found is None:
+        found = bpy.data.collections.new(name)
+        bpy.context.scene.collection.children.link(found)
+    return found
+
+
+def material(name, colour):
+    made = bpy.data.materials.new(name)
+    made.use_nodes = True
+    bsdf = made.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
+    return made
+
+
+def cube(name, lo, hi, where, materials=()):
+    """A six-sided box from Blender-frame corners ``lo``–``hi`` (origin at its centre)."""
+    centre = [(a + b) / 2 for a, b in zip(lo, hi)]
+    half = [(b - a) / 2 for a, b in zip(lo, hi)]
+    verts = [(sx * half[0], sy * half[1], sz * half[2])
+             for sz in (-1, 1) for sy in (-1, 1) for sx in (-1, 1)]
+    faces = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(verts, [], faces)
+    for m in materials:
+        mesh.materials.append(m)
+    obj = bpy.data.objects.new(name, mesh)
+    obj.location = centre
+    collection(where).objects.link(obj)
+    return obj
+
+
+def point_light(name, location, watts, colour):
+    data = bpy.data.lights.new(name, "POINT")
+    data.energy = watts
+    data.color = colour
+    obj = bpy.data.objects.new(name, data)
+    obj.location = location
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def build_two_rooms():
+    """Two 4 × 4 × 3 m rooms side by side along x (Blender y = −lightfarm z) sharing the
+    x = 4 wall, which therefore becomes an opening; a pillar; one point light."""
+    scene = fresh_scene()
+    scene.name = "two_rooms"
+    grey = material("grey", (0.7, 0.7, 0.7))
+    warm = material("warm", (0.75, 0.6, 0.5))
+    terracotta = material("terracotta", (0.6, 0.3, 0.2))
+    cube("room_a", (0, -4, 0), (4, 0, 3), scene_export.BLOCKS, [grey])
+    room_b = cube("room_b", (4, -4, 0), (8, 0, 3), scene_export.BLOCKS, [warm, terracotta])
+    for polygon in room_b.data.polygons:  # the floor (Blender -z) gets the second material
+        if polygon.normal.z < -0.5:
+            polygon.material_index = 1
+    cube("pillar", (1.5, -2.0, 0.0), (2.0, -1.5, 2.5), scene_export.CLUTTER,
+         [material("stone", (0.5, 0.5, 0.5))])
+    point_light("lamp", (1.0, -3.0, 2.2), 10.0 * 4 * 3.141592653589793, (1.0, 0.9, 0.8))
+    return scene
+
+
+def run_bake(scene, timeout=300):
+    """Bake through the operator, following the job as the UI timer would."""
+    assert bpy.ops.lightfarm.bake() == {"FINISHED"}
+    deadline = time.time() + timeout
+    while operators.poll_job() is not None:
+        if time.time() > deadline:
+            raise AssertionError("bake did not finish")
+        time.sleep(0.2)
+    return scene.lightfarm
+
+
+def cli_eval(bundle_hash, lights, method="drt", bounces="all"):
+    """``lightfarm eval`` of the service's bundle with ``lights``: RESULT.json."""
+    work = tempfile.mkdtemp(prefix="lf-eval-")
+    bundle = os.path.join(work, "bundle.lfb")
+    with urllib.request.urlopen(f"{SERVER.url}/v1/bundles/{bundle_hash}") as response:
+        with open(bundle, "wb") as out:
+            out.write(response.read())
+    lights_path = os.path.join(work, "lights.json")
+    with open(lights_path, "w") as out:
+        json.dump(lights, out)
+    result = os.path.join(work, "result.json")
+    subprocess.run([LIGHTFARM, "eval", bundle, "--lights", lights_path, "--method", method,
+                    "--bounces", bounces, "-o", result], check=True, stdout=subprocess.DEVNULL)
+    with open(result) as f:
+        return json.load(f)
+
+
+def bake_status(bake_id):
+    with urllib.request.urlopen(f"{SERVER.url}/v1/bakes/{bake_id}") as response:
+        return json.load(response)
+
+
+def lightmap_image(obj):
+    """The image the object's first material shows through its lightmap node."""
+    node = obj.material_slots[0].material.node_tree.nodes["lightfarm lightmap"]
+    return node.image
+
+
+def uv_at(obj, polygon, point):
+    """The mesh's own ``lightmap`` UV at a lightfarm-frame point on an axis-aligned quad:
+    the affine map through three of its corners."""
+    mesh = obj.data
+    layer = mesh.uv_layers["lightmap"]
+    loops = list(polygon.loop_indices)
+    corners = [frames.to_lightfarm(obj.matrix_world @ mesh.vertices[mesh.loops[k].vertex_index].co)
+               for k in loops]
+    uvs = [tuple(layer.data[k].uv) for k in loops]
+    axis = max(range(3), key=lambda a: abs(polygon.normal[a]))
+    axis = {0: 0, 1: 2, 2: 1}[axis]  # Blender normal axis -> lightfarm axis
+    u, v = [a for a in range(3) if a != axis]
+    # Solve uv = A · (p_u, p_v, 1) from the first three corners.
+    import numpy as np
+    m = np.array([[c[u], c[v], 1.0] for c in corners[:3]])
+    coeff = np.linalg.solve(m, np.array(uvs[:3]))
+    return np.array([point[u], point[v], 1.0]) @ coeff
+
+
+class TwoRooms(unittest.TestCase):
+    def test_export_matches_expected_scene_and_lights(self):
+        scene = build_two_rooms()
+        export = scene_export.export_scene(scene)
+        self.assertEqual(export.problems, [])
+        with open(os.path.join(HERE, "data", "two_rooms.scene.json")) as f:
+            self.assertEqual(export.scene, json.load(f))
+        with open(os.path.join(HERE, "data", "two_rooms.lights.json")) as f:
+            self.assertEqual(export.lights, json.load(f))
+
+    def test_bake_apply_matches_cli_eval_and_relights_without_rebake(self):
+        scene = build_two_rooms()
+        state = run_bake(scene)
+        self.assertEqual(state.state, "succeeded", state.message)
+        self.assertEqual(state.progress, 1.0)
+        bake_id = state.bake_id
+        # The same bake again: the service's 200 answer, no new work.
+        state = run_bake(scene)
+        self.assertEqual((state.state, state.bake_id), ("succeeded", bake_id))
+        self.assertIn("reused", state.message)
+        bundle_hash = bake_status(bake_id)["bundle"]
+
+        for mode in ("emission", "multiply"):
+            state.mode = mode
+            self.assertEqual(bpy.ops.lightfarm.apply(), {"FINISHED"})
+            self.check_against_eval(scene, bundle_hash, mode)
+        # All bounces by default; one bounce when asked (the papers' light), and less of it.
+        summed_all = int(state.message.split(" bounce")[0].rsplit(" ", 1)[1])
+        self.assertGreater(summed_all, 1, state.message)
+        all_pixels = list(lightmap_image(bpy.data.objects["room_b"]).pixels)
+        state.bounces = 1
+        self.assertEqual(bpy.ops.lightfarm.apply(), {"FINISHED"})
+        self.assertIn("1 bounce)", state.message)
+        self.check_against_eval(scene, bundle_hash, "multiply", bounces="1")
+        one_pixels = list(lightmap_image(bpy.data.objects["room_b"]).pixels)
+        self.assertLess(sum(one_pixels), sum(all_pixels))
+        state.bounces = 0
+
+        # Move the light: Apply again relights from the same bake (no rebake).
+        bakes_before = len(os.listdir(os.path.join(SERVER.data, "jobs")))
+        before = list(lightmap_image(bpy.data.objects["room_b"]).pixels)
+        bpy.data.objects["lamp"].location = (6.0, -1.0, 2.0)
+        state.mode = "emission"
+        self.assertEqual(bpy.ops.lightfarm.apply(), {"FINISHED"})
+        after = list(lightmap_image(bpy.data.objects["room_b"]).pixels)
+        self.assertGreater(max(abs(a - b) for a, b in zip(before, after)), 0.05)
+        self.check_against_eval(scene, bundle_hash, "emission")
+        self.assertEqual(len(os.listdir(os.path.join(SERVER.data, "jobs"))), bakes_before)
+
+    def check_against_eval(self, scene, bundle_hash, mode, bounces="all"):
+        export = scene_export.export_scene(scene)
+        expected = cli_eval(bundle_hash, export.lights, bounces=bounces)
+        t = texels_per_face(expected)
+        self.assertEqual(t, FAST["texels_per_face"])
+        layout = BoxLightmap(t)
+        by_object = texels_by_face(expected, t)
+        self.assertEqual(set(by_object), {("block", "room_a"), ("block", "room_b"),
+                                          ("clutter", "pillar")})
+        worst, checked = 0.0, 0
+        for (kind, name), faces in by_object.items():
+            obj = bpy.data.objects[name]
+            image = lightmap_image(obj)
+            self.assertEqual(tuple(image.size), (layout.width, layout.height))
+            self.assertEqual(obj.data.uv_layers.get("lightmap") is not None, True)
+            pixels = list(image.pixels)
+            polygon_of = {}
+            for polygon in obj.data.polygons:
+                centre = frames.to_lightfarm(obj.matrix_world @ polygon.center)
+                normal_axis = {0: 0, 1: 2, 2: 1}[max(range(3),
+                                                     key=lambda a: abs(polygon.normal[a]))]
+                for face in faces:
+                    lo_hi = faces[face][0]["position"][frames.face_axis(face)]
+                    if (frames.face_axis(face) == normal_axis
+                            and abs(centre[normal_axis] - lo_hi) < 1e-4):
+                        polygon_of[face] = polygon
+            for face, records in faces.items():
+                self.assertIn(face, polygon_of, f"{name} {face}: no polygon")
+                for record in records:
+                    # A clutter box numbers its six faces' texels on (f·T² + j·T + i).
+                    x, y = layout.texel_pixel(face, record["index"] % (t * t))
+                    at = 4 * (y * layout.width + x)
+                    want = texel_value(record, mode)
+                    for c in range(3):
+                        worst = max(worst, abs(pixels[at + c] - want[c]))
+                    # Orientation: the mesh's UV at the texel's centre lands on that pixel.
+                    uv = uv_at(obj, polygon_of[face], record["position"])
+                    self.assertEqual((int(uv[0] * layout.width), int(uv[1] * layout.height)),
+                                     (x, y), f"{record['surface']} #{record['index']}")
+                    checked += 1
+        self.assertEqual(checked, (5 + 5 + 6) * t * t)
+        self.assertLessEqual(worst, TOLERANCE)
+        print(f"\n  {mode}: {checked} texels, max |pixel - eval| = {worst:.3g}", end="")
+
+
+class BadInput(unittest.TestCase):
+    def test_rotated_block_and_open_mesh_are_reported_by_name(self):
+        scene = build_two_rooms()
+        tilted = cube("tilted_room", (10, -4, 0), (14, 0, 3), scene_export.BLOCKS)
+        tilted.rotation_euler = (0.0, 0.0, 0.3)
+        bpy.ops.mesh.primitive_plane_add(size=1.0, location=(2, -2, 1))
+        sheet = bpy.context.active_object
+        sheet.name = "sheet"
+        for owner in list(sheet.users_collection):
+            owner.objects.unlink(sheet)
+        collection(scene_export.CLUTTER).objects.link(sheet)
+        sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+        scene.collection.objects.link(sun)
+        bpy.context.view_layer.update()
+        export = scene_export.export_scene(scene)
+        names = [name for name, _ in export.problems]
+        self.assertEqual(names, ["tilted_room", "sheet", "sun"], export.problems)
+        self.assertIn("not an axis-aligned box", export.problems[0][1])
+        self.assertIn("not closed", export.problems[1][1])
+        self.assertEqual([b["id"] for b in export.scene["blocks"]], ["room_a", "room_b"])
+        # The bake goes on without them, and the panel lists them.
+        state = run_bake(scene)
+        self.assertEqual(state.state, "succeeded", state.message)
+        self.assertEqual([p.name for p in state.problems], names)
+
+    def test_service_422_is_shown_on_the_object_it_names(self):
+        scene = build_two_rooms()
+        white = material("white", (1.0, 1.0, 1.0))
+        bpy.data.objects["pillar"].data.materials[0] = white
+        state = run_bake(scene)
+        self.assertEqual(state.state, "failed")
+        self.assertIn("albedo", state.message)
+        self.assertEqual([p.name for p in state.problems], ["pillar"])
+        self.assertIn("clutter \"pillar\"", state.problems[0].message)
+        self.assertIn("albedo", bpy.data.objects["pillar"]["lightfarm_error"])
+        self.assertEqual(bpy.ops.lightfarm.select(name="pillar"), {"FINISHED"})
+        self.assertEqual(bpy.context.view_layer.objects.active.name, "pillar")
+        # Fixed and baked again: the mark is gone.
+        bpy.data.objects["pillar"].data.materials[0] = material("grey", (0.5, 0.5, 0.5))
+        self.assertEqual(run_bake(scene).state, "succeeded")
+        self.assertNotIn("lightfarm_error", bpy.data.objects["pillar"])
+
+    def test_service_down_gives_a_message(self):
+        scene = build_two_rooms()
+        prefs = bpy.context.preferences.addons["lightfarm_blender"].preferences
+        prefs.url = "http://127.0.0.1:9"  # discard port: nothing listens
+        state = run_bake(scene, timeout=60)
+        self.assertEqual(state.state, "failed")
+        self.assertIn("not reachable", state.message)
+        # Apply reports the same sentence (in the UI a message; a script gets it raised).
+        state.bake_id, state.state = "0" * 64, "succeeded"
+        with self.assertRaises(RuntimeError) as caught:
+            bpy.ops.lightfarm.apply()
+        self.assertIn("not reachable", str(caught.exception))
+        self.assertNotIn("Traceback", str(caught.exception))
+        self.assertIn("not reachable", state.message)
+
+
+class Service(unittest.TestCase):
+    def test_cancel_stops_the_bake(self):
+        scene = build_two_rooms()
+        scene.lightfarm.texels_per_face = 24
+        scene.lightfarm.rays_per_texel = 65536
+        self.assertEqual(bpy.ops.lightfarm.bake(), {"FINISHED"})
+        deadline = time.time() + 60
+        while operators.current_job() is not None and not scene.lightfarm.bake_id:
+            operators.poll_job()
+            self.assertLess(time.time(), deadline)
+            time.sleep(0.1)
+        self.assertEqual(bpy.ops.lightfarm.cancel(), {"FINISHED"})
+        state = run_bake_wait(scene)
+        self.assertEqual(state.state, "cancelled", state.message)
+
+    def test_opening_another_file_during_a_bake_stops_watching_it(self):
+        scene = build_two_rooms()
+        self.assertEqual(bpy.ops.lightfarm.bake(), {"FINISHED"})
+        bpy.ops.wm.read_factory_settings(use_empty=True)  # the baked scene is freed
+        self.assertIsNone(operators.poll_job())
+        self.assertIsNone(operators.current_job())
+        del scene
+
+    def test_mesh_clutter_is_uploaded_as_glb(self):
+        scene = build_two_rooms()
+        bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, radius=0.3, location=(3, -1, 0.5))
+        ball = bpy.context.active_object
+        ball.name = "ball"
+        for owner in list(ball.users_collection):
+            owner.objects.unlink(ball)
+        collection(scene_export.CLUTTER).objects.link(ball)
+        export = scene_export.export_scene(scene)
+        self.assertEqual(export.problems, [])
+        self.assertIn("ball", export.meshes)
+        service = operators.service_of(bpy.context)
+        request = urllib.request.Request(f"{SERVER.url}/v1/assets", data=export.meshes["ball"],
+                                         method="POST")
+        with urllib.request.urlopen(request) as response:
+            created = json.load(response)
+        self.assertEqual((created["format"], created["triangles"]), ("glb", 80))
+        self.assertEqual(service.upload_asset(export.meshes["ball"]), created["hash"])
+        state = run_bake(scene)
+        self.assertEqual(state.state, "succeeded", state.message)
+        # Apply lights the boxes and says the mesh is not lit (its atlas is not applied).
+        self.assertEqual(bpy.ops.lightfarm.apply(), {"FINISHED"})
+        self.assertEqual([p.name for p in state.problems], ["ball"])
+
+
+def run_bake_wait(scene, timeout=120):
+    deadline = time.time() + timeout
+    while operators.poll_job() is not None:
+        if time.time() > deadline:
+            raise AssertionError("bake did not end")
+        time.sleep(0.2)
+    return scene.lightfarm
+
+
+class RoundTrip(unittest.TestCase):
+    def test_maze_import_then_export_is_the_same_scene(self):
+        for name in ("maze", "cornell", "corridor"):
+            fresh_scene()
+            path = os.path.join(REPO, "scenes", name, "scene.json")
+            self.assertEqual(bpy.ops.lightfarm.import_scene(filepath=path), {"FINISHED"})
+            with open(path) as f:
+                original = json.load(f)
+            export = scene_export.export_scene(bpy.context.scene)
+            self.assertEqual(export.problems, [])
+            self.assertEqual(close(export.scene, original), True, name)
+            with open(os.path.join(REPO, "scenes", name, "lights.json")) as f:
+                self.assertEqual(close(export.lights, json.load(f)), True, name)
+
+
+def close(a, b, tolerance=1e-9):
+    """Equal JSON documents, numbers within ``tolerance`` (float formatting)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(close(a[k], b[k], tolerance) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(close(x, y, tolerance) for x, y in zip(a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return abs(a - b) <= tolerance * max(1.0, abs(b))
+    return a == b
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--lightfarm", default=os.path.join(REPO, "target", "release",
+                                                             "lightfarm"))
+    args, rest = parser.parse_known_args()
+    LIGHTFARM = os.path.abspath(args.lightfarm)
+    unittest.main(argv=[sys.argv[0]] + rest, verbosity=2)
