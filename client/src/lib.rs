@@ -29,7 +29,8 @@
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
 //! - [`runtime`]: the per-frame, allocation-free application of the bundle's operators
 //!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
-//!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator), and
+//!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator) over one,
+//!   n or all bounces ([`Bounces`]; all bounces by restarted GMRES in `runtime/krylov.rs`), and
 //!   [`Runtime::apply_probes`], the SH radiance of the bundle's probe volume, and
 //!   [`Runtime::apply_sh`], per-texel SH incident radiance for normal-mapped surfaces
 //!   ([`ShLight::shade`] at a perturbed normal).
