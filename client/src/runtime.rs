@@ -317,8 +317,8 @@ pub struct Runtime {
     /// [`Bounces::Feedback`]: the previous output and the method it was made with.
     feedback: Vec<[f32; 3]>,
     feedback_method: Option<Method>,
-    /// [`Bounces::Converged`]'s GMRES workspace, made on its first use (`RESTART + 2` RGB
-    /// texel vectors).
+    /// [`Bounces::Converged`]'s GMRES workspace (`RESTART + 2` RGB texel vectors, 168 bytes a
+    /// texel), made with the runtime so no frame allocates.
     krylov: Option<Krylov>,
 }
 
@@ -621,7 +621,7 @@ impl Runtime {
             bounce_out: vec![[0.0; 3]; n_texels],
             feedback: vec![[0.0; 3]; n_texels],
             feedback_method: None,
-            krylov: None,
+            krylov: Some(Krylov::new(n_texels)),
         })
     }
 

@@ -422,8 +422,10 @@ fn a_new_runtime_sums_all_bounces_and_says_how_many() {
     }
     // SAFETY: live runtime.
     let bounces = unsafe { lf_runtime_last_bounces(rt.0) };
-    assert!((5..60).contains(&bounces), "{bounces}");
-    // A tighter tolerance: more bounces, closer.
+    // GMRES: the two-texel operator's Krylov space has two dimensions, so two applications
+    // (the first bounce and one iteration) or three solve it.
+    assert!((2..60).contains(&bounces), "{bounces}");
+    // A tighter tolerance: at least as many applications, closer.
     // SAFETY: live runtime.
     assert_eq!(
         unsafe { lf_runtime_set_bounces(rt.0, LfBounces::Converged as i32, 1e-6) },
@@ -434,7 +436,7 @@ fn a_new_runtime_sums_all_bounces_and_says_how_many() {
         assert!((*o as f64 - w).abs() <= 1e-5 * w, "{o} vs {w}");
     }
     // SAFETY: live runtime.
-    assert!(unsafe { lf_runtime_last_bounces(rt.0) } > bounces);
+    assert!(unsafe { lf_runtime_last_bounces(rt.0) } >= bounces);
     assert_eq!(unsafe { lf_runtime_last_bounces(null()) }, 0);
 }
 
