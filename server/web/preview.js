@@ -132,7 +132,7 @@ export class Preview {
       const centre = box.getCenter(new THREE.Vector3());
       this.controls.target.copy(centre);
       // From above and to the side: the ceilings face inwards, so the camera sees into the rooms.
-      this.camera.position.copy(centre).add(new THREE.Vector3(0.35, 0.9, 0.55).multiplyScalar(size * 0.9));
+      this.camera.position.copy(centre).add(new THREE.Vector3(0.35, 0.9, 0.55).multiplyScalar(size * 1.05));
       this.camera.near = size / 1000;
       this.camera.far = size * 10;
       this.camera.updateProjectionMatrix();

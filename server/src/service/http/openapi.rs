@@ -6,7 +6,8 @@
 //! teams configured) it declares no security and no 401; in team mode every `/v1` operation
 //! requires the bearer scheme and declares 401. `POST /v1/scenes` takes the `Scene` schema.
 //! Every `/v1` operation declares the 408 of the request timeout and the 500 of an internal
-//! failure, which any of them can give.
+//! failure, which any of them can give. `GET /v1/bakes/{id}/events` describes one server-sent
+//! event (name and JSON data), not a JSON body.
 
 use axum::extract::State;
 use axum::Json;
@@ -91,6 +92,24 @@ pub fn openapi_json(mode: AuthMode) -> Value {
         doc.pointer_mut("/paths/~1v1~1scenes/post/requestBody/content/application~1json/schema")
     {
         *schema = scene_body;
+    }
+    // An event stream's schema describes one server-sent event as the server writes it: its
+    // `event` name (`BakeEvent::kind`) and its `data`, a `BakeEvent` as JSON text.
+    if let Some(schema) = doc.pointer_mut(
+        "/paths/~1v1~1bakes~1{id}~1events/get/responses/200/content/text~1event-stream/schema",
+    ) {
+        *schema = json!({
+            "type": "object",
+            "required": ["event", "data"],
+            "properties": {
+                "event": { "type": "string", "enum": ["state", "stage", "sections", "progress"] },
+                "data": {
+                    "type": "string",
+                    "contentMediaType": "application/json",
+                    "contentSchema": { "$ref": "#/components/schemas/BakeEvent" }
+                }
+            }
+        });
     }
     let paths = doc["paths"].as_object_mut().expect("paths");
     for (path, item) in paths.iter_mut() {
