@@ -38,6 +38,8 @@
 //! - [`probes`]: the probe field ([`ProbeField`]: n_probes × 3 channels × 9 SH coefficients)
 //!   and [`irradiance_at`], trilinear probe interpolation and irradiance for any point and
 //!   normal (dynamic objects, clutter).
+//! - [`packed`], [`packed_gather`]: the operator matrices and DRT's exact gather in the form the
+//!   per-frame kernels read (row panels, narrow indices, 8-bit where the bundle stored 8 bits).
 //! - [`lightmap`]: per-texel radiance as an atlas image (8-bit sRGB for PNG, raw f16).
 //! - `fetch` (feature `fetch`, off by default; `fetch-tls` adds https): `BundleFetcher`, a
 //!   blocking HTTP download of a bundle at level load with an on-disk cache (`If-None-Match`),

@@ -8,6 +8,10 @@
 //! - [`result`]: RESULT.json (per-texel direct and indirect radiance) and `compare`.
 //! - [`bundle`]: the operator bundle the server writes and the client reads.
 //!   `bundle/sh_responses.rs`: its SH responses section (normal-mapped surfaces, minor 2).
+//!   [`container`]: its header, compressed and checksummed sections, table of contents;
+//!   [`codec`]: how one operator matrix's values are stored (f32, f16, u8).
+//! - [`box_symmetry`]: the 48 symmetries of an axis-aligned box and how they map a block's
+//!   faces and face grids onto a canonical shape's.
 //! - [`face`]: box faces and the texel layout on each.
 //! - [`wire`]: the little-endian encoding the bundle and the operator cache share.
 //! - [`dnrt_grid`]: one dynamic object's DNRT transfer grid (codecs, ranges, placement).

@@ -8,7 +8,9 @@
 //!   [`job_progress`]: the engine's progress hook per job (events, cancellation);
 //!   [`executor`]: one bake from stored scene to stored bundle.
 //! - [`scene_inputs`]: API scenes (asset references, settings overrides, limits arithmetic).
+//! - [`operator_cache`]: the engine's caches under `<data>/operators`, trimmed to a budget.
 //! - [`http`]: routes and handlers.
+//! - [`farm`]: the same two traits on NATS JetStream (`serve --farm`, `lightfarm worker`).
 //!
 //! Data directory: `blobs/`, `owners/`, `tmp/` (the store), `jobs/` (job records),
 //! `operators/` (the shape-operator and DNRT caches the bake engine keeps), `work/` (scratch).
