@@ -185,3 +185,67 @@ pub struct ShapeEntry {
 pub struct ApiError {
     pub error: String,
 }
+
+/// `GET /v1/bakes`: one page of the team's bakes, newest first.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct BakeList {
+    pub bakes: Vec<BakeStatus>,
+    /// The next page (path and query), absent on the last page.
+    pub next: Option<String>,
+}
+
+/// One scene of `GET /v1/scenes` (the summary `POST /v1/scenes` answers with).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct SceneList {
+    pub scenes: Vec<SceneCreated>,
+    /// The next page (path and query), absent on the last page.
+    pub next: Option<String>,
+}
+
+/// Which light a preview's textures hold.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(rename_all = "lowercase")]
+pub enum PreviewLight {
+    /// Direct + indirect.
+    #[default]
+    Lit,
+    Direct,
+    Indirect,
+}
+
+/// How many bounces of indirect light a preview shows.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(rename_all = "lowercase")]
+pub enum PreviewBounces {
+    One,
+    #[default]
+    All,
+}
+
+impl PreviewBounces {
+    /// The bounce count it names: `one` is 1, `all` is all (the runtime's converged default).
+    pub fn count(self) -> crate::bounces::BounceCount {
+        match self {
+            PreviewBounces::One => crate::bounces::BounceCount::ONE,
+            PreviewBounces::All => crate::bounces::BounceCount::All,
+        }
+    }
+}
+
+/// `POST /v1/bakes/{id}/preview.glb`: the light set to evaluate the bake's bundle under.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+#[serde(deny_unknown_fields)]
+pub struct PreviewRequest {
+    /// A LIGHTS.json document (`lightfarm.lights`: point lights and dynamic-object poses).
+    #[cfg_attr(feature = "openapi", schema(value_type = Object))]
+    pub lights: crate::lights::LightSet,
+    #[serde(default)]
+    pub light: PreviewLight,
+    #[serde(default)]
+    pub bounces: PreviewBounces,
+}

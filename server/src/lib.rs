@@ -6,7 +6,9 @@
 //! - [`service`]: `lightfarm serve`, the HTTP API over a job queue and a blob store (no light
 //!   transport: it calls [`bake::pipeline::bake`]).
 //! - [`cli`]: the `lightfarm` subcommands; `main.rs` only parses arguments and calls these.
+//! - [`export`]: the lit level as glTF (`lightfarm export`, the service's preview); no HTTP.
 
 pub mod bake;
 pub mod cli;
+pub mod export;
 pub mod service;

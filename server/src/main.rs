@@ -149,6 +149,27 @@ enum Command {
         #[arg(long)]
         sh_out: Option<PathBuf>,
     },
+    /// Write the bundle lit by a light set as binary glTF (meshes with their lightmaps on
+    /// their own UVs, point lights as KHR_lights_punctual) for any glTF viewer.
+    Export {
+        bundle: PathBuf,
+        #[arg(long)]
+        lights: PathBuf,
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Bounces of indirect light: a whole number ≥ 1 or `all` (iterated until converged).
+        #[arg(long, default_value = "all")]
+        bounces: BounceCount,
+        /// Textures hold direct + indirect light (the default).
+        #[arg(long, conflicts_with_all = ["direct", "indirect"])]
+        lit: bool,
+        /// Textures hold direct light only.
+        #[arg(long, conflicts_with = "indirect")]
+        direct: bool,
+        /// Textures hold indirect light only.
+        #[arg(long)]
+        indirect: bool,
+    },
     /// Brute-force reference: path tracing with next-event estimation on the full geometry.
     Reference {
         scene: PathBuf,
@@ -298,6 +319,29 @@ fn main() -> anyhow::Result<()> {
                 TransportArg::Traced => Transport::Traced,
             }),
             quiet,
+        }),
+        Command::Export {
+            bundle,
+            lights,
+            out,
+            bounces,
+            lit: _,
+            direct,
+            indirect,
+        } => cli::export::run(cli::export::ExportArgs {
+            bundle,
+            lights,
+            out,
+            options: lightfarm_server::export::ExportOptions {
+                mode: if direct {
+                    lightfarm_server::export::LightMode::Direct
+                } else if indirect {
+                    lightfarm_server::export::LightMode::Indirect
+                } else {
+                    lightfarm_server::export::LightMode::Lit
+                },
+                bounces,
+            },
         }),
         Command::Eval {
             bundle,

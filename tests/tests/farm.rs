@@ -402,6 +402,35 @@ fn farm_keeps_teams_apart_and_bounds_its_queue() {
             .status(),
         Some(404)
     );
+    // The listings come from the farm's shared records: red's two bakes newest first, one page
+    // of one at a time; blue lists nothing of red's.
+    let list = |token: &str, path: &str| -> serde_json::Value {
+        let agent: ureq::Agent = ureq::Agent::config_builder()
+            .http_status_as_error(false)
+            .build()
+            .into();
+        let text = agent
+            .get(format!("{}{path}", replica.addr))
+            .header("Authorization", format!("Bearer {token}"))
+            .call()
+            .unwrap()
+            .body_mut()
+            .read_to_string()
+            .unwrap();
+        serde_json::from_str(&text).unwrap()
+    };
+    let first = list("red-token", "/v1/bakes?limit=1&state=queued");
+    assert_eq!(first["bakes"][0]["id"], accepted[1].as_str(), "{first}");
+    let second = list("red-token", first["next"].as_str().unwrap());
+    assert_eq!(second["bakes"][0]["id"], accepted[0].as_str(), "{second}");
+    assert!(second["next"].is_null());
+    assert_eq!(list("blue-token", "/v1/bakes")["bakes"], json!([]));
+    assert_eq!(
+        list("red-token", "/v1/scenes")["scenes"][0]["id"],
+        scene.as_str()
+    );
+    assert_eq!(list("blue-token", "/v1/scenes")["scenes"], json!([]));
+
     assert_eq!(
         red.bake_status(&accepted[1]).unwrap().state,
         JobState::Queued

@@ -24,6 +24,7 @@ pub mod bench_throughput;
 pub mod compare;
 pub mod eval;
 pub mod eval_sh;
+pub mod export;
 pub mod frame_time;
 pub mod inspect;
 pub mod lightmap_files;

@@ -1,6 +1,7 @@
 //! `lightfarm serve` configuration: the listen address, the data directory, the teams and their
 //! bearer tokens, and the limits. Read from a TOML file (`--config`); without one the service
-//! runs open for a single local user ([`ServiceConfig::open_local`]).
+//! runs open for a single local user ([`ServiceConfig::open_local`]), and a file with
+//! `open = true` (and no teams) does the same with its own limits.
 //!
 //! Invariants:
 //! - An open (token-less) configuration only ever listens on a loopback address; [`check_bind`]
@@ -96,6 +97,9 @@ struct ConfigFile {
     addr: Option<String>,
     data: Option<PathBuf>,
     farm: Option<String>,
+    /// Open local mode with the file's limits (no `[[teams]]`; loopback only).
+    #[serde(default)]
+    open: bool,
     #[serde(default)]
     limits: Limits,
     #[serde(default)]
@@ -205,10 +209,16 @@ impl ServiceConfig {
                 token_hashes,
             });
         }
-        if file.teams.is_empty() {
+        if file.open && !file.teams.is_empty() {
+            return Err(ConfigError::Invalid(
+                "open = true and [[teams]] exclude each other: an open service has no tokens"
+                    .into(),
+            ));
+        }
+        if file.teams.is_empty() && !file.open {
             return Err(ConfigError::Invalid(
                 "no [[teams]]: a config file names at least one team and its token; run without \
-                 --config for open local mode"
+                 --config, or set open = true, for open local mode"
                     .into(),
             ));
         }
@@ -243,6 +253,17 @@ pub fn check_bind(config: &ServiceConfig) -> Result<(), ConfigError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `open = true` gives open mode with the file's limits, still on loopback only.
+    #[test]
+    fn an_open_file_keeps_its_limits_and_loopback() {
+        let c = ServiceConfig::from_toml("open = true\n[limits]\nmax_texels = 3000").unwrap();
+        assert!(c.is_open());
+        assert_eq!(c.limits.max_texels, 3000);
+        assert!(check_bind(&c).is_ok());
+        let c = ServiceConfig::from_toml("open = true\naddr = \"0.0.0.0:9000\"").unwrap();
+        assert!(check_bind(&c).is_err());
+    }
 
     #[test]
     fn parses_teams_and_limits() {
@@ -285,6 +306,10 @@ mod tests {
                 "addr",
             ),
             ("", "no [[teams]]"),
+            (
+                "open = true\n[[teams]]\nname = \"a\"\ntoken = \"x\"",
+                "exclude each other",
+            ),
             ("[limits]\nqueue_capasity = 3", "queue_capasity"),
         ] {
             let e = ServiceConfig::from_toml(text).unwrap_err().to_string();

@@ -90,6 +90,8 @@ pub trait JobQueue: Send + Sync + 'static {
     /// Queues the bake, or returns the existing job with the same id (see the module doc).
     fn submit(&self, request: BakeRequest) -> Result<BakeStatus, QueueError>;
     fn status(&self, team: &str, id: &str) -> Option<BakeStatus>;
+    /// Every job the team can see, in no particular order (`GET /v1/bakes` sorts and pages).
+    fn list(&self, team: &str) -> Vec<BakeStatus>;
     /// Cancels a queued or running job (a finished one is returned unchanged).
     fn cancel(&self, team: &str, id: &str) -> Option<BakeStatus>;
     /// The status now and every event after it.
@@ -601,6 +603,16 @@ impl JobQueue for LocalJobs {
             .owners
             .contains(team)
             .then(|| job.record.status(false))
+    }
+
+    fn list(&self, team: &str) -> Vec<BakeStatus> {
+        let inner = self.shared.inner.lock().unwrap();
+        inner
+            .jobs
+            .values()
+            .filter(|job| job.record.owners.contains(team))
+            .map(|job| job.record.status(false))
+            .collect()
     }
 
     fn cancel(&self, team: &str, id: &str) -> Option<BakeStatus> {

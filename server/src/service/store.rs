@@ -99,6 +99,9 @@ pub trait BlobStore: Send + Sync + 'static {
     fn grant(&self, team: &str, kind: BlobKind, hash: &str) -> Result<(), StoreError>;
     /// Whether `team` may see the blob.
     fn visible(&self, team: &str, kind: BlobKind, hash: &str) -> bool;
+    /// Every blob of `kind` the team may see, with when it was granted (Unix seconds), in no
+    /// particular order.
+    fn granted(&self, team: &str, kind: BlobKind) -> Result<Vec<(String, f64)>, StoreError>;
     /// Keeps the blob from being trimmed until as many `unpin`s.
     fn pin(&self, kind: BlobKind, hash: &str);
     fn unpin(&self, kind: BlobKind, hash: &str);
@@ -402,6 +405,31 @@ impl BlobStore for DiskStore {
 
     fn visible(&self, team: &str, kind: BlobKind, hash: &str) -> bool {
         is_hash(hash) && self.marker_path(team, kind, hash).exists()
+    }
+
+    fn granted(&self, team: &str, kind: BlobKind) -> Result<Vec<(String, f64)>, StoreError> {
+        let dir = self.root.join("owners").join(team).join(kind.name());
+        let entries = match fs::read_dir(&dir) {
+            Ok(entries) => entries,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+            Err(e) => return Err(StoreError::Open(e)),
+        };
+        let mut out = Vec::new();
+        for entry in entries {
+            let entry = entry.map_err(StoreError::Open)?;
+            let name = entry.file_name().to_string_lossy().to_string();
+            if !is_hash(&name) {
+                continue;
+            }
+            let at = entry
+                .metadata()
+                .and_then(|m| m.modified())
+                .ok()
+                .and_then(|t| t.duration_since(SystemTime::UNIX_EPOCH).ok())
+                .map_or(0.0, |d| d.as_secs_f64());
+            out.push((name, at));
+        }
+        Ok(out)
     }
 
     fn pin(&self, kind: BlobKind, hash: &str) {

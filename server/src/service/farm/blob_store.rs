@@ -21,6 +21,7 @@
 
 use std::sync::Arc;
 
+use futures_util::StreamExt;
 use tokio::io::AsyncReadExt;
 
 use super::connection::Farm;
@@ -142,6 +143,36 @@ impl BlobStore for FarmStore {
                     Ok(Some(_))
                 )
             })
+    }
+
+    fn granted(&self, team: &str, kind: BlobKind) -> Result<Vec<(String, f64)>, StoreError> {
+        let prefix = format!("{}.{}.", key_token(team), kind.name());
+        self.farm.block_on(async {
+            let listing = |e: &dyn std::fmt::Display| StoreError::Io {
+                kind: kind.name(),
+                hash: String::new(),
+                source: std::io::Error::other(format!("listing the owners bucket: {e}")),
+            };
+            let mut keys = self.farm.owners.keys().await.map_err(|e| listing(&e))?;
+            let mut hashes = Vec::new();
+            while let Some(key) = keys.next().await {
+                let key = key.map_err(|e| listing(&e))?;
+                if let Some(hash) = key.strip_prefix(&prefix) {
+                    if is_hash(hash) {
+                        hashes.push((key.clone(), hash.to_string()));
+                    }
+                }
+            }
+            let mut out = Vec::with_capacity(hashes.len());
+            for (key, hash) in hashes {
+                let at = match self.farm.owners.entry(key).await {
+                    Ok(Some(entry)) => (entry.created.unix_timestamp_nanos() as f64) * 1e-9,
+                    _ => 0.0,
+                };
+                out.push((hash, at));
+            }
+            Ok(out)
+        })
     }
 
     fn pin(&self, _: BlobKind, _: &str) {}

@@ -303,6 +303,15 @@ impl JobQueue for FarmJobs {
             .then(|| job.record.status(false))
     }
 
+    fn list(&self, team: &str) -> Vec<BakeStatus> {
+        self.farm
+            .block_on(self.all_jobs())
+            .into_iter()
+            .filter(|job| job.record.owners.contains(team))
+            .map(|job| job.record.status(false))
+            .collect()
+    }
+
     fn cancel(&self, team: &str, id: &str) -> Option<BakeStatus> {
         match self.farm.block_on(self.cancel_async(team, id)) {
             Ok(status) => status,

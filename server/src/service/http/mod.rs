@@ -6,19 +6,26 @@
 //! - [`auth`]: the calling team; [`error`]: the error response.
 //! - [`assets`], [`scenes`], [`bakes`], [`events`], [`bundles`], [`bake_bundle`] (a bundle
 //!   streamed while it is written), [`evaluate`] (a bake's bundle applied to lights): the `/v1`
-//!   resources.
+//!   resources; [`bake_list`], [`scene_list`]: the team's bakes and scenes, newest first, paged
+//!   by [`paging`]; [`preview`]: a finished bake lit by a light set, as glTF.
 //! - [`ops`]: health, readiness, metrics, shapes; [`openapi`]: `/openapi.json`.
+//! - [`dashboard`]: the web dashboard at `/` (embedded files; it only calls the API).
 
 pub mod assets;
 pub mod auth;
 pub mod bake_bundle;
+pub mod bake_list;
 pub mod bakes;
 pub mod bundles;
+pub mod dashboard;
 pub mod error;
 pub mod evaluate;
 pub mod events;
 pub mod openapi;
 pub mod ops;
+pub mod paging;
+pub mod preview;
+pub mod scene_list;
 pub mod scenes;
 
 use std::path::PathBuf;
@@ -29,7 +36,7 @@ use std::time::Duration;
 use axum::extract::DefaultBodyLimit;
 use axum::http::{HeaderName, Request, StatusCode};
 use axum::routing::{get, post};
-use axum::{Json, Router};
+use axum::Router;
 use tokio::sync::watch;
 use tower_http::request_id::{
     MakeRequestId, PropagateRequestIdLayer, RequestId, SetRequestIdLayer,
@@ -85,14 +92,21 @@ pub fn router(state: AppState) -> Router {
     };
     let api = Router::new()
         .route("/v1/assets", post(assets::upload_asset))
-        .route("/v1/scenes", post(scenes::create_scene))
-        .route("/v1/bakes", post(bakes::submit_bake))
+        .route(
+            "/v1/scenes",
+            get(scene_list::list_scenes).post(scenes::create_scene),
+        )
+        .route(
+            "/v1/bakes",
+            get(bake_list::list_bakes).post(bakes::submit_bake),
+        )
         .route(
             "/v1/bakes/{id}",
             get(bakes::bake_status).delete(bakes::cancel_bake),
         )
         .route("/v1/bakes/{id}/events", get(events::bake_events))
         .route("/v1/bakes/{id}/evaluate", post(evaluate::evaluate_bake))
+        .route("/v1/bakes/{id}/preview.glb", post(preview::preview_glb))
         .route(
             "/v1/bakes/{id}/bundle",
             get(bake_bundle::stream_bake_bundle),
@@ -102,12 +116,11 @@ pub fn router(state: AppState) -> Router {
         .route("/healthz", get(ops::healthz))
         .route("/readyz", get(ops::readyz))
         .route("/metrics", get(ops::metrics))
-        .route(
-            "/openapi.json",
-            get(|| async { Json(openapi::openapi_json()) }),
-        )
+        .route("/openapi.json", get(openapi::serve_openapi))
+        .merge(dashboard::routes())
         .layer(DefaultBodyLimit::max(limits.max_body_bytes));
     api.with_state(state.clone())
+        .layer(axum::middleware::from_fn(error::hide_internal_detail))
         .layer(TimeoutLayer::with_status_code(
             StatusCode::REQUEST_TIMEOUT,
             Duration::from_secs(limits.request_timeout_seconds),
