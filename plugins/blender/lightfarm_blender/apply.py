@@ -8,16 +8,22 @@ an Emission shader fed by the lightmap (``emission``: the map holds outgoing rad
 base colour × lightmap (``multiply``: the map holds radiance / albedo). The copy keeps the
 original's Principled BSDF (disconnected), so its base colour still exports as the albedo.
 
-Mesh clutter lightmaps (a generated chart atlas in the bundle) are not applied: those objects
-are reported. Invariant: pixel ``(x, y)`` of a texel holds exactly ``texel_value`` of that
-texel's record (float32), so the image equals ``lightfarm eval`` up to float32 rounding.
+Mesh clutter (``clutter:<id>`` texels on the mesh's own ``lightmap`` UVs, which export sent
+as ``TEXCOORD_1``): an ``N × N`` image laid out by ``mesh_lightmap.MeshLightmap``, shown through
+that same UV layer (Apply does not touch it), materials wired as above. A mesh whose texel
+count differs from what its UVs give (UVs edited since the bake) is reported, not lit.
+
+Invariant: pixel ``(x, y)`` of a texel holds exactly ``texel_value`` of that texel's record
+(float32), so the image equals ``lightfarm eval`` up to float32 rounding.
 """
 
 import bpy
 
 from . import frames
 from .cuboid import analyse
-from .lightmap_layout import BoxLightmap, texel_value, texels_by_face, texels_per_face
+from .lightmap_layout import (BoxLightmap, box_faces, records_by_surface, texel_value,
+                              texels_per_face)
+from .mesh_lightmap import MeshLightmap
 
 UV_LAYER = "lightmap"
 MODES = ("emission", "multiply")
@@ -85,30 +91,72 @@ def _lightmap_material(source, obj, image, mode):
     return material
 
 
-def apply_result(result, objects, mode, bl_scene):
+def _wire_materials(obj, image, mode):
+    mesh = obj.data
+    if len(mesh.materials) == 0:
+        mesh.materials.append(None)
+    for k, source in enumerate(list(mesh.materials)):
+        mesh.materials[k] = _lightmap_material(source, obj, image, mode)
+
+
+def _apply_mesh(obj, clutter_id, records, mesh_input, t, mode):
+    """Mesh clutter: its texels onto an image laid out by its own ``lightmap`` UVs (which
+    Apply leaves as they are: the GLB carried them). Returns a problem message or None."""
+    what = f"clutter \"{clutter_id}\""
+    if mesh_input is None:
+        return f"{what}: baked without \"lightmap\" UVs, so its texels have no place; not lit"
+    if not records or not t:
+        return f"{what}: no texels in the result; not lit"
+    try:
+        atlas = MeshLightmap(*mesh_input, t)
+    except ValueError as error:
+        return f"{what}: {error}; not lit"
+    if atlas.texel_count != len(records) or records[-1]["index"] != len(records) - 1:
+        return (f"{what}: the result has {len(records)} texels, its \"lightmap\" UVs "
+                f"{atlas.texel_count} (changed since the bake? bake again); not lit")
+    image = _image(f"lightmap {obj.name}", atlas.size, atlas.size)
+    image.pixels.foreach_set(atlas.pixels([texel_value(r, mode) for r in records]))
+    image.update()
+    image["lightfarm_mode"] = mode
+    _wire_materials(obj, image, mode)
+    return None
+
+
+def apply_result(result, objects, mode, bl_scene, mesh_lightmaps=None):
     """Puts the lightmaps of ``result`` (a RESULT.json document) on ``objects``
-    (``("block" | "clutter", id) -> object name``, as ``scene_export.Export.objects``).
-    Returns (names of the objects lit, problems as (object name, message))."""
+    (``("block" | "clutter", id) -> object name``, as ``scene_export.Export.objects``);
+    ``mesh_lightmaps``: clutter id -> (triangles, glTF UVs) of the mesh clutter
+    (``Export.mesh_lightmaps``). Returns (names of the objects lit, problems as
+    (object name, message))."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
+    mesh_lightmaps = mesh_lightmaps or {}
     t = texels_per_face(result)
     layout = BoxLightmap(t) if t else None
-    by_object = texels_by_face(result, t) if t else {}
+    surfaces = records_by_surface(result)
     scale = bl_scene.unit_settings.scale_length or 1.0
     lit, problems = [], []
     for key, name in objects.items():
         obj = bpy.data.objects.get(name)
-        faces = by_object.get(key)
         if obj is None:
-            continue
-        if faces is None:
-            problems.append((name, f"{key[0]} \"{key[1]}\": no box texels in the result "
-                             "(mesh clutter lightmaps are not applied)"))
             continue
         mesh = obj.data
         matrix = obj.matrix_world
         points = [frames.to_lightfarm(matrix @ v.co, scale) for v in mesh.vertices]
         box, why = analyse(points, [list(p.vertices) for p in mesh.polygons])
+        if key[0] == "clutter" and box is None:
+            problem = _apply_mesh(obj, key[1], surfaces.get(f"clutter:{key[1]}", []),
+                                  mesh_lightmaps.get(key[1]), t, mode)
+            if problem:
+                problems.append((name, problem))
+            else:
+                lit.append(name)
+            continue
+        faces = box_faces(key, surfaces, t) if t else None
+        if faces is None:
+            problems.append((name, f"{key[0]} \"{key[1]}\": no box texels in the result; "
+                             "not lit"))
+            continue
         if box is None:
             problems.append((name, f"{key[0]} \"{key[1]}\" {why}; not lit"))
             continue
@@ -129,9 +177,6 @@ def apply_result(result, objects, mode, bl_scene):
                     uv_layer.data[loop].uv = layout.uv(face, points[vertex], lo, hi)
                 else:
                     uv_layer.data[loop].uv = layout.unlit_uv()
-        if len(mesh.materials) == 0:
-            mesh.materials.append(None)
-        for k, source in enumerate(list(mesh.materials)):
-            mesh.materials[k] = _lightmap_material(source, obj, image, mode)
+        _wire_materials(obj, image, mode)
         lit.append(name)
     return lit, problems

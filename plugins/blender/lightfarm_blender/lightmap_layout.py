@@ -72,25 +72,50 @@ class BoxLightmap:
         return out
 
 
-def texels_by_face(result, texels_per_face):
-    """RESULT.json texels -> {(kind, id): {face: [texel records in index order]}} for blocks
-    (``block:<id>/<face>``) and clutter boxes (``clutter:<id>``, six faces of ``T²`` texels).
-    Mesh clutter (not ``6·T²`` texels) is left out."""
-    t2 = texels_per_face * texels_per_face
+def records_by_surface(result):
+    """RESULT.json texels -> {surface name: [texel records in index order]}."""
     surfaces = {}
     for record in result["texels"]:
         surfaces.setdefault(record["surface"], []).append(record)
-    out = {}
-    for name, records in surfaces.items():
+    for records in surfaces.values():
         records.sort(key=lambda r: r["index"])
+    return surfaces
+
+
+def box_faces(key, surfaces, texels_per_face):
+    """{face: [texel records in index order]} of the block or clutter box ``key``
+    (``("block" | "clutter", id)``) from ``records_by_surface``: a block's faces
+    ``block:<id>/<face>`` with ``T²`` texels, a clutter box's surface ``clutter:<id>`` cut into
+    six faces of ``T²`` texels. None when the result has none."""
+    t2 = texels_per_face * texels_per_face
+    kind, object_id = key
+    if kind == "block":
+        faces = {face: surfaces[f"block:{object_id}/{face}"] for face in frames.FACES
+                 if len(surfaces.get(f"block:{object_id}/{face}", ())) == t2}
+        return faces or None
+    records = surfaces.get(f"clutter:{object_id}", ())
+    if len(records) != 6 * t2:
+        return None
+    return {face: records[f * t2:(f + 1) * t2] for f, face in enumerate(frames.FACES)}
+
+
+def texels_by_face(result, texels_per_face, meshes=()):
+    """RESULT.json texels -> {(kind, id): {face: [texel records in index order]}} for blocks
+    (``block:<id>/<face>``) and clutter boxes (``clutter:<id>``, six faces of ``T²`` texels).
+    Mesh clutter (ids in ``meshes``, and any surface without ``6·T²`` texels) is left out."""
+    surfaces = records_by_surface(result)
+    keys = set()
+    for name in surfaces:
         kind, _, rest = name.partition(":")
         if kind == "block":
-            block_id, _, face = rest.rpartition("/")
-            if len(records) == t2:
-                out.setdefault(("block", block_id), {})[face] = records
-        elif kind == "clutter" and len(records) == 6 * t2:
-            out[("clutter", rest)] = {
-                face: records[f * t2:(f + 1) * t2] for f, face in enumerate(frames.FACES)}
+            keys.add(("block", rest.rpartition("/")[0]))
+        elif kind == "clutter" and rest not in meshes:
+            keys.add(("clutter", rest))
+    out = {}
+    for key in keys:
+        faces = box_faces(key, surfaces, texels_per_face)
+        if faces is not None:
+            out[key] = faces
     return out
 
 

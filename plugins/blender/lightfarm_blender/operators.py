@@ -234,7 +234,8 @@ class LIGHTFARM_OT_apply(bpy.types.Operator):
             state.message = error.message
             self.report({"ERROR"}, error.message)
             return {"CANCELLED"}
-        lit, problems = apply.apply_result(result, export.objects, state.mode, context.scene)
+        lit, problems = apply.apply_result(result, export.objects, state.mode, context.scene,
+                                           export.mesh_lightmaps)
         set_problems(state, export.problems + problems)
         bounces = f", {summed} bounce{'' if summed == 1 else 's'}" if summed else ""
         state.message = (f"lit {len(lit)} objects from {len(export.lights['lights'])} "

@@ -12,8 +12,12 @@ What is checked: the exported scene JSON of a two-room level built with bpy agai
 images agree to float32 rounding), texel orientation through the mesh's own ``lightmap`` UVs,
 relighting after a light moved without a rebake; a rotated block and a non-manifold clutter
 mesh reported by name; a 422 shown on the object it names; the service down as a message; cancel;
-a mesh clutter uploaded as GLB; opening another file mid-bake (the timer stops watching, no
-traceback); the maze round trip through import and export.
+a mesh clutter uploaded as GLB with a ``lightmap`` UV layer made for it (``TEXCOORD_1``); mesh
+clutter lightmaps (an icosphere with generated UVs, a cylinder with an artist's Lightmap Pack
+UVs, kept) against ``lightfarm eval``: every texel's pixel within 1/255, its cell where the
+engine's own atlas (``eval --f16``) puts it, its UV mapping to its world position; opening
+another file mid-bake (the timer stops watching, no traceback); the maze round trip through
+import and export.
 """
 
 import argparse
@@ -35,7 +39,8 @@ import addon_utils  # noqa: E402
 
 from lightfarm_blender import frames, operators, scene_export  # noqa: E402
 from lightfarm_blender.lightmap_layout import (  # noqa: E402
-    BoxLightmap, texel_value, texels_by_face, texels_per_face)
+    BoxLightmap, records_by_surface, texel_value, texels_by_face, texels_per_face)
+from lightfarm_blender.mesh_lightmap import MeshLightmap, bary2  # noqa: E402
 
 LIGHTFARM = None
 SERVER = None
@@ -159,8 +164,10 @@ def run_bake(scene, timeout=300):
     return scene.lightfarm
 
 
-def cli_eval(bundle_hash, lights, method="drt", bounces="all"):
-    """``lightfarm eval`` of the service's bundle with ``lights``: RESULT.json."""
+def cli_eval(bundle_hash, lights, method="drt", bounces="all", f16=False):
+    """``lightfarm eval`` of the service's bundle with ``lights``: RESULT.json (and with
+    ``f16``, the ``--f16`` indirect atlas as a height × width × 3 float16 array, row 0 on
+    top)."""
     work = tempfile.mkdtemp(prefix="lf-eval-")
     bundle = os.path.join(work, "bundle.lfb")
     with urllib.request.urlopen(f"{SERVER.url}/v1/bundles/{bundle_hash}") as response:
@@ -170,10 +177,20 @@ def cli_eval(bundle_hash, lights, method="drt", bounces="all"):
     with open(lights_path, "w") as out:
         json.dump(lights, out)
     result = os.path.join(work, "result.json")
+    atlas = os.path.join(work, "atlas.f16")
     subprocess.run([LIGHTFARM, "eval", bundle, "--lights", lights_path, "--method", method,
-                    "--bounces", bounces, "-o", result], check=True, stdout=subprocess.DEVNULL)
+                    "--bounces", bounces, "-o", result] + (["--f16", atlas] if f16 else []),
+                   check=True, stdout=subprocess.DEVNULL)
     with open(result) as f:
-        return json.load(f)
+        document = json.load(f)
+    if not f16:
+        return document
+    import numpy as np
+    with open(atlas, "rb") as f:
+        data = f.read()
+    width, height = np.frombuffer(data[8:16], dtype="<u4")
+    pixels = np.frombuffer(data[16:], dtype="<f2").reshape(height, width, 3)
+    return document, pixels
 
 
 def bake_status(bake_id):
@@ -383,15 +400,15 @@ class Service(unittest.TestCase):
 
     def test_mesh_clutter_is_uploaded_as_glb(self):
         scene = build_two_rooms()
-        bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, radius=0.3, location=(3, -1, 0.5))
-        ball = bpy.context.active_object
-        ball.name = "ball"
-        for owner in list(ball.users_collection):
-            owner.objects.unlink(ball)
-        collection(scene_export.CLUTTER).objects.link(ball)
+        ball = mesh_clutter("ball", "ico_sphere", subdivisions=2, radius=0.3,
+                            location=(3, -1, 0.5))
         export = scene_export.export_scene(scene)
         self.assertEqual(export.problems, [])
         self.assertIn("ball", export.meshes)
+        # Export gave the ball a "lightmap" UV layer (it had none) and sent it as TEXCOORD_1.
+        self.assertIn("lightmap", ball.data.uv_layers)
+        self.assertEqual(glb_attributes(export.meshes["ball"]),
+                         {"POSITION", "TEXCOORD_0", "TEXCOORD_1"})
         service = operators.service_of(bpy.context)
         request = urllib.request.Request(f"{SERVER.url}/v1/assets", data=export.meshes["ball"],
                                          method="POST")
@@ -401,9 +418,122 @@ class Service(unittest.TestCase):
         self.assertEqual(service.upload_asset(export.meshes["ball"]), created["hash"])
         state = run_bake(scene)
         self.assertEqual(state.state, "succeeded", state.message)
-        # Apply lights the boxes and says the mesh is not lit (its atlas is not applied).
         self.assertEqual(bpy.ops.lightfarm.apply(), {"FINISHED"})
-        self.assertEqual([p.name for p in state.problems], ["ball"])
+        self.assertEqual([p.name for p in state.problems], [])
+        self.assertIn("lit 4 objects", state.message)
+
+    def test_mesh_clutter_lightmap_matches_cli_eval(self):
+        scene = build_two_rooms()
+        mesh_clutter("ball", "ico_sphere", subdivisions=2, radius=0.4, location=(6, -2, 0.6))
+        column = mesh_clutter("column", "cylinder", vertices=12, radius=0.25, depth=2.0,
+                              location=(2.5, -3.0, 1.0))
+        # An artist's own lightmap UVs are kept: the column's come from Lightmap Pack.
+        from bl_operators.uvcalc_lightmap import lightmap_uvpack
+        uv = column.data.uv_layers.new(name="lightmap")
+        column.data.uv_layers.active = uv
+        lightmap_uvpack([column.data], PREF_SEL_ONLY=False, PREF_MARGIN_DIV=50)
+        before = [tuple(d.uv) for d in column.data.uv_layers["lightmap"].data]
+        state = run_bake(scene)
+        self.assertEqual(state.state, "succeeded", state.message)
+        self.assertEqual([tuple(d.uv) for d in column.data.uv_layers["lightmap"].data], before)
+        bundle_hash = bake_status(state.bake_id)["bundle"]
+        for mode, bounces in (("emission", "all"), ("multiply", "all"), ("emission", "1")):
+            state.mode, state.bounces = mode, int(bounces) if bounces != "all" else 0
+            self.assertEqual(bpy.ops.lightfarm.apply(), {"FINISHED"})
+            self.assertEqual([p.name for p in state.problems], [], state.message)
+            self.assertIn("lit 5 objects", state.message)
+            self.check_meshes(scene, bundle_hash, mode, bounces, ("ball", "column"))
+        state.bounces = 0
+
+    def check_meshes(self, scene, bundle_hash, mode, bounces, names):
+        """Every texel of each mesh clutter object: its pixel in the applied image equals
+        ``lightfarm eval``'s value (within 1/255), its cell is where the engine's own atlas
+        (``eval --f16``, the bundle's surface atlas) puts it, and the object's ``lightmap`` UV at
+        a texel's centre maps to that texel's world position (orientation)."""
+        import numpy as np
+        export = scene_export.export_scene(scene)
+        expected, f16 = cli_eval(bundle_hash, export.lights, bounces=bounces, f16=True)
+        t = texels_per_face(expected)
+        surfaces = records_by_surface(expected)
+        for name in names:
+            obj = bpy.data.objects[name]
+            records = surfaces[f"clutter:{name}"]
+            atlas = MeshLightmap(*export.mesh_lightmaps[name], t)
+            self.assertEqual(atlas.texel_count, len(records))
+            image = lightmap_image(obj)
+            self.assertEqual(tuple(image.size), (atlas.size, atlas.size))
+            node = obj.material_slots[0].material.node_tree.nodes["lightfarm uv"]
+            self.assertEqual(node.uv_map, "lightmap")
+            pixels = np.array(image.pixels[:]).reshape(atlas.size, atlas.size, 4)
+            worst = 0.0
+            for record in records:
+                x, y = atlas.texel_pixel(record["index"])
+                want = texel_value(record, mode)
+                worst = max(worst, max(abs(pixels[y, x, c] - want[c]) for c in range(3)))
+            self.assertLessEqual(worst, TOLERANCE, name)
+            # The engine's placement: eval --f16 holds the indirect light of this surface's
+            # atlas as one region; exactly one offset puts every texel on its value.
+            cells = np.array(atlas.cells)
+            indirect = np.array([r["indirect"] for r in records], dtype=np.float16)
+            height, width = f16.shape[:2]
+            offsets = [(ox, oy) for oy in range(height - cells[:, 1].max())
+                       for ox in range(width - cells[:, 0].max())
+                       if np.array_equal(f16[oy + cells[:, 1], ox + cells[:, 0]], indirect)]
+            self.assertEqual(len(offsets), 1, f"{name}: offsets {offsets[:4]}")
+            # Orientation: a texel whose centre is inside a UV triangle sits at that point of
+            # the triangle in the world.
+            inside = 0
+            for record in records:
+                cx, cy = atlas.cells[record["index"]]
+                for tri, tuv in zip(atlas.triangles, atlas.triangle_uv):
+                    b = bary2(tuv, (cx + 0.5, cy + 0.5))
+                    if b is not None and min(b) > 1e-6:
+                        world = [sum(b[k] * tri[k][a] for k in range(3)) for a in range(3)]
+                        self.assertLess(max(abs(w - p) for w, p in zip(world,
+                                                                       record["position"])),
+                                        1e-4, f"{name} #{record['index']}")
+                        inside += 1
+                        break
+            self.assertGreater(inside, len(records) // 3, name)
+            # Filtering: bilinear lookups anywhere on a triangle (corners, edge midpoints,
+            # centroid) read four filled pixels, never the black outside the charts.
+            # (Filled: the image's texels and the rings around them; some texels are black,
+            # the column's base stands on the floor.)
+            filled = np.array(atlas.pixels([(1.0, 1.0, 1.0)] * len(records))).reshape(
+                atlas.size, atlas.size, 4)[:, :, 0] > 0.0
+            for tuv in atlas.triangle_uv:
+                for b in ((1, 0, 0), (0, 1, 0), (0, 0, 1), (.5, .5, 0), (0, .5, .5), (.5, 0, .5),
+                          (1 / 3, 1 / 3, 1 / 3)):
+                    u = sum(b[k] * tuv[k][0] for k in range(3))
+                    v = atlas.size - sum(b[k] * tuv[k][1] for k in range(3))  # Blender rows
+                    x0, y0 = int(np.floor(u - 0.5)), int(np.floor(v - 0.5))
+                    for y in (y0, y0 + 1):
+                        for x in (x0, x0 + 1):
+                            if 0 <= x < atlas.size and 0 <= y < atlas.size:
+                                self.assertTrue(filled[y, x], f"{name}: black at ({x}, {y})")
+            print(f"\n  {name} {mode} bounces={bounces}: {len(records)} texels on "
+                  f"{atlas.size}x{atlas.size}, max |pixel - eval| = {worst:.3g}", end="")
+
+
+def mesh_clutter(name, primitive, **options):
+    """A Blender primitive (``bpy.ops.mesh.primitive_<primitive>_add``) in
+    ``lightfarm_clutter``, with a material."""
+    getattr(bpy.ops.mesh, f"primitive_{primitive}_add")(**options)
+    obj = bpy.context.active_object
+    obj.name = name
+    obj.data.name = name
+    for owner in list(obj.users_collection):
+        owner.objects.unlink(obj)
+    collection(scene_export.CLUTTER).objects.link(obj)
+    obj.data.materials.append(material(f"{name} paint", (0.6, 0.55, 0.4)))
+    return obj
+
+
+def glb_attributes(glb):
+    import struct
+    length = struct.unpack_from("<I", glb, 12)[0]
+    document = json.loads(glb[20:20 + length])
+    return set(document["meshes"][0]["primitives"][0]["attributes"])
 
 
 def run_bake_wait(scene, timeout=120):
