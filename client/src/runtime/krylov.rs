@@ -83,8 +83,10 @@ fn spectral_radius(h: &[f64], k: usize) -> f64 {
     if k == 0 {
         return 0.0;
     }
-    let mut v = vec![1.0f64; k];
-    let mut next = vec![0.0f64; k];
+    // On the stack: a frame allocates nothing.
+    let mut v = [1.0f64; RESTART];
+    let mut next = [0.0f64; RESTART];
+    let (v, next) = (&mut v[..k], &mut next[..k]);
     let mut log_growth = 0.0f64;
     const STEPS: usize = 400;
     const BURN_IN: usize = 100;
@@ -103,7 +105,7 @@ fn spectral_radius(h: &[f64], k: usize) -> f64 {
         if step >= BURN_IN {
             log_growth += norm.ln();
         }
-        for (a, b) in v.iter_mut().zip(&next) {
+        for (a, b) in v.iter_mut().zip(next.iter()) {
             *a = b / norm;
         }
     }
