@@ -67,11 +67,20 @@ pub(crate) struct Krylov {
     g: [Vec<f64>; 3],
 }
 
-fn dot(a: &[[f32; 3]], b: &[[f32; 3]], c: usize) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| x[c] as f64 * y[c] as f64)
-        .sum()
+/// The three channels' inner products in one pass (f64, in texel order).
+fn dot(a: &[[f32; 3]], b: &[[f32; 3]]) -> [f64; 3] {
+    let mut s = [0.0f64; 3];
+    for (x, y) in a.iter().zip(b) {
+        s[0] += x[0] as f64 * y[0] as f64;
+        s[1] += x[1] as f64 * y[1] as f64;
+        s[2] += x[2] as f64 * y[2] as f64;
+    }
+    s
+}
+
+/// The three channels' Euclidean norms.
+fn norm(a: &[[f32; 3]]) -> [f64; 3] {
+    dot(a, a).map(f64::sqrt)
 }
 
 /// Spectral radius of the `k × k` matrix `I − H` (H upper Hessenberg, row stride [`RESTART`]):
@@ -165,7 +174,7 @@ impl Krylov {
         let n = b.len();
         debug_assert_eq!(n, self.len());
         x.fill([0.0; 3]);
-        let b_norm: [f64; 3] = std::array::from_fn(|c| dot(b, b, c).sqrt());
+        let b_norm = norm(b);
         let relative = |r: [f64; 3]| {
             (0..3)
                 .map(|c| {
@@ -187,8 +196,7 @@ impl Krylov {
         let mut exhausted: [bool; 3] = std::array::from_fn(|c| b_norm[c] == 0.0);
         loop {
             // Start a cycle from the residual in basis[0].
-            let beta: [f64; 3] =
-                std::array::from_fn(|c| dot(&self.basis[0], &self.basis[0], c).sqrt());
+            let beta = norm(&self.basis[0]);
             let residual = relative(beta);
             if residual <= tolerance {
                 return Ok(Solved {
@@ -206,14 +214,11 @@ impl Krylov {
             }
             let first_cycle = last_cycle_residual == f64::INFINITY;
             last_cycle_residual = residual;
+            let scale = beta.map(|b| if b > 0.0 { (1.0 / b) as f32 } else { 0.0 });
             for v in self.basis[0].iter_mut() {
-                for c in 0..3 {
-                    v[c] = if beta[c] > 0.0 {
-                        (v[c] as f64 / beta[c]) as f32
-                    } else {
-                        0.0
-                    };
-                }
+                v[0] *= scale[0];
+                v[1] *= scale[1];
+                v[2] *= scale[2];
             }
             for c in 0..3 {
                 self.g[c].fill(0.0);
@@ -238,27 +243,31 @@ impl Krylov {
                 }
                 // Modified Gram-Schmidt against v_0 .. v_j, per channel.
                 for i in 0..=j {
-                    let hij: [f64; 3] = std::array::from_fn(|c| dot(&self.w, &self.basis[i], c));
+                    let hij = dot(&self.w, &self.basis[i]);
+                    let h32 = hij.map(|h| h as f32);
                     for (w, v) in self.w.iter_mut().zip(&self.basis[i]) {
-                        for c in 0..3 {
-                            w[c] = (w[c] as f64 - hij[c] * v[c] as f64) as f32;
-                        }
+                        w[0] -= h32[0] * v[0];
+                        w[1] -= h32[1] * v[1];
+                        w[2] -= h32[2] * v[2];
                     }
                     for c in 0..3 {
                         self.h[c][i * RESTART + j] = hij[c];
                     }
                 }
-                let norm: [f64; 3] = std::array::from_fn(|c| dot(&self.w, &self.w, c).sqrt());
-                for (v, w) in self.basis[j + 1].iter_mut().zip(&self.w) {
-                    for c in 0..3 {
-                        // A channel whose Krylov space is exhausted (its solution is exact in
-                        // it) gets a zero vector: its later columns add nothing.
-                        v[c] = if norm[c] > 1e-30 * beta[c].max(1e-300) {
-                            (w[c] as f64 / norm[c]) as f32
-                        } else {
-                            0.0
-                        };
+                let norm = norm(&self.w);
+                // A channel whose Krylov space is exhausted (its solution is exact in it) gets a
+                // zero vector: its later columns add nothing.
+                let scale: [f32; 3] = std::array::from_fn(|c| {
+                    if norm[c] > 1e-30 * beta[c].max(1e-300) {
+                        (1.0 / norm[c]) as f32
+                    } else {
+                        0.0
                     }
+                });
+                for (v, w) in self.basis[j + 1].iter_mut().zip(&self.w) {
+                    v[0] = w[0] * scale[0];
+                    v[1] = w[1] * scale[1];
+                    v[2] = w[2] * scale[2];
                 }
                 let mut r = [0.0f64; 3];
                 let mut singular = false;
@@ -329,11 +338,11 @@ impl Krylov {
                 }
             }
             for (i, v) in self.basis[..steps].iter().enumerate() {
-                let y: [f64; 3] = std::array::from_fn(|c| self.g[c][i]);
+                let y: [f32; 3] = std::array::from_fn(|c| self.g[c][i] as f32);
                 for (xt, vt) in x.iter_mut().zip(v) {
-                    for c in 0..3 {
-                        xt[c] = (xt[c] as f64 + y[c] * vt[c] as f64) as f32;
-                    }
+                    xt[0] += y[0] * vt[0];
+                    xt[1] += y[1] * vt[1];
+                    xt[2] += y[2] * vt[2];
                 }
             }
             if converged {
