@@ -30,8 +30,10 @@ pub enum LightKind {
 #[serde(deny_unknown_fields)]
 pub struct Light {
     pub kind: LightKind,
+    #[cfg_attr(feature = "openapi", schema(min_items = 3, max_items = 3))]
     pub position: [f64; 3],
     /// Radiant intensity, W/sr per channel.
+    #[cfg_attr(feature = "openapi", schema(min_items = 3, max_items = 3))]
     pub intensity: [f64; 3],
 }
 
@@ -41,8 +43,10 @@ pub struct Light {
 #[serde(deny_unknown_fields)]
 pub struct Pose {
     pub id: String,
+    #[cfg_attr(feature = "openapi", schema(min_items = 3, max_items = 3))]
     pub translation: [f64; 3],
     #[serde(default = "identity_rotation")]
+    #[cfg_attr(feature = "openapi", schema(min_items = 4, max_items = 4))]
     pub rotation: [f64; 4],
 }
 
