@@ -4,7 +4,8 @@
 #   bash plugins/blender/tests/run.sh [path/to/lightfarm]      (default target/release/lightfarm)
 # bpy is installed once into a venv ($LF_BPY_VENV, default ~/.cache/lightfarm/bpy-4.5.4; about
 # 950 MB installed) and reused. bpy 4.5 wheels exist for CPython 3.11 only: without a Python
-# 3.11 the tests are skipped with the reason printed (exit 0); a failed install fails.
+# 3.11 the tests are skipped with the reason printed (exit 0) — unless LF_BPY_REQUIRED=1 (CI),
+# which makes that a failure; a failed install fails.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 repo="$(cd "$here/../../.." && pwd)"
@@ -20,6 +21,10 @@ for candidate in python3.11 python3; do
   fi
 done
 if [ -z "$python" ]; then
+  if [ "${LF_BPY_REQUIRED:-0}" = 1 ]; then
+    echo "Blender add-on tests FAILED: bpy 4.5.4 needs Python 3.11, and none is on PATH" >&2
+    exit 1
+  fi
   echo "Blender add-on tests SKIPPED: bpy 4.5.4 needs Python 3.11, and none is on PATH" >&2
   exit 0
 fi
