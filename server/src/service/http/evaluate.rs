@@ -57,10 +57,11 @@ pub struct EvaluateQuery {
     pub bounces: Option<String>,
 }
 
-/// Response header: the bounces the runtime summed.
+/// Response header: the runtime's applications of the one-bounce operator (the bounces summed;
+/// for all bounces, the first plus the GMRES iterations).
 pub const BOUNCES_HEADER: &str = "lightfarm-bounces";
-/// Response header: the runtime's estimate of the light the bounces left out, as a fraction of
-/// the light summed.
+/// Response header: for all bounces, the runtime's estimate of its error relative to all
+/// bounces (`Applied::remaining_fraction`); 0 for a fixed number of bounces.
 pub const REMAINING_HEADER: &str = "lightfarm-remaining-fraction";
 
 /// Apply a finished bake's bundle to a set of lights.
@@ -73,8 +74,8 @@ pub const REMAINING_HEADER: &str = "lightfarm-remaining-fraction";
     responses(
         (status = 200, description = "RESULT.json: per-texel direct and indirect radiance, as `lightfarm eval` writes it", body = ResultFile,
             headers(
-                ("lightfarm-bounces" = u32, description = "Bounces the runtime summed"),
-                ("lightfarm-remaining-fraction" = f32, description = "Estimated light of the bounces left out, as a fraction of the light summed"),
+                ("lightfarm-bounces" = u32, description = "Applications of the one-bounce operator (bounces summed; for all bounces the first plus the solver's iterations)"),
+                ("lightfarm-remaining-fraction" = f32, description = "For all bounces: the estimated error relative to all bounces; 0 for a fixed number"),
             )),
         (status = 401, description = "No or unknown token", body = ApiError),
         (status = 404, description = "No such bake for this team, or it has not succeeded", body = ApiError),
