@@ -1,7 +1,7 @@
 //! The C ABI end to end: bake the Cornell box, compile `client/capi/examples/apply.c` with the
 //! system C compiler against the `liblightfarm` shared library cargo built for this test, run it
 //! on the bundle and two lights, and check that its checksums equal the ones the Rust client
-//! computes through `Runtime::apply` on the same direct light.
+//! computes through `Runtime::apply` on the same direct light, both at their default (all bounces).
 //!
 //! The library is found beside this test binary: `lightfarm-client-capi` is a dev-dependency
 //! of this crate, so cargo builds its cdylib into `target/<profile>/deps/` (and, when the capi
@@ -84,6 +84,15 @@ fn compile_example(dir: &Path) -> PathBuf {
     exe
 }
 
+/// A command running the compiled example against the library it was linked with: cargo puts
+/// `target/<profile>` on `LD_LIBRARY_PATH` for tests, which outranks the rpath, so a stale copy
+/// there would otherwise be loaded instead.
+fn example(exe: &Path) -> Command {
+    let mut command = Command::new(exe);
+    command.env("LD_LIBRARY_PATH", library_dir());
+    command
+}
+
 /// The value of `key=` in the example's output line.
 fn field<'a>(line: &'a str, key: &str) -> &'a str {
     line.split_whitespace()
@@ -136,10 +145,15 @@ fn c_example_matches_the_rust_client() {
     );
     let mut runtime = Runtime::try_new(bundle).unwrap();
     assert!(runtime.has_drt(), "the Cornell box has clutter");
+    // The C runtime sums all bounces unless told otherwise, like the Rust client's default.
     let mut indirect = IndirectLight::default();
-    runtime
-        .apply(Method::Drt, Bounces::One, &direct, &mut indirect)
+    let applied = runtime
+        .apply(Method::Drt, Bounces::default(), &direct, &mut indirect)
         .unwrap();
+    assert!(
+        applied.bounces > 1,
+        "all bounces take more than one application"
+    );
     let sum = |v: &[[f32; 3]]| v.iter().flatten().map(|&x| x as f64).sum::<f64>();
     let max = indirect
         .radiance
@@ -148,7 +162,7 @@ fn c_example_matches_the_rust_client() {
         .fold(f64::NEG_INFINITY, |m, &x| m.max(x as f64));
 
     let exe = compile_example(&dir);
-    let output = Command::new(&exe)
+    let output = example(&exe)
         .arg(&bundle_path)
         .arg(&lights_path)
         .output()
@@ -166,6 +180,10 @@ fn c_example_matches_the_rust_client() {
         runtime.n_texels()
     );
     assert_eq!(field(line, "method"), "drt");
+    assert_eq!(
+        field(line, "applications").parse::<u32>().unwrap(),
+        applied.bounces
+    );
     assert!(sum(&indirect.radiance) > 0.0 && max > 0.0);
     assert_close(
         "checksum",
@@ -182,7 +200,7 @@ fn c_example_matches_the_rust_client() {
     // A file that is not a bundle: exit status 1 and the library's reason on stderr.
     let garbage = dir.join("garbage.lfb");
     std::fs::write(&garbage, b"not a bundle at all").unwrap();
-    let output = Command::new(&exe)
+    let output = example(&exe)
         .arg(&garbage)
         .arg(&lights_path)
         .output()

@@ -130,8 +130,9 @@ int main(int argc, char **argv) {
         direct_checksum += direct[i];
         if (indirect[i] > max) max = indirect[i];
     }
-    printf("texels=%zu method=%s checksum=%.6e max=%.6e direct_checksum=%.6e\n", n_floats / 3,
-           method == LF_METHOD_DRT ? "drt" : "mrt", checksum, max, direct_checksum);
+    printf("texels=%zu method=%s applications=%u checksum=%.6e max=%.6e direct_checksum=%.6e\n",
+           n_floats / 3, method == LF_METHOD_DRT ? "drt" : "mrt",
+           (unsigned)lf_runtime_last_bounces(rt), checksum, max, direct_checksum);
 
     lf_runtime_free(rt);
     free(direct);
