@@ -9,7 +9,10 @@ against it (`lightfarm compare`). Prints a markdown table (mean and worst relati
 light sets) and the iterations `eval` reports.
 
 Usage: scripts/multibounce_accuracy.py [--lightfarm target/release/lightfarm] [--out DIR]
-       [--sets 10] [--rays 16384] [--texels 8] [--seed 1] [SCENE[:STRIDE] ...]
+       [--sets 10] [--rays 16384] [--texels 8] [--seed 1] [--set KEY=VALUE ...]
+       [SCENE[:STRIDE] ...]
+`--set` overrides a bake setting (JSON value, e.g. `--set tolerance=1e-4`); the bundles go to
+their own folder, the references (which do not depend on bake settings) are shared.
 Default scenes: cornell:1 corridor:2 maze:4 (maze with its four pillars).
 """
 
@@ -89,6 +92,7 @@ def main():
     ap.add_argument("--rays", type=int, default=16384)
     ap.add_argument("--texels", type=int, default=8)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("scenes", nargs="*", default=["cornell:1", "corridor:2", "maze:4"])
     a = ap.parse_args()
     out = Path(a.out)
@@ -99,22 +103,30 @@ def main():
         stride = stride or "1"
         scene = json.loads((ROOT / "scenes" / name / "scene.json").read_text())
         scene["settings"]["texels_per_face"] = a.texels
-        work = out / name
-        work.mkdir(exist_ok=True)
-        scene_path = work / "scene.json"
+        refs = out / name
+        refs.mkdir(exist_ok=True)
+        scene_path = refs / "scene.json"
         scene_path.write_text(json.dumps(scene, indent=1))
+        overrides = [kv.split("=", 1) for kv in a.set]
+        work = refs / "+".join(f"{k}={v}" for k, v in overrides) if overrides else refs
+        work.mkdir(exist_ok=True)
+        baked_scene = work / "scene.json"
+        for key, value in overrides:
+            scene["settings"][key] = json.loads(value)
+        baked_scene.write_text(json.dumps(scene, indent=1))
         bundle = work / "bundle.lfb"
         if not bundle.exists():
             t = time.time()
-            run([a.lightfarm, "bake", str(scene_path), "--out", str(bundle), "--full",
+            run([a.lightfarm, "bake", str(baked_scene), "--out", str(bundle), "--full",
                  "--no-cache", "--quiet"])
-            print(f"{name}: baked in {time.time() - t:.0f} s", file=sys.stderr)
+            print(f"{name}: baked in {time.time() - t:.0f} s, {bundle.stat().st_size} bytes",
+                  file=sys.stderr)
         errors = {}
         iterations = []
         for k, lights in enumerate(light_sets(scene, a.seed * 1000 + k0(name), a.sets)):
-            lp = work / f"lights_{k}.json"
+            lp = refs / f"lights_{k}.json"
             lp.write_text(json.dumps(lights, indent=1))
-            ref = work / f"reference_{k}.json"
+            ref = refs / f"reference_{k}.json"
             if not ref.exists():
                 t = time.time()
                 run([a.lightfarm, "reference", str(scene_path), "--lights", str(lp),

@@ -219,18 +219,19 @@ pub fn build_drt(
         .collect();
 
     // Buried texels: inside a clutter box (closed), or clutter texels outside every block.
+    // `scale()` passes over every primitive: computed once, not per texel and object (which
+    // made this test quadratic in the level's size).
+    let e = 1e-6 * g.scale();
     let inside_box = |p: [f64; 3], skip: Option<usize>| {
         scene.clutter.iter().enumerate().any(|(c, object)| {
             if Some(c) == skip {
                 return false;
             }
             let Some(b) = object.box_ else { return false };
-            let e = 1e-6 * g.scale();
             (0..3).all(|k| p[k] >= b.min[k] - e && p[k] <= b.max[k] + e)
         })
     };
     let inside_blocks = |p: [f64; 3]| {
-        let e = 1e-6 * g.scale();
         scene
             .blocks
             .iter()

@@ -22,6 +22,26 @@ pub struct BakeArgs {
     pub quiet: bool,
 }
 
+/// Longest list the bake log prints whole; longer ones (a game-sized level has a rank per
+/// block) are summarised.
+const LIST_WHOLE: usize = 24;
+
+/// `[a, b, c]` for a short list, `N values: min a, median b, max c` for a long one.
+fn list<T: Copy + Ord + std::fmt::Debug>(values: &[T]) -> String {
+    if values.len() <= LIST_WHOLE {
+        return format!("{values:?}");
+    }
+    let mut sorted = values.to_vec();
+    sorted.sort_unstable();
+    format!(
+        "({} values: min {:?}, median {:?}, max {:?})",
+        sorted.len(),
+        sorted[0],
+        sorted[sorted.len() / 2],
+        sorted[sorted.len() - 1]
+    )
+}
+
 /// Loads and validates a scene file; returns it with its directory.
 pub fn load_scene(path: &Path) -> anyhow::Result<(Scene, PathBuf)> {
     let text = read_text(path)?;
@@ -49,24 +69,24 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
     write_atomic(&args.out, &bytes)?;
     if !args.quiet {
         eprintln!(
-            "baked {}: {} blocks, {} texels, {} shapes ({} from cache, {} computed), ranks {:?}",
+            "baked {}: {} blocks, {} texels, {} shapes ({} from cache, {} computed), ranks {}",
             scene.name,
             report.blocks,
             report.texels,
             report.unique_shapes,
             report.shapes_from_cache,
             report.shapes_computed,
-            report.ranks
+            list(&report.ranks)
         );
         let t = &report.transport;
         eprintln!(
-            "transport: {} propagation steps ({} cut, max {} hops), {} traced pairs kept, {} dropped; compact ranks {:?}",
-            t.steps, t.cut, t.max_hops, t.pairs_kept, t.pairs_dropped, t.compact_ranks
+            "transport: {} propagation steps ({} cut, max {} hops), {} traced pairs kept, {} dropped; compact ranks {}",
+            t.steps, t.cut, t.max_hops, t.pairs_kept, t.pairs_dropped, list(&t.compact_ranks)
         );
         if let Some(d) = &report.drt {
             eprintln!(
-                "drt: {} scene texels with rows, {} skipped (view of clutter below tolerance), {} buried scene texels ({} without a valid neighbour), {} buried clutter texels, {} scene texels gathered exactly, clutter ranks {:?}",
-                d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.scene_texels_gathered, d.clutter_ranks
+                "drt: {} scene texels with rows, {} skipped (view of clutter below tolerance), {} buried scene texels ({} without a valid neighbour), {} buried clutter texels, {} scene texels gathered exactly, clutter ranks {}",
+                d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.scene_texels_gathered, list(&d.clutter_ranks)
             );
             eprintln!(
                 "drt rays: {} texels traced, {} reused from the cache (nothing they saw changed)",
@@ -81,8 +101,8 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
         }
         if let Some(c) = &report.delta_compaction {
             eprintln!(
-                "drt low rank: {} entries factored, {} dense, values {} -> {}; exact gather {} sparse entries -> {} factor values + {} sparse; ranks {:?}",
-                c.factored, c.dense, c.values_before, c.values_after, c.gather_sparse_before, c.gather_factor_values, c.gather_sparse_left, c.ranks
+                "drt low rank: {} entries factored, {} dense, values {} -> {}; exact gather {} sparse entries -> {} factor values + {} sparse; ranks {}",
+                c.factored, c.dense, c.values_before, c.values_after, c.gather_sparse_before, c.gather_factor_values, c.gather_sparse_left, list(&c.ranks)
             );
         }
         for (id, seconds, bytes) in &report.dnrt {
@@ -129,4 +149,17 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::list;
+
+    #[test]
+    fn long_lists_are_summarised() {
+        assert_eq!(list(&[3, 1, 2]), "[3, 1, 2]");
+        let long: Vec<u32> = (0..100).rev().collect();
+        assert_eq!(list(&long), "(100 values: min 0, median 50, max 99)");
+        assert_eq!(list(&vec![7u32; 24]), format!("{:?}", vec![7u32; 24]));
+    }
 }

@@ -1,0 +1,121 @@
+//! A game-sized level in the test suite: `scripts/gen_level.py` writes a seeded 1,000-block
+//! grid level (pillars, lights, a moving ball), baked here at small settings (2×2 texels per
+//! face, 16 rays). The bake must finish and its bundle must relight through the client; a step
+//! that is quadratic in the level's size (the DRT buried-texel test once was: 920 of a
+//! 947 s bake at 1,000 blocks) makes this test take hours instead of seconds, so it cannot come
+//! back unnoticed. Also checks that the generator is deterministic.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use lightfarm_client::{Bounces, DirectLight, IndirectLight, Method, Runtime};
+use lightfarm_proto::scene::Scene;
+use lightfarm_tests::*;
+
+/// Runs the generator into `dir`; returns the scene text.
+fn generate(dir: &Path, blocks: u32) -> String {
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scripts/gen_level.py");
+    let output = Command::new("python3")
+        .arg(&script)
+        .arg(dir)
+        .args([
+            "--blocks",
+            &blocks.to_string(),
+            "--texels",
+            "2",
+            "--rays",
+            "16",
+        ])
+        .output()
+        .expect("python3 runs scripts/gen_level.py");
+    assert!(
+        output.status.success(),
+        "gen_level.py failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    std::fs::read_to_string(dir.join("scene.json")).unwrap()
+}
+
+fn scratch(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lf-game-level-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+#[test]
+fn a_generated_thousand_block_level_bakes_and_relights() {
+    let dir = scratch("bake");
+    let text = generate(&dir, 1000);
+    let scene = Scene::from_json(&text).expect("the generated level is a valid scene");
+    assert_eq!(scene.blocks.len(), 1000);
+    let pillars = scene.clutter.len();
+    assert!(pillars > 20, "{pillars} pillars");
+
+    let (bytes, report) = bake_scene(&scene, &dir, scene.settings.transport, false);
+    assert_eq!(report.blocks, 1000);
+    let bundle = lightfarm_client::decode(&bytes).unwrap();
+    assert_eq!(bundle.drt.as_ref().map(|d| d.clutter.len()), Some(pillars));
+    let n = bundle.layout.n_texels();
+    assert_eq!(n, report.texels);
+
+    // Direct light of one lamp's worth on every 7th texel: enough to reach the whole level
+    // through its bounces, without the client's direct-light pass over 160 lights.
+    let direct = DirectLight {
+        radiance: (0..n)
+            .map(|t| {
+                if t % 7 == 0 {
+                    [1.0, 0.8, 0.6]
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect(),
+    };
+    let mut runtime = Runtime::try_new(bundle).unwrap();
+    let energy = |v: &IndirectLight| v.radiance.iter().flatten().map(|&x| x as f64).sum::<f64>();
+    let mut one = IndirectLight::default();
+    runtime
+        .apply(Method::Drt, Bounces::One, &direct, &mut one)
+        .unwrap();
+    let mut all = IndirectLight::default();
+    let applied = runtime
+        .apply(Method::Drt, Bounces::default(), &direct, &mut all)
+        .unwrap();
+    let mut summed = IndirectLight::default();
+    runtime
+        .apply(Method::Drt, Bounces::Fixed(80), &direct, &mut summed)
+        .unwrap();
+    let (e1, e_all, e_sum) = (energy(&one), energy(&all), energy(&summed));
+    eprintln!(
+        "1,000 blocks: {n} texels, {pillars} pillars, one bounce {e1:.4e}, all {e_all:.4e} \
+         ({} applications), 80 bounces summed {e_sum:.4e}",
+        applied.bounces
+    );
+    assert!(e1 > 0.0 && e1.is_finite());
+    // Albedo ≤ 0.79 in the generated level: every bounce keeps less than 0.79 of the last, so
+    // all bounces hold at most 1 / (1 − 0.79) ≈ 4.8 × the first.
+    assert!(
+        e_all > 1.2 * e1 && e_all < 4.8 * e1,
+        "all bounces {e_all} vs one {e1}"
+    );
+    assert!(
+        (e_all - e_sum).abs() <= 3e-3 * e_sum,
+        "Converged {e_all} vs 80 bounces {e_sum}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_generator_is_deterministic() {
+    let (a, b) = (scratch("a"), scratch("b"));
+    let (ta, tb) = (generate(&a, 50), generate(&b, 50));
+    assert_eq!(ta, tb);
+    assert_eq!(
+        std::fs::read(a.join("lights.json")).unwrap(),
+        std::fs::read(b.join("lights.json")).unwrap()
+    );
+    let scene = Scene::from_json(&ta).unwrap();
+    assert_eq!(scene.blocks.len(), 50);
+    let _ = std::fs::remove_dir_all(&a);
+    let _ = std::fs::remove_dir_all(&b);
+}
