@@ -22,7 +22,7 @@ use lightfarm_proto::scene::{Aabb, ClutterBasis, Opening, Scene};
 use super::geometry::{Geometry, SurfaceOwner};
 use super::lighting_prior::unshadowed_pattern;
 use super::low_rank::{truncated_svd, LowRankError};
-use super::sampling::{halton_point_in, stream_key};
+use super::sampling::{halton_point_in, stream_key, Purpose};
 use super::tracer::Tracer;
 
 /// An orthonormal basis over one clutter object's texels.
@@ -89,7 +89,7 @@ pub fn prior_lights(
         .collect();
     let total: f64 = weights.iter().sum();
     let count = settings.prior_lights as usize;
-    let key = stream_key(settings.seed, 21, clutter as u64);
+    let key = stream_key(settings.seed, Purpose::ClutterPrior, clutter as u64);
     let mut lights = Vec::with_capacity(count);
     let mut acc = 0.0;
     for (v, w) in volumes.iter().zip(&weights) {

@@ -147,7 +147,7 @@ const MIN_CONE_COS: f64 = 0.9;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::sampling::{sobol_2d, stream_key};
+    use crate::bake::sampling::{mixed_key, sobol_2d};
 
     /// Estimates the cosine-weighted fraction of the hemisphere a sphere covers.
     fn estimate(sampler: &ClutterGuidedSampler, key: u64, n_rays: u32) -> f64 {
@@ -211,7 +211,7 @@ mod tests {
         let truth = sin2 * (4.0 / dist);
         let stats = |s: &ClutterGuidedSampler| {
             let xs: Vec<f64> = (0..64)
-                .map(|k| estimate(s, stream_key(1, 2, k), 256))
+                .map(|k| estimate(s, mixed_key(1, 2, k), 256))
                 .collect();
             let mean = xs.iter().sum::<f64>() / xs.len() as f64;
             let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (xs.len() - 1) as f64;

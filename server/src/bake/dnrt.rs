@@ -42,11 +42,8 @@ use super::geometry::Primitive;
 use super::mesh::{dot, sub};
 use super::mesh_albedo::SurfaceAlbedo;
 use super::probe_volume::sample_uniform_sphere;
-use super::sampling::{sobol_2d, stream_key};
+use super::sampling::{sobol_2d, stream_key, Purpose};
 use super::tracer::Tracer;
-
-const PURPOSE_DNRT: u64 = 51;
-const PURPOSE_DNRT_CONVOLVED: u64 = 52;
 
 /// A bounding sphere (object frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -118,7 +115,7 @@ pub fn transfer_at_points(
             } else {
                 [0.0, 1.0, 0.0]
             };
-            let key = stream_key(seed, PURPOSE_DNRT, p as u64);
+            let key = stream_key(seed, Purpose::Dnrt, p as u64);
             let mut reflection = vec![0.0; 3 * n_sh];
             let mut occlusion = vec![0.0; n_sh];
             for i in 0..rays {
@@ -190,7 +187,7 @@ pub fn convolved_transfer_at_points(
             } else {
                 [0.0, 1.0, 0.0]
             };
-            let key = stream_key(seed, PURPOSE_DNRT_CONVOLVED, p as u64);
+            let key = stream_key(seed, Purpose::DnrtConvolved, p as u64);
             let mut reflection = vec![0.0; 3 * nn];
             let mut occlusion = vec![0.0; nn];
             for i in 0..rays {

@@ -44,13 +44,10 @@ use super::lighting_prior::unshadowed_pattern;
 use super::low_rank::LowRankError;
 use super::mesh::{cross, dot, sub};
 use super::ray_reach::RayReach;
-use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose};
 use super::shape_cache::mark_used;
 use super::tracer::{Hit, Tracer};
 
-const PURPOSE_DRT_SCENE: u64 = 31;
-const PURPOSE_DRT_CLUTTER: u64 = 32;
-const PURPOSE_DRT_SCENE_GATHER: u64 = 33;
 /// Bumped whenever what a ray pass records for the same inputs changes.
 const CODE_VERSION: &str = "lightfarm-drt-rays-3";
 
@@ -290,7 +287,7 @@ impl<'a> RayPass<'a> {
             .sampler
             .guide_spheres(texel.position, texel.normal, &|s| near.holds(s));
         let cones = self.sampler.cones(texel.position, &chosen);
-        let key = stream_key(settings.seed, PURPOSE_DRT_SCENE, x as u64);
+        let key = stream_key(settings.seed, Purpose::DrtScene, x as u64);
         let mut occluded: Vec<(u32, f64)> = Vec::new();
         let mut reflected: Vec<(u32, f64)> = Vec::new();
         let mut out = BlockTexelRays::default();
@@ -331,7 +328,7 @@ impl<'a> RayPass<'a> {
         out.occluded = merge(&occluded);
         out.reflected = merge(&reflected);
         if settings.scene_gather == SceneGather::Exact && out.sees_clutter(settings.tolerance) {
-            let (hits, _) = self.cosine_hits(x, PURPOSE_DRT_SCENE_GATHER, &mut out.reach);
+            let (hits, _) = self.cosine_hits(x, Purpose::DrtSceneGather, &mut out.reach);
             out.hits = hits;
         }
         out
@@ -340,7 +337,12 @@ impl<'a> RayPass<'a> {
     /// Cosine-weighted rays from texel `x`'s lit side on stream `purpose`: the lit texels they
     /// hit first (block texels, front faces of clutter texels) with their ray counts, ascending,
     /// and the share of rays that hit the inside of a clutter box; every segment goes to `reach`.
-    fn cosine_hits(&self, x: usize, purpose: u64, reach: &mut RayReach) -> (Vec<(u32, u32)>, f64) {
+    fn cosine_hits(
+        &self,
+        x: usize,
+        purpose: Purpose,
+        reach: &mut RayReach,
+    ) -> (Vec<(u32, u32)>, f64) {
         let (g, tracer) = (self.g, self.tracer);
         let settings = &self.scene.settings;
         let sign = |s: u32| g.surfaces[s as usize].normal_sign;
@@ -371,7 +373,7 @@ impl<'a> RayPass<'a> {
     /// Traces clutter texel `x` (cosine-weighted rays from its lit side).
     pub fn trace_clutter_texel(&self, x: usize) -> ClutterTexelRays {
         let mut out = ClutterTexelRays::default();
-        let (hits, back) = self.cosine_hits(x, PURPOSE_DRT_CLUTTER, &mut out.reach);
+        let (hits, back) = self.cosine_hits(x, Purpose::DrtClutter, &mut out.reach);
         out.hits = hits;
         out.back = back;
         out

@@ -17,7 +17,7 @@ use faer::Mat;
 
 use super::geometry::{Geometry, Texel};
 use super::low_rank::{truncated_svd, LowRankError};
-use super::sampling::{halton_point_in, stream_key};
+use super::sampling::{halton_point_in, stream_key, Purpose};
 use lightfarm_proto::scene::Aabb;
 use lightfarm_proto::Face;
 
@@ -83,7 +83,11 @@ pub fn prior_light_positions(
     let inner = volume.unwrap_or(block);
     boxes.push(inner);
     for i in 0..inside {
-        out.push(halton_point_in(&inner, i as u64, stream_key(seed, 11, 0)));
+        out.push(halton_point_in(
+            &inner,
+            i as u64,
+            stream_key(seed, Purpose::PriorInside, 0),
+        ));
     }
     let rest = count - inside;
     for (k, slab) in slabs.iter().enumerate() {
@@ -92,7 +96,7 @@ pub fn prior_light_positions(
             out.push(halton_point_in(
                 slab,
                 i as u64,
-                stream_key(seed, 12, k as u64 + 1),
+                stream_key(seed, Purpose::PriorSlabs, k as u64 + 1),
             ));
         }
     }

@@ -10,14 +10,9 @@
 use rayon::prelude::*;
 
 use super::geometry::Geometry;
-use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose};
 use super::shape::hit_texel;
 use super::tracer::Tracer;
-
-/// Purpose tags keep the sample streams of different operators independent.
-pub const PURPOSE_TRACED: u64 = 3;
-pub const PURPOSE_FULL: u64 = 4;
-pub const PURPOSE_REFERENCE: u64 = 5;
 
 /// Sparse rows of F for `texels` (global indices). Weights are hit counts / rays.
 pub fn gather_rows(
@@ -26,7 +21,7 @@ pub fn gather_rows(
     texels: &[usize],
     rays: u32,
     seed: u64,
-    purpose: u64,
+    purpose: Purpose,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Vec<Vec<(u32, f32)>> {
     let sign = |s: u32| g.surfaces[s as usize].normal_sign;
@@ -90,7 +85,7 @@ mod tests {
         let g = unit_box(&[], 4);
         let tracer = Tracer::new(g.primitives.clone(), 1.0);
         let all: Vec<usize> = (0..g.texels.len()).collect();
-        for row in gather_rows(&g, &tracer, &all, 256, 0, PURPOSE_FULL, &|_| {}) {
+        for row in gather_rows(&g, &tracer, &all, 256, 0, Purpose::FullOperator, &|_| {}) {
             let sum: f32 = row.iter().map(|(_, w)| w).sum();
             assert!((sum - 1.0).abs() < 1e-5, "{sum}");
         }
@@ -103,7 +98,7 @@ mod tests {
         let g = unit_box(&[], 1);
         let tracer = Tracer::new(g.primitives.clone(), 1.0);
         // Texel 2 is the -y face (floor) with one texel; its centre sees +y (ceiling, texel 3).
-        let rows = gather_rows(&g, &tracer, &[2], 65536, 9, PURPOSE_FULL, &|_| {});
+        let rows = gather_rows(&g, &tracer, &[2], 65536, 9, Purpose::FullOperator, &|_| {});
         let to_ceiling = rows[0].iter().find(|(t, _)| *t == 3).unwrap().1 as f64;
         // Point-to-parallel-rectangle (a = b = 1/2 half-widths at distance 1), per quadrant:
         // F = 1/(2π) [ A/√(1+A²) atan(B/√(1+A²)) + B/√(1+B²) atan(A/√(1+B²)) ], times 4.
@@ -137,7 +132,7 @@ mod tests {
         let g = unit_box(&[], 3);
         let tracer = Tracer::new(g.primitives.clone(), 1.0);
         let all: Vec<usize> = (0..g.texels.len()).collect();
-        let rows = gather_rows(&g, &tracer, &all, 8192, 1, PURPOSE_FULL, &|_| {});
+        let rows = gather_rows(&g, &tracer, &all, 8192, 1, Purpose::FullOperator, &|_| {});
         let n = g.texels.len();
         let mut f = vec![0.0f64; n * n];
         for (i, row) in rows.iter().enumerate() {

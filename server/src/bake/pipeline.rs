@@ -25,9 +25,10 @@ use super::geometry::{Geometry, GeometryError, Primitive, SurfaceOwner};
 use super::low_rank::LowRankError;
 use super::mesh::load_mesh;
 use super::mesh_albedo::SurfaceAlbedo;
-use super::one_bounce::{gather_rows, PURPOSE_FULL};
+use super::one_bounce::gather_rows;
 use super::probe_volume::build_probe_volume;
 use super::progress::Progress;
+use super::sampling::Purpose;
 use super::sh_response::{build_sh_responses, ShResponseStats};
 use super::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
 use super::shape_cache::{Lookup, ShapeCache};
@@ -792,7 +793,7 @@ pub fn bake(
             &all,
             settings.rays_per_texel,
             settings.seed,
-            PURPOSE_FULL,
+            Purpose::FullOperator,
             &|n| progress.advance(n),
         );
         let mut sparse = SparseRows {

@@ -20,12 +20,10 @@ use lightfarm_proto::sh::{sh_basis, SH_COEFFS};
 
 use super::drt::{ClutterProjection, DeltaBlock};
 use super::geometry::Geometry;
-use super::sampling::{sobol_2d, stream_key};
+use super::sampling::{sobol_2d, stream_key, Purpose};
 use super::sh_gather::{implicit_source_hit, sh_rows, source_of, SourceKey};
 use super::shape::ShapeOperators;
 use super::tracer::Tracer;
-
-const PURPOSE_PROBES: u64 = 41;
 
 /// The grid and its operators.
 pub struct ProbeVolumeOps {
@@ -101,7 +99,7 @@ pub fn build_probe_volume(
         .par_iter()
         .enumerate()
         .map(|(p, x)| {
-            let key = stream_key(scene.settings.seed, PURPOSE_PROBES, p as u64);
+            let key = stream_key(scene.settings.seed, Purpose::Probes, p as u64);
             let mut out = Vec::new();
             for i in 0..rays {
                 let d = sample_uniform_sphere(sobol_2d(key, i));

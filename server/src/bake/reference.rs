@@ -32,18 +32,11 @@ use lightfarm_proto::lights::Light;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
 
 use super::geometry::{Geometry, Primitive};
-use super::one_bounce::PURPOSE_REFERENCE;
 use super::sampling::{
     mix64, sample_cosine_hemisphere, sample_uniform_hemisphere, sobol_2d, stream_key, to_world,
+    Purpose,
 };
 use super::tracer::{Hit, Tracer};
-
-/// Stream purposes of the brute-force SH references (texel index is the stream).
-const PURPOSE_REFERENCE_SH: u64 = 62;
-const PURPOSE_REFERENCE_IRRADIANCE: u64 = 63;
-/// Stream purpose of the directions after the first of an all-bounce path (texel index is the
-/// stream; the depth and ray index pick the point).
-const PURPOSE_REFERENCE_PATH: u64 = 64;
 
 /// Paths shorter than this many vertices never meet Russian roulette.
 const ROULETTE_FROM_VERTEX: u32 = 3;
@@ -141,8 +134,8 @@ pub fn reference(
                 texel.albedo,
                 min_r2,
             );
-            let key = stream_key(seed, PURPOSE_REFERENCE, x as u64);
-            let path_key = stream_key(seed, PURPOSE_REFERENCE_PATH, x as u64);
+            let key = stream_key(seed, Purpose::Reference, x as u64);
+            let path_key = stream_key(seed, Purpose::ReferencePath, x as u64);
             let mut sum = [0.0; 3];
             for i in 0..rays {
                 let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), texel.normal);
@@ -278,7 +271,7 @@ pub fn reference_incident_sh(
 ) -> [[f64; lightfarm_proto::sh::SH_COEFFS]; 3] {
     let texel = &g.texels[x];
     let min_r2 = (1e-4 * g.scale()).powi(2);
-    let key = stream_key(seed, PURPOSE_REFERENCE_SH, x as u64);
+    let key = stream_key(seed, Purpose::ReferenceSh, x as u64);
     let weight = 2.0 * PI / rays as f64;
     let mut out = [[0.0; lightfarm_proto::sh::SH_COEFFS]; 3];
     for i in 0..rays {
@@ -308,7 +301,7 @@ pub fn reference_irradiance(
 ) -> [f64; 3] {
     let texel = &g.texels[x];
     let min_r2 = (1e-4 * g.scale()).powi(2);
-    let key = stream_key(seed, PURPOSE_REFERENCE_IRRADIANCE, x as u64);
+    let key = stream_key(seed, Purpose::ReferenceIrradiance, x as u64);
     let mut sum = [0.0; 3];
     for i in 0..rays {
         let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), n);
@@ -327,6 +320,7 @@ pub fn reference_irradiance(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bake::sampling::mixed_key;
     use lightfarm_proto::lights::LightKind;
     use lightfarm_proto::scene::Aabb;
     use lightfarm_proto::Face;
@@ -545,14 +539,14 @@ mod tests {
         let (outer, inner) = (512u32, 256u32);
         let (mut num, mut den) = (0.0, 0.0);
         for (x, texel) in g.texels.iter().enumerate() {
-            let key = stream_key(77, 1, x as u64);
+            let key = mixed_key(77, 1, x as u64);
             let mut sum = 0.0;
             for i in 0..outer {
                 let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), texel.normal);
                 let Some(y) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
                     continue;
                 };
-                let key_y = stream_key(78, x as u64, i as u64);
+                let key_y = mixed_key(78, x as u64, i as u64);
                 let mut l1 = 0.0;
                 for j in 0..inner {
                     let dz = to_world(sample_cosine_hemisphere(sobol_2d(key_y, j)), y.normal);

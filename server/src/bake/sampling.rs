@@ -16,9 +16,63 @@ pub fn mix64(mut x: u64) -> u64 {
     x ^ (x >> 31)
 }
 
-/// Hashes a seed with a stream id (e.g. a texel's global index and a purpose tag).
-pub fn stream_key(seed: u64, purpose: u64, stream: u64) -> u64 {
-    mix64(mix64(seed ^ purpose.wrapping_mul(0x9e3779b97f4a7c15)) ^ stream)
+/// Every stream of quasi-random numbers the engine draws, one value each: the registry behind
+/// the bit-identical-bake invariant. Two uses sharing a value would draw correlated samples, so
+/// every use names its own variant (the compiler refuses duplicate values). The values are part
+/// of every bake's bytes: changing one changes the bundles that stream feeds (the test below
+/// pins them).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u64)]
+pub enum Purpose {
+    /// MRT: a shape's texels gathering from its own faces (`shape`).
+    ShapeGather = 1,
+    /// MRT: rays leaving a shape's openings for its lightfield (`shape`).
+    ShapeLightfield = 2,
+    /// Traced transport between blocks (`transport`).
+    TracedTransport = 3,
+    /// The dense per-texel operator, `bake --full` (`pipeline`).
+    FullOperator = 4,
+    /// The reference solver's first bounce (`reference`).
+    Reference = 5,
+    /// Lighting prior: lights inside a block (`lighting_prior`).
+    PriorInside = 11,
+    /// Lighting prior: lights in the slabs beyond a block's openings (`lighting_prior`).
+    PriorSlabs = 12,
+    /// Prior lights around a clutter object (`clutter_basis`).
+    ClutterPrior = 21,
+    /// DRT: scene texels' rays toward clutter (`drt_rays`).
+    DrtScene = 31,
+    /// DRT: clutter texels' gathering rays (`drt_rays`).
+    DrtClutter = 32,
+    /// DRT: scene texels gathered exactly (`drt_rays`).
+    DrtSceneGather = 33,
+    /// The SH probe volume (`probe_volume`).
+    Probes = 41,
+    /// DNRT grids (`dnrt`).
+    Dnrt = 51,
+    /// DNRT grids, the convolved pass (`dnrt`).
+    DnrtConvolved = 52,
+    /// SH responses of normal-mapped texels (`sh_response`).
+    ShResponse = 61,
+    /// The reference solver's SH incident radiance (`reference`).
+    ReferenceSh = 62,
+    /// The reference solver's irradiance at points (`reference`).
+    ReferenceIrradiance = 63,
+    /// The reference solver's path continuations after the first bounce (`reference`).
+    ReferencePath = 64,
+    /// `bench`'s ray-throughput measurement ("throughp" in ASCII).
+    Throughput = 0x7468_726f_7567_6870,
+}
+
+/// Hashes a seed with a purpose and a stream id (e.g. a texel's global index).
+pub fn stream_key(seed: u64, purpose: Purpose, stream: u64) -> u64 {
+    mixed_key(seed, purpose as u64, stream)
+}
+
+/// [`stream_key`] with a bare tag: for tests that need streams of their own, never for a
+/// bake (which names a [`Purpose`]).
+pub fn mixed_key(seed: u64, tag: u64, stream: u64) -> u64 {
+    mix64(mix64(seed ^ tag.wrapping_mul(0x9e3779b97f4a7c15)) ^ stream)
 }
 
 /// Radical inverse of `i` in `base` (the Halton sequence's coordinate).
@@ -192,6 +246,42 @@ pub fn to_world(local: [f64; 3], n: [f64; 3]) -> [f64; 3] {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn purpose_values_are_pinned_and_unique() {
+        use super::Purpose::*;
+        // Changing a value changes every bundle its stream feeds: pinned here on purpose.
+        let table = [
+            (ShapeGather, 1),
+            (ShapeLightfield, 2),
+            (TracedTransport, 3),
+            (FullOperator, 4),
+            (Reference, 5),
+            (PriorInside, 11),
+            (PriorSlabs, 12),
+            (ClutterPrior, 21),
+            (DrtScene, 31),
+            (DrtClutter, 32),
+            (DrtSceneGather, 33),
+            (Probes, 41),
+            (Dnrt, 51),
+            (DnrtConvolved, 52),
+            (ShResponse, 61),
+            (ReferenceSh, 62),
+            (ReferenceIrradiance, 63),
+            (ReferencePath, 64),
+            (Throughput, 0x7468_726f_7567_6870),
+        ];
+        let mut seen = std::collections::HashSet::new();
+        for (purpose, value) in table {
+            assert_eq!(purpose as u64, value, "{purpose:?}");
+            assert!(seen.insert(value), "{purpose:?} repeats {value}");
+            assert_eq!(
+                super::stream_key(9, purpose, 5),
+                super::mixed_key(9, value, 5)
+            );
+        }
+    }
+
     use super::*;
 
     #[test]

@@ -49,13 +49,10 @@ use lightfarm_proto::sh::{irradiance_weights, sh_basis, SH_COEFFS};
 use super::drt::ClutterProjection;
 use super::geometry::{Geometry, SurfaceOwner};
 use super::low_rank::{truncated_svd, LowRankError};
-use super::sampling::{sample_uniform_hemisphere, sobol_2d, stream_key, to_world};
+use super::sampling::{sample_uniform_hemisphere, sobol_2d, stream_key, to_world, Purpose};
 use super::sh_gather::{implicit_source_hit, sh_rows, source_of, SourceKey};
 use super::shape::ShapeOperators;
 use super::tracer::Tracer;
-
-/// Stream purpose of the SH response rays.
-pub const PURPOSE_SH_RESPONSE: u64 = 61;
 
 /// One receiving object's response to one source, factored: `M ≈ y · z`.
 pub struct ShResponseBlock {
@@ -114,7 +111,7 @@ fn texel_response(
     x: usize,
 ) -> BTreeMap<SourceKey, [Vec<f64>; SH_COEFFS]> {
     let texel = &g.texels[x];
-    let key = stream_key(seed, PURPOSE_SH_RESPONSE, x as u64);
+    let key = stream_key(seed, Purpose::ShResponse, x as u64);
     let weight = 2.0 * std::f64::consts::PI / rays as f64;
     let mut by_texel: BTreeMap<(SourceKey, usize), [f64; SH_COEFFS]> = BTreeMap::new();
     for i in 0..rays {

@@ -30,7 +30,7 @@ use super::geometry::{Geometry, Primitive};
 use super::lightfield::LightfieldFrame;
 use super::lighting_prior::{build_prior, prior_light_positions};
 use super::low_rank::{truncated_svd, LowRankError};
-use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use super::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose};
 use super::tracer::Tracer;
 
 /// Bump when operator math changes: it is part of every cache key.
@@ -391,9 +391,6 @@ pub fn hit_texel(g: &Geometry, tracer: &Tracer, hit: &super::tracer::Hit) -> Opt
     }
 }
 
-const PURPOSE_GATHER: u64 = 1;
-const PURPOSE_LIGHTFIELD: u64 = 2;
-
 /// Bakes a shape. `progress` is called with the number of finished work items (texels).
 pub fn bake_shape(
     spec: &ShapeSpec,
@@ -423,7 +420,7 @@ pub fn bake_shape(
         .into_par_iter()
         .map(|x| {
             let texel = &g.texels[x];
-            let key = stream_key(spec.seed, PURPOSE_GATHER, x as u64);
+            let key = stream_key(spec.seed, Purpose::ShapeGather, x as u64);
             let mut hits: Vec<(u32, f64)> = Vec::new();
             let mut exits: Vec<(u8, u32)> = Vec::new();
             for i in 0..rays {
@@ -467,7 +464,11 @@ pub fn bake_shape(
         let entries: Vec<(Vec<(u32, f64)>, Vec<(u8, u32)>)> = (0..lf_len)
             .into_par_iter()
             .map(|idx| {
-                let key = stream_key(spec.seed, PURPOSE_LIGHTFIELD, (k * lf_len + idx) as u64);
+                let key = stream_key(
+                    spec.seed,
+                    Purpose::ShapeLightfield,
+                    (k * lf_len + idx) as u64,
+                );
                 let mut hits = Vec::new();
                 let mut through = Vec::new();
                 for i in 0..samples {

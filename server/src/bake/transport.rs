@@ -23,7 +23,8 @@ use lightfarm_proto::scene::Opening;
 use lightfarm_proto::Face;
 
 use super::geometry::Geometry;
-use super::one_bounce::{gather_rows, PURPOSE_TRACED};
+use super::one_bounce::gather_rows;
+use super::sampling::Purpose;
 use super::shape::ShapeOperators;
 use super::tracer::Tracer;
 
@@ -163,7 +164,15 @@ pub fn traced_transport(
     let mut out = Vec::new();
     for (target, range) in g.block_texels.iter().enumerate() {
         let texels: Vec<usize> = range.clone().collect();
-        let rows = gather_rows(g, tracer, &texels, rays, seed, PURPOSE_TRACED, progress);
+        let rows = gather_rows(
+            g,
+            tracer,
+            &texels,
+            rays,
+            seed,
+            Purpose::TracedTransport,
+            progress,
+        );
         let mut per_source: BTreeMap<usize, Mat<f64>> = BTreeMap::new();
         for (x, row) in rows.iter().enumerate() {
             for &(t, w) in row {

@@ -17,11 +17,8 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::bake::geometry::{Geometry, Primitive};
-use crate::bake::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use crate::bake::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose};
 use crate::bake::tracer::{tangents, Tracer};
-
-/// Purpose tag of the exported rays' random stream (any value distinct from the engine's).
-const PURPOSE_THROUGHPUT: u64 = 0x7468_726f_7567_6870;
 
 /// Rays per second of both tracers (None where a side could not be measured, with why).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
@@ -80,7 +77,7 @@ pub fn texel_rays(g: &Geometry, n_rays: usize, seed: u64) -> Vec<([f64; 3], [f64
         .map(|i| {
             let texel = &g.texels[i % g.texels.len()];
             let round = (i / g.texels.len()) as u32;
-            let key = stream_key(seed, PURPOSE_THROUGHPUT, (i % g.texels.len()) as u64);
+            let key = stream_key(seed, Purpose::Throughput, (i % g.texels.len()) as u64);
             let d = to_world(sample_cosine_hemisphere(sobol_2d(key, round)), texel.normal);
             let o = [0, 1, 2].map(|k| texel.position[k] + lift * texel.normal[k]);
             let f = |x: f64| x as f32 as f64;
