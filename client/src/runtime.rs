@@ -25,6 +25,9 @@
 //!
 //! [`Method::Full`]: `l_ind = ρ ⊙ (F · l_d)` with the bundle's sparse dense-bounce operator F.
 //!
+//! [`Runtime::apply_sh`] (in [`sh_apply`]) turns direct light into SH incident radiance per
+//! texel of normal-mapped surfaces, from the bundle's `sh` section.
+//!
 //! [`Runtime::apply_probes`] (needs the bundle's probe volume): MRT step 1 and, when the bundle
 //! has a DRT section, DRT step 2 (the same code as `apply`, so the same `b` and `c`), then for
 //! every probe entry and each of its rows i: `field[rows[i]] += matrix.row(i) · x` per channel,

@@ -13,6 +13,12 @@
 //! `T_d→b` is r × texels, `U_r` per opening is texels × q. Operators are albedo-free: the client
 //! multiplies the receiving texel's albedo in at the end (`l_ind = ρ ⊙ (U_b b + …)`).
 //!
+//! # Layout
+//! This file holds the types, encode, decode and validate; beside it, `gather_encoding` (how
+//! the DRT section stores the exact gather), `sh_responses` (the `sh` section) and
+//! `symmetric_blocks` (blocks instancing a shape through a box symmetry, section kind 14, and
+//! their unfolding at load).
+//!
 //! Invariant: [`Bundle::decode`] returns `Ok` only for a bundle whose every index, size and value
 //! is consistent and finite, so the runtime can index without checks; it never panics.
 

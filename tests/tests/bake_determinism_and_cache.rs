@@ -2,9 +2,9 @@
 //! no shape and gives the same bytes; a corrupt cache entry is detected and recomputed.
 
 use lightfarm_proto::scene::Transport;
+use lightfarm_server::bake::cache::shape::ShapeCache;
 use lightfarm_server::bake::pipeline::{bake, BakeOptions};
 use lightfarm_server::bake::progress::NoProgress;
-use lightfarm_server::bake::shape_cache::ShapeCache;
 use lightfarm_tests::*;
 
 fn small_corridor() -> lightfarm_proto::scene::Scene {

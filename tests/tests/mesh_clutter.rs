@@ -11,7 +11,7 @@ use std::path::Path;
 use lightfarm_client::Method;
 use lightfarm_proto::result::{compare, ResultFile};
 use lightfarm_proto::scene::Transport;
-use lightfarm_server::bake::geometry::{Geometry, SurfaceOwner};
+use lightfarm_server::bake::scene::geometry::{Geometry, SurfaceOwner};
 use stability_common::*;
 
 const T: u32 = 8;

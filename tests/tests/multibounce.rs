@@ -15,8 +15,8 @@ use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::ResultFile;
 use lightfarm_proto::scene::{Scene, Transport};
-use lightfarm_server::bake::geometry::Geometry;
 use lightfarm_server::bake::reference::{reference, ReferenceSettings};
+use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::cli::eval::evaluate;
 use lightfarm_tests::bake_scene;
 

@@ -1,7 +1,7 @@
 """Where each lightfarm texel of a box lands in the object's lightmap image, and the UV of
 any point on the box. Pure Python (no bpy), so the ordering is testable on its own.
 
-Texel ordering (``proto/src/face.rs``, ``server/src/bake/geometry.rs``): texel ``(i, j)`` of a
+Texel ordering (``proto/src/face.rs``, ``server/src/bake/scene/geometry.rs``): texel ``(i, j)`` of a
 ``T×T`` face has index ``j·T + i``, ``i`` along the face's first tangent axis and ``j`` along
 the second (both ascending lightfarm world axes; ``frames.tangent_axes``), its centre at
 ``min + (i + ½, j + ½)·extent/T``. A block face is the surface ``block:<id>/<face>`` (indices

@@ -4,8 +4,8 @@ Python (no bpy), so the mapping is testable on its own.
 The add-on uploads mesh clutter with its ``lightmap`` UV layer as glTF ``TEXCOORD_1``
 (``glb.write_glb``); the bake then lays the mesh's texels on those UVs instead of generating a
 chart atlas. RESULT.json numbers a mesh's texels (surface ``clutter:<id>``, ``index``) but does
-not say where they sit, so this module repeats the bake's rule (``server/src/bake/mesh_atlas.rs``,
-``MeshAtlas::build`` with ``TEXCOORD_1`` and ``rasterise``; ``server/src/bake/geometry.rs`` for
+not say where they sit, so this module repeats the bake's rule (``server/src/bake/scene/mesh_atlas.rs``,
+``MeshAtlas::build`` with ``TEXCOORD_1`` and ``rasterise``; ``server/src/bake/scene/geometry.rs`` for
 ``h``), on the same float32 numbers the GLB carries:
 
 - ``h`` = the mesh's largest bounding-box extent / ``texels_per_face`` (metres per texel);

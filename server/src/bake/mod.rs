@@ -1,61 +1,37 @@
 //! The bake engine: light-transport math only.
 //!
-//! # Layout
-//! - [`sampling`]: seeded quasi-random numbers and hemisphere maps.
-//! - [`geometry`], [`mesh`], [`mesh_atlas`]: texels and primitives of a scene or a lone shape;
-//!   mesh loading; lightmap atlases (texels) of mesh clutter.
+//! # Layout (in data-flow order: scene → operators → bundle)
+//! - [`math`]: seeded sampling and the registry of random streams; truncated SVD.
+//! - [`scene`]: texels and primitives of a scene or a lone shape; meshes, their albedo and
+//!   lightmap atlases.
 //! - [`tracer`]: the obvhs BVH and exact rectangle/triangle intersection.
-//! - [`one_bounce`]: sparse one-bounce gather rows (traced transport, the dense operator).
-//! - [`lighting_prior`], [`low_rank`], [`lightfield`], [`shape`]: MRT shape operators.
-//! - [`shape_cache`]: content-addressed on-disk cache of shape operators;
-//!   [`shape_symmetry`]: a block's operators from its canonical shape's (rotation, mirror).
-//! - [`transport`]: inter-block transport (lightfield composition or traced);
-//!   [`transport_compaction`]: per target block, the low-rank form the runtime applies;
-//!   [`transport_cache`]: its on-disk cache, keyed by the blocks and transport settings.
-//! - [`drt`]: Delta Radiance Transfer (clutter): [`drt_rays`] (the two ray passes and their
-//!   reuse across bakes, bounded by [`ray_reach`]), [`clutter_sampling`] (importance sampling
-//!   toward clutter), [`clutter_basis`] (the basis for direct light on clutter),
-//!   [`delta_compaction`] (low-rank deltas); [`mesh_albedo`]: a mesh's albedo per hit.
-//! - [`reference`]: the brute-force one-bounce reference solver.
-//! - [`sh_gather`], [`sh_response`]: SH gathering of implicit radiance (shared with
-//!   [`probe_volume`]) and the per-texel SH responses for normal-mapped surfaces.
-//! - [`dnrt`], [`dnrt_cache`]: DNRT transfer grids of dynamic objects and their disk cache.
-//! - [`pipeline`]: scene → bundle; [`progress`]: how long work reports progress;
-//!   [`units`]: a bake cut into deterministic cache-filling units (the farm).
-//! - [`bundle_encoding`]: the codecs and compression a bundle is stored with.
+//! - [`mrt`]: scene-independent shape operators (lighting prior, lightfields, shapes and their
+//!   symmetries) and the one-bounce gather rows.
+//! - [`transport`]: inter-block transport and its per-block compaction.
+//! - [`drt`]: Delta Radiance Transfer for clutter (basis, sampling, ray passes, deltas,
+//!   compaction).
+//! - [`dnrt`]: DNRT transfer grids of dynamic objects.
+//! - [`sh`]: SH gathering, the probe volume `U_dyn` and SH responses for normal maps.
+//! - [`cache`]: the on-disk caches of shapes, transport and DNRT grids.
+//! - [`pipeline`]: scene → bundle, stage by stage; [`units`]: a bake cut into deterministic
+//!   cache-filling units (the farm); [`bundle_encoding`]: the codecs a bundle is stored with.
+//! - [`reference`](mod@reference): the brute-force path-tracing reference; [`progress`]: how long work reports
+//!   progress.
 //!
 //! **Invariant:** nothing here imports axum, tokio or serde_json; everything is deterministic
 //! for a given scene and seed, whatever the thread count.
 
 pub mod bundle_encoding;
-pub mod clutter_basis;
-pub mod clutter_sampling;
-pub mod delta_compaction;
+pub mod cache;
 pub mod dnrt;
-pub mod dnrt_cache;
 pub mod drt;
-pub mod drt_rays;
-pub mod geometry;
-pub mod lightfield;
-pub mod lighting_prior;
-pub mod low_rank;
-pub mod mesh;
-pub mod mesh_albedo;
-pub mod mesh_atlas;
-pub mod one_bounce;
+pub mod math;
+pub mod mrt;
 pub mod pipeline;
-pub mod probe_volume;
 pub mod progress;
-pub mod ray_reach;
 pub mod reference;
-pub mod sampling;
-pub mod sh_gather;
-pub mod sh_response;
-pub mod shape;
-pub mod shape_cache;
-pub mod shape_symmetry;
+pub mod scene;
+pub mod sh;
 pub mod tracer;
 pub mod transport;
-pub mod transport_cache;
-pub mod transport_compaction;
 pub mod units;

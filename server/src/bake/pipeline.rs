@@ -16,27 +16,29 @@ use lightfarm_proto::bundle::{
 };
 use lightfarm_proto::scene::{ProbeVolumeMode, Scene, SceneError, Settings, Transform, Transport};
 
-use super::delta_compaction::{compact_entry_keeping, compact_gather, DeltaCompactionStats};
-use super::dnrt::bake_dnrt_grid;
-use super::dnrt_cache::{dnrt_key, DnrtCache, DnrtLookup};
-use super::drt::{build_drt, DeltaBlock, DrtOperators, DrtStats};
-use super::drt_rays::DrtRayCache;
-use super::geometry::{Geometry, GeometryError, Primitive, SurfaceOwner};
-use super::low_rank::LowRankError;
-use super::mesh::load_mesh;
-use super::mesh_albedo::SurfaceAlbedo;
-use super::one_bounce::gather_rows;
-use super::probe_volume::build_probe_volume;
-use super::progress::Progress;
-use super::sampling::Purpose;
-use super::sh_response::{build_sh_responses, ShResponseStats};
-use super::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
-use super::shape_cache::{Lookup, ShapeCache};
-use super::shape_symmetry::instance_operators;
-use super::tracer::Tracer;
-use super::transport::{lightfield_transport, traced_transport, MrtTransport, TransportStats};
-use super::transport_cache::{transport_key, CachedTransport, TransportCache};
-use super::transport_compaction::compact_transport;
+use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
+use crate::bake::cache::shape::{Lookup, ShapeCache};
+use crate::bake::cache::transport::{transport_key, CachedTransport, TransportCache};
+use crate::bake::dnrt::grid::bake_dnrt_grid;
+use crate::bake::drt::build::{build_drt, DeltaBlock, DrtOperators, DrtStats};
+use crate::bake::drt::compaction::{compact_entry_keeping, compact_gather, DeltaCompactionStats};
+use crate::bake::drt::rays::DrtRayCache;
+use crate::bake::math::low_rank::LowRankError;
+use crate::bake::math::sampling::Purpose;
+use crate::bake::mrt::one_bounce::gather_rows;
+use crate::bake::mrt::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
+use crate::bake::mrt::shape_symmetry::instance_operators;
+use crate::bake::progress::Progress;
+use crate::bake::scene::geometry::{Geometry, GeometryError, Primitive, SurfaceOwner};
+use crate::bake::scene::mesh::load_mesh;
+use crate::bake::scene::mesh_albedo::SurfaceAlbedo;
+use crate::bake::sh::probe_volume::build_probe_volume;
+use crate::bake::sh::responses::{build_sh_responses, ShResponseStats};
+use crate::bake::tracer::Tracer;
+use crate::bake::transport::build::{
+    lightfield_transport, traced_transport, MrtTransport, TransportStats,
+};
+use crate::bake::transport::compaction::compact_transport;
 use lightfarm_proto::box_symmetry::BoxSymmetry;
 
 /// What to bake beyond the scene's own settings.
@@ -95,7 +97,7 @@ pub enum BakeError {
 }
 
 /// The bundle's DRT section from the DRT operators: delta entries and the exact gather in
-/// low-rank form when `compact_deltas` (see [`super::delta_compaction`]).
+/// low-rank form when `compact_deltas` (see [`crate::bake::drt::compaction`]).
 fn drt_section(
     bundle: &Bundle,
     ops: &DrtOperators,

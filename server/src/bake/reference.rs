@@ -31,12 +31,12 @@ use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::Light;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
 
-use super::geometry::{Geometry, Primitive};
-use super::sampling::{
+use crate::bake::math::sampling::{
     mix64, sample_cosine_hemisphere, sample_uniform_hemisphere, sobol_2d, stream_key, to_world,
     Purpose,
 };
-use super::tracer::{Hit, Tracer};
+use crate::bake::scene::geometry::{Geometry, Primitive};
+use crate::bake::tracer::{Hit, Tracer};
 
 /// Paths shorter than this many vertices never meet Russian roulette.
 const ROULETTE_FROM_VERTEX: u32 = 3;
@@ -320,7 +320,7 @@ pub fn reference_irradiance(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::sampling::mixed_key;
+    use crate::bake::math::sampling::mixed_key;
     use lightfarm_proto::lights::LightKind;
     use lightfarm_proto::scene::Aabb;
     use lightfarm_proto::Face;

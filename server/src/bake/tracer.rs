@@ -1,4 +1,4 @@
-//! Ray casting against a [`Geometry`]'s primitives through an `obvhs` compressed wide BVH.
+//! Ray casting against a [`Geometry`](crate::bake::scene::geometry::Geometry)'s primitives through an `obvhs` compressed wide BVH.
 //!
 //! Intersections are computed in f64 inside the traversal callback (obvhs traverses in f32);
 //! rectangles are closed at their edges so a closed box is watertight. Where two coincident
@@ -19,8 +19,8 @@ use obvhs::{
     Boundable, BvhBuildParams,
 };
 
-use super::geometry::Primitive;
-use super::mesh::{cross, dot, sub};
+use crate::bake::scene::geometry::Primitive;
+use crate::bake::scene::mesh::{cross, dot, sub};
 
 /// A ray hit.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -289,8 +289,8 @@ impl Tracer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::geometry::Geometry;
-    use crate::bake::sampling::{sample_cosine_hemisphere, sobol_2d, to_world};
+    use crate::bake::math::sampling::{sample_cosine_hemisphere, sobol_2d, to_world};
+    use crate::bake::scene::geometry::Geometry;
     use lightfarm_proto::scene::Aabb;
     use lightfarm_proto::Face;
 

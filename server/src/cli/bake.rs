@@ -7,8 +7,8 @@ use lightfarm_proto::scene::{BundleCodec, Scene, Transport};
 use super::progress_bar::Bar;
 use super::{read_text, write_atomic};
 use crate::bake::bundle_encoding::encode_options;
+use crate::bake::cache::shape::ShapeCache;
 use crate::bake::pipeline::{bake, BakeOptions};
-use crate::bake::shape_cache::ShapeCache;
 
 /// Arguments of `bake`.
 pub struct BakeArgs {

@@ -38,8 +38,8 @@ use super::bench_measure::{
 use super::bench_reference_cache::{mesh_bytes, reference_key, CachedReference, ReferenceCache};
 use super::bench_throughput::{measure_throughput, Throughput};
 use super::write_json;
-use crate::bake::geometry::Geometry;
 use crate::bake::reference::{reference, ReferenceSettings};
+use crate::bake::scene::geometry::Geometry;
 use lightfarm_proto::bounces::BounceCount;
 
 /// Which sweep to run.

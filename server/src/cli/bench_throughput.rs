@@ -16,8 +16,10 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::bake::geometry::{Geometry, Primitive};
-use crate::bake::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose};
+use crate::bake::math::sampling::{
+    sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose,
+};
+use crate::bake::scene::geometry::{Geometry, Primitive};
 use crate::bake::tracer::{tangents, Tracer};
 
 /// Rays per second of both tracers (None where a side could not be measured, with why).

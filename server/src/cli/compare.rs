@@ -11,7 +11,7 @@ use lightfarm_proto::scene::Aabb;
 
 use super::bake::load_scene;
 use super::read_text;
-use crate::bake::mesh::load_mesh;
+use crate::bake::scene::mesh::load_mesh;
 
 /// Arguments of `compare`.
 pub struct CompareArgs {

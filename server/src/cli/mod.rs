@@ -4,7 +4,7 @@
 //!
 //! # Layout
 //! - [`bake`], [`inspect`], [`eval`] (with [`eval_sh`] and [`lightmap_files`]), [`reference`],
-//!   [`compare`], [`frame_time`]: the offline commands.
+//!   [`compare`], [`frame_time`], [`export`] (the lit level as glTF): the offline commands.
 //! - [`serve`], [`worker`]: the bake service and a farm worker.
 //! - [`bench`] and its parts: [`bench_lights`], [`bench_measure`], [`bench_reference_cache`],
 //!   [`bench_equal_error`], [`bench_pareto`], [`bench_throughput`], [`bench_plots`],

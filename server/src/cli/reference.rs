@@ -10,9 +10,9 @@ use lightfarm_proto::lights::LightSet;
 use super::bake::load_scene;
 use super::progress_bar::Bar;
 use super::{read_text, write_json};
-use crate::bake::geometry::Geometry;
 use crate::bake::progress::Progress;
 use crate::bake::reference::{reference, ReferenceSettings};
+use crate::bake::scene::geometry::Geometry;
 
 /// Arguments of `reference`.
 pub struct ReferenceArgs {

@@ -25,9 +25,9 @@ use super::operator_cache;
 use super::scene_inputs::{apply_overrides, asset_hash};
 use super::store::{BlobKind, BlobStore};
 use crate::bake::bundle_encoding::encode_options;
+use crate::bake::cache::shape::ShapeCache;
 use crate::bake::pipeline::{bake, BakeOptions};
 use crate::bake::progress::Progress;
-use crate::bake::shape_cache::ShapeCache;
 
 /// Bakes in this process.
 pub struct PipelineExecutor {

@@ -14,7 +14,7 @@
 use lightfarm_proto::scene::{Scene, Settings};
 
 use super::store::is_hash;
-use crate::bake::geometry::Geometry;
+use crate::bake::scene::geometry::Geometry;
 
 /// A mesh format the service accepts, detected from the bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,5 +1,5 @@
 //! Operator-cache files between a worker's local cache directory (the directory
-//! [`crate::bake::shape_cache::ShapeCache`] opens) and the `lightfarm_operators` object store,
+//! [`crate::bake::cache::shape::ShapeCache`] opens) and the `lightfarm_operators` object store,
 //! where each file is stored under its path relative to the cache directory.
 //!
 //! Invariants:

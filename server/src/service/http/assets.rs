@@ -15,7 +15,7 @@ use lightfarm_proto::scene::Transform;
 use super::auth::Caller;
 use super::error::{blocking, body_failure, ApiFailure};
 use super::AppState;
-use crate::bake::mesh::load_mesh;
+use crate::bake::scene::mesh::load_mesh;
 use crate::service::scene_inputs::AssetFormat;
 use crate::service::store::{content_hash, BlobKind};
 

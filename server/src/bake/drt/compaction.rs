@@ -1,0 +1,363 @@
+//! Low-rank DRT operators: each delta entry, and each source range of the exact clutter
+//! gather, replaced by a truncated SVD when that is smaller (ours; the paper ships them dense).
+//!
+//! - A delta entry `ΔU` (rows × r, source block or clutter object) becomes `left · mix` with
+//!   `left = U_k Σ_k` (rows × k) and `mix = V_kᵀ` (k × r); the client computes `mix · x` once
+//!   (k values per channel) and then `left · (mix · x)`.
+//! - The exact clutter gather (sparse rows over the direct light of every texel, `G`) is cut by
+//!   source range — each block's texels, each clutter object's texels — into dense
+//!   `G_range` (receiving texels × range) and factored the same way, source
+//!   `DeltaSource::Direct`. A range whose factors are not smaller than twice its sparse entries
+//!   stays in the sparse gather, as do columns in no range.
+//!
+//! Rows of buried texels stay dense and exact ([`compact_entry_keeping`]): their inpainted
+//! deltas cancel MRT's transport there, and a truncated factor would leave a residue.
+//!
+//! The rank is the smallest keeping `1 − tolerance` of the entry's energy (the scene's
+//! tolerance, as every other rank), so the dropped part is at most `√tolerance` of the entry in
+//! Frobenius norm. A factorisation is kept only when `k (rows + cols)` is at most
+//! [`KEEP_FRACTION`] of the dense size: small entries stay exact.
+//!
+//! Invariant: deterministic (sequential SVDs in a fixed order); rows stay ascending; entries of
+//! every source come out in the order they went in.
+
+use faer::Mat;
+
+use lightfarm_proto::bundle::{DeltaEntry, DeltaSource, TexelGather};
+
+use crate::bake::math::low_rank::{truncated_svd, LowRankError};
+use crate::bake::pipeline::to_matrix;
+
+/// A factorisation is kept when its values are at most this fraction of the dense entry's.
+pub const KEEP_FRACTION: f64 = 0.8;
+
+/// What compaction did, for the bake report.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DeltaCompactionStats {
+    /// Delta entries factored / kept dense.
+    pub factored: usize,
+    pub dense: usize,
+    /// Values before and after (delta entries).
+    pub values_before: usize,
+    pub values_after: usize,
+    /// Exact gather: sparse entries before, dense factor values after, sparse entries left.
+    pub gather_sparse_before: usize,
+    pub gather_factor_values: usize,
+    pub gather_sparse_left: usize,
+    /// Ranks of the factored entries, in order.
+    pub ranks: Vec<usize>,
+}
+
+/// The factors `(left, mix)` of `m` when they are smaller than [`KEEP_FRACTION`] of it.
+fn factor(m: &Mat<f64>, tolerance: f64) -> Result<Option<(Mat<f64>, Mat<f64>)>, LowRankError> {
+    let (rows, cols) = (m.nrows(), m.ncols());
+    if rows.min(cols) <= 2 {
+        return Ok(None);
+    }
+    let svd = truncated_svd(m.as_ref(), tolerance)?;
+    let k = svd.s.len();
+    if (k * (rows + cols)) as f64 > KEEP_FRACTION * (rows * cols) as f64 {
+        return Ok(None);
+    }
+    let left = Mat::from_fn(rows, k, |i, j| svd.u[(i, j)] * svd.s[j]);
+    let mix = Mat::from_fn(k, cols, |i, j| svd.v[(j, i)]);
+    Ok(Some((left, mix)))
+}
+
+/// One delta entry, factored when that is smaller.
+pub fn compact_entry(
+    rows: Vec<u32>,
+    source: DeltaSource,
+    m: &Mat<f64>,
+    tolerance: f64,
+    stats: &mut DeltaCompactionStats,
+) -> Result<DeltaEntry, LowRankError> {
+    stats.values_before += m.nrows() * m.ncols();
+    Ok(match factor(m, tolerance)? {
+        Some((left, mix)) => {
+            stats.factored += 1;
+            stats.ranks.push(mix.nrows());
+            stats.values_after += left.nrows() * left.ncols() + mix.nrows() * mix.ncols();
+            DeltaEntry {
+                rows,
+                source,
+                matrix: to_matrix(&left),
+                mix: Some(to_matrix(&mix)),
+            }
+        }
+        None => {
+            stats.dense += 1;
+            stats.values_after += m.nrows() * m.ncols();
+            DeltaEntry {
+                rows,
+                source,
+                matrix: to_matrix(m),
+                mix: None,
+            }
+        }
+    })
+}
+
+/// Like [`compact_entry`], but rows in `exact_rows` (ascending; the buried texels, whose
+/// inpainted deltas must cancel MRT exactly) stay in a dense entry of their own.
+pub fn compact_entry_keeping(
+    rows: &[u32],
+    source: DeltaSource,
+    m: &Mat<f64>,
+    exact_rows: &[u32],
+    tolerance: f64,
+    stats: &mut DeltaCompactionStats,
+) -> Result<Vec<DeltaEntry>, LowRankError> {
+    let (keep, factor_rows): (Vec<usize>, Vec<usize>) =
+        (0..rows.len()).partition(|&i| exact_rows.binary_search(&rows[i]).is_ok());
+    let pick = |idx: &[usize]| {
+        (
+            idx.iter().map(|&i| rows[i]).collect::<Vec<u32>>(),
+            Mat::from_fn(idx.len(), m.ncols(), |r, c| m[(idx[r], c)]),
+        )
+    };
+    let mut out = Vec::new();
+    if !factor_rows.is_empty() {
+        let (r, sub) = pick(&factor_rows);
+        out.push(compact_entry(r, source, &sub, tolerance, stats)?);
+    }
+    if !keep.is_empty() {
+        let (r, sub) = pick(&keep);
+        stats.dense += 1;
+        stats.values_before += sub.nrows() * sub.ncols();
+        stats.values_after += sub.nrows() * sub.ncols();
+        out.push(DeltaEntry {
+            rows: r,
+            source,
+            matrix: to_matrix(&sub),
+            mix: None,
+        });
+    }
+    Ok(out)
+}
+
+/// Cuts the exact gather by `ranges` (`(first, count)` texel ranges, disjoint) into low-rank
+/// entries with `DeltaSource::Direct` sources; returns them and what stays sparse (None when
+/// nothing does).
+pub fn compact_gather(
+    gather: &TexelGather,
+    ranges: &[(u32, u32)],
+    tolerance: f64,
+    stats: &mut DeltaCompactionStats,
+) -> Result<(Vec<DeltaEntry>, Option<TexelGather>), LowRankError> {
+    stats.gather_sparse_before += gather.values.len();
+    let range_of = |col: u32| {
+        ranges
+            .iter()
+            .position(|&(first, count)| col >= first && col - first < count)
+    };
+    // Which ranges become entries.
+    let mut factored_ranges = vec![false; ranges.len()];
+    let mut entries = Vec::new();
+    for (ri, &(first, count)) in ranges.iter().enumerate() {
+        let mut rows = Vec::new();
+        let mut nnz = 0;
+        for (i, &row) in gather.rows.iter().enumerate() {
+            let (s, e) = (
+                gather.row_start[i] as usize,
+                gather.row_start[i + 1] as usize,
+            );
+            let hits = gather.cols[s..e]
+                .iter()
+                .filter(|&&c| c >= first && c - first < count)
+                .count();
+            if hits > 0 {
+                rows.push((i, row));
+                nnz += hits;
+            }
+        }
+        if rows.is_empty() {
+            continue;
+        }
+        let mut dense = Mat::<f64>::zeros(rows.len(), count as usize);
+        for (r, &(i, _)) in rows.iter().enumerate() {
+            let (s, e) = (
+                gather.row_start[i] as usize,
+                gather.row_start[i + 1] as usize,
+            );
+            for (&c, &v) in gather.cols[s..e].iter().zip(&gather.values[s..e]) {
+                if c >= first && c - first < count {
+                    dense[(r, (c - first) as usize)] += v as f64;
+                }
+            }
+        }
+        let Some((left, mix)) = factor(&dense, tolerance)? else {
+            continue;
+        };
+        let values = left.nrows() * left.ncols() + mix.nrows() * mix.ncols();
+        if values > 2 * nnz {
+            continue;
+        }
+        factored_ranges[ri] = true;
+        stats.gather_factor_values += values;
+        stats.ranks.push(mix.nrows());
+        entries.push(DeltaEntry {
+            rows: rows.iter().map(|&(_, row)| row).collect(),
+            source: DeltaSource::Direct { first, count },
+            matrix: to_matrix(&left),
+            mix: Some(to_matrix(&mix)),
+        });
+    }
+    // What stays sparse: columns of ranges not factored, and columns in no range.
+    let mut rest = TexelGather::default();
+    rest.row_start.push(0);
+    for (i, &row) in gather.rows.iter().enumerate() {
+        let (s, e) = (
+            gather.row_start[i] as usize,
+            gather.row_start[i + 1] as usize,
+        );
+        let before = rest.cols.len();
+        for (&c, &v) in gather.cols[s..e].iter().zip(&gather.values[s..e]) {
+            if range_of(c).is_none_or(|ri| !factored_ranges[ri]) {
+                rest.cols.push(c);
+                rest.values.push(v);
+            }
+        }
+        if rest.cols.len() > before {
+            rest.rows.push(row);
+            rest.row_start.push(rest.cols.len() as u32);
+        }
+    }
+    stats.gather_sparse_left += rest.values.len();
+    Ok((entries, (!rest.rows.is_empty()).then_some(rest)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A rank-2 entry plus a little noise factors to rank ≥ 2, and the product stays within
+    /// √tolerance of the entry in Frobenius norm.
+    #[test]
+    fn low_rank_entry_is_factored_within_the_tolerance() {
+        let (rows, cols) = (60, 40);
+        let m = Mat::from_fn(rows, cols, |i, j| {
+            let (x, y) = (i as f64 / rows as f64, j as f64 / cols as f64);
+            (x * 3.0).sin() * (y * 2.0).cos()
+                + 0.5 * x * y
+                + 1e-3 * (((i * 31 + j * 17) % 13) as f64 - 6.0)
+        });
+        let mut stats = DeltaCompactionStats::default();
+        let e = compact_entry(
+            (0..rows as u32).collect(),
+            DeltaSource::Block(0),
+            &m,
+            0.01,
+            &mut stats,
+        )
+        .unwrap();
+        let mix = e.mix.as_ref().expect("factored");
+        let k = mix.rows as usize;
+        assert!((2..=6).contains(&k), "rank {k}");
+        let (mut err, mut norm) = (0.0, 0.0);
+        for i in 0..rows {
+            for j in 0..cols {
+                let v: f64 = (0..k)
+                    .map(|l| e.matrix.data[i * k + l] as f64 * mix.data[l * cols + j] as f64)
+                    .sum();
+                err += (v - m[(i, j)]).powi(2);
+                norm += m[(i, j)].powi(2);
+            }
+        }
+        assert!(
+            (err / norm).sqrt() <= 0.1 + 1e-6,
+            "relative error {}",
+            (err / norm).sqrt()
+        );
+        assert_eq!(stats.factored, 1);
+        assert!(stats.values_after < stats.values_before / 2);
+    }
+
+    /// Rows named exact are split into a dense entry with their values untouched.
+    #[test]
+    fn exact_rows_stay_dense() {
+        let m = Mat::from_fn(40, 30, |i, j| {
+            ((i + 1) * (j + 2)) as f64 * 1e-3 + if i == 5 { 0.3 } else { 0.0 }
+        });
+        let rows: Vec<u32> = (100..140).collect();
+        let mut stats = DeltaCompactionStats::default();
+        let out = compact_entry_keeping(
+            &rows,
+            DeltaSource::Block(2),
+            &m,
+            &[105, 999],
+            0.01,
+            &mut stats,
+        )
+        .unwrap();
+        assert_eq!(out.len(), 2);
+        assert!(out[0].mix.is_some() && !out[0].rows.contains(&105));
+        assert_eq!(out[1].rows, vec![105]);
+        assert!(out[1].mix.is_none());
+        assert_eq!(out[1].matrix.data[3], m[(5, 3)] as f32);
+    }
+
+    /// A full-rank (identity-like) entry stays dense and exact.
+    #[test]
+    fn full_rank_entry_stays_dense() {
+        let m = Mat::from_fn(10, 10, |i, j| if i == j { 1.0 + i as f64 } else { 0.0 });
+        let mut stats = DeltaCompactionStats::default();
+        let e = compact_entry(
+            (0..10).collect(),
+            DeltaSource::Clutter(1),
+            &m,
+            0.01,
+            &mut stats,
+        )
+        .unwrap();
+        assert!(e.mix.is_none());
+        assert_eq!(e.matrix.data[11], 2.0);
+        assert_eq!(stats.dense, 1);
+    }
+
+    /// A gather whose rows over one range are rank one is factored for that range; columns
+    /// outside every range and a range too sparse to pay stay sparse, values untouched.
+    #[test]
+    fn gather_is_cut_by_range() {
+        // Rows 100..130 read texels 0..20 with weights a_i · b_j (rank one), texel 50 (in no
+        // range) and one texel of range (30, 10) each (full rank and sparse: not worth factoring).
+        let mut g = TexelGather::default();
+        g.row_start.push(0);
+        for i in 0..30u32 {
+            g.rows.push(100 + i);
+            for j in 0..20u32 {
+                g.cols.push(j);
+                g.values
+                    .push((1.0 + i as f32) * (1.0 + (j % 5) as f32) * 1e-3);
+            }
+            // One texel of range (30, 10) per row, a different one each row: rank 10.
+            g.cols.push(30 + i % 10);
+            g.values.push(0.5 + i as f32);
+            g.cols.push(50);
+            g.values.push(0.25);
+            g.row_start.push(g.cols.len() as u32);
+        }
+        let mut stats = DeltaCompactionStats::default();
+        let (entries, rest) = compact_gather(&g, &[(0, 20), (30, 10)], 1e-6, &mut stats).unwrap();
+        assert_eq!(entries.len(), 1);
+        let e = &entries[0];
+        assert_eq!(
+            e.source,
+            DeltaSource::Direct {
+                first: 0,
+                count: 20
+            }
+        );
+        assert_eq!(e.rows, (100..130).collect::<Vec<_>>());
+        let mix = e.mix.as_ref().unwrap();
+        assert_eq!(mix.rows, 1);
+        // Row 7, column 3 reproduced.
+        let v = e.matrix.data[7] * mix.data[3];
+        assert!((v - 8.0 * 4.0 * 1e-3).abs() < 1e-6);
+        let rest = rest.unwrap();
+        assert_eq!(rest.rows.len(), 30);
+        assert_eq!(rest.cols[..2], [30, 50]);
+        assert_eq!(rest.values[..2], [0.5, 0.25]);
+        assert_eq!(stats.gather_sparse_left, 60);
+    }
+}

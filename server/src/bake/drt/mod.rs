@@ -1,0 +1,16 @@
+//! Delta Radiance Transfer (paper 000): the scene-dependent operators that add clutter to MRT.
+//!
+//! # Layout (in data-flow order)
+//! - [`clutter_basis`]: the basis for direct light on a clutter object (`T_d→c`).
+//! - [`clutter_sampling`]: importance sampling toward clutter for the gathers (ours).
+//! - [`rays`]: the two ray passes (block texels toward clutter, clutter texels) and their reuse
+//!   across bakes, bounded by [`reach`] (the region a texel's rays swept).
+//! - [`build`]: the delta operators `ΔU_b`, `ΔU_c`, `C_b` and the exact gather, from the rays.
+//! - [`compaction`]: their low-rank form, where smaller.
+
+pub mod build;
+pub mod clutter_basis;
+pub mod clutter_sampling;
+pub mod compaction;
+pub mod rays;
+pub mod reach;

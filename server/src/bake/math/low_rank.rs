@@ -1,0 +1,157 @@
+//! Truncated SVD with ranks chosen from a tolerance, in f64 with faer.
+//!
+//! `A ≈ U_k Σ_k V_kᵀ` with `A` m×n, `U_k` m×k, `Σ_k` k×k, `V_k` n×k. The rank `k` is the smallest
+//! that keeps `Σ_{i<k} σ_i² ≥ (1 − tolerance) · Σ_i σ_i²`, and singular values below
+//! `RELATIVE_FLOOR · σ_max` are always dropped, so nothing downstream ever divides by a
+//! numerically zero singular value.
+//!
+//! Invariant: runs sequentially (faer `Par::Seq`) so results are bit-identical at any thread
+//! count; callers parallelise across independent decompositions instead.
+
+use faer::{Mat, MatRef, Par};
+
+/// Singular values below this fraction of the largest are never kept.
+pub const RELATIVE_FLOOR: f64 = 1e-9;
+
+/// A truncated SVD.
+pub struct TruncatedSvd {
+    /// m × k.
+    pub u: Mat<f64>,
+    /// k singular values, descending.
+    pub s: Vec<f64>,
+    /// n × k.
+    pub v: Mat<f64>,
+    /// All singular values (for reports).
+    pub all_singular_values: Vec<f64>,
+    /// Fraction of energy dropped: Σ_{i≥k} σ_i² / Σ σ_i².
+    pub dropped_energy: f64,
+}
+
+/// Why a decomposition failed.
+#[derive(Debug, thiserror::Error)]
+pub enum LowRankError {
+    #[error("SVD of a {rows}×{cols} matrix did not converge")]
+    NoConvergence { rows: usize, cols: usize },
+    #[error("matrix has a non-finite entry")]
+    NonFinite,
+}
+
+/// Rank that keeps `1 − tolerance` of the energy (at least 1 if any σ is above the floor).
+pub fn rank_for_energy(singular_values: &[f64], tolerance: f64) -> usize {
+    let total: f64 = singular_values.iter().map(|s| s * s).sum();
+    let max = singular_values.first().copied().unwrap_or(0.0);
+    if total <= 0.0 || max <= 0.0 {
+        return 0;
+    }
+    let mut kept = 0.0;
+    for (k, s) in singular_values.iter().enumerate() {
+        if *s < RELATIVE_FLOOR * max {
+            return k;
+        }
+        kept += s * s;
+        if kept >= (1.0 - tolerance) * total {
+            return k + 1;
+        }
+    }
+    singular_values.len()
+}
+
+/// Thin SVD of `a`, truncated by `tolerance`.
+pub fn truncated_svd(a: MatRef<'_, f64>, tolerance: f64) -> Result<TruncatedSvd, LowRankError> {
+    let (m, n) = (a.nrows(), a.ncols());
+    for j in 0..n {
+        for i in 0..m {
+            if !a[(i, j)].is_finite() {
+                return Err(LowRankError::NonFinite);
+            }
+        }
+    }
+    if m == 0 || n == 0 {
+        return Ok(TruncatedSvd {
+            u: Mat::zeros(m, 0),
+            s: vec![],
+            v: Mat::zeros(n, 0),
+            all_singular_values: vec![],
+            dropped_energy: 0.0,
+        });
+    }
+    faer::set_global_parallelism(Par::Seq);
+    let svd = a
+        .thin_svd()
+        .map_err(|_| LowRankError::NoConvergence { rows: m, cols: n })?;
+    let all: Vec<f64> = (0..m.min(n)).map(|i| svd.S()[i]).collect();
+    let k = rank_for_energy(&all, tolerance);
+    let total: f64 = all.iter().map(|s| s * s).sum();
+    let kept: f64 = all[..k].iter().map(|s| s * s).sum();
+    Ok(TruncatedSvd {
+        u: svd.U().subcols(0, k).to_owned(),
+        s: all[..k].to_vec(),
+        v: svd.V().subcols(0, k).to_owned(),
+        dropped_energy: if total > 0.0 {
+            ((total - kept) / total).max(0.0)
+        } else {
+            0.0
+        },
+        all_singular_values: all,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn truncation_error_equals_the_dropped_singular_values() {
+        // A 40×30 matrix with known spectrum: σ_i = 2^-i.
+        let m = 40;
+        let n = 30;
+        let q1 = orthonormal(m, n, 1);
+        let q2 = orthonormal(n, n, 2);
+        let sigma: Vec<f64> = (0..n).map(|i| 0.5f64.powi(i as i32)).collect();
+        let a = Mat::from_fn(m, n, |i, j| {
+            (0..n).map(|k| q1[(i, k)] * sigma[k] * q2[(j, k)]).sum()
+        });
+        let tol = 1e-4;
+        let svd = truncated_svd(a.as_ref(), tol).unwrap();
+        let k = svd.s.len();
+        let total: f64 = sigma.iter().map(|s| s * s).sum();
+        let dropped: f64 = sigma[k..].iter().map(|s| s * s).sum();
+        assert!(
+            dropped / total <= tol
+                && sigma[k - 1..].iter().map(|s| s * s).sum::<f64>() / total > tol
+        );
+        // ‖A − U_k Σ_k V_kᵀ‖_F² equals the dropped energy (ε·√n tolerance).
+        let approx = Mat::from_fn(m, n, |i, j| {
+            (0..k)
+                .map(|r| svd.u[(i, r)] * svd.s[r] * svd.v[(j, r)])
+                .sum::<f64>()
+        });
+        let err: f64 = (0..m)
+            .flat_map(|i| (0..n).map(move |j| (i, j)))
+            .map(|(i, j)| (a[(i, j)] - approx[(i, j)]).powi(2))
+            .sum();
+        assert!(
+            (err - dropped).abs() <= 1e-12 * (n as f64).sqrt(),
+            "{err} vs {dropped}"
+        );
+        assert!((svd.dropped_energy - dropped / total).abs() < 1e-12);
+    }
+
+    #[test]
+    fn rank_deficient_input_never_keeps_zero_singular_values() {
+        let a = Mat::from_fn(10, 6, |i, j| ((i + 1) * (j + 1)) as f64); // rank 1
+        let svd = truncated_svd(a.as_ref(), 1e-15).unwrap();
+        assert_eq!(svd.s.len(), 1);
+        assert!(svd.s[0] > 0.0);
+        let zero = Mat::<f64>::zeros(5, 5);
+        assert_eq!(truncated_svd(zero.as_ref(), 0.01).unwrap().s.len(), 0);
+    }
+
+    fn orthonormal(m: usize, n: usize, seed: u64) -> Mat<f64> {
+        let a = Mat::from_fn(m, n, |i, j| {
+            let x = crate::bake::math::sampling::mix64(seed * 1_000_003 + (i * n + j) as u64);
+            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        });
+        a.thin_svd().unwrap().U().to_owned()
+    }
+}

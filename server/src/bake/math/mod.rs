@@ -1,0 +1,9 @@
+//! Numerical building blocks of the bake, free of any scene concept.
+//!
+//! # Layout
+//! - [`sampling`]: seeded quasi-random numbers (scrambled Sobol', Halton), hemisphere and disk
+//!   maps, and [`sampling::Purpose`], the registry of every random stream a bake draws.
+//! - [`low_rank`]: truncated SVD with ranks chosen from an energy tolerance (f64, faer).
+
+pub mod low_rank;
+pub mod sampling;

@@ -1,0 +1,268 @@
+//! Inter-block transport (MRT §3.3 and the runtime of paper 001): how indirect light from a
+//! lamp in one block reaches blocks one, two and more openings away.
+//!
+//! Two ways, chosen by `settings.transport`:
+//! - **Lightfield** (scene-independent parts, composed at scene init): source block A's implicit
+//!   lights leave through each opening as `OutImp_o` (LF × r_A); at the neighbour's coincident
+//!   opening they are reduced by `W` to q coefficients (`T_prop` entry, q × r_A) and, through the
+//!   neighbour's `Pass` operators, carried on to further openings. Propagation stops where the
+//!   carried energy `‖X‖_F²` falls below `tolerance ·` the energy A sent out, not after a fixed
+//!   number of hops.
+//! - **Traced**: `U_{B←A} = F_{BA} L_imp^A` (texels_B × r_A), rays from B's texels through the real
+//!   (block) geometry hitting A's texels; pairs carrying less than `tolerance ·‖U_b^A‖_F²` are
+//!   dropped.
+//!
+//! Invariant: clutter is ignored here (MRT transport is of the empty level); results are
+//! independent of thread count.
+
+use std::collections::{BTreeMap, VecDeque};
+
+use faer::Mat;
+
+use lightfarm_proto::scene::Opening;
+use lightfarm_proto::Face;
+
+use crate::bake::math::sampling::Purpose;
+use crate::bake::mrt::one_bounce::gather_rows;
+use crate::bake::mrt::shape::ShapeOperators;
+use crate::bake::scene::geometry::Geometry;
+use crate::bake::tracer::Tracer;
+
+/// One `T_prop` block: reduced incoming lightfield at (target, face) from source's b.
+pub struct PropBlock {
+    pub target_block: usize,
+    pub target_face: Face,
+    pub source_block: usize,
+    /// q × r_source.
+    pub matrix: Mat<f64>,
+}
+
+/// One traced cross-block operator.
+pub struct TracedBlock {
+    pub target_block: usize,
+    pub source_block: usize,
+    /// texels_target × r_source.
+    pub matrix: Mat<f64>,
+}
+
+/// Counters for the bake report.
+#[derive(Clone, Debug, Default)]
+pub struct TransportStats {
+    /// Lightfield: propagation steps taken and cut by the energy criterion.
+    pub steps: usize,
+    pub cut: usize,
+    pub max_hops: usize,
+    /// Traced: pairs kept and dropped.
+    pub pairs_kept: usize,
+    pub pairs_dropped: usize,
+    /// Compacted transport: rank k of each receiving block's operator.
+    pub compact_ranks: Vec<usize>,
+}
+
+fn energy(m: &Mat<f64>) -> f64 {
+    let mut e = 0.0;
+    for j in 0..m.ncols() {
+        for i in 0..m.nrows() {
+            e += m[(i, j)] * m[(i, j)];
+        }
+    }
+    e
+}
+
+/// Composes lightfield transport over the connectivity graph.
+pub fn lightfield_transport(
+    shapes: &[&ShapeOperators],
+    openings: &[[Option<Opening>; 6]],
+    tolerance: f64,
+) -> (Vec<PropBlock>, TransportStats) {
+    let mut stats = TransportStats::default();
+    let mut acc: BTreeMap<(usize, usize, usize), Mat<f64>> = BTreeMap::new();
+    let hop_limit = 4 * shapes.len() + 4;
+    for (source, ops) in shapes.iter().enumerate() {
+        let mut queue: VecDeque<(usize, Face, Mat<f64>, usize)> = VecDeque::new();
+        let mut sent = 0.0;
+        for opening in &ops.openings {
+            if let Some(Opening::Neighbour { block, face }) = openings[source][opening.face.index()]
+            {
+                sent += energy(&opening.out_imp);
+                queue.push_back((block, face, opening.out_imp.clone(), 1));
+            }
+        }
+        while let Some((target, face, x, hops)) = queue.pop_front() {
+            stats.steps += 1;
+            stats.max_hops = stats.max_hops.max(hops);
+            let target_ops = shapes[target];
+            let Some(incoming) = target_ops.opening(face) else {
+                continue;
+            };
+            let reduced = &incoming.w * &x;
+            acc.entry((target, face.index(), source))
+                .and_modify(|m| *m += &reduced)
+                .or_insert(reduced);
+            for next in &target_ops.openings {
+                if next.face == face {
+                    continue;
+                }
+                let Some(Opening::Neighbour {
+                    block: next_block,
+                    face: next_face,
+                }) = openings[target][next.face.index()]
+                else {
+                    continue;
+                };
+                let Some((_, triplets)) = next.pass_from.iter().find(|(from, _)| *from == face)
+                else {
+                    continue;
+                };
+                let mut carried = Mat::<f64>::zeros(next.out_imp.nrows(), x.ncols());
+                for &(row, col, v) in triplets {
+                    for j in 0..x.ncols() {
+                        carried[(row as usize, j)] += v * x[(col as usize, j)];
+                    }
+                }
+                if energy(&carried) >= tolerance * sent && hops < hop_limit {
+                    queue.push_back((next_block, next_face, carried, hops + 1));
+                } else {
+                    stats.cut += 1;
+                }
+            }
+        }
+    }
+    let blocks = acc
+        .into_iter()
+        .map(|((target, face, source), matrix)| PropBlock {
+            target_block: target,
+            target_face: Face::ALL[face],
+            source_block: source,
+            matrix,
+        })
+        .collect();
+    (blocks, stats)
+}
+
+/// Traces cross-block operators through the blocks-only geometry `g` (whose block texel ranges
+/// match `shapes`).
+pub fn traced_transport(
+    g: &Geometry,
+    tracer: &Tracer,
+    shapes: &[&ShapeOperators],
+    rays: u32,
+    seed: u64,
+    tolerance: f64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> (Vec<TracedBlock>, TransportStats) {
+    let mut stats = TransportStats::default();
+    let owner: Vec<usize> = {
+        let mut o = vec![usize::MAX; g.texels.len()];
+        for (b, range) in g.block_texels.iter().enumerate() {
+            for t in range.clone() {
+                o[t] = b;
+            }
+        }
+        o
+    };
+    let mut out = Vec::new();
+    for (target, range) in g.block_texels.iter().enumerate() {
+        let texels: Vec<usize> = range.clone().collect();
+        let rows = gather_rows(
+            g,
+            tracer,
+            &texels,
+            rays,
+            seed,
+            Purpose::TracedTransport,
+            progress,
+        );
+        let mut per_source: BTreeMap<usize, Mat<f64>> = BTreeMap::new();
+        for (x, row) in rows.iter().enumerate() {
+            for &(t, w) in row {
+                let source = owner[t as usize];
+                if source == target || source == usize::MAX {
+                    continue;
+                }
+                let l_imp = &shapes[source].l_imp;
+                let local = t as usize - g.block_texels[source].start;
+                let m = per_source
+                    .entry(source)
+                    .or_insert_with(|| Mat::zeros(texels.len(), l_imp.ncols()));
+                for j in 0..l_imp.ncols() {
+                    m[(x, j)] += w as f64 * l_imp[(local, j)];
+                }
+            }
+        }
+        for (source, matrix) in per_source {
+            if energy(&matrix) >= tolerance * energy(&shapes[source].u_b) {
+                stats.pairs_kept += 1;
+                out.push(TracedBlock {
+                    target_block: target,
+                    source_block: source,
+                    matrix,
+                });
+            } else {
+                stats.pairs_dropped += 1;
+            }
+        }
+    }
+    (out, stats)
+}
+
+/// The MRT inter-block operators of a bake, kept in f64 for DRT's inpainting.
+pub enum MrtTransport {
+    Lightfield(Vec<PropBlock>),
+    Traced(Vec<TracedBlock>),
+}
+
+impl MrtTransport {
+    /// Row `local` of the operator mapping source block `source`'s `b` to indirect light on
+    /// target block `target`'s texels (albedo-free): `U_b` for the block itself plus the
+    /// inter-block term. None when the source does not reach the target.
+    pub fn row(
+        &self,
+        shapes: &[&ShapeOperators],
+        target: usize,
+        source: usize,
+        local: usize,
+    ) -> Option<Vec<f64>> {
+        let r = shapes[source].rank();
+        let mut row = vec![0.0; r];
+        let mut any = false;
+        if target == source {
+            let u_b = &shapes[target].u_b;
+            for (j, x) in row.iter_mut().enumerate() {
+                *x += u_b[(local, j)];
+            }
+            any = true;
+        }
+        match self {
+            MrtTransport::Traced(blocks) => {
+                for b in blocks
+                    .iter()
+                    .filter(|b| b.target_block == target && b.source_block == source)
+                {
+                    for (j, x) in row.iter_mut().enumerate() {
+                        *x += b.matrix[(local, j)];
+                    }
+                    any = true;
+                }
+            }
+            MrtTransport::Lightfield(blocks) => {
+                for b in blocks
+                    .iter()
+                    .filter(|b| b.target_block == target && b.source_block == source)
+                {
+                    let Some(opening) = shapes[target].opening(b.target_face) else {
+                        continue;
+                    };
+                    for k in 0..opening.u_r.ncols() {
+                        let u = opening.u_r[(local, k)];
+                        for (j, x) in row.iter_mut().enumerate() {
+                            *x += u * b.matrix[(k, j)];
+                        }
+                    }
+                    any = true;
+                }
+            }
+        }
+        any.then_some(row)
+    }
+}
