@@ -9,11 +9,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-use faer::Mat;
-
-use lightfarm_proto::bundle::{
-    self, Bundle, Layout, Matrix, SparseRows, SurfaceInfo, TransportOps,
-};
+use lightfarm_proto::bundle::{self, Bundle, Layout, SparseRows, SurfaceInfo, TransportOps};
 use lightfarm_proto::scene::{ProbeVolumeMode, Scene, SceneError, Settings, Transform, Transport};
 
 use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
@@ -24,6 +20,7 @@ use crate::bake::drt::build::{build_drt, DeltaBlock, DrtOperators, DrtStats};
 use crate::bake::drt::compaction::{compact_entry_keeping, compact_gather, DeltaCompactionStats};
 use crate::bake::drt::rays::DrtRayCache;
 use crate::bake::math::low_rank::LowRankError;
+use crate::bake::math::matrix::to_matrix;
 use crate::bake::math::sampling::Purpose;
 use crate::bake::mrt::one_bounce::gather_rows;
 use crate::bake::mrt::shape::{bake_shape, ShapeError, ShapeOperators, ShapeSpec};
@@ -171,21 +168,6 @@ fn to_entry(e: &DeltaBlock) -> bundle::DeltaEntry {
         source: e.source,
         matrix: to_matrix(&e.matrix),
         mix: None,
-    }
-}
-
-/// A bake matrix (f64) as a bundle matrix (f32, row-major).
-pub(crate) fn to_matrix(m: &Mat<f64>) -> Matrix {
-    let mut data = Vec::with_capacity(m.nrows() * m.ncols());
-    for i in 0..m.nrows() {
-        for j in 0..m.ncols() {
-            data.push(m[(i, j)] as f32);
-        }
-    }
-    Matrix {
-        rows: m.nrows() as u32,
-        cols: m.ncols() as u32,
-        data,
     }
 }
 

@@ -33,22 +33,13 @@ use lightfarm_proto::bundle::{DeltaSource, TexelGather};
 use lightfarm_proto::scene::{Aabb, ClutterBasis, ClutterGather, Opening, Scene, SceneGather};
 
 use crate::bake::drt::clutter_basis::{clutter_basis, prior_lights, ClutterBasisOps};
+use crate::bake::drt::error::DrtError;
 use crate::bake::drt::rays::{clutter_basis_unit, trace_all, DrtRayCache, RayPass};
-use crate::bake::math::low_rank::LowRankError;
 use crate::bake::mrt::shape::ShapeOperators;
 use crate::bake::scene::geometry::Geometry;
 use crate::bake::sh::gather::{key_of, source_of, SourceKey};
 use crate::bake::tracer::Tracer;
 use crate::bake::transport::build::MrtTransport;
-
-/// Why the DRT operators could not be built.
-#[derive(Debug, thiserror::Error)]
-pub enum DrtError {
-    #[error(transparent)]
-    LowRank(#[from] LowRankError),
-    #[error("ray cache: {0}")]
-    Cache(#[from] std::io::Error),
-}
 
 /// Rows of one target, keyed by (source kind, source index) then global texel row.
 type RowsBySource = BTreeMap<SourceKey, BTreeMap<u32, Vec<f64>>>;

@@ -26,7 +26,7 @@ use faer::Mat;
 use lightfarm_proto::bundle::{DeltaEntry, DeltaSource, TexelGather};
 
 use crate::bake::math::low_rank::{truncated_svd, LowRankError};
-use crate::bake::pipeline::to_matrix;
+use crate::bake::math::matrix::to_matrix;
 
 /// A factorisation is kept when its values are at most this fraction of the dense entry's.
 pub const KEEP_FRACTION: f64 = 0.8;

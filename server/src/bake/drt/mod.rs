@@ -7,10 +7,12 @@
 //!   across bakes, bounded by [`reach`] (the region a texel's rays swept).
 //! - [`build`]: the delta operators `ΔU_b`, `ΔU_c`, `C_b` and the exact gather, from the rays.
 //! - [`compaction`]: their low-rank form, where smaller.
+//! - [`error`]: [`error::DrtError`], why a DRT build failed (rays and build share it).
 
 pub mod build;
 pub mod clutter_basis;
 pub mod clutter_sampling;
 pub mod compaction;
+pub mod error;
 pub mod rays;
 pub mod reach;

@@ -37,9 +37,9 @@ use lightfarm_proto::scene::{Opening, Scene, SceneGather};
 use lightfarm_proto::wire::{checksum, Reader, WireError, Writer};
 
 use crate::bake::cache::shape::mark_used;
-use crate::bake::drt::build::DrtError;
 use crate::bake::drt::clutter_basis::ClutterBasisOps;
 use crate::bake::drt::clutter_sampling::{ClutterGuidedSampler, Sphere};
+use crate::bake::drt::error::DrtError;
 use crate::bake::drt::reach::RayReach;
 use crate::bake::math::low_rank::LowRankError;
 use crate::bake::math::sampling::{
