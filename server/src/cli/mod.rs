@@ -6,21 +6,11 @@
 //! - [`bake`], [`inspect`], [`eval`] (with [`eval_sh`] and [`lightmap_files`]), [`reference`],
 //!   [`compare`], [`frame_time`], [`export`] (the lit level as glTF): the offline commands.
 //! - [`serve`], [`worker`]: the bake service and a farm worker.
-//! - [`bench`] and its parts: [`bench_lights`], [`bench_measure`], [`bench_reference_cache`],
-//!   [`bench_equal_error`], [`bench_pareto`], [`bench_throughput`], [`bench_plots`],
-//!   [`bench_report`].
+//! - [`bench`] (`bench/`): speed against error, its parts listed in its own module doc.
 //! - [`progress_bar`]: the terminal progress bar the long commands share.
 
 pub mod bake;
 pub mod bench;
-pub mod bench_equal_error;
-pub mod bench_lights;
-pub mod bench_measure;
-pub mod bench_pareto;
-pub mod bench_plots;
-pub mod bench_reference_cache;
-pub mod bench_report;
-pub mod bench_throughput;
 pub mod compare;
 pub mod eval;
 pub mod eval_sh;

@@ -118,7 +118,7 @@ mod tests {
     use super::*;
 
     fn maze() -> Scene {
-        let text = include_str!("../../../scenes/maze/scene.json");
+        let text = include_str!("../../../../scenes/maze/scene.json");
         Scene::from_json(text).unwrap()
     }
 

@@ -108,7 +108,7 @@ fn trace_all(tracer: &Tracer, rays: &[([f64; 3], [f64; 3])]) -> (Vec<f32>, f64) 
 
 fn write_f32(path: &Path, values: impl Iterator<Item = f32>) -> anyhow::Result<()> {
     let bytes: Vec<u8> = values.flat_map(f32::to_le_bytes).collect();
-    super::write_atomic(path, &bytes)
+    crate::cli::write_atomic(path, &bytes)
 }
 
 /// Measures both tracers on `g`; exports to `dir` and runs `python script dir` for Embree

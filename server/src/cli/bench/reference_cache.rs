@@ -22,7 +22,7 @@ use lightfarm_proto::result::ResultFile;
 use lightfarm_proto::scene::Scene;
 use serde::{Deserialize, Serialize};
 
-use super::write_atomic;
+use crate::cli::write_atomic;
 
 /// Version of the reference solver's output; part of every key.
 pub const REFERENCE_SOLVER_VERSION: u32 = 1;
@@ -131,7 +131,7 @@ mod tests {
     const ONE: BounceCount = BounceCount::ONE;
 
     fn cornell() -> Scene {
-        Scene::from_json(include_str!("../../../scenes/cornell/scene.json")).unwrap()
+        Scene::from_json(include_str!("../../../../scenes/cornell/scene.json")).unwrap()
     }
 
     fn lights() -> LightSet {

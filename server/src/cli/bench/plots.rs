@@ -15,13 +15,13 @@ use std::sync::Once;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::bench::BenchResults;
-use super::bench_equal_error::BruteForceFit;
-use super::bench_measure::{bounces_label, BenchMethod};
-use super::bench_pareto::pareto_front;
+use super::equal_error::BruteForceFit;
+use super::measure::{bounces_label, BenchMethod};
+use super::pareto::pareto_front;
+use super::results::BenchResults;
 use lightfarm_proto::bounces::BounceCount;
 
-static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+static FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
 
 /// The three cost axes of the plots and tables.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -50,7 +50,7 @@ impl CostAxis {
         }
     }
 
-    pub fn of(self, point: &super::bench_measure::BenchPoint) -> f64 {
+    pub fn of(self, point: &super::measure::BenchPoint) -> f64 {
         match self {
             CostAxis::BakeSeconds => point.bake_seconds,
             CostAxis::ApplyMs => point.apply_ms,

@@ -1,8 +1,8 @@
 //! `lightfarm bench [--quick] [--bounces N|all] --out DIR`: speed against error. Sweeps scenes ×
-//! methods × bake settings, measures each point (`bench_measure`), the reference path tracer at
-//! equal error (`bench_equal_error`) and ray throughput against Embree (`bench_throughput`), and
-//! writes `results.json`, plots (`bench_plots`) and BENCHMARKS.md-ready markdown
-//! (`bench_report`).
+//! methods × bake settings, measures each point (`measure`), the reference path tracer at
+//! equal error (`equal_error`) and ray throughput against Embree (`throughput`), and
+//! writes `results.json`, plots (`plots`) and BENCHMARKS.md-ready markdown
+//! (`report`).
 //!
 //! Yardsticks: every point is measured against references at `--bounces` (default all bounces,
 //! what other bakers converge to) with the runtime at the matching bounce mode, and — unless
@@ -10,11 +10,20 @@
 //! bounce (the papers' yardstick), as rows of their own. The path tracer at equal error runs at
 //! each yardstick's bounce count.
 //!
-//! Owns the two presets (what is swept, and what is left out and why) and the order of work.
+//! Owns the order of work.
+//!
+//! # Layout
+//! - [`plan`]: the two presets (what is swept, and what is left out and why).
+//! - [`lights`]: seeded random light sets; [`reference_cache`]: references on disk by content.
+//! - [`measure`]: one bake setting, every method's bytes, error and apply time.
+//! - [`equal_error`]: the reference path tracer's error/time model at equal error.
+//! - [`throughput`]: our tracer against Embree on the same rays.
+//! - [`results`]: what a run measured (`results.json`); [`pareto`], [`plots`] and [`report`]
+//!   read it.
 //!
 //! Invariants:
 //! - Everything random is seeded (`--seed`): light sets, the reference, the exported rays.
-//! - References are read from / written to the content-keyed cache (`bench_reference_cache`);
+//! - References are read from / written to the content-keyed cache (`reference_cache`);
 //!   only the timings of bakes, frames and tracing are measured afresh on every run.
 //! - The engine and client run in-process; only Embree runs in a child process (Python).
 
@@ -25,33 +34,34 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{compare, ResultFile};
-use lightfarm_proto::scene::{Aabb, BundleCodec, Scene};
-use serde::{Deserialize, Serialize};
+use lightfarm_proto::scene::{Aabb, Scene};
+
+pub mod equal_error;
+pub mod lights;
+pub mod measure;
+pub mod pareto;
+pub mod plan;
+pub mod plots;
+pub mod reference_cache;
+pub mod report;
+pub mod results;
+pub mod throughput;
+
+pub use plan::{plan, Preset, ScenePlan, SweepPlan};
+pub use results::{BenchResults, BruteForce, Machine, Row};
 
 use super::bake::load_scene;
-use super::bench_equal_error::{BruteForceFit, BruteForceRun};
-use super::bench_lights::random_light_set;
-use super::bench_measure::{
-    bounces_label, drop_buried, measure_setting, BakeSetting, BenchMethod, BenchPoint, BenchScene,
-    Yardstick,
-};
-use super::bench_reference_cache::{mesh_bytes, reference_key, CachedReference, ReferenceCache};
-use super::bench_throughput::{measure_throughput, Throughput};
 use super::write_json;
 use crate::bake::reference::{reference, ReferenceSettings};
 use crate::bake::scene::geometry::Geometry;
+use equal_error::{BruteForceFit, BruteForceRun};
 use lightfarm_proto::bounces::BounceCount;
-
-/// Which sweep to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Preset {
-    /// A few minutes on 2 cores: small scenes, few settings, low reference rays (CI).
-    Quick,
-    /// About half an hour on 2 cores: the four example scenes, 8 and 16 texels per face (32 on
-    /// cornell).
-    Full,
-}
+use lights::random_light_set;
+use measure::{
+    bounces_label, drop_buried, measure_setting, BakeSetting, BenchPoint, BenchScene, Yardstick,
+};
+use reference_cache::{mesh_bytes, reference_key, CachedReference, ReferenceCache};
+use throughput::{measure_throughput, Throughput};
 
 /// Arguments of `bench`.
 pub struct BenchArgs {
@@ -73,288 +83,6 @@ pub struct BenchArgs {
     pub replot: bool,
     /// Bounces of the main yardstick (references, runtime mode, brute force).
     pub bounces: BounceCount,
-}
-
-/// What one scene sweeps.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct ScenePlan {
-    pub name: String,
-    pub methods: Vec<BenchMethod>,
-    pub settings: Vec<BakeSetting>,
-}
-
-/// The whole sweep.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct SweepPlan {
-    pub preset: Preset,
-    pub scenes: Vec<ScenePlan>,
-    pub light_sets: usize,
-    pub reference_rays: u32,
-    /// Ray counts of the brute-force runs the equal-error fit uses.
-    pub brute_force_rays: Vec<u32>,
-    /// Timed frames per apply measurement.
-    pub frames: usize,
-    /// Scene and ray count of the throughput comparison.
-    pub throughput_scene: String,
-    pub throughput_rays: usize,
-    /// What the preset leaves out, for the report.
-    pub left_out: Vec<String>,
-    /// Bounces of the main yardstick. Results written before bounces existed were one-bounce.
-    #[serde(default = "one_bounce")]
-    pub bounces: BounceCount,
-    /// Whether every point is also measured at one bounce against one-bounce references (rows
-    /// of their own); meaningless when `bounces` is one.
-    #[serde(default)]
-    pub one_bounce_rows: bool,
-}
-
-fn one_bounce() -> BounceCount {
-    BounceCount::ONE
-}
-
-impl SweepPlan {
-    /// The bounce counts every point is measured at, the main one first.
-    pub fn yardsticks(&self) -> Vec<BounceCount> {
-        if self.one_bounce_rows && self.bounces != BounceCount::ONE {
-            vec![self.bounces, BounceCount::ONE]
-        } else {
-            vec![self.bounces]
-        }
-    }
-}
-
-/// Every `(texels per face, rays per texel)` of `grid` at tolerance 1e-3 and codec `auto`;
-/// at `base` also the codecs f32/f16/u8 (when `codecs`) and the extra `tolerances`.
-fn sweep(
-    grid: &[(u32, u32)],
-    base: (u32, u32),
-    tolerances: &[f64],
-    codecs: bool,
-) -> Vec<BakeSetting> {
-    let mut out = Vec::new();
-    for &(t, r) in grid {
-        let mut codec_list = vec![BundleCodec::Auto];
-        if codecs && (t, r) == base {
-            codec_list.extend([BundleCodec::F32, BundleCodec::F16, BundleCodec::U8]);
-        }
-        out.push(BakeSetting {
-            texels_per_face: t,
-            rays_per_texel: r,
-            tolerance: 1e-3,
-            codecs: codec_list,
-        });
-    }
-    for &tolerance in tolerances {
-        out.push(BakeSetting {
-            texels_per_face: base.0,
-            rays_per_texel: base.1,
-            tolerance,
-            codecs: vec![BundleCodec::Auto],
-        });
-    }
-    out
-}
-
-/// All pairs of `texels` × `rays`.
-fn grid(texels: &[u32], rays: &[u32]) -> Vec<(u32, u32)> {
-    texels
-        .iter()
-        .flat_map(|&t| rays.iter().map(move |&r| (t, r)))
-        .collect()
-}
-
-fn plan_scene(name: &str, methods: &[BenchMethod], settings: Vec<BakeSetting>) -> ScenePlan {
-    ScenePlan {
-        name: name.to_string(),
-        methods: methods.to_vec(),
-        settings,
-    }
-}
-
-/// The sweep of a preset with `bounces` as the main yardstick.
-pub fn plan(preset: Preset, bounces: BounceCount) -> SweepPlan {
-    use BenchMethod::*;
-    let static_methods = [Full, MrtLightfield, MrtTraced, Drt];
-    let mut plan = match preset {
-        Preset::Quick => SweepPlan {
-            preset,
-            scenes: vec![
-                plan_scene(
-                    "cornell",
-                    &static_methods,
-                    sweep(&grid(&[8], &[64, 256]), (8, 256), &[1e-2], true),
-                ),
-                plan_scene(
-                    "corridor",
-                    &[Full, MrtLightfield, MrtTraced],
-                    sweep(&grid(&[8], &[64, 256]), (8, 256), &[], false),
-                ),
-                plan_scene(
-                    "ball_corridor",
-                    &[MrtLightfield, Dnrt],
-                    sweep(&grid(&[8], &[64]), (8, 64), &[], false),
-                ),
-            ],
-            light_sets: 2,
-            reference_rays: 1024,
-            brute_force_rays: vec![16, 64],
-            frames: 200,
-            throughput_scene: "maze".into(),
-            throughput_rays: 200_000,
-            left_out: vec![
-                "the maze (only its geometry is used, for the ray throughput)".into(),
-                "texels per face 16 and 32, rays per texel above 256, tolerance 1e-4".into(),
-                "a high-ray reference above 1024 rays per texel (errors below ~1% at one bounce, \
-                 ~3% at all bounces, are not resolved: longer paths are noisier)"
-                    .into(),
-            ],
-            bounces,
-            one_bounce_rows: true,
-        },
-        Preset::Full => SweepPlan {
-            preset,
-            scenes: vec![
-                plan_scene(
-                    "maze",
-                    &static_methods,
-                    sweep(
-                        &grid(&[8, 16], &[64, 256, 1024]),
-                        (16, 256),
-                        &[1e-2, 1e-4],
-                        true,
-                    ),
-                ),
-                plan_scene(
-                    "cornell",
-                    &static_methods,
-                    sweep(
-                        &[grid(&[8, 16], &[64, 256, 1024, 4096]), grid(&[32], &[1024])].concat(),
-                        (16, 1024),
-                        &[1e-2, 1e-4],
-                        true,
-                    ),
-                ),
-                plan_scene(
-                    "corridor",
-                    &[Full, MrtLightfield, MrtTraced],
-                    sweep(&grid(&[8, 16], &[64, 256, 1024]), (16, 256), &[1e-2], false),
-                ),
-                plan_scene(
-                    "ball_corridor",
-                    &[Full, MrtLightfield, Dnrt],
-                    sweep(&grid(&[8, 16], &[64, 256, 1024]), (16, 256), &[], false),
-                ),
-            ],
-            light_sets: 3,
-            reference_rays: 4096,
-            brute_force_rays: vec![16, 64, 256],
-            frames: 200,
-            throughput_scene: "maze".into(),
-            throughput_rays: 1_000_000,
-            left_out: vec![
-                "the maze at 4096 rays per texel; 32 texels per face only for cornell at 1024 \
-                 rays per texel (the maze's and the corridor's references at T32 would take \
-                 most of the 40 minutes)"
-                    .into(),
-                "tolerance and codec variants only at one (T, rays) point per scene, not crossed \
-                 with the whole grid"
-                    .into(),
-                "DNRT grid settings (resolution, SH order, codec) stay at their defaults; the \
-                 client's multi-threaded apply path is not timed"
-                    .into(),
-            ],
-            bounces,
-            one_bounce_rows: true,
-        },
-    };
-    if plan.bounces != BounceCount::ONE {
-        plan.left_out.push(
-            "Feedback (one application per frame, the previous frame's indirect light fed back) \
-             is not timed here: `lightfarm frame-time --bounces 1,all,feedback` times it"
-                .into(),
-        );
-    }
-    plan
-}
-
-/// The equal-error fit of one scene at one texel count and bounce count.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct BruteForce {
-    pub scene: String,
-    pub texels_per_face: u32,
-    /// Bounces the path tracer (the ladder and the high-ray reference) sums.
-    #[serde(default = "one_bounce")]
-    pub bounces: BounceCount,
-    pub runs: Vec<(u32, f64, f64)>,
-    /// `e(r) = scale · r^-exponent` (plus the reference's noise in quadrature).
-    pub scale: f64,
-    pub exponent: f64,
-    pub seconds_fixed: f64,
-    pub seconds_per_ray: f64,
-    pub noise_floor: f64,
-    /// Mean seconds of one high-ray reference (when it was computed).
-    pub reference_seconds: f64,
-    pub texels: usize,
-}
-
-/// A point with the brute-force cost at its error.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct Row {
-    #[serde(flatten)]
-    pub point: BenchPoint,
-    /// Rays per texel the reference solver needs for the same error (None: below its noise).
-    pub brute_force_rays: Option<f64>,
-    pub brute_force_seconds: Option<f64>,
-}
-
-impl Row {
-    /// How many times cheaper one relight by the operators (one frame, `apply_ms`) is than
-    /// path tracing the same light set to the same error at the same bounce count (None when
-    /// the path tracer cannot be fitted there).
-    pub fn times_cheaper_than_path_tracing(&self) -> Option<f64> {
-        let seconds = self.brute_force_seconds?;
-        (self.point.apply_ms > 0.0).then(|| seconds / (self.point.apply_ms * 1e-3))
-    }
-}
-
-/// The machine the numbers come from.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct Machine {
-    pub cpu: String,
-    pub nproc: usize,
-}
-
-impl Machine {
-    pub fn detect() -> Machine {
-        let cpu = std::fs::read_to_string("/proc/cpuinfo")
-            .ok()
-            .and_then(|text| {
-                text.lines()
-                    .find(|l| l.starts_with("model name"))
-                    .and_then(|l| l.split(':').nth(1))
-                    .map(|s| s.trim().to_string())
-            })
-            .unwrap_or_else(|| "unknown".into());
-        Machine {
-            cpu,
-            nproc: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        }
-    }
-}
-
-/// Everything one run produced.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct BenchResults {
-    pub plan: SweepPlan,
-    pub machine: Machine,
-    pub command_line: String,
-    pub wall_seconds: f64,
-    /// Seconds the cached reference runs took when they were computed (a cold run adds them).
-    #[serde(default)]
-    pub reference_seconds_from_cache: f64,
-    pub rows: Vec<Row>,
-    pub brute_force: Vec<BruteForce>,
-    pub throughput: Option<Throughput>,
 }
 
 fn load_bench_scene(
@@ -670,10 +398,10 @@ fn write_outputs(results: &BenchResults, args: &BenchArgs) -> anyhow::Result<()>
         .markdown
         .clone()
         .unwrap_or_else(|| args.out.join("BENCHMARKS.md"));
-    let plots = super::bench_plots::write_plots(results, &args.out)?;
-    let markdown = super::bench_report::markdown(results, &plots, &markdown_path);
+    let plots = plots::write_plots(results, &args.out)?;
+    let markdown = report::markdown(results, &plots, &markdown_path);
     super::write_atomic(&markdown_path, markdown.as_bytes())?;
-    println!("{}", super::bench_report::summary(results));
+    println!("{}", report::summary(results));
     println!("markdown: {}", markdown_path.display());
     Ok(())
 }
@@ -706,6 +434,8 @@ fn throughput_of(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use lightfarm_proto::scene::BundleCodec;
+    use measure::BenchMethod;
 
     #[test]
     fn yardsticks_follow_the_bounce_count() {

@@ -13,10 +13,10 @@ use std::path::{Component, Path, PathBuf};
 
 use lightfarm_proto::bounces::BounceCount;
 
-use super::bench::{BenchResults, Row};
-use super::bench_measure::bounces_label;
-use super::bench_pareto::pareto_front;
-use super::bench_plots::{CostAxis, PlotFiles};
+use super::measure::bounces_label;
+use super::pareto::pareto_front;
+use super::plots::{CostAxis, PlotFiles};
+use super::results::{BenchResults, Row};
 
 fn scenes(results: &BenchResults) -> Vec<&str> {
     let mut out: Vec<&str> = Vec::new();
