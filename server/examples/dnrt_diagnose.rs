@@ -28,13 +28,15 @@ use std::path::Path;
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::scene::Transform;
 use lightfarm_proto::sh::{irradiance_weights, sh_basis};
-use lightfarm_server::bake::dnrt::{bounding_sphere, object_tracer, transfer_at_points};
-use lightfarm_server::bake::geometry::{Geometry, Primitive};
-use lightfarm_server::bake::mesh::load_mesh;
-use lightfarm_server::bake::mesh_albedo::SurfaceAlbedo;
-use lightfarm_server::bake::probe_volume::sample_uniform_sphere;
+use lightfarm_server::bake::dnrt::grid::{bounding_sphere, object_tracer, transfer_at_points};
+use lightfarm_server::bake::math::sampling::{
+    mixed_key, sample_cosine_hemisphere, sobol_2d, to_world,
+};
 use lightfarm_server::bake::reference::direct_radiance;
-use lightfarm_server::bake::sampling::{sample_cosine_hemisphere, sobol_2d, stream_key, to_world};
+use lightfarm_server::bake::scene::geometry::{Geometry, Primitive};
+use lightfarm_server::bake::scene::mesh::load_mesh;
+use lightfarm_server::bake::scene::mesh_albedo::SurfaceAlbedo;
+use lightfarm_server::bake::sh::probe_volume::sample_uniform_sphere;
 use lightfarm_server::bake::tracer::Tracer;
 
 type Rgb = [f64; 3];
@@ -124,7 +126,7 @@ fn main() -> anyhow::Result<()> {
         }
     }
     let n_env = 1u32 << 16;
-    let key = stream_key(1, 901, 0);
+    let key = mixed_key(1, 901, 0);
     let mut c_env = [[0.0f64; 9]; 3];
     for i in 0..n_env {
         let w = sample_uniform_sphere(sobol_2d(key, i));
@@ -246,7 +248,7 @@ fn main() -> anyhow::Result<()> {
         .enumerate()
         .map(|(p, &x)| {
             let texel = &g0.texels[x];
-            let key = stream_key(2, 902, x as u64);
+            let key = mixed_key(2, 902, x as u64);
             let (mut total, mut occ, mut refl, mut shadow) =
                 ([0.0; 3], [0.0; 3], [0.0; 3], [0.0; 3]);
             let mut exact = vec![[([0.0; 3], [0.0; 3]); 2]; variants.len()];
