@@ -13,7 +13,7 @@ use super::measure::{BakeSetting, BenchMethod};
 pub enum Preset {
     /// A few minutes on 2 cores: small scenes, few settings, low reference rays (CI).
     Quick,
-    /// About half an hour on 2 cores: the four example scenes, 8 and 16 texels per face (32 on
+    /// About 85 minutes cold on 2 cores (all-bounce references; about 70 with them cached): the four example scenes, 8 and 16 texels per face (32 on
     /// cornell).
     Full,
 }
