@@ -13,8 +13,8 @@ use super::measure::{BakeSetting, BenchMethod};
 pub enum Preset {
     /// A few minutes on 2 cores: small scenes, few settings, low reference rays (CI).
     Quick,
-    /// About 85 minutes cold on 2 cores (all-bounce references; about 70 with them cached): the four example scenes, 8 and 16 texels per face (32 on
-    /// cornell).
+    /// About 85 minutes cold on 2 cores (all-bounce references; about 70 with them cached):
+    /// the four example scenes, 8 and 16 texels per face (32 on cornell).
     Full,
 }
 
