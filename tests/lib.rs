@@ -9,11 +9,11 @@ use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{compare, Comparison, ResultFile};
 use lightfarm_proto::scene::{Scene, Transport};
-use lightfarm_server::bake::pipeline::{bake, BakeOptions, BakeReport};
 use lightfarm_server::bake::progress::NoProgress;
 use lightfarm_server::bake::reference::{reference, ReferenceSettings};
 use lightfarm_server::bake::scene::geometry::Geometry;
-use lightfarm_server::cli::eval::evaluate;
+use lightfarm_server::bake::{bake, BakeOptions, BakeReport};
+use lightfarm_server::evaluate::evaluate;
 
 /// `scenes/<name>` in the repository.
 pub fn scene_dir(name: &str) -> PathBuf {

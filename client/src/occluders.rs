@@ -413,27 +413,7 @@ pub(crate) mod tests {
     use super::*;
 
     /// A fixed-seed linear congruential generator (no `rand` in this crate).
-    pub(crate) struct Lcg(pub u64);
-
-    impl Lcg {
-        pub(crate) fn next_u32(&mut self) -> u32 {
-            self.0 = self
-                .0
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (self.0 >> 33) as u32
-        }
-        /// Uniform in `[0, 1)`.
-        pub(crate) fn unit(&mut self) -> f32 {
-            (self.next_u32() >> 8) as f32 / (1u32 << 24) as f32
-        }
-        pub(crate) fn range(&mut self, lo: f32, hi: f32) -> f32 {
-            lo + (hi - lo) * self.unit()
-        }
-        fn point(&mut self, lo: f32, hi: f32) -> [f32; 3] {
-            [self.range(lo, hi), self.range(lo, hi), self.range(lo, hi)]
-        }
-    }
+    pub(crate) use lightfarm_proto::testing::Lcg;
 
     fn random_scene(
         rng: &mut Lcg,

@@ -6,16 +6,21 @@
 //! - [`lights`]: LIGHTS.json (point lights, dynamic-object poses).
 //! - [`bounces`]: how many bounces of indirect light a result sums (`--bounces N|all`).
 //! - [`result`]: RESULT.json (per-texel direct and indirect radiance) and `compare`.
-//! - [`bundle`]: the operator bundle the server writes and the client reads.
-//!   `bundle/sh_responses.rs`: its SH responses section (normal-mapped surfaces, minor 2).
+//! - [`bundle`]: the operator bundle the server writes and the client reads (a folder: the
+//!   types in `bundle/mod.rs`, then one file per concept: section kinds, writing, reading, the
+//!   reading of 1.x bundles, and each section encoding of its own, e.g. `bundle/sh_responses.rs`
+//!   for the SH responses section of normal-mapped surfaces, minor 2).
 //!   [`container`]: its header, compressed and checksummed sections and table of contents;
-//!   [`codec`]: how one operator matrix's values are stored.
+//!   [`codec`]: how one operator matrix's values are stored (a folder: quantizing, prediction,
+//!   the choice by error budget, writing and reading).
 //! - [`box_symmetry`]: the 48 symmetries of an axis-aligned box and how they map faces and
 //!   face grids onto a canonical shape's.
 //! - [`face`]: box faces and the texel layout on each.
 //! - [`wire`]: the little-endian encoding the bundle and the operator cache share.
 //! - [`dnrt_grid`]: one dynamic object's DNRT transfer grid (codecs, ranges, placement).
 //! - [`sh`], [`sh_rotation`]: the SH convention and rotation of SH coefficients.
+//! - `testing` (feature `testing`, tests only): seeded hand-built bundles for the decoder
+//!   fuzzing here and the client runtime's tests.
 //!
 //! Invariant: this crate does no light-transport math and no I/O beyond bytes and strings.
 
@@ -32,6 +37,8 @@ pub mod result;
 pub mod scene;
 pub mod sh;
 pub mod sh_rotation;
+#[cfg(feature = "testing")]
+pub mod testing;
 pub mod wire;
 
 pub use face::Face;

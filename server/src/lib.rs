@@ -4,11 +4,14 @@
 //! # Layout
 //! - [`bake`]: light transport (no HTTP, no async).
 //! - [`service`]: `lightfarm serve`, the HTTP API over a job queue and a blob store (no light
-//!   transport: it calls [`bake::pipeline::bake`]).
+//!   transport: it calls [`bake::bake()`]).
 //! - [`cli`]: the `lightfarm` subcommands; `main.rs` only parses arguments and calls these.
+//! - [`evaluate`]: a bundle applied to a light set through the client (the `eval` command,
+//!   the bench and the service's evaluate endpoint share it); no HTTP, no file I/O.
 //! - [`export`]: the lit level as glTF (`lightfarm export`, the service's preview); no HTTP.
 
 pub mod bake;
 pub mod cli;
+pub mod evaluate;
 pub mod export;
 pub mod service;

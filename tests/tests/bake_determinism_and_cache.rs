@@ -3,8 +3,8 @@
 
 use lightfarm_proto::scene::Transport;
 use lightfarm_server::bake::cache::shape::ShapeCache;
-use lightfarm_server::bake::pipeline::{bake, BakeOptions};
 use lightfarm_server::bake::progress::NoProgress;
+use lightfarm_server::bake::{bake, BakeOptions};
 use lightfarm_tests::*;
 
 fn small_corridor() -> lightfarm_proto::scene::Scene {

@@ -8,8 +8,8 @@ use lightfarm_proto::bundle::{section, Bundle, BUNDLE_MAJOR};
 use lightfarm_proto::container::write_container;
 use lightfarm_proto::scene::Scene;
 use lightfarm_proto::wire::Writer;
-use lightfarm_server::bake::pipeline::{bake, BakeOptions};
 use lightfarm_server::bake::progress::NoProgress;
+use lightfarm_server::bake::{bake, BakeOptions};
 
 /// Two rooms, mirror images of each other across the opening they share at x = 2 (the second
 /// one is also coloured, which shape operators never depend on).

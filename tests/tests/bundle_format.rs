@@ -8,8 +8,8 @@ use lightfarm_proto::bundle::{Bundle, EncodeOptions, Matrix, TransportOps};
 use lightfarm_proto::codec::{CodecPolicy, MatrixCodec};
 use lightfarm_proto::result::compare;
 use lightfarm_proto::scene::Transport;
-use lightfarm_server::bake::pipeline::{bake, BakeOptions};
 use lightfarm_server::bake::progress::NoProgress;
+use lightfarm_server::bake::{bake, BakeOptions};
 use lightfarm_tests::*;
 
 fn cornell() -> (Bundle, lightfarm_proto::lights::LightSet) {
@@ -202,11 +202,11 @@ fn transport_matrices_are_coded_within_their_own_budget() {
     let mut settings = scene.settings.clone();
     settings.codec_error = 0.05;
     settings.transport_codec_error = 0.005;
-    let options = lightfarm_server::bake::bundle_encoding::encode_options(&settings, None);
+    let options = lightfarm_server::bake::pipeline::encoding::encode_options(&settings, None);
     assert_eq!(options.codec, CodecPolicy::Budget(0.05));
     assert_eq!(options.transport_codec, Some(CodecPolicy::Budget(0.005)));
     settings.codec_error = 0.001;
-    let options = lightfarm_server::bake::bundle_encoding::encode_options(&settings, None);
+    let options = lightfarm_server::bake::pipeline::encoding::encode_options(&settings, None);
     assert_eq!(options.transport_codec, Some(CodecPolicy::Budget(0.001)));
 }
 

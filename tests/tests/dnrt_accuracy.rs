@@ -154,7 +154,7 @@ fn a_pose_without_a_grid_is_an_error_naming_it() {
     let mut wrong = lights.clone();
     wrong.poses[0].id = "blue_cube".into();
     let bundle = lightfarm_client::decode(&bundle).expect("decode");
-    let err = lightfarm_server::cli::eval::evaluate(
+    let err = lightfarm_server::evaluate::evaluate(
         bundle,
         &wrong,
         Method::Mrt,

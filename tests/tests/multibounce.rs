@@ -17,7 +17,7 @@ use lightfarm_proto::result::ResultFile;
 use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::bake::reference::{reference, ReferenceSettings};
 use lightfarm_server::bake::scene::geometry::Geometry;
-use lightfarm_server::cli::eval::evaluate;
+use lightfarm_server::evaluate::evaluate;
 use lightfarm_tests::bake_scene;
 
 const RHO: f64 = 0.5;
@@ -142,8 +142,8 @@ fn closed_box_matches_the_geometric_series_for_the_reference_full_mrt_and_drt() 
 #[test]
 fn feedback_comes_within_one_percent_in_the_frames_the_geometric_series_predicts() {
     use lightfarm_client::{Occluders, Runtime};
-    use lightfarm_server::cli::eval::operator_direct;
     use lightfarm_server::cli::frame_time::feedback_frames;
+    use lightfarm_server::evaluate::operator_direct;
 
     let scene = closed_box(false);
     let (bytes, _) = bake_scene(&scene, &std::env::temp_dir(), Transport::Lightfield, false);

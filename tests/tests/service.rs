@@ -11,9 +11,9 @@ use std::time::{Duration, Instant};
 use lightfarm_client::{decode, ServiceClient};
 use lightfarm_proto::api::{BakeEvent, JobState};
 use lightfarm_proto::scene::Scene;
-use lightfarm_server::bake::bundle_encoding::encode_options;
-use lightfarm_server::bake::pipeline::{bake, BakeOptions};
+use lightfarm_server::bake::pipeline::encoding::encode_options;
 use lightfarm_server::bake::progress::NoProgress;
+use lightfarm_server::bake::{bake, BakeOptions};
 use lightfarm_tests::scene_dir;
 use serde_json::json;
 

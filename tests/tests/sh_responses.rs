@@ -17,7 +17,7 @@ use lightfarm_proto::sh::{irradiance, irradiance_weights, SH_COEFFS};
 use lightfarm_server::bake::reference::{reference_incident_sh, reference_irradiance};
 use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::bake::tracer::Tracer;
-use lightfarm_server::cli::eval::DIRECT_SAMPLES_PER_EDGE;
+use lightfarm_server::evaluate::DIRECT_SAMPLES_PER_EDGE;
 use lightfarm_tests::*;
 
 fn room_with_box(texels: u32, rays: u32) -> Scene {

@@ -16,7 +16,8 @@
 
 use lightfarm_proto::sh::{irradiance_weights, sh_basis, SH_COEFFS};
 
-use super::{set_matvec, ApplyError, Runtime};
+use super::kernels::set_matvec;
+use super::{ApplyError, Runtime};
 use crate::direct::DirectLight;
 
 /// SH incident radiance per texel: `coefficients[texel][channel][lm]`.

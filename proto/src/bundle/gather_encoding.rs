@@ -3,8 +3,8 @@
 //!
 //! Flag byte, then:
 //! - `0`: no gather;
-//! - `1` (1.x, still read): CSR as it is in memory, `rows:u32s row_start:u32s cols:u32s
-//!   values:f32s`;
+//! - `1` (1.x, still read, by `legacy_1x`): CSR as it is in memory, `rows:u32s row_start:u32s
+//!   cols:u32s values:f32s`;
 //! - `2` (2.0, what the writer uses): `rows:u32s row_start:u32s`, then the columns as
 //!   `len:u64` bytes of LEB128 varints, per row the first column and after it each column minus
 //!   the previous one minus 1 (the writer sorts a row by column and merges repeats, so columns
@@ -23,7 +23,7 @@
 
 use crate::wire::{Reader, WireError, Writer};
 
-use super::{BundleError, TexelGather};
+use super::{legacy_1x, BundleError, TexelGather};
 
 impl TexelGather {
     /// Whether every row's columns strictly ascend (the form [`TexelGather::sorted`] gives).
@@ -117,17 +117,12 @@ pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) {
     }
 }
 
-/// Reads what [`write_gather`] wrote, or the 1.x form.
+/// Reads what [`write_gather`] wrote, or the 1.x form (`legacy_1x`).
 pub(super) fn read_gather(r: &mut Reader) -> Result<Option<TexelGather>, BundleError> {
     let invalid = |m: &str| BundleError::Invalid(format!("drt gather: {m}"));
     match r.u8()? {
         0 => Ok(None),
-        1 => Ok(Some(TexelGather {
-            rows: r.u32s()?,
-            row_start: r.u32s()?,
-            cols: r.u32s()?,
-            values: r.f32s()?,
-        })),
+        1 => legacy_1x::read_gather_csr(r).map(Some),
         2 => {
             let rows = r.u32s()?;
             let row_start = r.u32s()?;

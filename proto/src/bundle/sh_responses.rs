@@ -17,7 +17,9 @@
 //! layout, `Y` is `9·texels × k`, `Z` is `k × width(source)` with `k ≤ width(source)` (so a
 //! runtime's scratch is bounded by real operator data), and every source exists.
 
-use super::{read_source, write_source, BundleError, DeltaSource, Matrix, MatrixEncoder};
+use super::delta_entries::{read_source, write_source};
+use super::matrix_codec::MatrixEncoder;
+use super::{BundleError, DeltaSource, Matrix};
 use crate::sh::SH_COEFFS;
 use crate::wire::{Reader, Writer};
 

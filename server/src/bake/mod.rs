@@ -13,15 +13,15 @@
 //! - [`dnrt`]: DNRT transfer grids of dynamic objects.
 //! - [`sh`]: SH gathering, the probe volume `U_dyn` and SH responses for normal maps.
 //! - [`cache`]: the on-disk caches of shapes, transport and DNRT grids.
-//! - [`pipeline`]: scene → bundle, stage by stage; [`units`]: a bake cut into deterministic
-//!   cache-filling units (the farm); [`bundle_encoding`]: the codecs a bundle is stored with.
+//! - [`pipeline`]: scene → bundle, stage by stage, and the codecs a bundle is stored with;
+//!   [`bake()`], [`BakeOptions`], [`BakeReport`] and [`BakeError`] are its facade, re-exported
+//!   here. [`units`]: a bake cut into deterministic cache-filling units (the farm).
 //! - [`reference`](mod@reference): the brute-force path-tracing reference; [`progress`]: how long work reports
 //!   progress.
 //!
 //! **Invariant:** nothing here imports axum, tokio or serde_json; everything is deterministic
 //! for a given scene and seed, whatever the thread count.
 
-pub mod bundle_encoding;
 pub mod cache;
 pub mod dnrt;
 pub mod drt;
@@ -35,3 +35,5 @@ pub mod sh;
 pub mod tracer;
 pub mod transport;
 pub mod units;
+
+pub use pipeline::{bake, BakeError, BakeOptions, BakeReport};

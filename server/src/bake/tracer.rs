@@ -10,7 +10,7 @@
 
 use std::time::Duration;
 
-use glam::Vec3A;
+use glam::{DVec3, Vec3A};
 use obvhs::{
     aabb::Aabb,
     cwbvh::builder::build_cwbvh,
@@ -20,7 +20,6 @@ use obvhs::{
 };
 
 use crate::bake::scene::geometry::Primitive;
-use crate::bake::scene::mesh::{cross, dot, sub};
 
 /// A ray hit.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -164,25 +163,27 @@ impl Tracer {
                     .then_some(t)
             }
             Primitive::Triangle { v, .. } => {
-                let e1 = sub(v[1], v[0]);
-                let e2 = sub(v[2], v[0]);
-                let p = cross(d, e2);
-                let det = dot(e1, p);
+                let [v0, v1, v2] = v.map(DVec3::from);
+                let d = DVec3::from(d);
+                let e1 = v1 - v0;
+                let e2 = v2 - v0;
+                let p = d.cross(e2);
+                let det = e1.dot(p);
                 if det.abs() < 1e-300 {
                     return None;
                 }
                 let inv = 1.0 / det;
-                let s = sub(o, v[0]);
-                let a = dot(s, p) * inv;
+                let s = DVec3::from(o) - v0;
+                let a = s.dot(p) * inv;
                 if !(-1e-12..=1.0 + 1e-12).contains(&a) {
                     return None;
                 }
-                let q = cross(s, e1);
-                let b = dot(d, q) * inv;
+                let q = s.cross(e1);
+                let b = d.dot(q) * inv;
                 if b < -1e-12 || a + b > 1.0 + 1e-12 {
                     return None;
                 }
-                let t = dot(e2, q) * inv;
+                let t = e2.dot(q) * inv;
                 (t > self.epsilon && t < tmax).then_some(t)
             }
         }
@@ -197,10 +198,15 @@ impl Tracer {
                 n
             }
             Primitive::Triangle { v, .. } => {
-                let n = cross(sub(v[1], v[0]), sub(v[2], v[0]));
-                let len = dot(n, n).sqrt();
-                let sign = if dot(n, d) > 0.0 { -1.0 } else { 1.0 };
-                n.map(|x| sign * x / len)
+                let [v0, v1, v2] = v.map(DVec3::from);
+                let n = (v1 - v0).cross(v2 - v0);
+                let len = n.length();
+                let sign = if n.dot(DVec3::from(d)) > 0.0 {
+                    -1.0
+                } else {
+                    1.0
+                };
+                (sign * n / len).to_array()
             }
         }
     }
@@ -268,12 +274,12 @@ impl Tracer {
         let Some(bvh) = self.bvh.as_ref() else {
             return false;
         };
-        let delta = sub(to, from);
-        let len = dot(delta, delta).sqrt();
+        let delta = DVec3::from(to) - DVec3::from(from);
+        let len = delta.length();
         if len <= 2.0 * self.epsilon {
             return false;
         }
-        let d = delta.map(|x| x / len);
+        let d = (delta / len).to_array();
         let tmax = len - self.epsilon;
         let ray = Ray::new(v3(from), v3(d), 0.0, tmax as f32);
         !bvh.ray_traverse_miss(ray, |_ray, id| {

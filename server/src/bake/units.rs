@@ -1,7 +1,7 @@
 //! A bake cut into deterministic units that fill the operator cache, for running on many
 //! machines (the farm): each unit computes one cache entry (a shape's operators, a block's or a
 //! clutter object's DRT rays, a dynamic object's DNRT grid, the level's transport), and the
-//! bundle is then assembled by [`crate::bake::pipeline::bake`] over a cache holding every unit's
+//! bundle is then assembled by [`crate::bake::bake()`] over a cache holding every unit's
 //! files — every lookup hits, so assembly is quick and its bundle is byte-identical to a bake
 //! run in one piece (the cache never changes results).
 //!
@@ -21,16 +21,18 @@ use crate::bake::cache::shape::{Lookup, ShapeCache};
 use crate::bake::cache::transport::{transport_key, TransportCache};
 use crate::bake::drt::rays::{trace_block_unit, trace_clutter_unit, DrtRayCache, RayPass};
 use crate::bake::mrt::shape::{bake_shape, ShapeOperators};
-use crate::bake::pipeline::{dnrt_grid, mrt_transport, shape_plan, BakeError};
+use crate::bake::pipeline::plan::{shape_plan, ShapePlan};
+use crate::bake::pipeline::stages::{dnrt_grid, mrt_transport};
 use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
 use crate::bake::scene::mesh::load_mesh;
 use crate::bake::tracer::Tracer;
+use crate::bake::BakeError;
 
 /// One deterministic piece of a bake.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub enum BakeUnit {
-    /// Unique shape `index` of the scene's [`crate::bake::pipeline::ShapePlan`].
+    /// Unique shape `index` of the scene's [`ShapePlan`].
     Shape { index: usize },
     /// The level's MRT inter-block transport (needs every shape).
     Transport,
@@ -128,7 +130,7 @@ pub fn unit_inputs(
     })
 }
 
-fn transport_file(scene: &Scene, shapes: &crate::bake::pipeline::ShapePlan) -> PathBuf {
+fn transport_file(scene: &Scene, shapes: &ShapePlan) -> PathBuf {
     let keys = shapes.block_keys();
     TransportCache::relative_path(&transport_key(scene, scene.settings.transport, &keys))
 }

@@ -6,9 +6,9 @@ use lightfarm_proto::scene::{BundleCodec, Scene, Transport};
 
 use super::progress_bar::Bar;
 use super::{read_text, write_atomic};
-use crate::bake::bundle_encoding::encode_options;
 use crate::bake::cache::shape::ShapeCache;
-use crate::bake::pipeline::{bake, BakeOptions};
+use crate::bake::pipeline::encoding::encode_options;
+use crate::bake::{bake, BakeOptions};
 
 /// Arguments of `bake`.
 pub struct BakeArgs {

@@ -1,8 +1,5 @@
-//! `eval --sh-out FILE`: every texel's SH incident radiance (bundle section `sh`) for the light
-//! set, through the client exactly as a game would (`Runtime::apply_sh`, direct light averaged
-//! over each texel as for `Runtime::apply`). With more than one bounce the SH responses are fed
-//! the radiance leaving the texels, direct plus the runtime's bounced indirect light (DRT where
-//! the bundle has it), so the incident radiance carries every bounce.
+//! `eval --sh-out FILE`: the file of every texel's SH incident radiance
+//! ([`crate::evaluate::sh::sh_incident`]).
 //!
 //! File: raw little-endian f32, layout texel order, 27 values per texel: channel-major R, G, B,
 //! each the 9 coefficients of `lightfarm_proto::sh` (world frame, y up; incident radiance, no
@@ -11,39 +8,7 @@
 use std::path::Path;
 
 use anyhow::Context;
-use lightfarm_client::{Bounces, IndirectLight, Method, Occluders, Runtime, ShLight};
-use lightfarm_proto::bundle::Bundle;
-use lightfarm_proto::lights::LightSet;
-
-use super::eval::operator_direct;
-
-/// The SH incident radiance of every texel for `lights`, carrying `bounces` bounces.
-pub fn sh_incident(bundle: Bundle, lights: &LightSet, bounces: Bounces) -> anyhow::Result<ShLight> {
-    let occluders = Occluders::from_layout(&bundle.layout);
-    let mut light = operator_direct(&bundle.layout, &occluders, lights);
-    let mut runtime = Runtime::try_new(bundle)?;
-    if !matches!(bounces, Bounces::One | Bounces::Fixed(1)) {
-        let method = if runtime.has_drt() {
-            Method::Drt
-        } else {
-            Method::Mrt
-        };
-        // Incident radiance of bounce k+1 is the radiance of bounce k leaving the texels: feed
-        // the SH responses direct light plus every bounce but the last.
-        let fewer = match bounces {
-            Bounces::Fixed(n) => Bounces::Fixed(n - 1),
-            other => other,
-        };
-        let mut indirect = IndirectLight::default();
-        runtime.apply(method, fewer, &light, &mut indirect)?;
-        for (l, i) in light.radiance.iter_mut().zip(&indirect.radiance) {
-            *l = [l[0] + i[0], l[1] + i[1], l[2] + i[2]];
-        }
-    }
-    let mut out = ShLight::default();
-    runtime.apply_sh(&light, &mut out)?;
-    Ok(out)
-}
+use lightfarm_client::ShLight;
 
 /// Writes `sh` in the file format above.
 pub fn write_sh_file(path: &Path, sh: &ShLight) -> anyhow::Result<()> {

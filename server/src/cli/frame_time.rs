@@ -20,8 +20,8 @@ use anyhow::Context;
 use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, Runtime};
 use lightfarm_proto::lights::LightSet;
 
-use super::eval::operator_direct;
 use super::read_text;
+use crate::evaluate::operator_direct;
 
 /// Arguments of `frame-time`.
 pub struct FrameTimeArgs {

@@ -8,6 +8,7 @@
 //! exteriors. Light colour is the intensity divided by its largest channel and `intensity`
 //! that channel (W/sr as given; glTF reads candela, so only ratios between lights carry over).
 
+use glam::Vec3;
 use serde_json::{json, Value};
 
 use lightfarm_client::lightmap::auto_exposure;
@@ -93,20 +94,10 @@ impl Buffer {
     }
 }
 
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+/// The (unnormalised) face normal of a triangle by winding: `(t1 − t0) × (t2 − t0)`.
+fn winding_normal(t: [[f32; 3]; 3]) -> Vec3 {
+    let [a, b, c] = t.map(Vec3::from);
+    (b - a).cross(c - a)
 }
 
 /// Builds the document; `radiance` holds every layout texel's radiance for the chosen mode.
@@ -165,7 +156,7 @@ pub fn build(
             }
             let c = &positions[base as usize..];
             let counter_clockwise =
-                dot(cross(sub(c[1], c[0]), sub(c[2], c[0])), face.normal()) > 0.0;
+                winding_normal([c[0], c[1], c[2]]).dot(Vec3::from(face.normal())) > 0.0;
             let order: [u32; 6] = if counter_clockwise {
                 [0, 1, 2, 0, 2, 3]
             } else {
@@ -201,10 +192,7 @@ pub fn build(
     let triangles: Vec<[[f32; 3]; 3]> = layout
         .triangles
         .iter()
-        .filter(|t| {
-            let n = cross(sub(t[1], t[0]), sub(t[2], t[0]));
-            dot(n, n) > 1e-20
-        })
+        .filter(|t| winding_normal(**t).length_squared() > 1e-20)
         .copied()
         .collect();
     if !triangles.is_empty() {
@@ -214,9 +202,8 @@ pub fn build(
         let normals: Vec<[f32; 3]> = triangles
             .iter()
             .flat_map(|t| {
-                let n = cross(sub(t[1], t[0]), sub(t[2], t[0]));
-                let l = dot(n, n).sqrt();
-                [n.map(|x| x / l); 3]
+                let n = winding_normal(*t);
+                [(n / n.length()).to_array(); 3]
             })
             .collect();
         materials.push(json!({

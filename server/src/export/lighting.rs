@@ -1,5 +1,5 @@
 //! The light the export shows: per layout texel, direct, indirect or both, from the ONE call
-//! into `cli::eval::evaluate` (direct light with shadow rays, then the operators through the
+//! into [`crate::evaluate::evaluate`] (direct light with shadow rays, then the operators through the
 //! client runtime, DRT where the bundle has it), so the export shows what `eval` reports.
 //!
 //! Units: outgoing radiance, W/(sr·m²) per RGB channel, in layout texel order.
@@ -49,7 +49,7 @@ pub fn evaluate(
     lights: &LightSet,
     bounces: BounceCount,
 ) -> Result<ResultFile, ExportError> {
-    crate::cli::eval::evaluate(bundle, lights, Method::Drt, bounces.into())
+    crate::evaluate::evaluate(bundle, lights, Method::Drt, bounces.into())
         .map_err(|e| ExportError::Evaluate(format!("{e:#}")))
 }
 

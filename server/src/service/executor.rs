@@ -1,5 +1,5 @@
 //! The embedded [`BakeExecutor`]: loads a job's canonical scene and its assets from the store,
-//! lays the assets out as files in a scratch directory, runs [`crate::bake::pipeline::bake`] with
+//! lays the assets out as files in a scratch directory, runs [`crate::bake::bake()`] with
 //! the shared shape-operator cache, and encodes the bundle with the scene's codec settings.
 //!
 //! While the bake runs, each partial bundle the engine reports is encoded with the same options
@@ -24,10 +24,10 @@ use super::jobs::{BakeExecutor, BakeOutput};
 use super::operator_cache;
 use super::scene_inputs::{apply_overrides, asset_hash};
 use super::store::{BlobKind, BlobStore};
-use crate::bake::bundle_encoding::encode_options;
 use crate::bake::cache::shape::ShapeCache;
-use crate::bake::pipeline::{bake, BakeOptions};
+use crate::bake::pipeline::encoding::encode_options;
 use crate::bake::progress::Progress;
+use crate::bake::{bake, BakeOptions};
 
 /// Bakes in this process.
 pub struct PipelineExecutor {

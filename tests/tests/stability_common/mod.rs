@@ -367,8 +367,8 @@ pub fn assert_refused(json: &str, expected: &[&str]) -> String {
 /// Asserts that baking `scene` (which may bypass `from_json`) fails without a panic, with a
 /// message containing every one of `expected`.
 pub fn assert_bake_refused(scene: &Scene, dir: &Path, expected: &[&str]) -> String {
-    use lightfarm_server::bake::pipeline::{bake, BakeOptions};
     use lightfarm_server::bake::progress::NoProgress;
+    use lightfarm_server::bake::{bake, BakeOptions};
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         bake(scene, dir, &BakeOptions::default(), &NoProgress).map(|_| ())
     }));

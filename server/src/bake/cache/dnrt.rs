@@ -1,25 +1,34 @@
 //! On-disk cache of DNRT grids, keyed by content: a grid depends on the object alone (mesh,
 //! albedo, DNRT settings, seed), so it is reused across scenes and bakes.
 //!
-//! Key: blake3 of (code version, every triangle's f64 bits in the object frame, albedo bits,
-//! the mesh's own colours — vertex colours, texture coordinates, texture texels — every DNRT
-//! setting, seed). Layout: `<dir>/dnrt/<key>.lfdnrt` = 8-byte FNV-1a checksum of the
-//! payload, then the payload ([`DnrtGrid::write`]). Writes go to a temp file and are renamed
-//! into place; an entry that fails its checksum or does not decode is deleted and recomputed.
+//! Owns the key ([`dnrt_key`]: blake3 of code version, every triangle's f64 bits in the object
+//! frame, albedo bits, the mesh's own colours — vertex colours, texture coordinates, texture
+//! texels — every DNRT setting, seed), the entries' kind ([`ENTRY`]: `<dir>/dnrt/<key>.lfdnrt`)
+//! and the payload ([`DnrtGrid::write`]). Framing, atomic writes, verification and marking use
+//! are [`crate::bake::cache::entry`]'s: a stale entry is a miss; a corrupt one (or one that
+//! does not decode) is deleted and recomputed.
+//!
 //! The object id stored in a cached grid is replaced by the caller's (same content, any name).
 
-use std::fs;
-use std::io::Write;
 use std::path::PathBuf;
 
 use lightfarm_proto::dnrt_grid::{DnrtCodec, DnrtGrid, DnrtNormals, DnrtPlacement};
 use lightfarm_proto::scene::DnrtSettings;
-use lightfarm_proto::wire::{checksum, Reader, Writer};
+use lightfarm_proto::wire::{Reader, Writer};
 
+use crate::bake::cache::entry::{self, EntryKind, EntryStore};
 use crate::bake::scene::mesh_albedo::MeshAlbedo;
 
-/// Bumped whenever the bake's output for the same inputs changes.
-const CODE_VERSION: &str = "lightfarm-dnrt-2";
+/// Bumped whenever the bake's output for the same inputs, or its payload, changes (3: the
+/// shared entry framing). In every key, and every entry's version tag.
+const CODE_VERSION: &str = "lightfarm-dnrt-3";
+
+/// Where DNRT entries live and their version.
+pub const ENTRY: EntryKind = EntryKind {
+    subdir: "dnrt",
+    extension: "lfdnrt",
+    version: CODE_VERSION,
+};
 
 /// The content key of one object's grid.
 pub fn dnrt_key(
@@ -64,71 +73,46 @@ pub fn dnrt_key(
 /// A directory of cached grids.
 #[derive(Clone, Debug)]
 pub struct DnrtCache {
-    dir: PathBuf,
+    store: EntryStore,
 }
 
 /// What a lookup found.
-#[derive(Debug)]
-pub enum DnrtLookup {
-    Hit(Box<DnrtGrid>),
-    Miss,
-    /// An entry was there but corrupt; it has been removed.
-    Corrupt,
-}
+pub type DnrtLookup = entry::Lookup<Box<DnrtGrid>>;
 
 impl DnrtCache {
     /// Opens (and creates) `<root>/dnrt`.
     pub fn open(root: impl Into<PathBuf>) -> std::io::Result<DnrtCache> {
-        let dir = root.into().join("dnrt");
-        fs::create_dir_all(&dir)?;
-        Ok(DnrtCache { dir })
-    }
-
-    fn path(&self, key: &str) -> PathBuf {
-        self.dir.join(format!("{key}.lfdnrt"))
+        Ok(DnrtCache {
+            store: EntryStore::open(root, ENTRY)?,
+        })
     }
 
     /// Where the grid with this key lives, relative to the operator cache directory.
     pub fn relative_path(key: &str) -> PathBuf {
-        PathBuf::from("dnrt").join(format!("{key}.lfdnrt"))
+        ENTRY.relative_path(key)
     }
 
     /// The cached grid under `key`, renamed to `object`.
     pub fn get(&self, key: &str, object: &str) -> DnrtLookup {
-        let path = self.path(key);
-        let Ok(bytes) = fs::read(&path) else {
-            return DnrtLookup::Miss;
-        };
-        if bytes.len() >= 8
-            && u64::from_le_bytes(bytes[..8].try_into().unwrap()) == checksum(&bytes[8..])
-        {
-            if let Ok(mut grid) = DnrtGrid::read(&mut Reader::new(&bytes[8..])) {
-                grid.object = object.to_string();
-                crate::bake::cache::shape::mark_used(&path);
-                return DnrtLookup::Hit(Box::new(grid));
-            }
-        }
-        let _ = fs::remove_file(&path);
-        DnrtLookup::Corrupt
+        self.store.get(key, |payload| {
+            let mut grid = DnrtGrid::read(&mut Reader::new(payload)).ok()?;
+            grid.object = object.to_string();
+            Some(Box::new(grid))
+        })
     }
 
     pub fn put(&self, key: &str, grid: &DnrtGrid) -> std::io::Result<()> {
         let mut w = Writer::new();
         grid.write(&mut w);
-        let tmp = self.dir.join(format!(".{key}.{}.tmp", std::process::id()));
-        {
-            let mut f = fs::File::create(&tmp)?;
-            f.write_all(&checksum(&w.bytes).to_le_bytes())?;
-            f.write_all(&w.bytes)?;
-            f.sync_all()?;
-        }
-        fs::rename(&tmp, self.path(key))
+        self.store.put(key, &w.bytes)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::fs;
+
     use crate::bake::dnrt::grid::{bake_dnrt_grid, icosphere};
     use crate::bake::scene::mesh_albedo::{SurfaceAlbedo, TriangleAlbedo};
 
@@ -181,7 +165,7 @@ mod tests {
             assert_ne!(k, key);
         }
         // A corrupt entry is removed and reported.
-        let path = cache.path(&key);
+        let path = cache.store.path(&key);
         let mut bytes = fs::read(&path).unwrap();
         let last = bytes.len() - 1;
         bytes[last] ^= 0xff;

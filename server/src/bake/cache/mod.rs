@@ -1,12 +1,21 @@
-//! On-disk caches of bake stages, keyed by content, so a rebake redoes only what changed.
+//! On-disk caches of bake stages, keyed by content, so a rebake redoes only what changed. They
+//! hold intermediate results only: a bake is the same bytes with or without them.
 //!
 //! # Layout
-//! - [`shape`]: shape operators (MRT), keyed by shape and settings.
-//! - [`transport`]: a level's inter-block transport and its compaction.
-//! - [`dnrt`]: DNRT grids of dynamic objects.
+//! - [`entry`]: the one entry format and store every cache uses — naming
+//!   (`<dir>/<subdir>/<key>.<ext>`), version tag, checksum framing, atomic writes, verification
+//!   (stale: a miss; corrupt: deleted and a miss) and marking use for LRU trimming.
+//! - [`shape`]: shape operators (MRT), keyed by shape and settings (`<dir>/<key>.lfshape`).
+//! - [`transport`]: a level's inter-block transport and its compaction (`transport/`).
+//! - [`dnrt`]: DNRT grids of dynamic objects (`dnrt/`).
+//! - [`drt_rays`]: DRT ray-pass units and clutter prior bases (`drt/`), keyed and reused by
+//!   [`crate::bake::drt::rays`].
 //!
-//! (DRT's ray cache lives with the rays, in [`crate::bake::drt::rays`].)
+//! Each cache owns its key and payload serialization; `<dir>` is the operator cache directory
+//! [`shape::ShapeCache`] opens.
 
 pub mod dnrt;
+pub mod drt_rays;
+pub mod entry;
 pub mod shape;
 pub mod transport;

@@ -1,89 +1,60 @@
 //! On-disk cache of shape operators, keyed by content ([`crate::bake::mrt::shape::ShapeSpec::key`]).
 //!
-//! Layout: `<dir>/<key>.lfshape` = 8-byte FNV-1a checksum of the payload, then the payload
-//! ([`ShapeOperators::encode`]). Writes go to a temp file in the same directory and are renamed
-//! into place, so a crash never leaves a half-written entry under a real key. An entry that fails
-//! its checksum or does not decode is deleted and reported as a miss, so it is recomputed.
+//! Owns the shape entries' kind ([`ENTRY`]: `<dir>/<key>.lfshape`, directly in the operator cache
+//! directory, which is the directory [`ShapeCache`] opens and the other caches open theirs
+//! under) and the payload, [`ShapeOperators::encode`]. Framing, atomic writes, verification and
+//! marking use are [`crate::bake::cache::entry`]'s.
+//!
+//! Invariant: a hit holds the operators of the key asked for (the payload names its key and
+//! [`SHAPE_CODE_VERSION`], both checked), so a bake is the same bytes with or without the cache.
+//! A stale entry (older format or version) is a miss; a corrupt one (checksum, length, or the
+//! payload does not decode) is deleted and reported as [`Lookup::Corrupt`], then recomputed.
 
-use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use lightfarm_proto::wire::checksum;
+use crate::bake::cache::entry::{self, EntryKind, EntryStore};
+use crate::bake::mrt::shape::{ShapeOperators, SHAPE_CODE_VERSION};
 
-use crate::bake::mrt::shape::ShapeOperators;
-
-/// Marks a cache file as just used (its modification time), for least-recently-used trimming
-/// by whoever bounds the cache's size. Best effort: a failure only makes the entry look older.
-pub fn mark_used(path: &Path) {
-    if let Ok(f) = fs::File::options().append(true).open(path) {
-        let _ = f.set_modified(std::time::SystemTime::now());
-    }
-}
+/// Where shape entries live and their version: the operators' code version, which every shape
+/// key also holds.
+pub const ENTRY: EntryKind = EntryKind {
+    subdir: "",
+    extension: "lfshape",
+    version: SHAPE_CODE_VERSION,
+};
 
 /// A directory of cached shape operators.
 #[derive(Clone, Debug)]
 pub struct ShapeCache {
-    dir: PathBuf,
+    store: EntryStore,
 }
 
 /// What a lookup found.
-#[derive(Debug)]
-pub enum Lookup {
-    Hit(Box<ShapeOperators>),
-    Miss,
-    /// An entry was there but corrupt; it has been removed.
-    Corrupt,
-}
+pub type Lookup = entry::Lookup<Box<ShapeOperators>>;
 
 impl ShapeCache {
     /// Opens (and creates) the cache directory.
     pub fn open(dir: impl Into<PathBuf>) -> std::io::Result<ShapeCache> {
-        let dir = dir.into();
-        fs::create_dir_all(&dir)?;
-        Ok(ShapeCache { dir })
+        Ok(ShapeCache {
+            store: EntryStore::open(dir, ENTRY)?,
+        })
     }
 
+    /// The operator cache directory.
     pub fn dir(&self) -> &Path {
-        &self.dir
-    }
-
-    fn path(&self, key: &str) -> PathBuf {
-        self.dir.join(format!("{key}.lfshape"))
+        self.store.dir()
     }
 
     pub fn get(&self, key: &str) -> Lookup {
-        let path = self.path(key);
-        let Ok(bytes) = fs::read(&path) else {
-            return Lookup::Miss;
-        };
-        let valid = bytes.len() >= 8 && {
-            let stored = u64::from_le_bytes(bytes[..8].try_into().unwrap());
-            stored == checksum(&bytes[8..])
-        };
-        if valid {
-            if let Ok(ops) = ShapeOperators::decode(&bytes[8..]) {
-                if ops.key == key {
-                    mark_used(&path);
-                    return Lookup::Hit(Box::new(ops));
-                }
-            }
-        }
-        let _ = fs::remove_file(&path);
-        Lookup::Corrupt
+        self.store.get(key, |payload| {
+            ShapeOperators::decode(payload)
+                .ok()
+                .filter(|ops| ops.key == key)
+                .map(Box::new)
+        })
     }
 
     pub fn put(&self, ops: &ShapeOperators) -> std::io::Result<()> {
-        let payload = ops.encode();
-        let tmp = self
-            .dir
-            .join(format!(".{}.{}.tmp", ops.key, std::process::id()));
-        {
-            let mut f = fs::File::create(&tmp)?;
-            f.write_all(&checksum(&payload).to_le_bytes())?;
-            f.write_all(&payload)?;
-            f.sync_all()?;
-        }
-        fs::rename(&tmp, self.path(&ops.key))
+        self.store.put(&ops.key, &ops.encode())
     }
 }

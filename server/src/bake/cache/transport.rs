@@ -2,29 +2,36 @@
 //! depends on: the blocks (boxes, open faces, shape keys) and the transport settings. MRT
 //! transport ignores clutter, so moving, adding or removing clutter reuses it whole.
 //!
-//! Layout: `<dir>/transport/<key>.lftransport` = 8-byte FNV-1a checksum of the payload, then the
-//! payload (f64 matrices, bit-exact). Written to a temp file and renamed; an entry that fails its
-//! checksum or does not decode is deleted and reported as a miss.
+//! Owns the key ([`transport_key`]), the entries' kind ([`ENTRY`]:
+//! `<dir>/transport/<key>.lftransport`) and the payload (f64 matrices, bit-exact). Framing,
+//! atomic writes, verification and marking use are [`crate::bake::cache::entry`]'s: a stale
+//! entry is a miss, a corrupt one (or one that does not decode) is deleted and missed.
 //!
 //! Invariant: a hit returns exactly what the computation would (the same f64 bits), so a bake
 //! is the same bytes with or without the cache.
 
-use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use faer::Mat;
 
 use lightfarm_proto::scene::{Scene, Transport};
-use lightfarm_proto::wire::{checksum, Reader, WireError, Writer};
+use lightfarm_proto::wire::{Reader, WireError, Writer};
 use lightfarm_proto::Face;
 
-use crate::bake::cache::shape::mark_used;
+use crate::bake::cache::entry::{EntryKind, EntryStore};
 use crate::bake::transport::build::{MrtTransport, PropBlock, TracedBlock, TransportStats};
 use crate::bake::transport::compaction::CompactTransport;
 
-/// Bumped whenever the transport computed for the same inputs changes.
-const CODE_VERSION: &str = "lightfarm-transport-1";
+/// Bumped whenever the transport computed for the same inputs, or its payload, changes (2: the
+/// shared entry framing). In every key, and every entry's version tag.
+const CODE_VERSION: &str = "lightfarm-transport-2";
+
+/// Where transport entries live and their version.
+pub const ENTRY: EntryKind = EntryKind {
+    subdir: "transport",
+    extension: "lftransport",
+    version: CODE_VERSION,
+};
 
 /// What the transport stage produces.
 pub struct CachedTransport {
@@ -214,53 +221,94 @@ fn decode(bytes: &[u8]) -> Result<CachedTransport, WireError> {
 /// A directory of cached transports.
 #[derive(Clone, Debug)]
 pub struct TransportCache {
-    dir: PathBuf,
+    store: EntryStore,
 }
 
 impl TransportCache {
     /// Opens (and creates) `<dir>/transport`.
     pub fn open(dir: &Path) -> std::io::Result<TransportCache> {
-        let dir = dir.join("transport");
-        fs::create_dir_all(&dir)?;
-        Ok(TransportCache { dir })
-    }
-
-    fn path(&self, key: &str) -> PathBuf {
-        self.dir.join(format!("{key}.lftransport"))
+        Ok(TransportCache {
+            store: EntryStore::open(dir, ENTRY)?,
+        })
     }
 
     /// Where the entry with this key lives, relative to the operator cache directory.
     pub fn relative_path(key: &str) -> PathBuf {
-        PathBuf::from("transport").join(format!("{key}.lftransport"))
+        ENTRY.relative_path(key)
     }
 
     /// The cached transport, or None (a corrupt entry is deleted).
     pub fn get(&self, key: &str) -> Option<CachedTransport> {
-        let path = self.path(key);
-        let bytes = fs::read(&path).ok()?;
-        let valid = bytes.len() >= 8
-            && u64::from_le_bytes(bytes[..8].try_into().unwrap()) == checksum(&bytes[8..]);
-        match valid.then(|| decode(&bytes[8..]).ok()).flatten() {
-            Some(t) => {
-                mark_used(&path);
-                Some(t)
-            }
-            None => {
-                let _ = fs::remove_file(&path);
-                None
-            }
-        }
+        self.store.get(key, |payload| decode(payload).ok()).hit()
     }
 
     pub fn put(&self, key: &str, transport: &CachedTransport) -> std::io::Result<()> {
-        let payload = encode(transport);
-        let tmp = self.dir.join(format!(".{key}.{}.tmp", std::process::id()));
-        {
-            let mut f = fs::File::create(&tmp)?;
-            f.write_all(&checksum(&payload).to_le_bytes())?;
-            f.write_all(&payload)?;
-            f.sync_all()?;
+        self.store.put(key, &encode(transport))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mat(rows: usize, cols: usize, seed: f64) -> Mat<f64> {
+        Mat::from_fn(rows, cols, |i, j| (seed + (7 * i + 3 * j) as f64) / 9.0)
+    }
+
+    fn stats() -> TransportStats {
+        TransportStats {
+            steps: 5,
+            cut: 1,
+            max_hops: 3,
+            pairs_kept: 4,
+            pairs_dropped: 2,
+            compact_ranks: vec![3, 0],
         }
-        fs::rename(&tmp, self.path(key))
+    }
+
+    #[test]
+    fn transport_round_trips_bit_exact_through_the_cache() {
+        let root = std::env::temp_dir().join(format!("lf-transport-cache-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let cache = TransportCache::open(&root).unwrap();
+        let lightfield = CachedTransport {
+            mrt: MrtTransport::Lightfield(vec![PropBlock {
+                target_block: 1,
+                target_face: Face::ALL[4],
+                source_block: 0,
+                matrix: mat(3, 2, 0.1),
+            }]),
+            compact: None,
+            stats: stats(),
+        };
+        let traced = CachedTransport {
+            mrt: MrtTransport::Traced(vec![TracedBlock {
+                target_block: 0,
+                source_block: 1,
+                matrix: mat(4, 3, 0.2),
+            }]),
+            compact: Some(vec![CompactTransport {
+                target_block: 0,
+                sources: vec![0, 1],
+                y: mat(4, 2, 0.3),
+                z: mat(2, 5, 0.4),
+                dropped_energy: 1.0 / 3.0,
+            }]),
+            stats: stats(),
+        };
+        assert!(cache.get("k").is_none());
+        for t in [lightfield, traced] {
+            cache.put("k", &t).unwrap();
+            let back = cache.get("k").expect("a hit");
+            assert_eq!(encode(&back), encode(&t));
+        }
+        assert!(root.join(TransportCache::relative_path("k")).is_file());
+        // A payload that does not decode (trailing bytes) is corrupt: deleted and missed.
+        let mut bytes = encode(&cache.get("k").unwrap());
+        bytes.push(0);
+        cache.store.put("k", &bytes).unwrap();
+        assert!(cache.get("k").is_none());
+        assert!(!root.join(TransportCache::relative_path("k")).exists());
+        let _ = std::fs::remove_dir_all(&root);
     }
 }

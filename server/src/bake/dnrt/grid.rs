@@ -31,6 +31,7 @@
 
 use rayon::prelude::*;
 
+use glam::DVec3;
 use lightfarm_proto::dnrt_grid::{
     fitted_term_ranges, placement_offset, DnrtGrid, DnrtNormals, SLOTS,
 };
@@ -40,7 +41,6 @@ use lightfarm_proto::sh::{irradiance_weights, sh_basis};
 use crate::bake::drt::clutter_sampling::{ClutterGuidedSampler, Sphere};
 use crate::bake::math::sampling::{sobol_2d, stream_key, Purpose};
 use crate::bake::scene::geometry::Primitive;
-use crate::bake::scene::mesh::{dot, sub};
 use crate::bake::scene::mesh_albedo::SurfaceAlbedo;
 use crate::bake::sh::probe_volume::sample_uniform_sphere;
 use crate::bake::tracer::Tracer;
@@ -67,10 +67,7 @@ pub fn bounding_sphere(triangles: &[[[f64; 3]; 3]]) -> BoundingSphere {
     let radius = triangles
         .iter()
         .flatten()
-        .map(|v| {
-            let d = sub(*v, centre);
-            dot(d, d).sqrt()
-        })
+        .map(|v| DVec3::from(*v).distance(DVec3::from(centre)))
         .fold(0.0, f64::max);
     BoundingSphere { centre, radius }
 }
@@ -108,10 +105,10 @@ pub fn transfer_at_points(
         .par_iter()
         .enumerate()
         .map(|(p, x)| {
-            let to_centre = sub(sphere.centre, *x);
-            let dist = dot(to_centre, to_centre).sqrt();
+            let to_centre = DVec3::from(sphere.centre) - DVec3::from(*x);
+            let dist = to_centre.length();
             let n_o = if dist > 1e-12 * sphere.radius.max(1e-12) {
-                to_centre.map(|c| c / dist)
+                (to_centre / dist).to_array()
             } else {
                 [0.0, 1.0, 0.0]
             };
@@ -178,12 +175,12 @@ pub fn convolved_transfer_at_points(
         .par_iter()
         .enumerate()
         .map(|(p, x)| {
-            let to_centre = sub(sphere.centre, *x);
-            let dist = dot(to_centre, to_centre).sqrt();
+            let to_centre = DVec3::from(sphere.centre) - DVec3::from(*x);
+            let dist = to_centre.length();
             // Narrow cone (the sampler's own criterion): sample it; otherwise the sphere.
             let cone = dist > radius && radius / dist < (1.0f64 - 0.81).sqrt();
             let n_o = if dist > 0.0 {
-                to_centre.map(|c| c / dist)
+                (to_centre / dist).to_array()
             } else {
                 [0.0, 1.0, 0.0]
             };
@@ -195,7 +192,7 @@ pub fn convolved_transfer_at_points(
                 // 1 / pdf of the direction.
                 let (w, inv_pdf) = if cone {
                     let (w, weight) = sampler.sample(*x, n_o, (i as f64 + 0.5) / rays as f64, u);
-                    let cos = dot(w, n_o);
+                    let cos = DVec3::from(w).dot(DVec3::from(n_o));
                     if weight <= 0.0 || cos <= 0.0 {
                         continue;
                     }
@@ -430,8 +427,8 @@ pub fn icosphere(c: [f64; 3], r: f64, subdivisions: u32) -> Vec<[[f64; 3]; 3]> {
         [9, 8, 1],
     ];
     let unit = |v: [f64; 3]| {
-        let l = dot(v, v).sqrt();
-        v.map(|x| x / l)
+        let v = DVec3::from(v);
+        (v / v.length()).to_array()
     };
     let mut tris: Vec<[[f64; 3]; 3]> = faces
         .iter()
@@ -539,7 +536,7 @@ mod tests {
         let tracer = object_tracer(&tris);
         let sphere = bounding_sphere(&tris);
         let p = [1.2, 2.0, -1.6];
-        let dist = dot(p, p).sqrt();
+        let dist = DVec3::from(p).length();
         let n_o = p.map(|x| -x / dist);
         let got = transfer_at_points(
             &tracer,

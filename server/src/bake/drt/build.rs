@@ -34,15 +34,15 @@ use lightfarm_proto::scene::{Aabb, ClutterBasis, ClutterGather, Opening, Scene, 
 
 use crate::bake::drt::clutter_basis::{clutter_basis, prior_lights, ClutterBasisOps};
 use crate::bake::drt::error::DrtError;
+use crate::bake::drt::lit_source::LitSource;
 use crate::bake::drt::rays::{clutter_basis_unit, trace_all, DrtRayCache, RayPass};
 use crate::bake::mrt::shape::ShapeOperators;
 use crate::bake::scene::geometry::Geometry;
-use crate::bake::sh::gather::{key_of, source_of, SourceKey};
 use crate::bake::tracer::Tracer;
 use crate::bake::transport::build::MrtTransport;
 
 /// Rows of one target, keyed by (source kind, source index) then global texel row.
-type RowsBySource = BTreeMap<SourceKey, BTreeMap<u32, Vec<f64>>>;
+type RowsBySource = BTreeMap<LitSource, BTreeMap<u32, Vec<f64>>>;
 
 /// A delta operator block in f64.
 pub struct DeltaBlock {
@@ -92,14 +92,14 @@ pub struct DrtOperators {
 
 /// Accumulates `weight · row` into `map[source][global_row]`.
 fn add_row(
-    map: &mut BTreeMap<SourceKey, BTreeMap<u32, Vec<f64>>>,
-    source: DeltaSource,
+    map: &mut BTreeMap<LitSource, BTreeMap<u32, Vec<f64>>>,
+    source: LitSource,
     row: u32,
     values: &[f64],
     weight: f64,
 ) {
     let acc = map
-        .entry(key_of(source))
+        .entry(source)
         .or_default()
         .entry(row)
         .or_insert_with(|| vec![0.0; values.len()]);
@@ -288,7 +288,7 @@ pub fn build_drt(
             // Antiradiance: −L_imp at the wall behind.
             add_row(
                 &mut per_target[target],
-                DeltaSource::Block(source as u32),
+                LitSource::Block(source as u32),
                 x as u32,
                 l_imp_rows[source].row(l),
                 -w,
@@ -300,7 +300,7 @@ pub fn build_drt(
             if let Some(i) = projection_of[c] {
                 add_row(
                     &mut per_target[target],
-                    DeltaSource::Clutter(i as u32),
+                    LitSource::Clutter(i as u32),
                     x as u32,
                     basis_rows[i].row(l),
                     w,
@@ -315,9 +315,9 @@ pub fn build_drt(
         // Every source whose MRT transport reaches the target, not only those with delta rows:
         // a buried texel must cancel light arriving from neighbouring blocks too (a room
         // wholly inside a clutter box still receives MRT light through its openings).
-        let mut sources: Vec<SourceKey> = map.keys().copied().collect();
+        let mut sources: Vec<LitSource> = map.keys().copied().collect();
         for b in 0..n_blocks {
-            let key = (0, b as u32);
+            let key = LitSource::Block(b as u32);
             let reaches = b == target || mrt.row(shapes, target, b, 0).is_some();
             if reaches && !sources.contains(&key) {
                 sources.push(key);
@@ -370,19 +370,16 @@ pub fn build_drt(
                     }
                     let x_local = x - range.start;
                     for &key in &sources {
-                        let width = match source_of(key) {
-                            DeltaSource::Block(b) => shapes[b as usize].rank(),
-                            DeltaSource::Clutter(c) => clutter[c as usize].1.basis.basis.ncols(),
-                            DeltaSource::Direct { count, .. } => count as usize,
+                        let width = match key {
+                            LitSource::Block(b) => shapes[b as usize].rank(),
+                            LitSource::Clutter(c) => clutter[c as usize].1.basis.basis.ncols(),
                         };
                         let unshadowed = |row: usize| -> Vec<f64> {
-                            match source_of(key) {
-                                DeltaSource::Block(b) => mrt
+                            match key {
+                                LitSource::Block(b) => mrt
                                     .row(shapes, target, b as usize, row)
                                     .unwrap_or_else(|| vec![0.0; width]),
-                                DeltaSource::Clutter(_) | DeltaSource::Direct { .. } => {
-                                    vec![0.0; width]
-                                }
+                                LitSource::Clutter(_) => vec![0.0; width],
                             }
                         };
                         // ΔU[x] = mean_n (U[n] + ΔU[n]) − U[x]; no neighbours: −U[x].
@@ -402,7 +399,7 @@ pub fn build_drt(
                             value[c] -= own[c];
                         }
                         if value.iter().any(|v| *v != 0.0) {
-                            add_row(map, source_of(key), x as u32, &value, 1.0);
+                            add_row(map, key, x as u32, &value, 1.0);
                         }
                     }
                 }
@@ -460,7 +457,7 @@ pub fn build_drt(
             if source < n_blocks {
                 add_row(
                     &mut per_clutter,
-                    DeltaSource::Block(source as u32),
+                    LitSource::Block(source as u32),
                     x as u32,
                     l_imp_rows[source].row(l),
                     weight,
@@ -468,7 +465,7 @@ pub fn build_drt(
             } else if let Some(i) = projection_of[source - n_blocks] {
                 add_row(
                     &mut per_clutter,
-                    DeltaSource::Clutter(i as u32),
+                    LitSource::Clutter(i as u32),
                     x as u32,
                     basis_rows[i].row(l),
                     weight,
@@ -492,7 +489,7 @@ pub fn build_drt(
             let matrix = Mat::from_fn(rows.len(), width, |i, j| values[i][j]);
             entries.push(DeltaBlock {
                 rows: rows.keys().copied().collect(),
-                source: source_of(key),
+                source: key.into(),
                 matrix,
             });
         }

@@ -12,6 +12,8 @@
 
 use std::f64::consts::PI;
 
+use glam::DVec3;
+
 use crate::bake::math::sampling::{sample_cosine_hemisphere, to_world};
 
 /// A bounding sphere of one clutter object.
@@ -27,22 +29,15 @@ pub struct ClutterGuidedSampler {
     pub alpha: f64,
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
 /// Cosine of the half-angle of the cone from `x` to a sphere (−1: `x` is inside, whole sphere).
 fn cone_cos(x: [f64; 3], s: &Sphere) -> (f64, [f64; 3]) {
-    let d = sub(s.center, x);
-    let dist = dot(d, d).sqrt();
+    let d = DVec3::from(s.center) - DVec3::from(x);
+    let dist = d.length();
     if dist <= s.radius * 1.000001 {
         return (-1.0, [0.0, 0.0, 1.0]);
     }
     let sin = s.radius / dist;
-    ((1.0 - sin * sin).max(0.0).sqrt(), d.map(|c| c / dist))
+    ((1.0 - sin * sin).max(0.0).sqrt(), (d / dist).to_array())
 }
 
 fn cone_pdf(cos_max: f64) -> f64 {
@@ -66,11 +61,12 @@ impl ClutterGuidedSampler {
         if self.alpha <= 0.0 {
             return Vec::new();
         }
+        let (x3, n3) = (DVec3::from(x), DVec3::from(n));
         (0..self.spheres.len())
             .filter(|&i| {
                 let s = &self.spheres[i];
                 cone_cos(x, s).0 > MIN_CONE_COS
-                    && dot(sub(s.center, x), n) > -s.radius
+                    && (DVec3::from(s.center) - x3).dot(n3) > -s.radius
                     && may_reach(s)
             })
             .collect()
@@ -85,14 +81,15 @@ impl ClutterGuidedSampler {
     }
 
     fn mixture_pdf(&self, cones: &[Cone], n: [f64; 3], w: [f64; 3]) -> f64 {
-        let cos_pdf = dot(n, w).max(0.0) / PI;
+        let (n, w) = (DVec3::from(n), DVec3::from(w));
+        let cos_pdf = n.dot(w).max(0.0) / PI;
         if cones.is_empty() || self.alpha <= 0.0 {
             return cos_pdf;
         }
         let share = self.alpha / cones.len() as f64;
         let mut p = (1.0 - self.alpha) * cos_pdf;
         for (cos_max, axis) in cones {
-            if dot(w, *axis) >= *cos_max {
+            if w.dot(DVec3::from(*axis)) >= *cos_max {
                 p += share * cone_pdf(*cos_max);
             }
         }
@@ -132,7 +129,7 @@ impl ClutterGuidedSampler {
         } else {
             to_world(sample_cosine_hemisphere(u), n)
         };
-        let cos = dot(n, w);
+        let cos = DVec3::from(n).dot(DVec3::from(w));
         if cos <= 0.0 {
             return (w, 0.0);
         }
@@ -162,7 +159,7 @@ mod tests {
             let (w, weight) =
                 sampler.sample(x, n, (i as f64 + 0.5) / n_rays as f64, sobol_2d(key, i));
             let (cos_max, axis) = cone_cos(x, &s);
-            if dot(w, axis) >= cos_max {
+            if DVec3::from(w).dot(DVec3::from(axis)) >= cos_max {
                 sum += weight;
             }
         }

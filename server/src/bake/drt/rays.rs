@@ -15,6 +15,8 @@
 //!     behind clutter see the blocks alone, which the key fixes.
 //!
 //! Clutter texel indices in cached results are mapped through the objects' new texel offsets.
+//! Units are stored on disk by [`DrtRayCache`] ([`crate::bake::cache::drt_rays`]); their keys
+//! ([`CODE_VERSION`] and what the streams depend on) are made here.
 //! Guiding aims only at clutter in the texel's block or a block one opening away (farther
 //! clutter is still reached by the cosine rays); this is what limits (a) to the neighbourhood
 //! of the moved object.
@@ -27,16 +29,14 @@
 //! the same bytes with or without the cache, at any thread count.
 
 use std::collections::BTreeMap;
-use std::fs;
-use std::io::Write;
 use std::path::PathBuf;
 
+use glam::DVec3;
 use rayon::prelude::*;
 
 use lightfarm_proto::scene::{Opening, Scene, SceneGather};
-use lightfarm_proto::wire::{checksum, Reader, WireError, Writer};
 
-use crate::bake::cache::shape::mark_used;
+use crate::bake::cache::drt_rays::Unit;
 use crate::bake::drt::clutter_basis::ClutterBasisOps;
 use crate::bake::drt::clutter_sampling::{ClutterGuidedSampler, Sphere};
 use crate::bake::drt::error::DrtError;
@@ -47,11 +47,14 @@ use crate::bake::math::sampling::{
 };
 use crate::bake::mrt::lighting_prior::unshadowed_pattern;
 use crate::bake::scene::geometry::{ClutterShape, Geometry, Primitive, SurfaceOwner};
-use crate::bake::scene::mesh::{cross, dot, sub};
 use crate::bake::tracer::{Hit, Tracer};
 
-/// Bumped whenever what a ray pass records for the same inputs changes.
-const CODE_VERSION: &str = "lightfarm-drt-rays-3";
+/// Bumped whenever what a ray pass records for the same inputs, or how its cache stores it,
+/// changes (4: the shared entry framing). In every unit key, and every cache entry's version tag.
+pub const CODE_VERSION: &str = "lightfarm-drt-rays-4";
+
+/// The on-disk cache of units and prior bases (it lived here; this path still names it).
+pub use crate::bake::cache::drt_rays::DrtRayCache;
 
 /// An axis-aligned box `[min, max]`, world metres.
 pub type Bounds = [[f64; 3]; 2];
@@ -137,7 +140,8 @@ pub fn classify(g: &Geometry, tracer: &Tracer, hit: &Hit) -> Seen {
             lightmap: Some(m),
             ..
         } => {
-            let front = dot(hit.normal, cross(sub(v[1], v[0]), sub(v[2], v[0]))) > 0.0;
+            let [v0, v1, v2] = v.map(DVec3::from);
+            let front = DVec3::from(hit.normal).dot((v1 - v0).cross(v2 - v0)) > 0.0;
             Seen::Clutter {
                 texel: front.then(|| g.mesh_texel_at(m, hit.point) as u32),
                 // Only a closed piece has an inside; an open sheet's back is an occluder.
@@ -390,13 +394,6 @@ pub struct RayPassResults {
     pub clutter: Vec<ClutterTexelRays>,
     pub traced_texels: usize,
     pub reused_texels: usize,
-}
-
-/// A cached unit: the scene's clutter as it was, and its texels' results.
-struct Unit<T> {
-    spheres: Vec<Sphere>,
-    clutter: Vec<(ClutterShape, u32, u32)>,
-    texels: Vec<T>,
 }
 
 /// How cached texel indices map into the new scene, and what changed.
@@ -731,239 +728,6 @@ fn unit_key(
     h.finalize().to_hex().to_string()
 }
 
-/// On-disk cache of ray-pass units under `<dir>/drt/<key>.lfrays`: an 8-byte FNV-1a checksum,
-/// then the payload. Written to a temp file and renamed; a corrupt entry is deleted and missed.
-#[derive(Clone, Debug)]
-pub struct DrtRayCache {
-    dir: PathBuf,
-}
-
-fn write_reach(w: &mut Writer, reach: &RayReach) {
-    w.u32(reach.cells.len() as u32);
-    for (cell, len) in &reach.cells {
-        w.u8(*cell);
-        w.f32(*len);
-    }
-}
-
-fn read_reach(r: &mut Reader) -> Result<RayReach, WireError> {
-    let n = r.u32()? as usize;
-    let mut cells = Vec::with_capacity(n.min(r.remaining() / 5));
-    for _ in 0..n {
-        cells.push((r.u8()?, r.f32()?));
-    }
-    Ok(RayReach { cells })
-}
-
-fn write_header<T>(w: &mut Writer, unit: &Unit<T>) {
-    w.u32(unit.spheres.len() as u32);
-    for s in &unit.spheres {
-        w.f64s(&[s.center[0], s.center[1], s.center[2], s.radius]);
-    }
-    w.u32(unit.clutter.len() as u32);
-    for (shape, start, count) in &unit.clutter {
-        w.bytes.extend_from_slice(&shape.fingerprint);
-        for x in shape.bounds.iter().flatten() {
-            w.f64(*x);
-        }
-        w.u32(*start);
-        w.u32(*count);
-    }
-    w.u32(unit.texels.len() as u32);
-}
-
-type Header = (Vec<Sphere>, Vec<(ClutterShape, u32, u32)>, usize);
-
-fn read_header(r: &mut Reader) -> Result<Header, WireError> {
-    let n = r.u32()? as usize;
-    let mut spheres = Vec::with_capacity(n.min(r.remaining() / 32));
-    for _ in 0..n {
-        let v = r.f64s()?;
-        if v.len() != 4 {
-            return Err(WireError::Invalid("sphere".into()));
-        }
-        spheres.push(Sphere {
-            center: [v[0], v[1], v[2]],
-            radius: v[3],
-        });
-    }
-    let n = r.u32()? as usize;
-    let mut clutter = Vec::with_capacity(n.min(r.remaining() / 88));
-    for _ in 0..n {
-        let fingerprint: [u8; 32] = r.take(32)?.try_into().expect("32 bytes");
-        let mut bounds = [[0.0; 3]; 2];
-        for x in bounds.iter_mut().flatten() {
-            *x = r.f64()?;
-        }
-        clutter.push((
-            ClutterShape {
-                bounds,
-                fingerprint,
-            },
-            r.u32()?,
-            r.u32()?,
-        ));
-    }
-    Ok((spheres, clutter, r.u32()? as usize))
-}
-
-impl DrtRayCache {
-    /// Opens (and creates) `<dir>/drt`.
-    pub fn open(dir: &std::path::Path) -> std::io::Result<DrtRayCache> {
-        let dir = dir.join("drt");
-        fs::create_dir_all(&dir)?;
-        Ok(DrtRayCache { dir })
-    }
-
-    fn path(&self, key: &str) -> PathBuf {
-        self.dir.join(format!("{key}.lfrays"))
-    }
-
-    /// Where the unit with this key lives, relative to the operator cache directory.
-    fn relative_path(key: &str) -> PathBuf {
-        PathBuf::from("drt").join(format!("{key}.lfrays"))
-    }
-
-    fn read(&self, key: &str) -> Option<Vec<u8>> {
-        let path = self.path(key);
-        let bytes = fs::read(&path).ok()?;
-        let valid = bytes.len() >= 8
-            && u64::from_le_bytes(bytes[..8].try_into().unwrap()) == checksum(&bytes[8..]);
-        if valid {
-            mark_used(&path);
-            Some(bytes[8..].to_vec())
-        } else {
-            let _ = fs::remove_file(&path);
-            None
-        }
-    }
-
-    fn write(&self, key: &str, payload: &[u8]) -> std::io::Result<()> {
-        let tmp = self.dir.join(format!(".{key}.{}.tmp", std::process::id()));
-        {
-            let mut f = fs::File::create(&tmp)?;
-            f.write_all(&checksum(payload).to_le_bytes())?;
-            f.write_all(payload)?;
-            f.sync_all()?;
-        }
-        fs::rename(&tmp, self.path(key))
-    }
-
-    /// A unit of `texels` texels, each read by `read_texel`; a unit that does not decode (or
-    /// has another texel count) is deleted and missed.
-    fn get_unit<T>(
-        &self,
-        key: &str,
-        texels: usize,
-        mut read_texel: impl FnMut(&mut Reader) -> Result<T, WireError>,
-    ) -> Option<Unit<T>> {
-        let bytes = self.read(key)?;
-        let mut decode = || -> Result<Unit<T>, WireError> {
-            let mut r = Reader::new(&bytes);
-            let (spheres, clutter, n) = read_header(&mut r)?;
-            if n != texels {
-                return Err(WireError::Invalid("texel count".into()));
-            }
-            let texels = (0..n)
-                .map(|_| read_texel(&mut r))
-                .collect::<Result<Vec<T>, WireError>>()?;
-            Ok(Unit {
-                spheres,
-                clutter,
-                texels,
-            })
-        };
-        let unit = decode().ok();
-        if unit.is_none() {
-            let _ = fs::remove_file(self.path(key));
-        }
-        unit
-    }
-
-    /// Stores a unit, each texel written by `write_texel`.
-    fn put_unit<T>(
-        &self,
-        key: &str,
-        unit: &Unit<T>,
-        write_texel: impl Fn(&mut Writer, &T),
-    ) -> std::io::Result<()> {
-        let mut w = Writer::new();
-        write_header(&mut w, unit);
-        for t in &unit.texels {
-            write_texel(&mut w, t);
-        }
-        self.write(key, &w.bytes)
-    }
-
-    fn get_block(&self, key: &str, texels: usize) -> Option<Unit<BlockTexelRays>> {
-        self.get_unit(key, texels, |r| {
-            let mut pairs = || -> Result<Vec<(u32, f64)>, WireError> {
-                let ts = r.u32s()?;
-                let ws = r.f64s()?;
-                if ts.len() != ws.len() {
-                    return Err(WireError::Invalid("hit list".into()));
-                }
-                Ok(ts.into_iter().zip(ws).collect())
-            };
-            let occluded = pairs()?;
-            let reflected = pairs()?;
-            let clutter_hits = r.f64()?;
-            let back_hits = r.f64()?;
-            let ts = r.u32s()?;
-            let ns = r.u32s()?;
-            if ts.len() != ns.len() {
-                return Err(WireError::Invalid("hit list".into()));
-            }
-            Ok(BlockTexelRays {
-                occluded,
-                reflected,
-                clutter_hits,
-                back_hits,
-                hits: ts.into_iter().zip(ns).collect(),
-                reach: read_reach(r)?,
-            })
-        })
-    }
-
-    fn put_block(&self, key: &str, unit: &Unit<BlockTexelRays>) -> std::io::Result<()> {
-        self.put_unit(key, unit, |w, t| {
-            for list in [&t.occluded, &t.reflected] {
-                w.u32s(&list.iter().map(|p| p.0).collect::<Vec<_>>());
-                w.f64s(&list.iter().map(|p| p.1).collect::<Vec<_>>());
-            }
-            w.f64(t.clutter_hits);
-            w.f64(t.back_hits);
-            w.u32s(&t.hits.iter().map(|p| p.0).collect::<Vec<_>>());
-            w.u32s(&t.hits.iter().map(|p| p.1).collect::<Vec<_>>());
-            write_reach(w, &t.reach);
-        })
-    }
-
-    fn get_clutter(&self, key: &str, texels: usize) -> Option<Unit<ClutterTexelRays>> {
-        self.get_unit(key, texels, |r| {
-            let ts = r.u32s()?;
-            let ns = r.u32s()?;
-            if ts.len() != ns.len() {
-                return Err(WireError::Invalid("hit list".into()));
-            }
-            Ok(ClutterTexelRays {
-                hits: ts.into_iter().zip(ns).collect(),
-                back: r.f64()?,
-                reach: read_reach(r)?,
-            })
-        })
-    }
-
-    fn put_clutter(&self, key: &str, unit: &Unit<ClutterTexelRays>) -> std::io::Result<()> {
-        self.put_unit(key, unit, |w, t| {
-            w.u32s(&t.hits.iter().map(|p| p.0).collect::<Vec<_>>());
-            w.u32s(&t.hits.iter().map(|p| p.1).collect::<Vec<_>>());
-            w.f64(t.back);
-            write_reach(w, &t.reach);
-        })
-    }
-}
-
 /// True when the segment `a → b` meets the box grown by `margin` (slab test).
 fn segment_meets(a: [f64; 3], b: [f64; 3], bounds: &Bounds, margin: f64) -> bool {
     let (mut t0, mut t1) = (0.0f64, 1.0f64);
@@ -1042,59 +806,4 @@ pub fn clutter_basis_unit(
     let basis = compute()?;
     cache.put_basis(&key, &new_clutter, &basis)?;
     Ok(basis)
-}
-
-impl DrtRayCache {
-    fn get_basis(&self, key: &str) -> Option<(Vec<(ClutterShape, u32, u32)>, ClutterBasisOps)> {
-        let bytes = self.read(key)?;
-        let decode = || -> Result<_, WireError> {
-            let mut r = Reader::new(&bytes);
-            let (_, clutter, rows) = read_header(&mut r)?;
-            let cols = r.u32()? as usize;
-            let data = r.f64s()?;
-            if data.len() != rows * cols {
-                return Err(WireError::Invalid("basis size".into()));
-            }
-            let dropped_energy = r.f64()?;
-            let basis = faer::Mat::from_fn(rows, cols, |i, j| data[i * cols + j]);
-            Ok((
-                clutter,
-                ClutterBasisOps {
-                    basis,
-                    dropped_energy,
-                },
-            ))
-        };
-        let out = decode().ok();
-        if out.is_none() {
-            let _ = fs::remove_file(self.path(key));
-        }
-        out
-    }
-
-    fn put_basis(
-        &self,
-        key: &str,
-        clutter: &[(ClutterShape, u32, u32)],
-        basis: &ClutterBasisOps,
-    ) -> std::io::Result<()> {
-        let mut w = Writer::new();
-        write_header::<()>(
-            &mut w,
-            &Unit {
-                spheres: Vec::new(),
-                clutter: clutter.to_vec(),
-                texels: vec![(); basis.basis.nrows()],
-            },
-        );
-        let m = &basis.basis;
-        w.u32(m.ncols() as u32);
-        let mut data = Vec::with_capacity(m.nrows() * m.ncols());
-        for i in 0..m.nrows() {
-            data.extend((0..m.ncols()).map(|j| m[(i, j)]));
-        }
-        w.f64s(&data);
-        w.f64(basis.dropped_energy);
-        self.write(key, &w.bytes)
-    }
 }

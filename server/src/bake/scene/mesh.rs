@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
+use glam::DVec3;
 use lightfarm_proto::scene::Transform;
 
 use crate::bake::scene::mesh_albedo::{texture_from_gltf, MeshAlbedo, TriangleAlbedo};
@@ -277,26 +278,9 @@ pub fn load_mesh(
 
 /// Area of a triangle.
 pub fn triangle_area(t: &[[f64; 3]; 3]) -> f64 {
-    let e1 = sub(t[1], t[0]);
-    let e2 = sub(t[2], t[0]);
-    0.5 * norm(cross(e1, e2))
-}
-
-pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-pub(crate) fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
+    let e1 = DVec3::from(t[1]) - DVec3::from(t[0]);
+    let e2 = DVec3::from(t[2]) - DVec3::from(t[0]);
+    0.5 * e1.cross(e2).length()
 }
 
 fn identity4() -> [[f64; 4]; 4] {

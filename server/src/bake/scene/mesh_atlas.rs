@@ -47,7 +47,7 @@
 
 use std::collections::BTreeMap;
 
-use crate::bake::scene::mesh::{cross, dot, norm, sub};
+use glam::DVec3;
 
 /// Largest angle between a chart triangle's normal and the chart's normal.
 pub const CHART_MAX_ANGLE_DEG: f64 = 30.0;
@@ -121,9 +121,9 @@ pub struct MeshAtlas {
 
 /// Unit face normal by winding.
 pub fn face_normal(t: &[[f64; 3]; 3]) -> [f64; 3] {
-    let n = cross(sub(t[1], t[0]), sub(t[2], t[0]));
-    let l = norm(n);
-    n.map(|x| x / l)
+    let [a, b, c] = t.map(DVec3::from);
+    let n = (b - a).cross(c - a);
+    (n / n.length()).to_array()
 }
 
 fn area2(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
@@ -203,11 +203,12 @@ fn overlaps_square(t: &[[f64; 2]; 3], x: f64, y: f64, eps: f64) -> bool {
 
 /// A deterministic tangent frame for a chart normal: the first tangent is the first world axis
 /// other than the dominant one, made orthogonal to `n`.
-fn chart_frame(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
-    let a = n.map(f64::abs);
-    let dominant = if a[0] >= a[1] && a[0] >= a[2] {
+fn chart_frame(n: [f64; 3]) -> (DVec3, DVec3) {
+    let n = DVec3::from(n);
+    let a = n.abs();
+    let dominant = if a.x >= a.y && a.x >= a.z {
         0
-    } else if a[1] >= a[2] {
+    } else if a.y >= a.z {
         1
     } else {
         2
@@ -217,21 +218,15 @@ fn chart_frame(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
         1 => (0, 2),
         _ => (0, 1),
     };
-    let mut e = [0.0; 3];
+    let mut e = DVec3::ZERO;
     e[first] = 1.0;
-    let along = dot(e, n);
-    let mut u = [
-        e[0] - along * n[0],
-        e[1] - along * n[1],
-        e[2] - along * n[2],
-    ];
-    let l = norm(u);
-    u = u.map(|x| x / l);
+    let u = e - e.dot(n) * n;
+    let u = u / u.length();
     // Second tangent: the remaining world axis' direction, so axis-aligned faces keep
     // ascending tangent axes (`proto::face`).
-    let mut v = cross(n, u);
+    let mut v = n.cross(u);
     if v[second] < 0.0 {
-        v = v.map(|x| -x);
+        v = -v;
     }
     (u, v)
 }
@@ -256,7 +251,7 @@ fn group_charts(triangles: &[[[f64; 3]; 3]], normals: &[[f64; 3]]) -> (Vec<u32>,
         if chart[seed] != u32::MAX {
             continue;
         }
-        let n_seed = normals[seed];
+        let n_seed = DVec3::from(normals[seed]);
         chart[seed] = n_charts;
         let mut queue = std::collections::VecDeque::from([seed]);
         while let Some(k) = queue.pop_front() {
@@ -266,7 +261,7 @@ fn group_charts(triangles: &[[[f64; 3]; 3]], normals: &[[f64; 3]]) -> (Vec<u32>,
                 let e = if a <= b { (a, b) } else { (b, a) };
                 for &m in &edges[&e] {
                     let m = m as usize;
-                    if chart[m] == u32::MAX && dot(normals[m], n_seed) >= cos_max {
+                    if chart[m] == u32::MAX && DVec3::from(normals[m]).dot(n_seed) >= cos_max {
                         chart[m] = n_charts;
                         queue.push_back(m);
                     }
@@ -307,7 +302,8 @@ pub fn closed_pieces(triangles: &[[[f64; 3]; 3]]) -> (Vec<(u32, bool)>, Vec<f64>
         let mut queue = std::collections::VecDeque::from([seed]);
         while let Some(k) = queue.pop_front() {
             let t = triangles[k];
-            vol += dot(t[0], cross(t[1], t[2])) / 6.0;
+            let [a, b, c] = t.map(DVec3::from);
+            vol += a.dot(b.cross(c)) / 6.0;
             for (i, j) in [(0, 1), (1, 2), (2, 0)] {
                 let (a, b) = (key(t[i]), key(t[j]));
                 let e = if a <= b { (a, b) } else { (b, a) };
@@ -526,11 +522,12 @@ impl MeshAtlas {
     /// texel, O(1); a point whose cell holds no texel (on an edge, outside the conservative
     /// cover by rounding) takes the triangle's texel with the nearest centre.
     pub fn texel_at(&self, k: usize, p: [f64; 3]) -> usize {
-        let t = &self.triangles[k];
-        let n = cross(sub(t[1], t[0]), sub(t[2], t[0]));
-        let nn = dot(n, n);
-        let b1 = dot(cross(sub(p, t[0]), sub(t[2], t[0])), n) / nn;
-        let b2 = dot(cross(sub(t[1], t[0]), sub(p, t[0])), n) / nn;
+        let [t0, t1, t2] = self.triangles[k].map(DVec3::from);
+        let (e1, e2, d) = (t1 - t0, t2 - t0, DVec3::from(p) - t0);
+        let n = e1.cross(e2);
+        let nn = n.length_squared();
+        let b1 = d.cross(e2).dot(n) / nn;
+        let b2 = e1.cross(d).dot(n) / nn;
         let b = [1.0 - b1 - b2, b1, b2];
         let uv = &self.triangle_uv[k];
         let q: [f64; 2] =
@@ -572,7 +569,12 @@ fn generate(
     let mut charts: Vec<(Vec<usize>, Vec<[[f64; 2]; 3]>)> = Vec::new();
     for tris in members {
         let (u, v) = chart_frame(normals[tris[0]]);
-        let project = |k: usize| triangles[k].map(|p| [dot(p, u) / h, dot(p, v) / h]);
+        let project = |k: usize| {
+            triangles[k].map(|p| {
+                let p = DVec3::from(p);
+                [p.dot(u) / h, p.dot(v) / h]
+            })
+        };
         let uv: Vec<[[f64; 2]; 3]> = tris.iter().map(|&k| project(k)).collect();
         if folds(&uv) {
             for &k in &tris {
@@ -833,7 +835,7 @@ mod tests {
                     (texel.x, texel.y),
                     (q[0].floor() as u32, q[1].floor() as u32)
                 );
-                let d = norm(sub(texel.position, p));
+                let d = DVec3::from(texel.position).distance(DVec3::from(p));
                 assert!(d <= h * 0.5f64.sqrt() * (1.0 + 1e-9), "{d} > half diagonal");
             }
         }
@@ -859,7 +861,7 @@ mod tests {
         for t in &atlas.texels {
             let want = [(t.y as f64 + 0.5) * 0.25, 0.0, (t.x as f64 + 0.5) * 0.25];
             assert!(
-                norm(sub(t.position, want)) < 1e-12,
+                DVec3::from(t.position).distance(DVec3::from(want)) < 1e-12,
                 "{:?} vs {want:?}",
                 t.position
             );

@@ -13,35 +13,14 @@
 
 use std::collections::BTreeMap;
 
-use lightfarm_proto::bundle::DeltaSource;
+use glam::DVec3;
 use lightfarm_proto::sh::SH_COEFFS;
 
 use crate::bake::drt::build::ClutterProjection;
+use crate::bake::drt::lit_source::LitSource;
 use crate::bake::mrt::shape::ShapeOperators;
 use crate::bake::scene::geometry::{Geometry, Primitive, SurfaceOwner};
-use crate::bake::scene::mesh::{cross, dot, sub};
 use crate::bake::tracer::Tracer;
-
-/// `(0, block)` or `(1, index in the DRT clutter list)`: orders blocks before clutter.
-pub type SourceKey = (u8, u32);
-
-/// The key of a delta source.
-pub fn key_of(source: DeltaSource) -> SourceKey {
-    match source {
-        DeltaSource::Block(b) => (0, b),
-        DeltaSource::Clutter(c) => (1, c),
-        DeltaSource::Direct { .. } => unreachable!("gather rays read blocks and clutter only"),
-    }
-}
-
-/// The delta source of a key.
-pub fn source_of(key: SourceKey) -> DeltaSource {
-    if key.0 == 0 {
-        DeltaSource::Block(key.1)
-    } else {
-        DeltaSource::Clutter(key.1)
-    }
-}
 
 /// The lit texel the ray `o + t·d` lands on, as (source, texel index local to the source), or
 /// None (miss, back side, no texels, clutter without a basis). `projection_of[c]` maps a scene
@@ -52,7 +31,7 @@ pub fn implicit_source_hit(
     projection_of: &[Option<usize>],
     o: [f64; 3],
     d: [f64; 3],
-) -> Option<(SourceKey, usize)> {
+) -> Option<(LitSource, usize)> {
     let sign = |s: u32| g.surfaces[s as usize].normal_sign;
     let hit = tracer.closest(o, d, f64::INFINITY, &sign)?;
     let (s, t) = match tracer.primitives()[hit.primitive as usize] {
@@ -65,8 +44,9 @@ pub fn implicit_source_hit(
             ..
         } => {
             // Mesh clutter: its lit (counter-clockwise) side only.
-            let n = cross(sub(v[1], v[0]), sub(v[2], v[0]));
-            if dot(hit.normal, n) <= 0.0 {
+            let [v0, v1, v2] = v.map(DVec3::from);
+            let n = (v1 - v0).cross(v2 - v0);
+            if DVec3::from(hit.normal).dot(n) <= 0.0 {
                 return None;
             }
             let surface = g.mesh_atlases[m.atlas as usize].1;
@@ -75,30 +55,30 @@ pub fn implicit_source_hit(
         _ => return None,
     };
     match g.surfaces[s as usize].owner {
-        SurfaceOwner::Block { block, .. } => {
-            Some(((0, block as u32), t - g.block_texels[block].start))
-        }
+        SurfaceOwner::Block { block, .. } => Some((
+            LitSource::Block(block as u32),
+            t - g.block_texels[block].start,
+        )),
         SurfaceOwner::ClutterBox { clutter: c, .. }
         | SurfaceOwner::ClutterMesh { clutter: c, .. } => projection_of
             .get(c)
             .copied()
             .flatten()
-            .map(|j| ((1, j as u32), t - g.clutter_texels[c].start)),
+            .map(|j| (LitSource::Clutter(j as u32), t - g.clutter_texels[c].start)),
     }
 }
 
-/// Row `local` of the source's implicit lights: `L_imp` of block `key.1`, or the basis of DRT
-/// clutter object `key.1`.
+/// Row `local` of the source's implicit lights: `L_imp` of the block, or the basis of the DRT
+/// clutter object.
 pub fn implicit_row(
     shapes: &[&ShapeOperators],
     clutter: &[ClutterProjection],
-    key: SourceKey,
+    key: LitSource,
     local: usize,
 ) -> Vec<f64> {
-    let m = if key.0 == 0 {
-        &shapes[key.1 as usize].l_imp
-    } else {
-        &clutter[key.1 as usize].basis.basis
+    let m = match key {
+        LitSource::Block(b) => &shapes[b as usize].l_imp,
+        LitSource::Clutter(c) => &clutter[c as usize].basis.basis,
     };
     (0..m.ncols()).map(|j| m[(local, j)]).collect()
 }
@@ -106,11 +86,11 @@ pub fn implicit_row(
 /// Turns SH-weighted hit sums (`(source, local texel) → Σ_rays w·Y_lm(ω)`) into 9 rows per
 /// source: `rows[source][lm] = Σ_texels sum[lm] · implicit_row(source, texel)`.
 pub fn sh_rows(
-    by_texel: &BTreeMap<(SourceKey, usize), [f64; SH_COEFFS]>,
+    by_texel: &BTreeMap<(LitSource, usize), [f64; SH_COEFFS]>,
     shapes: &[&ShapeOperators],
     clutter: &[ClutterProjection],
-) -> BTreeMap<SourceKey, [Vec<f64>; SH_COEFFS]> {
-    let mut out: BTreeMap<SourceKey, [Vec<f64>; SH_COEFFS]> = BTreeMap::new();
+) -> BTreeMap<LitSource, [Vec<f64>; SH_COEFFS]> {
+    let mut out: BTreeMap<LitSource, [Vec<f64>; SH_COEFFS]> = BTreeMap::new();
     for (&(key, local), y) in by_texel {
         let row = implicit_row(shapes, clutter, key, local);
         let acc = out

@@ -19,10 +19,11 @@ use lightfarm_proto::scene::Scene;
 use lightfarm_proto::sh::{sh_basis, SH_COEFFS};
 
 use crate::bake::drt::build::{ClutterProjection, DeltaBlock};
+use crate::bake::drt::lit_source::LitSource;
 use crate::bake::math::sampling::{sobol_2d, stream_key, Purpose};
 use crate::bake::mrt::shape::ShapeOperators;
 use crate::bake::scene::geometry::Geometry;
-use crate::bake::sh::gather::{implicit_source_hit, sh_rows, source_of, SourceKey};
+use crate::bake::sh::gather::{implicit_source_hit, sh_rows};
 use crate::bake::tracer::Tracer;
 
 /// The grid and its operators.
@@ -95,7 +96,7 @@ pub fn build_probe_volume(
     let rays = scene.settings.rays_per_texel;
     let weight = 4.0 * std::f64::consts::PI / rays as f64;
     // Per probe: (source, hit texel local index, sh basis of the ray) in ray order.
-    let hits: Vec<Vec<(SourceKey, usize, [f64; SH_COEFFS])>> = positions
+    let hits: Vec<Vec<(LitSource, usize, [f64; SH_COEFFS])>> = positions
         .par_iter()
         .enumerate()
         .map(|(p, x)| {
@@ -112,10 +113,10 @@ pub fn build_probe_volume(
             out
         })
         .collect();
-    let mut per_source: BTreeMap<SourceKey, BTreeMap<u32, Vec<f64>>> = BTreeMap::new();
+    let mut per_source: BTreeMap<LitSource, BTreeMap<u32, Vec<f64>>> = BTreeMap::new();
     for (p, list) in hits.iter().enumerate() {
         // Sum the SH basis of rays landing on the same texel first.
-        let mut by_texel: BTreeMap<(SourceKey, usize), [f64; SH_COEFFS]> = BTreeMap::new();
+        let mut by_texel: BTreeMap<(LitSource, usize), [f64; SH_COEFFS]> = BTreeMap::new();
         for (key, local, y) in list {
             let acc = by_texel.entry((*key, *local)).or_insert([0.0; SH_COEFFS]);
             for (a, v) in acc.iter_mut().zip(y) {
@@ -136,7 +137,7 @@ pub fn build_probe_volume(
             let width = values.first().map_or(0, |v| v.len());
             DeltaBlock {
                 rows: rows.keys().copied().collect(),
-                source: source_of(key),
+                source: key.into(),
                 matrix: Mat::from_fn(values.len(), width, |i, j| values[i][j]),
             }
         })

@@ -47,13 +47,14 @@ use lightfarm_proto::scene::Scene;
 use lightfarm_proto::sh::{irradiance_weights, sh_basis, SH_COEFFS};
 
 use crate::bake::drt::build::ClutterProjection;
+use crate::bake::drt::lit_source::LitSource;
 use crate::bake::math::low_rank::{truncated_svd, LowRankError};
 use crate::bake::math::sampling::{
     sample_uniform_hemisphere, sobol_2d, stream_key, to_world, Purpose,
 };
 use crate::bake::mrt::shape::ShapeOperators;
 use crate::bake::scene::geometry::{Geometry, SurfaceOwner};
-use crate::bake::sh::gather::{implicit_source_hit, sh_rows, source_of, SourceKey};
+use crate::bake::sh::gather::{implicit_source_hit, sh_rows};
 use crate::bake::tracer::Tracer;
 
 /// One receiving object's response to one source, factored: `M ≈ y · z`.
@@ -111,11 +112,11 @@ fn texel_response(
     rays: u32,
     seed: u64,
     x: usize,
-) -> BTreeMap<SourceKey, [Vec<f64>; SH_COEFFS]> {
+) -> BTreeMap<LitSource, [Vec<f64>; SH_COEFFS]> {
     let texel = &g.texels[x];
     let key = stream_key(seed, Purpose::ShResponse, x as u64);
     let weight = 2.0 * std::f64::consts::PI / rays as f64;
-    let mut by_texel: BTreeMap<(SourceKey, usize), [f64; SH_COEFFS]> = BTreeMap::new();
+    let mut by_texel: BTreeMap<(LitSource, usize), [f64; SH_COEFFS]> = BTreeMap::new();
     for i in 0..rays {
         let d = to_world(sample_uniform_hemisphere(sobol_2d(key, i)), texel.normal);
         if let Some(hit) = implicit_source_hit(g, tracer, projection_of, texel.position, d) {
@@ -147,7 +148,7 @@ pub fn build_sh_responses(
         .filter(|x| buried.binary_search(&(*x as u32)).is_err())
         .collect();
     stats.buried_texels = g.texels.len() - lit.len();
-    let responses: Vec<BTreeMap<SourceKey, [Vec<f64>; SH_COEFFS]>> = lit
+    let responses: Vec<BTreeMap<LitSource, [Vec<f64>; SH_COEFFS]>> = lit
         .par_iter()
         .map(|&x| {
             let r = texel_response(
@@ -167,7 +168,7 @@ pub fn build_sh_responses(
 
     // Group by (receiving object, source); texels stay ascending within a group.
     type Group = Vec<(u32, [Vec<f64>; SH_COEFFS])>;
-    let mut groups: BTreeMap<((u8, u32), SourceKey), Group> = BTreeMap::new();
+    let mut groups: BTreeMap<((u8, u32), LitSource), Group> = BTreeMap::new();
     for (&x, response) in lit.iter().zip(responses) {
         if !response.is_empty() {
             stats.texels_with_rows += 1;
@@ -180,7 +181,7 @@ pub fn build_sh_responses(
                 .push((x as u32, rows));
         }
     }
-    let groups: Vec<(SourceKey, Group)> = groups
+    let groups: Vec<(LitSource, Group)> = groups
         .into_iter()
         .map(|((_, source), group)| (source, group))
         .collect();
@@ -207,7 +208,7 @@ pub fn build_sh_responses(
             Ok(Some((
                 ShResponseBlock {
                     texels: group.iter().map(|(x, _)| *x).collect(),
-                    source: source_of(*source),
+                    source: (*source).into(),
                     y,
                     z,
                 },

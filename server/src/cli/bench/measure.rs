@@ -25,11 +25,11 @@ use lightfarm_proto::result::{compare, ResultFile};
 use lightfarm_proto::scene::{Aabb, BundleCodec, Scene, Transport};
 use serde::{Deserialize, Serialize};
 
-use crate::bake::bundle_encoding::encode_options;
-use crate::bake::pipeline::{bake, BakeOptions, BakeReport};
+use crate::bake::pipeline::encoding::encode_options;
 use crate::bake::progress::NoProgress;
-use crate::cli::eval::{dnrt_delta, evaluate, is_bounced, leaving_light, operator_direct};
+use crate::bake::{bake, BakeOptions, BakeReport};
 use crate::cli::frame_time::time_frames;
+use crate::evaluate::{dnrt_delta, evaluate, is_bounced, leaving_light, operator_direct};
 
 /// A method as the bench names it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]

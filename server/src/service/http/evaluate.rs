@@ -7,7 +7,7 @@
 //! `eval` does); the headers `lightfarm-bounces` and `lightfarm-remaining-fraction` say how many
 //! bounces the runtime summed and what it estimates the rest to add (as `eval` prints).
 //!
-//! Invariants: the evaluation is [`crate::cli::eval::evaluate_with_report`], called from this one
+//! Invariants: the evaluation is [`crate::evaluate::evaluate_with_report`], called from this one
 //! place, on a blocking thread; this file does no light transport of its own. Another team's bake, an
 //! unknown one and one that has not succeeded are 404; lights that do not parse or validate are
 //! 422 with the message naming the field (`lights[0]: intensity …`, `poses[1].id: …`).
@@ -144,7 +144,7 @@ pub async fn evaluate_bake(
                 )));
             }
         }
-        crate::cli::eval::evaluate_with_report(bundle, &lights, method, bounces)
+        crate::evaluate::evaluate_with_report(bundle, &lights, method, bounces)
             .map_err(|e| ApiFailure::internal("evaluate", format!("{e:#}")))
     })
     .await?;

@@ -25,9 +25,6 @@
 //!
 //! [`Method::Full`]: `l_ind = ρ ⊙ (F · l_d)` with the bundle's sparse dense-bounce operator F.
 //!
-//! Beside this file: `kernels` (planar views, packed products, the block loop), `krylov` (the
-//! GMRES of `Converged`), `sh_apply` and `tests`.
-//!
 //! [`Runtime::apply_sh`] (in [`sh_apply`]) turns direct light into SH incident radiance per
 //! texel of normal-mapped surfaces, from the bundle's `sh` section.
 //!
@@ -50,6 +47,23 @@
 //! indirect light (Enlighten's radiosity feedback), so repeated calls with steady lights converge
 //! to `Converged` at one application each.
 //!
+//! # Layout
+//! - this file: the public types ([`Method`], [`Bounces`], [`Applied`], [`IndirectLight`],
+//!   [`ApplyError`]), [`Runtime`] and its construction ([`Runtime::try_new`]: validation,
+//!   symmetry unfolding, the scratch layout), the accessors, and [`Runtime::apply`] with the
+//!   bounce modes (`One`, `Fixed`, `Converged`, `Feedback`) over one application of `A`.
+//! - `packed_ops`: `PackedOps` (every operator packed for the kernels, indexed like the
+//!   bundle's) and `BlockSlots` (one block's ranges in the block-major scratch).
+//! - `mrt`: MRT steps 1–4 (`project_blocks`, `mrt_albedo_free`, `multiply_albedo`).
+//! - `drt`: DRT steps 1–3 beyond MRT (`project_clutter`, `source_coefficients`,
+//!   `add_drt_deltas`, `drop_replaced`, `add_direct_gather`).
+//! - `full`: [`Method::Full`], the sparse dense-bounce operator.
+//! - `probes`: [`Runtime::apply_probes`], the probe volume's SH radiance.
+//! - `sh_apply`: [`Runtime::apply_sh`] and [`ShLight`], SH incident radiance per texel.
+//! - `kernels`: planar views of the scratch, the packed matrix-vector products, the block loop.
+//! - `krylov`: the restarted GMRES of [`Bounces::Converged`].
+//! - `tests` (`tests/`): hand-built bundles against dense references, per concept.
+//!
 //! Invariants:
 //! - A [`Runtime`] only exists for a bundle whose sizes and indices are consistent (checked in
 //!   [`Runtime::try_new`]; always true of a bundle from `Bundle::decode`), so `apply` and
@@ -70,19 +84,23 @@
 //!   with the `rayon` feature and [`Runtime::set_parallel`], with bit-identical results.
 //! - Block texel ranges are ascending and disjoint (checked by `Bundle::validate`).
 
-use lightfarm_proto::bundle::{Bundle, BundleError, DeltaSource, ProbeVolume, TransportOps};
+use lightfarm_proto::bundle::{Bundle, BundleError, ProbeVolume, TransportOps};
 
 use crate::direct::DirectLight;
 use crate::packed::PackedMatrix;
 use crate::packed_gather::PackedGather;
-use crate::probes::ProbeField;
 
+mod drt;
+mod full;
 mod kernels;
 mod krylov;
+mod mrt;
+mod packed_ops;
+mod probes;
 mod sh_apply;
 
-use kernels::*;
 use krylov::{Krylov, Unsolved};
+use packed_ops::{BlockSlots, PackedOps};
 pub use sh_apply::ShLight;
 
 /// Which operator turns direct into indirect light.
@@ -182,105 +200,6 @@ pub enum ApplyError {
         "bounces: bounce {bounce} produced a non-finite value (check albedo and direct light)"
     )]
     NonFinite { bounce: u32 },
-}
-
-/// Where one block's data sits in the block-major scratch vectors.
-#[derive(Clone, Copy, Debug, Default)]
-struct BlockSlots {
-    /// `b[coef_start .. coef_start + 3r]`: the block's r coefficients, channel-planar.
-    coef_start: usize,
-    rank: usize,
-    /// `lf[lf_start .. lf_end]`: the reduced lightfields of the block's openings.
-    lf_start: usize,
-    lf_end: usize,
-    /// `lf[scratch_start .. lf_end]`: scratch of the block's packed products.
-    scratch_start: usize,
-    /// `out[texel_start .. texel_end]`: the block's texels.
-    texel_start: usize,
-    texel_end: usize,
-    /// `entry_order[entries_start .. entries_end]`: transport entries that target the block.
-    entries_start: usize,
-    entries_end: usize,
-}
-
-/// Every operator the per-frame stages read, packed, indexed like the bundle's.
-#[derive(Clone, Debug, Default)]
-struct PackedOps {
-    /// Per shape: `(U_b, T_d→b, U_r per opening)`.
-    shapes: Vec<(PackedMatrix, PackedMatrix, Vec<PackedMatrix>)>,
-    /// Per transport entry: its matrix (traced, lightfield) or `(Y, Z)` as two (compact).
-    transport: Vec<PackedMatrix>,
-    transport_z: Vec<PackedMatrix>,
-    /// Per DRT clutter object: `t_dc`.
-    clutter: Vec<PackedMatrix>,
-    /// Per DRT delta entry: its matrix and, for a low-rank entry, its `mix`.
-    deltas: Vec<PackedMatrix>,
-    delta_mix: Vec<Option<PackedMatrix>>,
-    /// Per probe-volume entry.
-    probes: Vec<PackedMatrix>,
-    /// The exact clutter gather (DRT, `clutter_gather: exact`).
-    gather: Option<PackedGather>,
-    /// Per SH-response entry: `Y` and `Z`, and the scratch their products need.
-    sh_y: Vec<PackedMatrix>,
-    sh_z: Vec<PackedMatrix>,
-    sh_scratch: usize,
-}
-
-impl PackedOps {
-    fn new(bundle: &Bundle) -> PackedOps {
-        let pack = PackedMatrix::new;
-        let mut ops = PackedOps {
-            shapes: bundle
-                .shapes
-                .iter()
-                .map(|s| {
-                    let u_r = s.openings.iter().map(|o| pack(&o.u_r)).collect();
-                    (pack(&s.u_b), pack(&s.t_db), u_r)
-                })
-                .collect(),
-            ..PackedOps::default()
-        };
-        match &bundle.transport {
-            Some(TransportOps::Traced(e)) => {
-                ops.transport = e.iter().map(|e| pack(&e.matrix)).collect()
-            }
-            Some(TransportOps::Lightfield(e)) => {
-                ops.transport = e.iter().map(|e| pack(&e.matrix)).collect()
-            }
-            Some(TransportOps::Compact(e)) => {
-                ops.transport = e.iter().map(|e| pack(&e.y)).collect();
-                ops.transport_z = e.iter().map(|e| pack(&e.z)).collect();
-            }
-            None => {}
-        }
-        if let Some(d) = &bundle.drt {
-            ops.clutter = d.clutter.iter().map(|c| pack(&c.t_dc)).collect();
-            ops.deltas = d.entries.iter().map(|e| pack(&e.matrix)).collect();
-            ops.delta_mix = d.entries.iter().map(|e| e.mix.as_ref().map(pack)).collect();
-            ops.gather = d
-                .direct_gather
-                .as_ref()
-                .map(|g| PackedGather::new(g, bundle.layout.n_texels()));
-        }
-        if let Some(p) = &bundle.probes {
-            ops.probes = p.entries.iter().map(|e| pack(&e.matrix)).collect();
-        }
-        if let Some(sh) = &bundle.sh {
-            ops.sh_y = sh.entries.iter().map(|e| pack(&e.y)).collect();
-            ops.sh_z = sh.entries.iter().map(|e| pack(&e.z)).collect();
-            ops.sh_scratch = PackedOps::scratch_len(ops.sh_y.iter().chain(&ops.sh_z));
-        }
-        ops
-    }
-
-    /// Largest scratch any of `matrices` needs.
-    fn scratch_len<'a>(matrices: impl IntoIterator<Item = &'a PackedMatrix>) -> usize {
-        matrices
-            .into_iter()
-            .map(PackedMatrix::scratch_len)
-            .max()
-            .unwrap_or(0)
-    }
 }
 
 /// Decoded bundle plus scratch, ready to apply every frame.
@@ -564,47 +483,6 @@ impl Runtime {
         self.bundle.probes.as_ref()
     }
 
-    /// Turns direct light into the SH radiance of every probe of the bundle's probe volume,
-    /// writing every value of `out` (resized if its probe count is wrong; otherwise no
-    /// allocation). Errors: [`ApplyError::DirectLength`] (checked first), then
-    /// [`ApplyError::MissingProbes`].
-    pub fn apply_probes(
-        &mut self,
-        direct: &DirectLight,
-        out: &mut ProbeField,
-    ) -> Result<(), ApplyError> {
-        let n = self.n_texels;
-        if direct.radiance.len() != n {
-            return Err(ApplyError::DirectLength {
-                expected: n,
-                got: direct.radiance.len(),
-            });
-        }
-        let Some(n_probes) = self.bundle.probes.as_ref().map(|p| p.n_probes as usize) else {
-            return Err(ApplyError::MissingProbes);
-        };
-        out.reset(n_probes);
-        self.project_blocks(&direct.radiance);
-        self.project_clutter();
-        self.add_probe_entries(out);
-        Ok(())
-    }
-
-    /// Probe step, after [`Runtime::project_blocks`] and [`Runtime::project_clutter`], into a
-    /// zeroed field of the volume's size: adds every probe entry. Does nothing without a probe
-    /// volume.
-    fn add_probe_entries(&mut self, out: &mut ProbeField) {
-        let Some(probes) = &self.bundle.probes else {
-            return;
-        };
-        let mut scratch = std::mem::take(&mut self.scratch);
-        for (e, m) in probes.entries.iter().zip(&self.ops.probes) {
-            let x = self.source_coefficients(e.source, m.cols());
-            m.matvec(x, &mut scratch, |i, v| out.add_row(e.rows[i], v));
-        }
-        self.scratch = scratch;
-    }
-
     /// Turns direct light into indirect light by `method`, summing `bounces` bounces (see the
     /// module doc), and writes every texel of `out` (resized to the texel count if its length
     /// is wrong; otherwise no allocation). On an error `out` holds zeros (or is untouched for
@@ -802,275 +680,6 @@ impl Runtime {
             bounces: 1,
             remaining_fraction: 0.0,
         })
-    }
-
-    fn apply_full(&self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
-        let Some(f) = &self.bundle.full else { return };
-        let albedo = &self.bundle.layout.albedo;
-        for ((o, rho), w) in out.iter_mut().zip(albedo).zip(f.row_start.windows(2)) {
-            let (start, end) = (w[0] as usize, w[1] as usize);
-            let mut s = [0.0f32; 3];
-            for (&c, &v) in f.cols[start..end].iter().zip(&f.values[start..end]) {
-                let l = direct[c as usize];
-                s[0] += v * l[0];
-                s[1] += v * l[1];
-                s[2] += v * l[2];
-            }
-            *o = [rho[0] * s[0], rho[1] * s[1], rho[2] * s[2]];
-        }
-    }
-
-    /// MRT step 1: fills the planar direct light `ld` and every block's coefficients `b`.
-    fn project_blocks(&mut self, direct: &[[f32; 3]]) {
-        let n = self.n_texels;
-        let Runtime {
-            bundle,
-            blocks,
-            ld,
-            b,
-            lf,
-            ops,
-            parallel,
-            ..
-        } = self;
-
-        // Direct light, planar.
-        let (ld0, rest) = ld.split_at_mut(n);
-        let (ld1, ld2) = rest.split_at_mut(n);
-        for (((l, a), bb), c) in direct.iter().zip(ld0).zip(ld1).zip(ld2) {
-            (*a, *bb, *c) = (l[0], l[1], l[2]);
-        }
-
-        // 1. b_B = T_d→b · l_d^B.
-        let ld: &[f32] = ld;
-        let coef_range = |k: usize| {
-            let s: &BlockSlots = &blocks[k];
-            (s.coef_start, s.coef_start + 3 * s.rank)
-        };
-        let scratch_range = |k: usize| (blocks[k].scratch_start, blocks[k].lf_end);
-        for_each_block(
-            0,
-            blocks.len(),
-            (b.as_mut_slice(), 0),
-            (lf.as_mut_slice(), 0),
-            &coef_range,
-            &scratch_range,
-            *parallel,
-            &|k, b_k: &mut [f32], scratch: &mut [f32]| {
-                let blk = &bundle.blocks[k];
-                let t_db = &ops.shapes[blk.shape as usize].1;
-                let x = planar(ld, n, blk.texel_offset as usize, t_db.cols());
-                set_matvec(b_k, blocks[k].rank, t_db, x, scratch);
-            },
-        );
-    }
-
-    /// MRT steps 2–3, after [`Runtime::project_blocks`]: writes `U_b b + transport`
-    /// (albedo-free) to block texels and 0 to every other texel. Each block's texels depend on
-    /// its own work only, so blocks run independently.
-    fn mrt_albedo_free(&mut self, out: &mut [[f32; 3]]) {
-        out.fill([0.0; 3]);
-        let Runtime {
-            bundle,
-            blocks,
-            opening_lf,
-            first_opening,
-            entry_order,
-            entry_opening,
-            b,
-            lf,
-            ops,
-            parallel,
-            ..
-        } = self;
-        let b: &[f32] = b;
-        let coefficients = |k: usize, cols: usize| {
-            let s = &blocks[k];
-            group(b, s.coef_start, s.rank, cols)
-        };
-        let texel_range = |k: usize| (blocks[k].texel_start, blocks[k].texel_end);
-        let lf_range = |k: usize| (blocks[k].lf_start, blocks[k].lf_end);
-        for_each_block(
-            0,
-            blocks.len(),
-            (out, 0),
-            (lf.as_mut_slice(), 0),
-            &texel_range,
-            &lf_range,
-            *parallel,
-            &|k, out_k: &mut [[f32; 3]], lf_k: &mut [f32]| {
-                let slots = &blocks[k];
-                let blk = &bundle.blocks[k];
-                let (u_b, _, u_r) = &ops.shapes[blk.shape as usize];
-                let (lf_k, scratch) = lf_k.split_at_mut(slots.scratch_start - slots.lf_start);
-                // 2. l_ind^B = U_b · b_B.
-                add_matvec(out_k, u_b, coefficients(k, u_b.cols()), scratch);
-                let targeting = &entry_order[slots.entries_start..slots.entries_end];
-                // 3. Inter-block transport into this block.
-                match &bundle.transport {
-                    Some(TransportOps::Traced(entries)) => {
-                        for &i in targeting {
-                            let e = &entries[i as usize];
-                            let m = &ops.transport[i as usize];
-                            let x = coefficients(e.source_block as usize, m.cols());
-                            add_matvec(&mut out_k[..m.rows()], m, x, scratch);
-                        }
-                    }
-                    Some(TransportOps::Compact(entries)) => {
-                        let mut at = 0;
-                        for &i in targeting {
-                            let e = &entries[i as usize];
-                            let (y, z) = (&ops.transport[i as usize], &ops.transport_z[i as usize]);
-                            let (width, k) = (z.cols(), z.rows());
-                            let (x, rest) = lf_k[at..].split_at_mut(3 * width);
-                            // Stack the sources' coefficients, channel-planar.
-                            let mut col = 0;
-                            for &s in &e.sources {
-                                let src = &blocks[s as usize];
-                                let r = src.rank;
-                                for ch in 0..3 {
-                                    let from = src.coef_start + ch * r;
-                                    x[ch * width + col..ch * width + col + r]
-                                        .copy_from_slice(&b[from..from + r]);
-                                }
-                                col += r;
-                            }
-                            let z_out = &mut rest[..3 * k];
-                            set_matvec(z_out, k, z, planar(x, width, 0, width), scratch);
-                            add_matvec(out_k, y, planar(z_out, k, 0, k), scratch);
-                            at += 3 * (width + k);
-                        }
-                    }
-                    Some(TransportOps::Lightfield(entries)) => {
-                        lf_k.fill(0.0);
-                        // Bit i: opening i of the shape receives light (openings past 63
-                        // are always applied; their lightfield is then just zero).
-                        let mut fed = 0u64;
-                        for &i in targeting {
-                            let e = &entries[i as usize];
-                            let m = &ops.transport[i as usize];
-                            let opening = entry_opening[i as usize];
-                            let q = m.rows();
-                            let start = opening_lf[opening] - slots.lf_start;
-                            let x = coefficients(e.source_block as usize, m.cols());
-                            acc_matvec(&mut lf_k[start..start + 3 * q], q, m, x, scratch);
-                            fed |= 1 << (opening - first_opening[k]).min(63);
-                        }
-                        for (oi, u_r) in u_r.iter().enumerate() {
-                            if oi < 63 && fed & (1 << oi) == 0 {
-                                continue;
-                            }
-                            let q = u_r.cols();
-                            let start = opening_lf[first_opening[k] + oi] - slots.lf_start;
-                            add_matvec(out_k, u_r, group(lf_k, start, q, q), scratch);
-                        }
-                    }
-                    None => {}
-                }
-            },
-        );
-    }
-
-    /// DRT step 2, after [`Runtime::project_blocks`] (which fills `ld`): projects direct light
-    /// on every clutter object to its coefficients `c`. Does nothing without a DRT section.
-    fn project_clutter(&mut self) {
-        let n = self.n_texels;
-        let Runtime {
-            bundle,
-            ld,
-            clutter_coef,
-            c,
-            ops,
-            scratch,
-            ..
-        } = self;
-        let Some(drt) = &bundle.drt else { return };
-        // 2. c_j = t_dc · l_d^j.
-        for ((clutter, t_dc), &(start, m)) in drt
-            .clutter
-            .iter()
-            .zip(&ops.clutter)
-            .zip(clutter_coef.iter())
-        {
-            let x = planar(ld, n, clutter.texel_offset as usize, t_dc.cols());
-            set_matvec(&mut c[start..start + 3 * m], m, t_dc, x, scratch);
-        }
-    }
-
-    /// The coefficients a delta entry's matrix multiplies: the source block's `b`, the source
-    /// clutter object's `c` or a texel range of the direct light, first `cols` of each channel.
-    /// Needs `ld` and `b` (and `c`) filled.
-    #[inline]
-    fn source_coefficients(&self, source: DeltaSource, cols: usize) -> [&[f32]; 3] {
-        match source {
-            DeltaSource::Block(k) => {
-                let s = &self.blocks[k as usize];
-                group(&self.b, s.coef_start, s.rank, cols)
-            }
-            DeltaSource::Clutter(j) => {
-                let (start, m) = self.clutter_coef[j as usize];
-                group(&self.c, start, m, cols)
-            }
-            DeltaSource::Direct { first, .. } => {
-                planar(&self.ld, self.n_texels, first as usize, cols)
-            }
-        }
-    }
-
-    /// DRT step 3, after [`Runtime::project_blocks`] and [`Runtime::project_clutter`]: adds
-    /// every delta entry (albedo-free). Does nothing without a DRT section.
-    fn add_drt_deltas(&mut self, out: &mut [[f32; 3]]) {
-        let Some(drt) = &self.bundle.drt else { return };
-        let mut scratch = std::mem::take(&mut self.scratch);
-        // 3. out[rows[i]] += matrix.row(i) · (b_source or c_source).
-        for ((e, m), mix) in drt
-            .entries
-            .iter()
-            .zip(&self.ops.deltas)
-            .zip(&self.ops.delta_mix)
-        {
-            match mix {
-                None => {
-                    let x = self.source_coefficients(e.source, m.cols());
-                    scatter_matvec(out, &e.rows, m, x, &mut scratch);
-                }
-                Some(mix) => {
-                    // Low rank: y = mix · x (k values per channel), then rows += matrix · y.
-                    let k = mix.rows();
-                    let (y, rest) = scratch.split_at_mut(3 * k);
-                    let x = self.source_coefficients(e.source, mix.cols());
-                    set_matvec(y, k, mix, x, rest);
-                    scatter_matvec(out, &e.rows, m, planar(y, k, 0, k), rest);
-                }
-            }
-        }
-        self.scratch = scratch;
-    }
-
-    /// DRT with `scene_gather: exact`: texels whose light is the gather alone lose MRT's.
-    fn drop_replaced(&self, out: &mut [[f32; 3]]) {
-        if let Some(d) = &self.bundle.drt {
-            for &x in &d.replaced {
-                out[x as usize] = [0.0; 3];
-            }
-        }
-    }
-
-    /// DRT exact clutter gather: sparse rows over the direct light (albedo-free).
-    fn add_direct_gather(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
-        if let Some(g) = &self.ops.gather {
-            crate::packed_gather::pad_direct(direct, &mut self.direct_padded);
-            g.add_to_padded(&self.direct_padded, out);
-        }
-    }
-
-    /// Multiplies every texel by its albedo (the operators are albedo-free).
-    fn multiply_albedo(&self, out: &mut [[f32; 3]]) {
-        for (o, rho) in out.iter_mut().zip(&self.bundle.layout.albedo) {
-            o[0] *= rho[0];
-            o[1] *= rho[1];
-            o[2] *= rho[2];
-        }
     }
 }
 

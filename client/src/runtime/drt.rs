@@ -1,0 +1,112 @@
+//! [`Method::Drt`](super::Method::Drt) (delta radiance transfer) beyond MRT: the clutter
+//! coefficients (DRT step 2), the delta entries (step 3), the `replaced` texels of an exact
+//! scene gather and the exact clutter gather. `source_coefficients`, the `x` a delta entry
+//! multiplies, also serves the probe entries and the SH responses.
+//!
+//! Units: `c` are the clutter objects' reduced coefficients of direct radiance, like the
+//! blocks' `b`; every term here is albedo-free indirect radiance added to `out`, the albedo
+//! comes last (`multiply_albedo`).
+//!
+//! Invariants: every stage is a no-op without a DRT section (or an exact gather); entries are
+//! applied in the bundle's order, so the result is deterministic; nothing allocates (scratch is
+//! taken from the runtime and given back).
+
+use lightfarm_proto::bundle::DeltaSource;
+
+use super::kernels::{group, planar, scatter_matvec, set_matvec};
+use super::Runtime;
+
+impl Runtime {
+    /// DRT step 2, after [`Runtime::project_blocks`] (which fills `ld`): projects direct light
+    /// on every clutter object to its coefficients `c`. Does nothing without a DRT section.
+    pub(super) fn project_clutter(&mut self) {
+        let n = self.n_texels;
+        let Runtime {
+            bundle,
+            ld,
+            clutter_coef,
+            c,
+            ops,
+            scratch,
+            ..
+        } = self;
+        let Some(drt) = &bundle.drt else { return };
+        // 2. c_j = t_dc · l_d^j.
+        for ((clutter, t_dc), &(start, m)) in drt
+            .clutter
+            .iter()
+            .zip(&ops.clutter)
+            .zip(clutter_coef.iter())
+        {
+            let x = planar(ld, n, clutter.texel_offset as usize, t_dc.cols());
+            set_matvec(&mut c[start..start + 3 * m], m, t_dc, x, scratch);
+        }
+    }
+
+    /// The coefficients a delta entry's matrix multiplies: the source block's `b`, the source
+    /// clutter object's `c` or a texel range of the direct light, first `cols` of each channel.
+    /// Needs `ld` and `b` (and `c`) filled.
+    #[inline]
+    pub(super) fn source_coefficients(&self, source: DeltaSource, cols: usize) -> [&[f32]; 3] {
+        match source {
+            DeltaSource::Block(k) => {
+                let s = &self.blocks[k as usize];
+                group(&self.b, s.coef_start, s.rank, cols)
+            }
+            DeltaSource::Clutter(j) => {
+                let (start, m) = self.clutter_coef[j as usize];
+                group(&self.c, start, m, cols)
+            }
+            DeltaSource::Direct { first, .. } => {
+                planar(&self.ld, self.n_texels, first as usize, cols)
+            }
+        }
+    }
+
+    /// DRT step 3, after [`Runtime::project_blocks`] and [`Runtime::project_clutter`]: adds
+    /// every delta entry (albedo-free). Does nothing without a DRT section.
+    pub(super) fn add_drt_deltas(&mut self, out: &mut [[f32; 3]]) {
+        let Some(drt) = &self.bundle.drt else { return };
+        let mut scratch = std::mem::take(&mut self.scratch);
+        // 3. out[rows[i]] += matrix.row(i) · (b_source or c_source).
+        for ((e, m), mix) in drt
+            .entries
+            .iter()
+            .zip(&self.ops.deltas)
+            .zip(&self.ops.delta_mix)
+        {
+            match mix {
+                None => {
+                    let x = self.source_coefficients(e.source, m.cols());
+                    scatter_matvec(out, &e.rows, m, x, &mut scratch);
+                }
+                Some(mix) => {
+                    // Low rank: y = mix · x (k values per channel), then rows += matrix · y.
+                    let k = mix.rows();
+                    let (y, rest) = scratch.split_at_mut(3 * k);
+                    let x = self.source_coefficients(e.source, mix.cols());
+                    set_matvec(y, k, mix, x, rest);
+                    scatter_matvec(out, &e.rows, m, planar(y, k, 0, k), rest);
+                }
+            }
+        }
+        self.scratch = scratch;
+    }
+
+    /// DRT with `scene_gather: exact`: texels whose light is the gather alone lose MRT's.
+    pub(super) fn drop_replaced(&self, out: &mut [[f32; 3]]) {
+        if let Some(d) = &self.bundle.drt {
+            for &x in &d.replaced {
+                out[x as usize] = [0.0; 3];
+            }
+        }
+    }
+
+    /// DRT exact clutter gather: sparse rows over the direct light (albedo-free).
+    pub(super) fn add_direct_gather(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        if let Some(g) = &self.ops.gather {
+            crate::packed_gather::pad_direct(direct, &mut self.direct_padded);
+            g.add_to_padded(&self.direct_padded, out);
+        }
+    }
+}

@@ -1,0 +1,373 @@
+//! Tests of the bounce modes ([`Bounces`], `runtime/mod.rs` and `runtime/krylov.rs`): `Fixed`
+//! against explicit sums of bounces, `Converged` against many bounces within its tolerance and
+//! in fewer applications, refusal of a gain-one operator (never a loop, never NaN), `Feedback`
+//! converging to `Converged`, and bit-identical `Converged` at one and two threads.
+
+use super::*;
+
+/// `Σ_{k=1..n} A^k ld` in f64 with `one` the dense one-bounce reference of the method.
+fn reference_bounces(
+    bundle: &Bundle,
+    ld: &[[f32; 3]],
+    n: u32,
+    one: fn(&Bundle, &[[f32; 3]]) -> Vec<[f64; 3]>,
+) -> Vec<[f64; 3]> {
+    let mut light: Vec<[f32; 3]> = ld.to_vec();
+    let mut sum = vec![[0.0f64; 3]; ld.len()];
+    for _ in 0..n {
+        let next = one(bundle, &light);
+        for (s, v) in sum.iter_mut().zip(&next) {
+            for c in 0..3 {
+                s[c] += v[c];
+            }
+        }
+        light = next.iter().map(|v| v.map(|x| x as f32)).collect();
+    }
+    sum
+}
+
+/// A bundle whose one-bounce gain is about `gain` for every method: every operator value is
+/// scaled so the dense operator's largest row sum times the largest albedo is `gain`.
+fn with_gain(mut b: Bundle, gain: f32) -> Bundle {
+    let f = b.full.as_mut().expect("a full operator");
+    let n = f.n as usize;
+    let row_max = (0..n)
+        .map(|i| {
+            f.values[f.row_start[i] as usize..f.row_start[i + 1] as usize]
+                .iter()
+                .sum::<f32>()
+        })
+        .fold(0.0f32, f32::max);
+    let rho_max = b
+        .layout
+        .albedo
+        .iter()
+        .flatten()
+        .fold(0.0f32, |m, &x| m.max(x));
+    let scale = gain / (row_max * rho_max);
+    for v in &mut f.values {
+        *v *= scale;
+    }
+    b
+}
+
+#[test]
+fn fixed_bounces_equal_the_sum_of_explicit_bounces() {
+    let mut rng = Lcg(41);
+    // MRT (traced and lightfield transport), DRT and the dense operator, against f64
+    // references iterated by hand.
+    let (t, l) = (traced(&mut rng), lightfield(&mut rng));
+    let cases: Vec<(Bundle, Method, fn(&Bundle, &[[f32; 3]]) -> Vec<[f64; 3]>)> = vec![
+        (bundle(&mut rng, Some(t), false), Method::Mrt, reference_mrt),
+        (bundle(&mut rng, Some(l), false), Method::Mrt, reference_mrt),
+        (
+            drt_bundle(&mut rng, true, true, false),
+            Method::Drt,
+            reference_drt,
+        ),
+        (
+            with_gain(bundle(&mut rng, None, true), 0.7),
+            Method::Full,
+            reference_full,
+        ),
+    ];
+    for (b, method, one) in cases {
+        let n = b.layout.n_texels();
+        let ld = direct(&mut rng, n);
+        let mut rt = Runtime::new(b.clone());
+        let mut out = IndirectLight::default();
+        for bounces in [1u32, 2, 4] {
+            let mode = if bounces == 1 {
+                Bounces::One
+            } else {
+                Bounces::Fixed(bounces)
+            };
+            let applied = rt.apply(method, mode, &ld, &mut out).unwrap();
+            assert_eq!(applied.bounces, bounces, "{method:?}");
+            let want = reference_bounces(&b, &ld.radiance, bounces, one);
+            // Relative to the largest value: the iterated random operators grow.
+            let scale = want.iter().flatten().fold(1.0f64, |m, &x| m.max(x.abs()));
+            for (g, w) in out.radiance.iter().zip(&want) {
+                for c in 0..3 {
+                    assert!(
+                        (g[c] as f64 - w[c]).abs() <= 2e-5 * scale,
+                        "{method:?} {bounces} bounces: {} vs {}",
+                        g[c],
+                        w[c]
+                    );
+                }
+            }
+        }
+        assert_eq!(
+            rt.apply(method, Bounces::Fixed(0), &ld, &mut out),
+            Err(ApplyError::NoBounces)
+        );
+    }
+}
+
+/// Relative L2 of `a` against `b` over every texel and channel.
+fn rel_l2(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (x, y) in a.iter().zip(b) {
+        for c in 0..3 {
+            num += (x[c] as f64 - y[c] as f64).powi(2);
+            den += (y[c] as f64).powi(2);
+        }
+    }
+    (num / den).sqrt()
+}
+
+#[test]
+fn converged_matches_the_sum_of_many_bounces_within_its_tolerance_in_fewer_applications() {
+    let mut rng = Lcg(43);
+    for (b, method, gain) in [
+        (
+            with_gain(bundle(&mut rng, None, true), 0.6),
+            Method::Full,
+            0.6,
+        ),
+        (
+            with_gain(bundle(&mut rng, None, true), 0.9),
+            Method::Full,
+            0.9,
+        ),
+    ] {
+        let ld = direct(&mut rng, b.layout.n_texels());
+        let mut rt = Runtime::new(b);
+        let mut converged = IndirectLight::default();
+        let mut many = IndirectLight::default();
+        rt.apply(method, Bounces::Fixed(400), &ld, &mut many)
+            .unwrap();
+        let e_all = energy(&many.radiance);
+        let mut previous = 0;
+        for tolerance in [1e-2f32, 1e-3, 1e-5] {
+            let applied = rt
+                .apply(
+                    method,
+                    Bounces::Converged { tolerance },
+                    &ld,
+                    &mut converged,
+                )
+                .unwrap();
+            assert!(applied.remaining_fraction <= tolerance, "{applied:?}");
+            assert!(applied.bounces >= previous, "{applied:?}");
+            previous = applied.bounces;
+            let err = rel_l2(&converged.radiance, &many.radiance);
+            let rest = (e_all - energy(&converged.radiance)).abs() / e_all;
+            assert!(
+                err <= 3.0 * tolerance as f64 + 1e-5 && rest <= 3.0 * tolerance as f64 + 1e-5,
+                "gain {gain}, tolerance {tolerance}: relative L2 {err}, energy {rest}"
+            );
+            // Summing bounces one by one to the same error takes about
+            // log(tolerance · (1 − λ)) / log(λ) bounces; GMRES needs at most half.
+            let series = ((tolerance as f64 * (1.0 - gain)).ln() / gain.ln()).ceil() as u32;
+            assert!(
+                applied.bounces * 2 <= series,
+                "gain {gain}, tolerance {tolerance}: {} applications vs {series} bounces",
+                applied.bounces
+            );
+        }
+    }
+    let mut rng = Lcg(44);
+    let b = with_gain(bundle(&mut rng, None, true), 0.6);
+    let ld = direct(&mut rng, b.layout.n_texels());
+    let mut rt = Runtime::new(b);
+    let mut out = IndirectLight::default();
+    for bad in [0.0f32, 1.0, -1.0, f32::NAN] {
+        assert!(matches!(
+            rt.apply(
+                Method::Full,
+                Bounces::Converged { tolerance: bad },
+                &ld,
+                &mut out
+            ),
+            Err(ApplyError::BadTolerance(_))
+        ));
+    }
+}
+
+#[test]
+fn converged_equals_many_explicit_bounces_for_mrt_and_drt() {
+    let mut rng = Lcg(45);
+    let (t, l) = (traced(&mut rng), lightfield(&mut rng));
+    for (b, method) in [
+        (bundle(&mut rng, Some(t), false), Method::Mrt),
+        (bundle(&mut rng, Some(l), false), Method::Mrt),
+        (drt_bundle(&mut rng, true, true, false), Method::Drt),
+    ] {
+        let ld = direct(&mut rng, b.layout.n_texels());
+        let mut rt = Runtime::new(b);
+        let (mut converged, mut many) = (IndirectLight::default(), IndirectLight::default());
+        match rt.apply(
+            method,
+            Bounces::Converged { tolerance: 1e-4 },
+            &ld,
+            &mut converged,
+        ) {
+            Ok(applied) => {
+                rt.apply(method, Bounces::Fixed(300), &ld, &mut many)
+                    .unwrap();
+                let err = rel_l2(&converged.radiance, &many.radiance);
+                assert!(err <= 5e-4, "{method:?}: {err} after {applied:?}");
+            }
+            // The random operators may have gain ≥ 1 (no all-bounce light): refused.
+            Err(ApplyError::NotConverging { .. }) => {}
+            Err(e) => panic!("{method:?}: {e}"),
+        }
+    }
+}
+
+#[test]
+fn an_operator_with_gain_one_is_refused_not_looped_and_never_nan() {
+    let mut rng = Lcg(47);
+    for gain in [1.0f32, 1.5, 0.9999] {
+        // A perfect reflector (albedo 1) whose every row sums to `gain`: the operator's
+        // gain is exactly `gain`, like a closed white room.
+        let mut b = bundle(&mut rng, None, true);
+        let f = b.full.as_mut().unwrap();
+        let mut rows = SparseRows {
+            n: f.n,
+            row_start: vec![0],
+            cols: vec![],
+            values: vec![],
+        };
+        for i in 0..f.n as usize {
+            let (s, e) = (f.row_start[i] as usize, f.row_start[i + 1] as usize);
+            let sum: f32 = f.values[s..e].iter().sum();
+            if sum > 0.0 {
+                rows.cols.extend_from_slice(&f.cols[s..e]);
+                rows.values
+                    .extend(f.values[s..e].iter().map(|v| v * gain / sum));
+            } else {
+                rows.cols.push(i as u32);
+                rows.values.push(gain);
+            }
+            rows.row_start.push(rows.cols.len() as u32);
+        }
+        *f = rows;
+        b.layout.albedo.fill([1.0; 3]);
+        let ld = direct(&mut rng, b.layout.n_texels());
+        let mut rt = Runtime::new(b);
+        let mut out = IndirectLight::default();
+        let err = rt
+            .apply(Method::Full, Bounces::default(), &ld, &mut out)
+            .unwrap_err();
+        match err {
+            ApplyError::NotConverging { bounces, .. } => {
+                assert!(bounces <= MAX_BOUNCES, "{bounces}")
+            }
+            ApplyError::NonFinite { .. } => {}
+            other => panic!("gain {gain}: {other}"),
+        }
+        assert!(err.to_string().contains("bounces"), "{err}");
+        assert!(out.radiance.iter().flatten().all(|&x| x == 0.0));
+    }
+}
+
+#[test]
+fn feedback_converges_to_converged_and_stays_bounded_while_lights_move() {
+    let mut rng = Lcg(53);
+    for (b, method) in [
+        (with_gain(bundle(&mut rng, None, true), 0.65), Method::Full),
+        (drt_bundle(&mut rng, false, true, false), Method::Drt),
+    ] {
+        let n = b.layout.n_texels();
+        let ld = direct(&mut rng, n);
+        let mut rt = Runtime::new(b);
+        let tight = Bounces::Converged { tolerance: 1e-6 };
+        let mut converged = IndirectLight::default();
+        if rt.apply(method, tight, &ld, &mut converged).is_err() {
+            // The random DRT operators may have gain ≥ 1; then feedback is not defined
+            // either. The dense case always runs.
+            assert_eq!(method, Method::Drt);
+            continue;
+        }
+        let mut out = IndirectLight::default();
+        let e_conv = energy(&converged.radiance);
+        let mut frames_to_1pct = None;
+        for frame in 1..=200 {
+            rt.apply(method, Bounces::Feedback, &ld, &mut out).unwrap();
+            let diff: f64 = out
+                .radiance
+                .iter()
+                .zip(&converged.radiance)
+                .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs() as f64).sum::<f64>())
+                .sum();
+            if frames_to_1pct.is_none() && diff <= 0.01 * e_conv {
+                frames_to_1pct = Some(frame);
+            }
+        }
+        let frames = frames_to_1pct.expect("feedback reaches 1% of Converged");
+        assert!(frames < 60, "{method:?}: {frames} frames");
+        for (a, b) in out.radiance.iter().zip(&converged.radiance) {
+            for c in 0..3 {
+                assert!(
+                    (a[c] - b[c]).abs() <= 1e-4 * (1.0 + b[c].abs()),
+                    "{a:?} {b:?}"
+                );
+            }
+        }
+        // A light that jumps every frame: feedback stays within the converged light of the
+        // brightest frame (all light is non-negative, the operator monotone).
+        rt.reset_feedback();
+        let lights: Vec<DirectLight> = (0..8).map(|_| direct(&mut rng, n)).collect();
+        let mut bound = 0.0f64;
+        for l in &lights {
+            rt.apply(method, tight, l, &mut converged).unwrap();
+            bound = bound.max(energy(&converged.radiance));
+        }
+        let brightest = DirectLight {
+            radiance: (0..n)
+                .map(|t| {
+                    std::array::from_fn(|c| {
+                        lights.iter().map(|l| l.radiance[t][c]).fold(0.0, f32::max)
+                    })
+                })
+                .collect(),
+        };
+        rt.apply(method, tight, &brightest, &mut converged).unwrap();
+        let ceiling = energy(&converged.radiance);
+        assert!(ceiling >= bound);
+        for frame in 0..400 {
+            rt.apply(method, Bounces::Feedback, &lights[frame % 8], &mut out)
+                .unwrap();
+            let e = energy(&out.radiance);
+            assert!(
+                e.is_finite() && e <= ceiling * (1.0 + 1e-4),
+                "frame {frame}: {e}"
+            );
+        }
+    }
+}
+
+#[cfg(feature = "rayon")]
+#[test]
+fn converged_is_bit_identical_at_one_and_two_threads() {
+    let mut rng = Lcg(59);
+    let b = drt_bundle(&mut rng, true, true, false);
+    let ld = direct(&mut rng, b.layout.n_texels());
+    let mut outputs = Vec::new();
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let mut rt = Runtime::new(b.clone());
+        rt.set_parallel(threads > 1);
+        let mut out = IndirectLight::default();
+        pool.install(|| rt.apply(Method::Drt, Bounces::Fixed(6), &ld, &mut out))
+            .unwrap();
+        outputs.push(out);
+        let mut out = IndirectLight::default();
+        let converged = pool.install(|| rt.apply(Method::Drt, Bounces::default(), &ld, &mut out));
+        outputs.push(IndirectLight {
+            radiance: if converged.is_ok() {
+                out.radiance
+            } else {
+                vec![]
+            },
+        });
+    }
+    assert_eq!(outputs[0], outputs[2]);
+    assert_eq!(outputs[1], outputs[3]);
+}

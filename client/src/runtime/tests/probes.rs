@@ -1,0 +1,253 @@
+//! Tests of `Runtime::apply_probes` (`runtime/probes.rs`): the probe bundles of [`super`]
+//! against a dense f64 reference of the probe field (here), the errors, the encode/decode round
+//! trip and probe sections `validate` refuses as `decode` does.
+
+use super::*;
+use crate::probes::irradiance_at;
+
+/// Straightforward dense probe field, in f64: every probe entry expanded into a dense
+/// (n_probes · 9) × (Σ r + Σ m) matrix over the stacked `[b_0 … b_B, c_0 … c_J]`, times
+/// those coefficients. Indexed `[probe · 9 + coefficient][channel]`.
+fn reference_probes(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
+    let probes = bundle.probes.as_ref().unwrap();
+    let mut coefs: Vec<[f64; 3]> = reference_coefs(bundle, ld).concat();
+    let mut block_start = vec![0];
+    for blk in &bundle.blocks {
+        let r = bundle.shapes[blk.shape as usize].u_b.cols as usize;
+        block_start.push(block_start.last().unwrap() + r);
+    }
+    let mut clutter_start = vec![coefs.len()];
+    for cl in bundle.drt.iter().flat_map(|d| &d.clutter) {
+        coefs.extend(reference_project(&cl.t_dc, ld, cl.texel_offset));
+        clutter_start.push(coefs.len());
+    }
+    let n_rows = probes.n_probes as usize * 9;
+    let mut dense = vec![vec![0.0f64; coefs.len()]; n_rows];
+    for e in &probes.entries {
+        let start = match e.source {
+            DeltaSource::Block(k) => block_start[k as usize],
+            DeltaSource::Clutter(j) => clutter_start[j as usize],
+            DeltaSource::Direct { .. } => unreachable!("probe entries have no direct source"),
+        };
+        for (i, &t) in e.rows.iter().enumerate() {
+            for j in 0..e.matrix.cols as usize {
+                dense[t as usize][start + j] += get(&e.matrix, i, j);
+            }
+        }
+    }
+    dense
+        .iter()
+        .map(|row| {
+            let mut v = [0.0f64; 3];
+            for (d, x) in row.iter().zip(&coefs) {
+                for c in 0..3 {
+                    v[c] += d * x[c];
+                }
+            }
+            v
+        })
+        .collect()
+}
+
+fn run_probes(bundle: Bundle, ld: &DirectLight) -> ProbeField {
+    let mut rt = Runtime::new(bundle);
+    let mut out = ProbeField::default();
+    rt.apply_probes(ld, &mut out).unwrap();
+    out
+}
+
+fn assert_probes_close(got: &ProbeField, want: &[[f64; 3]]) {
+    assert_eq!(got.n_probes() * 9, want.len());
+    for (row, w) in want.iter().enumerate() {
+        for c in 0..3 {
+            let g = got.coefficients(row / 9, c)[row % 9] as f64;
+            assert!(
+                (g - w[c]).abs() <= 1e-5 * (1.0 + w[c].abs()),
+                "probe {} coefficient {} channel {c}: {g} vs {}",
+                row / 9,
+                row % 9,
+                w[c]
+            );
+        }
+    }
+}
+
+#[test]
+fn probes_match_dense_reference() {
+    let mut rng = Lcg(31);
+    for drt in [true, false] {
+        let b = probe_bundle(&mut rng, drt);
+        let ld = direct(&mut rng, b.layout.n_texels());
+        let want = reference_probes(&b, &ld.radiance);
+        let volume = b.probes.clone().unwrap();
+        let got = run_probes(b.clone(), &ld);
+        assert_probes_close(&got, &want);
+        // Every probe but 5 is fed (its coefficients stay exactly 0); the clutter entries
+        // really contribute.
+        for p in 0..N_PROBES {
+            let zero = (0..3).all(|c| got.coefficients(p, c).iter().all(|&v| v == 0.0));
+            assert_eq!(zero, p == 5, "probe {p}");
+        }
+        if drt {
+            let mut blocks_only = b;
+            let p = blocks_only.probes.as_mut().unwrap();
+            p.entries
+                .retain(|e| matches!(e.source, DeltaSource::Block(_)));
+            let without = reference_probes(&blocks_only, &ld.radiance);
+            assert!(want
+                .iter()
+                .zip(&without)
+                .any(|(a, w)| (a[0] - w[0]).abs() > 1e-3));
+        }
+        // At a probe's grid point, irradiance_at gives that probe's own irradiance.
+        for (i, &s) in volume.slot.iter().enumerate() {
+            if s == u32::MAX {
+                continue;
+            }
+            let g = [i & 1, i >> 1 & 1, i >> 2].map(|x| x as f32);
+            let pos: [f32; 3] = std::array::from_fn(|a| volume.origin[a] + 0.5 * g[a]);
+            let n = [0.6f32, 0.0, 0.8];
+            // Normalised as irradiance_at does it (0.6f32, 0.8f32 are not exactly unit).
+            let len = n.iter().map(|&x| (x as f64).powi(2)).sum::<f64>().sqrt();
+            let unit = n.map(|x| x as f64 / len);
+            let want: [f32; 3] = std::array::from_fn(|c| {
+                let l = got.coefficients(s as usize, c).map(|v| v as f64);
+                lightfarm_proto::sh::irradiance(&l, unit).max(0.0) as f32
+            });
+            assert_eq!(irradiance_at(&volume, &got, pos, n), want, "probe {s}");
+        }
+    }
+}
+
+#[test]
+fn probes_without_the_section_are_an_error() {
+    let mut rng = Lcg(32);
+    let mut rt = Runtime::new(drt_bundle(&mut rng, true, true, false));
+    assert!(!rt.has_probes() && rt.probe_volume().is_none());
+    let n = rt.n_texels();
+    let mut field = ProbeField::default();
+    let err = rt
+        .apply_probes(&direct(&mut rng, n), &mut field)
+        .unwrap_err();
+    assert_eq!(err, ApplyError::MissingProbes);
+    assert_eq!(err.to_string(), "this bundle has no probe volume");
+    // The direct light's length is checked first.
+    let err = rt
+        .apply_probes(&direct(&mut rng, n + 1), &mut field)
+        .unwrap_err();
+    assert_eq!(
+        err,
+        ApplyError::DirectLength {
+            expected: n,
+            got: n + 1
+        }
+    );
+    let mut rt = Runtime::new(probe_bundle(&mut rng, true));
+    assert!(rt.has_probes() && rt.probe_volume().is_some());
+    let err = rt
+        .apply_probes(&direct(&mut rng, n - 1), &mut field)
+        .unwrap_err();
+    assert!(matches!(err, ApplyError::DirectLength { .. }));
+}
+
+#[test]
+fn probe_encode_decode_round_trip_gives_the_same_output() {
+    let mut rng = Lcg(33);
+    for drt in [true, false] {
+        let b = probe_bundle(&mut rng, drt);
+        let decoded = Bundle::decode(&b.encode()).expect("hand-built probe bundle decodes");
+        assert_eq!(decoded, b);
+        let ld = direct(&mut rng, b.layout.n_texels());
+        let got = run_probes(decoded.clone(), &ld);
+        assert_eq!(got, run_probes(b.clone(), &ld));
+        assert_probes_close(&got, &reference_probes(&b, &ld.radiance));
+        for method in [Method::Mrt, Method::Drt]
+            .into_iter()
+            .take(1 + drt as usize)
+        {
+            assert_eq!(
+                run(decoded.clone(), method, &ld),
+                run(b.clone(), method, &ld)
+            );
+        }
+    }
+}
+
+#[test]
+fn inconsistent_probe_sections_are_refused_as_decode_refuses_them() {
+    let mut rng = Lcg(34);
+    let good = probe_bundle(&mut rng, true);
+    assert!(Runtime::try_new(good.clone()).is_ok());
+    type Break = (&'static str, fn(&mut Bundle));
+    fn p(b: &mut Bundle) -> &mut ProbeVolume {
+        b.probes.as_mut().unwrap()
+    }
+    let breaks: [Break; 18] = [
+        ("zero spacing", |b| p(b).spacing = 0.0),
+        ("negative spacing", |b| p(b).spacing = -0.5),
+        ("NaN spacing", |b| p(b).spacing = f32::NAN),
+        ("infinite origin", |b| p(b).origin[1] = f32::INFINITY),
+        ("slot missing", |b| {
+            p(b).slot.pop();
+        }),
+        ("dims past the slots", |b| p(b).dims[0] = 3),
+        ("zero dims", |b| p(b).dims = [0, 2, 2]),
+        ("more probes than grid points", |b| p(b).n_probes = 9),
+        ("slot names a missing probe", |b| p(b).slot[3] = 7),
+        ("missing source block", |b| {
+            p(b).entries[1].source = DeltaSource::Block(2)
+        }),
+        ("missing source clutter", |b| {
+            p(b).entries[2].source = DeltaSource::Clutter(1)
+        }),
+        ("clutter source without a DRT section", |b| b.drt = None),
+        ("block source with another r", |b| {
+            p(b).entries[0].source = DeltaSource::Block(1)
+        }),
+        ("more rows than matrix rows", |b| {
+            p(b).entries[0].rows.push(9)
+        }),
+        ("rows not ascending", |b| p(b).entries[1].rows.swap(0, 1)),
+        ("repeated row", |b| p(b).entries[1].rows[1] = 2),
+        ("row past the probes", |b| p(b).entries[1].rows[5] = 63),
+        ("short matrix", |b| {
+            p(b).entries[3].matrix.data.pop();
+        }),
+    ];
+    for (what, f) in breaks {
+        let mut b = good.clone();
+        f(&mut b);
+        assert!(
+            Runtime::try_new(b.clone()).is_err(),
+            "runtime accepts: {what}"
+        );
+        assert!(
+            Bundle::decode(&b.encode()).is_err(),
+            "decode accepts: {what}"
+        );
+    }
+    // Grid sizes whose product overflows u64 (2^66 wraps to 0 = the slot count).
+    let mut b = good.clone();
+    p(&mut b).dims = [1 << 22; 3];
+    p(&mut b).slot.clear();
+    p(&mut b).n_probes = 0;
+    p(&mut b).entries.clear();
+    assert!(
+        Runtime::try_new(b).is_err(),
+        "runtime accepts overflowing dims"
+    );
+}
+
+/// `Bundle::validate` multiplies the three probe dims in u64: 2^66 panics in debug builds
+/// (and wraps to 0 in release, accepting a grid that does not match its slots).
+#[test]
+fn decode_refuses_overflowing_probe_dims() {
+    let mut rng = Lcg(35);
+    let mut b = probe_bundle(&mut rng, false);
+    let p = b.probes.as_mut().unwrap();
+    p.dims = [1 << 22; 3];
+    p.slot.clear();
+    p.n_probes = 0;
+    p.entries.clear();
+    assert!(Bundle::decode(&b.encode()).is_err());
+}

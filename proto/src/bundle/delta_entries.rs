@@ -1,0 +1,90 @@
+//! Delta entries on the wire: the [`DeltaEntry`] list the DRT and probe sections share, and the
+//! encoding of a [`DeltaSource`] (kind byte with flag bits, then its index or range) that the
+//! `sh` section reuses.
+//!
+//! Invariant: bit 7 of an entry's source kind byte says a `mix` matrix follows; a reader refuses
+//! any other flag bit and any unknown source kind.
+
+use crate::wire::{Reader, Writer};
+
+use super::matrix_codec::MatrixEncoder;
+use super::{BundleError, DeltaEntry, DeltaSource, Matrix};
+
+pub(super) fn write_entries(w: &mut Writer, entries: &[DeltaEntry], enc: &mut MatrixEncoder) {
+    w.u32(entries.len() as u32);
+    for e in entries {
+        w.u32s(&e.rows);
+        // Bit 7 of the source kind: a `mix` matrix follows the entry's matrix.
+        write_source(w, e.source, if e.mix.is_some() { 0x80 } else { 0 });
+        e.matrix.write(w, enc);
+        if let Some(mix) = &e.mix {
+            mix.write(w, enc);
+        }
+    }
+}
+
+/// Writes a delta source: its kind byte (0 block, 1 clutter, 2 direct-light range) with `flags`
+/// or-ed into bits 4–7, then its index or `first, count`.
+pub(crate) fn write_source(w: &mut Writer, source: DeltaSource, flags: u8) {
+    match source {
+        DeltaSource::Block(b) => {
+            w.u8(flags);
+            w.u32(b);
+        }
+        DeltaSource::Clutter(c) => {
+            w.u8(1 | flags);
+            w.u32(c);
+        }
+        DeltaSource::Direct { first, count } => {
+            w.u8(2 | flags);
+            w.u32(first);
+            w.u32(count);
+        }
+    }
+}
+
+/// Reads what [`write_source`] wrote: the source and the kind byte's flag bits.
+pub(crate) fn read_source(r: &mut Reader, what: &str) -> Result<(DeltaSource, u8), BundleError> {
+    let kind = r.u8()?;
+    let source = match kind & 0x0f {
+        0 => DeltaSource::Block(r.u32()?),
+        1 => DeltaSource::Clutter(r.u32()?),
+        2 => DeltaSource::Direct {
+            first: r.u32()?,
+            count: r.u32()?,
+        },
+        k => {
+            return Err(BundleError::Invalid(format!(
+                "{what}: unknown source kind {k}"
+            )))
+        }
+    };
+    Ok((source, kind & 0xf0))
+}
+
+pub(super) fn read_entries(r: &mut Reader) -> Result<Vec<DeltaEntry>, BundleError> {
+    let n_entries = r.u32()? as usize;
+    let mut entries = Vec::with_capacity(n_entries.min(r.remaining() / 24));
+    for _ in 0..n_entries {
+        let rows = r.u32s()?;
+        let (source, flags) = read_source(r, "delta entry")?;
+        if flags & !0x80 != 0 {
+            return Err(BundleError::Invalid(format!(
+                "delta entry: unknown source flags {flags:#x}"
+            )));
+        }
+        let matrix = Matrix::read(r, "delta entry")?;
+        let mix = if flags & 0x80 != 0 {
+            Some(Matrix::read(r, "delta entry mix")?)
+        } else {
+            None
+        };
+        entries.push(DeltaEntry {
+            rows,
+            source,
+            matrix,
+            mix,
+        });
+    }
+    Ok(entries)
+}

@@ -1,0 +1,60 @@
+//! Section kinds: the numbers in a section header ([`section`]), their report names
+//! ([`section_name`]) and which of them this reader knows.
+//!
+//! Invariant: a kind, once given a meaning, keeps it: a newer minor version only adds kinds, so
+//! a reader skips the kinds it does not know ([`is_known_section`] is what
+//! [`crate::container::read_sections`] asks) and decodes the rest.
+
+/// Section kinds.
+pub mod section {
+    pub const LAYOUT: u32 = 1;
+    pub const SHAPES: u32 = 2;
+    pub const BLOCKS: u32 = 3;
+    pub const TRANSPORT: u32 = 4;
+    pub const FULL: u32 = 5;
+    pub const DRT: u32 = 6;
+    pub const PROBES: u32 = 7;
+    /// DNRT grids with `t_j` and `k_j` apart (minor 1). Kind 8 held the paper's `m_j` (minor 0)
+    /// and is no longer read: such a bundle decodes without grids.
+    pub const DNRT: u32 = 9;
+    /// SH incident-radiance responses for normal-mapped surfaces (minor 2).
+    pub const SH: u32 = 10;
+    /// The DRT section in the layout of minor 2, which adds low-rank entries and direct-light
+    /// sources (see [`crate::bundle::DeltaEntry`]). Written instead of [`DRT`] only when some
+    /// entry uses them, so a minor-1 reader skips it and lights the scene by MRT alone.
+    pub const DRT_LOW_RANK: u32 = 11;
+    /// Where mesh surfaces' texels sit in their own lightmap images (minor 2).
+    pub const LIGHTMAP: u32 = 12;
+    /// The DRT section of minor 3: the minor-2 layout followed by the block texels whose MRT
+    /// light the exact gather replaces ([`crate::bundle::DrtOps::replaced`]). Written instead of
+    /// [`DRT_LOW_RANK`] only when that list is not empty, so an older reader skips it and
+    /// lights the scene by MRT alone rather than adding the gather on top of MRT.
+    pub const DRT_REPLACING: u32 = 13;
+    /// Blocks of format 2: [`BLOCKS`]' records plus each block's box symmetry and closed faces
+    /// ([`crate::bundle::BlockSymmetry`]). Written instead of [`BLOCKS`] by 2.x writers.
+    pub const BLOCKS_SYMMETRIC: u32 = 14;
+}
+
+/// Report name of a section kind.
+pub fn section_name(kind: u32) -> &'static str {
+    match kind {
+        section::LAYOUT => "layout",
+        section::SHAPES => "shapes",
+        section::BLOCKS => "blocks",
+        section::TRANSPORT => "transport",
+        section::FULL => "full",
+        section::DRT => "drt",
+        section::PROBES => "probes",
+        section::DNRT => "dnrt",
+        section::SH => "sh",
+        section::DRT_LOW_RANK => "drt",
+        section::LIGHTMAP => "lightmap",
+        section::DRT_REPLACING => "drt",
+        section::BLOCKS_SYMMETRIC => "blocks",
+        _ => "unknown",
+    }
+}
+
+pub(super) fn is_known_section(kind: u32) -> bool {
+    section_name(kind) != "unknown"
+}

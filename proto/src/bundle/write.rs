@@ -1,0 +1,216 @@
+//! Writing a bundle: [`Bundle::encode`] and [`Bundle::encode_with`] (every section's payload in
+//! file order, framed by [`write_container`]) and [`Bundle::raw_sections`] (the payloads alone).
+//!
+//! Invariant: the header always carries the writer's version ([`BUNDLE_MAJOR`].[`BUNDLE_MINOR`]),
+//! whatever sections a bundle has, so a streamed prefix and the whole bundle share their header
+//! bytes; blocks are always written as section kind 14 and the exact gather in form 2. The DRT
+//! section's kind still follows what it holds: 6, or 11 when an entry is low-rank or reads direct
+//! light, or 13 when it replaces block texels' MRT light (kinds 6 and 11 share one payload
+//! layout; 13 appends the replaced texels).
+
+use crate::container::write_container;
+use crate::wire::Writer;
+
+use super::delta_entries::write_entries;
+use super::matrix_codec::MatrixEncoder;
+use super::sections::{section, section_name};
+use super::{gather_encoding, sh_responses, symmetric_blocks};
+use super::{
+    Bundle, DeltaEntry, EncodeOptions, EncodeReport, Layout, TransportOps, BUNDLE_MAJOR,
+    BUNDLE_MINOR,
+};
+
+fn write_vec3s(w: &mut Writer, v: &[[f32; 3]]) {
+    let flat: Vec<f32> = v.iter().flatten().copied().collect();
+    w.f32s(&flat);
+}
+
+impl Layout {
+    pub(super) fn write(&self, w: &mut Writer) {
+        w.str(&self.scene_name);
+        w.u32(self.surfaces.len() as u32);
+        for s in &self.surfaces {
+            w.str(&s.name);
+            w.u32(s.texel_offset);
+            w.u32(s.texel_count);
+        }
+        write_vec3s(w, &self.positions);
+        write_vec3s(w, &self.normals);
+        write_vec3s(w, &self.albedo);
+        let sizes: Vec<f32> = self.texel_size.iter().flatten().copied().collect();
+        w.f32s(&sizes);
+        w.u32(self.rects.len() as u32);
+        for rect in &self.rects {
+            w.u8(rect.axis);
+            w.f32(rect.coord);
+            w.f32(rect.min[0]);
+            w.f32(rect.min[1]);
+            w.f32(rect.max[0]);
+            w.f32(rect.max[1]);
+        }
+        let flat: Vec<f32> = self.triangles.iter().flatten().flatten().copied().collect();
+        w.f32s(&flat);
+    }
+}
+
+impl Bundle {
+    /// Encodes the bundle losslessly ([`EncodeOptions::default`]).
+    pub fn encode(&self) -> Vec<u8> {
+        self.encode_with(&EncodeOptions::default()).0
+    }
+
+    /// Encodes the bundle with the given codecs and compression.
+    pub fn encode_with(&self, options: &EncodeOptions) -> (Vec<u8>, EncodeReport) {
+        let mut enc = MatrixEncoder::new(options);
+        let sections = self.encode_sections(&mut enc);
+        // Always the writer's minor version, whatever sections this bundle has: a streamed
+        // prefix (MRT sections only) and the whole bundle must share their header bytes.
+        let minor = BUNDLE_MINOR;
+        let (bytes, infos) = write_container(BUNDLE_MAJOR, minor, &sections, options.zstd_level);
+        let mut report = enc.report;
+        report.sections = infos
+            .into_iter()
+            .map(|i| (section_name(i.kind), i))
+            .collect();
+        report.total_bytes = bytes.len() as u64;
+        (bytes, report)
+    }
+
+    /// The uncompressed f32 payload of every section, in file order (what
+    /// [`write_container`] frames; for tools and tests that edit sections).
+    pub fn raw_sections(&self) -> Vec<(u32, Vec<u8>)> {
+        // The default options store every matrix as f32.
+        let mut enc = MatrixEncoder::new(&EncodeOptions::default());
+        self.encode_sections(&mut enc)
+    }
+
+    fn encode_sections(&self, enc: &mut MatrixEncoder) -> Vec<(u32, Vec<u8>)> {
+        let mut sections: Vec<(u32, Vec<u8>)> = Vec::new();
+        let mut w = Writer::new();
+        self.layout.write(&mut w);
+        sections.push((section::LAYOUT, w.bytes));
+        if !self.surface_atlases.is_empty() {
+            let mut w = Writer::new();
+            w.u32(self.surface_atlases.len() as u32);
+            for a in &self.surface_atlases {
+                w.u32(a.surface);
+                w.u32(a.width);
+                w.u32(a.height);
+                w.u32s(&a.texel_xy.iter().flatten().copied().collect::<Vec<_>>());
+            }
+            sections.push((section::LIGHTMAP, w.bytes));
+        }
+
+        let mut w = Writer::new();
+        w.u32(self.shapes.len() as u32);
+        for s in &self.shapes {
+            w.str(&s.key);
+            s.u_b.write(&mut w, enc);
+            s.t_db.write(&mut w, enc);
+            w.u32(s.openings.len() as u32);
+            for o in &s.openings {
+                w.u8(o.face);
+                o.u_r.write(&mut w, enc);
+            }
+        }
+        sections.push((section::SHAPES, w.bytes));
+
+        let mut w = Writer::new();
+        symmetric_blocks::write_blocks(&mut w, &self.blocks);
+        sections.push((section::BLOCKS_SYMMETRIC, w.bytes));
+
+        if let Some(t) = &self.transport {
+            let mut w = Writer::new();
+            enc.with_transport_policy(|enc| match t {
+                TransportOps::Lightfield(entries) => {
+                    w.u8(0);
+                    w.u32(entries.len() as u32);
+                    for e in entries {
+                        w.u32(e.target_block);
+                        w.u8(e.target_face);
+                        w.u32(e.source_block);
+                        e.matrix.write(&mut w, enc);
+                    }
+                }
+                TransportOps::Traced(entries) => {
+                    w.u8(1);
+                    w.u32(entries.len() as u32);
+                    for e in entries {
+                        w.u32(e.target_block);
+                        w.u32(e.source_block);
+                        e.matrix.write(&mut w, enc);
+                    }
+                }
+                TransportOps::Compact(entries) => {
+                    w.u8(2);
+                    w.u32(entries.len() as u32);
+                    for e in entries {
+                        w.u32(e.target_block);
+                        w.u32s(&e.sources);
+                        e.y.write(&mut w, enc);
+                        e.z.write(&mut w, enc);
+                    }
+                }
+            });
+            sections.push((section::TRANSPORT, w.bytes));
+        }
+        if let Some(d) = &self.drt {
+            let mut w = Writer::new();
+            w.u32(d.clutter.len() as u32);
+            for c in &d.clutter {
+                w.str(&c.id);
+                w.u32(c.texel_offset);
+                c.t_dc.write(&mut w, enc);
+            }
+            write_entries(&mut w, &d.entries, enc);
+            w.u32s(&d.buried);
+            gather_encoding::write_gather(&mut w, d.direct_gather.as_ref());
+            let kind = if !d.replaced.is_empty() {
+                w.u32s(&d.replaced);
+                section::DRT_REPLACING
+            } else if d.entries.iter().any(DeltaEntry::needs_low_rank_format) {
+                section::DRT_LOW_RANK
+            } else {
+                section::DRT
+            };
+            sections.push((kind, w.bytes));
+        }
+        if let Some(p) = &self.probes {
+            let mut w = Writer::new();
+            for x in p.origin {
+                w.f32(x);
+            }
+            w.f32(p.spacing);
+            for d in p.dims {
+                w.u32(d);
+            }
+            w.u32s(&p.slot);
+            w.u32(p.n_probes);
+            write_entries(&mut w, &p.entries, enc);
+            sections.push((section::PROBES, w.bytes));
+        }
+        if let Some(grids) = &self.dnrt {
+            let mut w = Writer::new();
+            w.u32(grids.len() as u32);
+            for g in grids {
+                g.write(&mut w);
+            }
+            sections.push((section::DNRT, w.bytes));
+        }
+        if let Some(sh) = &self.sh {
+            let mut w = Writer::new();
+            sh_responses::write_sh(&mut w, sh, enc);
+            sections.push((section::SH, w.bytes));
+        }
+        if let Some(f) = &self.full {
+            let mut w = Writer::new();
+            w.u32(f.n);
+            w.u32s(&f.row_start);
+            w.u32s(&f.cols);
+            w.f32s(&f.values);
+            sections.push((section::FULL, w.bytes));
+        }
+
+        sections
+    }
+}

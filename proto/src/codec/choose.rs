@@ -1,0 +1,65 @@
+//! Which codec a [`CodecPolicy`] gives a matrix: a fixed codec (any 8-bit one meaning 8-bit on
+//! the matrix's shorter side), or under a budget the smallest codec whose [`codec_error`] fits:
+//! the coarsest 8-bit grid within it, else f16, else f32.
+//!
+//! Invariant: the choice is a pure function of the values and the policy (deterministic across
+//! runs and machines), and the error [`choose_encoding`] reports is the one its codec and step
+//! add.
+
+use super::quantize::{codec_error, codec_error_step, U8_STEPS};
+use super::{CodecPolicy, MatrixCodec};
+
+/// The codec `policy` gives a matrix, with the error it adds (full 8-bit grid).
+pub fn choose_codec(
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    policy: CodecPolicy,
+) -> (MatrixCodec, f64) {
+    match policy {
+        CodecPolicy::Budget(_) => {
+            let (codec, step, error) = choose_encoding(data, rows, cols, policy);
+            if step == 1 {
+                return (codec, error);
+            }
+            (codec, codec_error(data, rows, cols, codec))
+        }
+        _ => {
+            let (codec, _, error) = choose_encoding(data, rows, cols, policy);
+            (codec, error)
+        }
+    }
+}
+
+/// The codec and 8-bit grid step `policy` gives a matrix, with the error they add. A budget
+/// takes the coarsest 8-bit grid within it, else f16, else f32; a fixed codec uses the full grid.
+pub fn choose_encoding(
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    policy: CodecPolicy,
+) -> (MatrixCodec, u8, f64) {
+    let (codec, error) = match policy {
+        CodecPolicy::Fixed(codec) if codec.is_u8() => {
+            let codec = MatrixCodec::u8_for(rows, cols);
+            (codec, codec_error(data, rows, cols, codec))
+        }
+        CodecPolicy::Fixed(codec) => (codec, codec_error(data, rows, cols, codec)),
+        CodecPolicy::Budget(budget) => {
+            let u8_codec = MatrixCodec::u8_for(rows, cols);
+            for step in U8_STEPS {
+                let e = codec_error_step(data, rows, cols, u8_codec, step);
+                if e <= budget {
+                    return (u8_codec, step, e);
+                }
+            }
+            let e = codec_error(data, rows, cols, MatrixCodec::F16);
+            if e <= budget {
+                (MatrixCodec::F16, e)
+            } else {
+                (MatrixCodec::F32, 0.0)
+            }
+        }
+    };
+    (codec, 1, error)
+}

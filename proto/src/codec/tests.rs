@@ -1,0 +1,371 @@
+//! The codecs' tests: every codec round-trips through the wire, reading any bytes never panics,
+//! predicted forms decode to the bits of the plain ones and have the documented bytes, and a
+//! budget picks the smallest codec that fits.
+
+use super::predict::{predict, to_lines};
+use super::quantize::quantize_matrix;
+use super::*;
+use crate::wire::{Reader, Writer};
+use proptest::prelude::*;
+
+fn sample_matrix(rows: usize, cols: usize) -> Vec<f32> {
+    // A smooth matrix with one large column, like a U_b with a dominant first mode.
+    (0..rows * cols)
+        .map(|k| {
+            let (i, j) = (k / cols, k % cols);
+            let base = ((i as f32 * 0.37 + j as f32 * 1.3).sin()) / (1.0 + j as f32);
+            if j == 0 {
+                10.0 + base
+            } else {
+                base
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn f32_is_lossless_and_u8_error_is_within_half_a_step_per_value() {
+    let (rows, cols) = (40, 7);
+    let m = sample_matrix(rows, cols);
+    assert_eq!(codec_error(&m, rows, cols, MatrixCodec::F32), 0.0);
+    let back = round_trip(&m, rows, cols, MatrixCodec::U8Columns);
+    for j in 0..cols {
+        let col: Vec<f32> = (0..rows).map(|i| m[i * cols + j]).collect();
+        let lo = col.iter().cloned().fold(f32::INFINITY, f32::min);
+        let hi = col.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
+        let half_step = (hi - lo) / 255.0 / 2.0;
+        for i in 0..rows {
+            let d = (back[i * cols + j] - m[i * cols + j]).abs();
+            assert!(
+                d <= half_step * 1.001 + 1e-6,
+                "({i},{j}): {d} > {half_step}"
+            );
+        }
+    }
+    let e8 = codec_error(&m, rows, cols, MatrixCodec::U8Columns);
+    let e16 = codec_error(&m, rows, cols, MatrixCodec::F16);
+    assert!(e16 < e8, "f16 {e16} should beat u8 {e8}");
+    assert!(e8 < 0.01 && e16 < 1e-3, "u8 {e8}, f16 {e16}");
+}
+
+#[test]
+fn budget_picks_the_smallest_codec_that_fits() {
+    let (rows, cols) = (64, 5);
+    let m = sample_matrix(rows, cols);
+    let e8 = codec_error(&m, rows, cols, MatrixCodec::U8Columns);
+    let e16 = codec_error(&m, rows, cols, MatrixCodec::F16);
+    assert_eq!(
+        choose_codec(&m, rows, cols, CodecPolicy::Budget(e8 * 1.01)).0,
+        MatrixCodec::U8Columns
+    );
+    assert_eq!(
+        choose_codec(&m, rows, cols, CodecPolicy::Budget(e8 * 0.99)).0,
+        MatrixCodec::F16
+    );
+    assert_eq!(
+        choose_codec(&m, rows, cols, CodecPolicy::Budget(e16 * 0.5)).0,
+        MatrixCodec::F32
+    );
+    // Wide matrices put their ranges on rows.
+    assert_eq!(
+        choose_codec(&m, cols, rows, CodecPolicy::Fixed(MatrixCodec::U8Columns)).0,
+        MatrixCodec::U8Rows
+    );
+}
+
+#[test]
+fn f16_overflow_is_an_infinite_error_so_the_budget_refuses_it() {
+    let m = vec![1.0e6f32, 2.0, 3.0, 4.0];
+    assert!(codec_error(&m, 2, 2, MatrixCodec::F16).is_infinite());
+    let (codec, _) = choose_codec(&m, 2, 2, CodecPolicy::Budget(0.01));
+    assert_ne!(codec, MatrixCodec::F16);
+}
+
+#[test]
+fn constant_and_zero_lines_quantise_exactly() {
+    let m = vec![0.0, 2.5, 0.0, 2.5, 0.0, 2.5];
+    for codec in [
+        MatrixCodec::U8Columns,
+        MatrixCodec::U8Rows,
+        MatrixCodec::F16,
+    ] {
+        assert_eq!(round_trip(&m, 3, 2, codec), m, "{codec:?}");
+    }
+}
+
+proptest! {
+    #[test]
+    fn every_codec_round_trips_through_the_wire(
+        rows in 0usize..9, cols in 0usize..9,
+        seed in proptest::collection::vec(-1.0e3f32..1.0e3, 81),
+        tag in 0u8..6,
+    ) {
+        let data: Vec<f32> = seed[..rows * cols].to_vec();
+        let codec = MatrixCodec::from_tag(tag).unwrap();
+        let mut w = Writer::new();
+        write_matrix(&mut w, &data, rows, cols, codec);
+        prop_assert_eq!(w.bytes.len(), 9 + codec.value_bytes(rows, cols));
+        let mut r = Reader::new(&w.bytes);
+        let (r2, c2, back, codec2) = read_matrix(&mut r).unwrap();
+        prop_assert_eq!((r2 as usize, c2 as usize, codec2), (rows, cols, codec));
+        prop_assert_eq!(back, round_trip(&data, rows, cols, codec));
+        prop_assert_eq!(r.remaining(), 0);
+    }
+
+    #[test]
+    fn reading_arbitrary_bytes_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..128)) {
+        let mut r = Reader::new(&bytes);
+        let _ = read_matrix(&mut r);
+    }
+
+    /// Any bytes after a predicted header (small or huge sizes, any width) decode to `Ok`
+    /// or `Err` without panicking, and `Ok` consumes exactly the matrix's bytes.
+    #[test]
+    fn reading_arbitrary_predicted_matrices_never_panics(
+        rows in prop_oneof![0u32..7, any::<u32>()],
+        cols in prop_oneof![0u32..7, any::<u32>()],
+        tag in 4u8..6,
+        rest in proptest::collection::vec(any::<u8>(), 0..160),
+    ) {
+        let mut bytes = rows.to_le_bytes().to_vec();
+        bytes.extend_from_slice(&cols.to_le_bytes());
+        bytes.push(tag);
+        bytes.extend_from_slice(&rest);
+        let mut r = Reader::new(&bytes);
+        if let Ok((r2, c2, values, codec)) = read_matrix(&mut r) {
+            prop_assert_eq!((r2, c2), (rows, cols));
+            prop_assert_eq!(values.len(), rows as usize * cols as usize);
+            let used = bytes.len() - r.remaining();
+            prop_assert_eq!(used, 9 + codec.value_bytes(rows as usize, cols as usize));
+        }
+    }
+
+    /// Tags 4/5 with any width decode to the bits of tags 2/3 for the same q.
+    #[test]
+    fn predicted_matrices_decode_like_plain_ones(
+        rows in 0usize..12, cols in 0usize..12,
+        seed in proptest::collection::vec(-1.0e3f32..1.0e3, 144),
+        per_column in any::<bool>(),
+        step in proptest::sample::select(U8_STEPS.to_vec()),
+        width in prop_oneof![0u16..20, any::<u16>()],
+    ) {
+        let data = &seed[..rows * cols];
+        let plain = if per_column { MatrixCodec::U8Columns } else { MatrixCodec::U8Rows };
+        let (back, predicted) = predicted_and_plain(data, rows, cols, plain, step, width);
+        prop_assert_eq!(bits(&back), bits(&predicted));
+    }
+}
+
+fn bits(v: &[f32]) -> Vec<u32> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+fn decode(bytes: &[u8]) -> DecodedMatrix {
+    let mut r = Reader::new(bytes);
+    let m = read_matrix(&mut r).unwrap();
+    assert_eq!(r.remaining(), 0);
+    m
+}
+
+/// Decoded values of `data` written in `plain` (tag 2/3) and in its predicted form with
+/// `width`, after checking the predicted bytes' size and codec.
+fn predicted_and_plain(
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    plain: MatrixCodec,
+    step: u8,
+    width: u16,
+) -> (Vec<f32>, Vec<f32>) {
+    let mut w = Writer::new();
+    write_matrix_step(&mut w, data, rows, cols, plain, step);
+    let (_, _, back, codec) = decode(&w.bytes);
+    assert_eq!(codec, plain);
+    let mut w = Writer::new();
+    write_matrix_predicted(&mut w, data, rows, cols, plain, step, width);
+    let predicted = plain.predicted();
+    assert_eq!(w.bytes.len(), 9 + predicted.value_bytes(rows, cols));
+    assert_eq!(&w.bytes[9..11], &width.to_le_bytes());
+    let (r2, c2, values, codec) = decode(&w.bytes);
+    assert_eq!((r2 as usize, c2 as usize, codec), (rows, cols, predicted));
+    (back, values)
+}
+
+/// Some pseudo-random values with a smooth trend, on every 8-bit line.
+fn noisy_matrix(rows: usize, cols: usize, seed: u64) -> Vec<f32> {
+    let mut s = seed;
+    (0..rows * cols)
+        .map(|k| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let noise = (s >> 40) as f32 / (1u64 << 24) as f32;
+            (k as f32 * 0.1).sin() + noise
+        })
+        .collect()
+}
+
+#[test]
+fn predicted_forms_round_trip_on_every_shape_and_width() {
+    // 1×1, lines of one value, a partial last image row, widths 0, 1, ≥ the line, u16::MAX.
+    let shapes = [
+        (1, 1),
+        (1, 9),
+        (9, 1),
+        (13, 5),
+        (5, 13),
+        (64, 3),
+        (3, 64),
+        (0, 4),
+        (4, 0),
+        (0, 0),
+    ];
+    for (rows, cols) in shapes {
+        let data = noisy_matrix(rows, cols, (rows * 100 + cols) as u64);
+        for plain in [MatrixCodec::U8Columns, MatrixCodec::U8Rows] {
+            for step in U8_STEPS {
+                for width in [0, 1, 2, 3, 5, 8, 12, 13, 64, 65, 1000, u16::MAX] {
+                    let (back, predicted) =
+                        predicted_and_plain(&data, rows, cols, plain, step, width);
+                    assert_eq!(
+                        bits(&back),
+                        bits(&predicted),
+                        "{rows}×{cols} {plain:?} step {step} width {width}"
+                    );
+                    assert_eq!(
+                        bits(&back),
+                        bits(&round_trip_step(&data, rows, cols, plain, step)),
+                    );
+                }
+            }
+            // The encoder's own width choice decodes the same way too.
+            let mut w = Writer::new();
+            write_matrix(&mut w, &data, rows, cols, plain.predicted());
+            assert_eq!(
+                bits(&decode(&w.bytes).2),
+                bits(&round_trip(&data, rows, cols, plain))
+            );
+        }
+    }
+}
+
+/// The exact bytes of a small tag-4 matrix: one column of q
+/// `[0, 255, 25, 20, 30, 40]` as an image 2 wide.
+#[test]
+fn predicted_wire_format_is_the_documented_one() {
+    let q = [0.0f32, 255.0, 25.0, 20.0, 30.0, 40.0];
+    let mut w = Writer::new();
+    write_matrix_predicted(&mut w, &q, 6, 1, MatrixCodec::U8Columns, 1, 2);
+    let mut want = vec![6, 0, 0, 0, 1, 0, 0, 0, 4, 2, 0];
+    want.extend_from_slice(&0.0f32.to_le_bytes());
+    want.extend_from_slice(&1.0f32.to_le_bytes());
+    // k0 no neighbour: 0; k1 left 0; k2 up 0; k3 median(25, 255, 25 + 255 − 0) = 255;
+    // k4 up 25; k5 median(30, 20, 30 + 20 − 25) = 25.
+    want.extend_from_slice(&[0, 255, 25, 20u8.wrapping_sub(255), 5, 15]);
+    assert_eq!(w.bytes, want);
+    assert_eq!(decode(&w.bytes).2, q);
+    // 1D: the previous value.
+    let mut w = Writer::new();
+    write_matrix_predicted(&mut w, &q, 1, 6, MatrixCodec::U8Rows, 1, 0);
+    assert_eq!(&w.bytes[8..11], &[5, 0, 0]);
+    assert_eq!(
+        &w.bytes[19..],
+        &[
+            0,
+            255,
+            25u8.wrapping_sub(255),
+            20u8.wrapping_sub(25),
+            10,
+            10
+        ]
+    );
+    assert_eq!(decode(&w.bytes).2, q);
+    // The median's three cases.
+    let line = [10u8, 20, 30, 0, 10, 20, 15];
+    assert_eq!(predict(&[30, 10, 20, 0], 3, 2), 10); // upleft ≥ both: min
+    assert_eq!(predict(&[5, 10, 20, 0], 3, 2), 20); // upleft ≤ both: max
+    assert_eq!(predict(&[15, 10, 20, 0], 3, 2), 15); // else left + up − upleft
+    assert_eq!(predict(&line, 0, 3), 0);
+    assert_eq!(predict(&line, 3, 3), 10); // first of an image row: up
+    assert_eq!(predict(&line, 2, 3), 20); // first image row: left
+}
+
+/// Lighting-like data: smooth functions on the 8 × 8 texel grids of six box faces, as a
+/// U_b (texels × r, per column) and a T_d→b (r × texels, per row).
+#[test]
+fn smooth_face_data_is_stored_predicted_and_smaller_after_zstd() {
+    let (t, faces, r) = (8usize, 6usize, 12usize);
+    let texels = t * t * faces;
+    let u_b: Vec<f32> = (0..texels * r)
+        .map(|k| {
+            let (texel, mode) = (k / r, k % r);
+            let (face, j, i) = (texel / (t * t), (texel % (t * t)) / t, texel % t);
+            let (x, y) = (i as f32 / t as f32, j as f32 / t as f32);
+            let f = mode as f32 + 1.0;
+            ((x * f + face as f32).sin() * (y * 0.7 * f).cos() + x * y) / f
+        })
+        .collect();
+    let t_db: Vec<f32> = (0..r * texels)
+        .map(|k| u_b[(k % texels) * r + k / texels])
+        .collect();
+    for (data, rows, cols, plain) in [
+        (&u_b, texels, r, MatrixCodec::U8Columns),
+        (&t_db, r, texels, MatrixCodec::U8Rows),
+    ] {
+        for policy in [
+            CodecPolicy::Budget(0.02),
+            CodecPolicy::Fixed(MatrixCodec::U8Columns),
+        ] {
+            let (codec, step, _) = choose_encoding(data, rows, cols, policy);
+            assert_eq!(codec, plain);
+            let chosen = write_matrix_smallest(&mut Writer::new(), data, rows, cols, codec, step);
+            assert_eq!(chosen, plain.predicted(), "{plain:?} step {step}");
+            let (_, q) = quantize_matrix(data, rows, cols, plain.per_column(), step);
+            let lines = to_lines(&q, rows, cols, plain.per_column());
+            assert_eq!(best_predictor_width(&lines, texels).0, t as u16);
+            let size = |codec| {
+                let mut w = Writer::new();
+                write_matrix_step(&mut w, data, rows, cols, codec, step);
+                let (.., values, _) = decode(&w.bytes);
+                (zstd::bulk::compress(&w.bytes, 9).unwrap().len(), values)
+            };
+            let (plain_size, plain_values) = size(plain);
+            let (predicted_size, values) = size(chosen);
+            assert_eq!(bits(&values), bits(&plain_values));
+            eprintln!("{plain:?} step {step}: zstd {plain_size} -> {predicted_size}");
+            assert!(
+                (predicted_size as f64) < 0.9 * plain_size as f64,
+                "{plain:?} step {step}: {predicted_size} vs {plain_size}"
+            );
+        }
+    }
+}
+
+#[test]
+fn noise_keeps_the_plain_form() {
+    let mut s = 99u64;
+    let data: Vec<f32> = (0..64 * 8)
+        .map(|_| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 40) as f32
+        })
+        .collect();
+    for (rows, cols) in [(64, 8), (8, 64)] {
+        let codec = MatrixCodec::u8_for(rows, cols);
+        assert_eq!(
+            write_matrix_smallest(&mut Writer::new(), &data, rows, cols, codec, 1),
+            codec
+        );
+    }
+    // Non-8-bit codecs and empty matrices are left alone.
+    assert_eq!(
+        write_matrix_smallest(&mut Writer::new(), &data, 64, 8, MatrixCodec::F16, 1),
+        MatrixCodec::F16
+    );
+    assert_eq!(
+        write_matrix_smallest(&mut Writer::new(), &[], 0, 8, MatrixCodec::U8Columns, 1),
+        MatrixCodec::U8Columns
+    );
+}

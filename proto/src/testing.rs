@@ -1,0 +1,324 @@
+//! Test fixtures (feature `testing`, for this crate's and the client's tests only): a seeded
+//! generator and hand-built bundles that exercise every section kind — two blocks with traced
+//! or lightfield transport, DRT with all four kinds of delta entry, a probe volume — so the
+//! decoder fuzzing here (`tests/decode_fuzz.rs`) and the client runtime's tests mutate and
+//! apply the same bytes.
+//!
+//! Invariant: deterministic; the same seed gives the same bundle bytes on every platform.
+
+#![allow(clippy::needless_range_loop)]
+
+use crate::bundle::{
+    BlockOps, Bundle, ClutterOps, DeltaEntry, DeltaSource, DrtOps, Layout, Matrix, OpeningOps,
+    ProbeVolume, PropEntry, ShapeOps, SparseRows, SurfaceInfo, TracedEntry, TransportOps,
+};
+use crate::bundle::{BUNDLE_MAJOR, BUNDLE_MINOR};
+use crate::container::write_container;
+
+/// A fixed-seed linear congruential generator (the client tests' `Lcg`, same sequence).
+pub struct Lcg(pub u64);
+
+impl Lcg {
+    pub fn next_u32(&mut self) -> u32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 33) as u32
+    }
+    /// Uniform in `[0, 1)`.
+    pub fn unit(&mut self) -> f32 {
+        (self.next_u32() >> 8) as f32 / (1u32 << 24) as f32
+    }
+    pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.unit()
+    }
+    /// A point with each coordinate uniform in `[lo, hi)`.
+    pub fn point(&mut self, lo: f32, hi: f32) -> [f32; 3] {
+        [self.range(lo, hi), self.range(lo, hi), self.range(lo, hi)]
+    }
+}
+
+pub fn matrix(rng: &mut Lcg, rows: usize, cols: usize) -> Matrix {
+    Matrix {
+        rows: rows as u32,
+        cols: cols as u32,
+        data: (0..rows * cols).map(|_| rng.range(-1.0, 1.0)).collect(),
+    }
+}
+
+/// A random sparse n × n dense-bounce operator (about a third of the entries set).
+pub fn random_full(rng: &mut Lcg, n: usize) -> SparseRows {
+    let mut f = SparseRows {
+        n: n as u32,
+        row_start: vec![0],
+        cols: vec![],
+        values: vec![],
+    };
+    for _ in 0..n {
+        for c in 0..n as u32 {
+            if rng.next_u32().is_multiple_of(3) {
+                f.cols.push(c);
+                f.values.push(rng.range(0.0, 0.1));
+            }
+        }
+        f.row_start.push(f.cols.len() as u32);
+    }
+    f
+}
+
+pub fn layout(rng: &mut Lcg, surfaces: &[(&str, usize)]) -> Layout {
+    let mut next = 0;
+    let surfaces: Vec<SurfaceInfo> = surfaces
+        .iter()
+        .map(|&(name, count)| {
+            next += count;
+            SurfaceInfo {
+                name: name.into(),
+                texel_offset: (next - count) as u32,
+                texel_count: count as u32,
+            }
+        })
+        .collect();
+    let n = next;
+    Layout {
+        scene_name: "hand-built".into(),
+        surfaces,
+        positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
+        normals: vec![[0.0, 0.0, 1.0]; n],
+        texel_size: vec![[0.5, 0.5]; n],
+        albedo: (0..n)
+            .map(|_| {
+                [
+                    rng.range(0.1, 0.9),
+                    rng.range(0.1, 0.9),
+                    rng.range(0.1, 0.9),
+                ]
+            })
+            .collect(),
+        rects: vec![],
+        triangles: vec![],
+    }
+}
+
+/// Two blocks (a: shape 0, 4 texels, r = 2, opening +x (q = 3); b: shape 1, 6 texels,
+/// r = 3, opening -x (q = 2)) with traced or lightfield transport between them, one clutter
+/// object (box: 4 texels, m = 2) or two (plus lamp: 3 texels, m = 3), and delta entries of
+/// all four kinds: block rows from a block, block rows from clutter, clutter rows from a
+/// block, clutter rows from clutter (plus a self-entry, an empty one and overlapping rows).
+pub fn drt_bundle(rng: &mut Lcg, lightfield: bool, two_clutter: bool, full: bool) -> Bundle {
+    let mut surfaces = vec![("block:a/+x", 4), ("block:b/-x", 6), ("clutter:box", 4)];
+    if two_clutter {
+        surfaces.push(("clutter:lamp", 3));
+    }
+    let layout = layout(rng, &surfaces);
+    let n = layout.n_texels();
+    let shapes = vec![
+        ShapeOps {
+            key: "s0".into(),
+            u_b: matrix(rng, 4, 2),
+            t_db: matrix(rng, 2, 4),
+            openings: vec![OpeningOps {
+                face: 1,
+                u_r: matrix(rng, 4, 3),
+            }],
+        },
+        ShapeOps {
+            key: "s1".into(),
+            u_b: matrix(rng, 6, 3),
+            t_db: matrix(rng, 3, 6),
+            openings: vec![OpeningOps {
+                face: 0,
+                u_r: matrix(rng, 6, 2),
+            }],
+        },
+    ];
+    let blocks = vec![
+        BlockOps {
+            symmetry: None,
+            id: "a".into(),
+            shape: 0,
+            texel_offset: 0,
+        },
+        BlockOps {
+            symmetry: None,
+            id: "b".into(),
+            shape: 1,
+            texel_offset: 4,
+        },
+    ];
+    let r = [2usize, 3];
+    let transport = if lightfield {
+        // (target, face, q, source)
+        let entries = [(0u32, 1u8, 3usize, 1u32), (1, 0, 2, 0), (1, 0, 2, 1)];
+        TransportOps::Lightfield(
+            entries
+                .iter()
+                .map(|&(t, face, q, s)| PropEntry {
+                    target_block: t,
+                    target_face: face,
+                    source_block: s,
+                    matrix: matrix(rng, q, r[s as usize]),
+                })
+                .collect(),
+        )
+    } else {
+        let texels = [4usize, 6];
+        TransportOps::Traced(
+            [(0u32, 1u32), (1, 0), (1, 1)]
+                .iter()
+                .map(|&(t, s)| TracedEntry {
+                    target_block: t,
+                    source_block: s,
+                    matrix: matrix(rng, texels[t as usize], r[s as usize]),
+                })
+                .collect(),
+        )
+    };
+    let mut clutter = vec![ClutterOps {
+        id: "box".into(),
+        texel_offset: 10,
+        t_dc: matrix(rng, 2, 4),
+    }];
+    let m = [2usize, 3];
+    let mut entries: Vec<(Vec<u32>, DeltaSource)> = vec![
+        // Block rows (in both blocks) from a block: delta occlusion.
+        (vec![1, 3, 6, 9], DeltaSource::Block(1)),
+        (vec![0, 1, 2, 3], DeltaSource::Block(0)),
+        // Block rows from clutter: delta reflection.
+        (vec![0, 2, 5, 7], DeltaSource::Clutter(0)),
+        // Clutter rows from a block: clutter gather.
+        (vec![10, 11, 13], DeltaSource::Block(0)),
+        // Clutter rows from clutter (its own): bounce, overlapping the gather's rows.
+        (vec![10, 11, 12, 13], DeltaSource::Clutter(0)),
+        (vec![], DeltaSource::Clutter(0)),
+    ];
+    if two_clutter {
+        clutter.push(ClutterOps {
+            id: "lamp".into(),
+            texel_offset: 14,
+            t_dc: matrix(rng, 3, 3),
+        });
+        entries.extend([
+            (vec![14, 15, 16], DeltaSource::Clutter(1)),
+            (vec![12], DeltaSource::Clutter(1)),
+            (vec![4, 8], DeltaSource::Clutter(1)),
+            (vec![14, 16], DeltaSource::Block(1)),
+            (vec![15], DeltaSource::Clutter(0)),
+        ]);
+    }
+    let entries = entries
+        .into_iter()
+        .map(|(rows, source)| {
+            let cols = match source {
+                DeltaSource::Block(k) => r[k as usize],
+                DeltaSource::Clutter(j) => m[j as usize],
+                DeltaSource::Direct { count, .. } => count as usize,
+            };
+            DeltaEntry {
+                matrix: matrix(rng, rows.len(), cols),
+                rows,
+                source,
+                mix: None,
+            }
+        })
+        .collect::<Vec<_>>();
+    // Low-rank entries (`mix`) and direct-light sources (the exact gather in low-rank form).
+    let mut entries = entries;
+    entries.extend([
+        DeltaEntry {
+            matrix: matrix(rng, 3, 2),
+            rows: vec![4, 5, 6],
+            source: DeltaSource::Block(1),
+            mix: Some(matrix(rng, 2, r[1])),
+        },
+        DeltaEntry {
+            matrix: matrix(rng, 2, 1),
+            rows: vec![10, 12],
+            source: DeltaSource::Direct { first: 0, count: 5 },
+            mix: Some(matrix(rng, 1, 5)),
+        },
+        DeltaEntry {
+            matrix: matrix(rng, 3, 4),
+            rows: vec![1, 11, 13],
+            source: DeltaSource::Direct { first: 6, count: 4 },
+            mix: None,
+        },
+    ]);
+    let full = full.then(|| random_full(rng, n));
+    Bundle {
+        layout,
+        shapes,
+        blocks,
+        transport: Some(transport),
+        full,
+        drt: Some(DrtOps {
+            clutter,
+            entries,
+            buried: vec![3, 12],
+            direct_gather: None,
+            replaced: Vec::new(),
+        }),
+        probes: None,
+        dnrt: None,
+        sh: None,
+        surface_atlases: Vec::new(),
+    }
+}
+
+/// Probes of the probe test bundle; probe 5 (rows 45..54) is fed by no entry.
+pub const N_PROBES: usize = 7;
+
+/// [`drt_bundle`] (blocks a, b; clutter box) with a 2×2×2 probe volume whose grid point
+/// (1, 1, 0) is empty (7 probes), and probe entries from both blocks and (with `drt`) the
+/// clutter object, overlapping rows, an empty entry and the last row. Without `drt` the
+/// bundle has no DRT section and no clutter-sourced probe entries.
+pub fn probe_bundle(rng: &mut Lcg, drt: bool) -> Bundle {
+    let mut b = drt_bundle(rng, !drt, false, false);
+    let mut entries: Vec<(Vec<u32>, DeltaSource)> = vec![
+        ((0..9).collect(), DeltaSource::Block(0)),
+        (vec![2, 9, 10, 20, 35, 62], DeltaSource::Block(1)),
+        (vec![0, 4, 13, 27, 40, 54, 61], DeltaSource::Clutter(0)),
+        (vec![18, 19, 26, 36, 44], DeltaSource::Block(0)),
+        (vec![], DeltaSource::Clutter(0)),
+        (vec![1, 62], DeltaSource::Clutter(0)),
+    ];
+    if !drt {
+        b.drt = None;
+        entries[4].1 = DeltaSource::Block(1);
+        entries.retain(|(_, s)| matches!(s, DeltaSource::Block(_)));
+    }
+    let (r, m) = ([2usize, 3], 2usize);
+    let entries = entries
+        .into_iter()
+        .map(|(rows, source)| DeltaEntry {
+            matrix: matrix(
+                rng,
+                rows.len(),
+                match source {
+                    DeltaSource::Block(k) => r[k as usize],
+                    DeltaSource::Clutter(_) => m,
+                    DeltaSource::Direct { count, .. } => count as usize,
+                },
+            ),
+            rows,
+            source,
+            mix: None,
+        })
+        .collect();
+    b.probes = Some(ProbeVolume {
+        origin: [0.25, 0.5, -1.0],
+        spacing: 0.5,
+        dims: [2, 2, 2],
+        slot: vec![0, 1, 2, u32::MAX, 3, 4, 5, 6],
+        n_probes: N_PROBES as u32,
+        entries,
+    });
+    b
+}
+
+/// A container of raw (uncompressed) sections, with fresh lengths, checksums and table of
+/// contents, so edits inside a payload reach the bundle's validation.
+pub fn join_sections(sections: &[(u32, Vec<u8>)]) -> Vec<u8> {
+    write_container(BUNDLE_MAJOR, BUNDLE_MINOR, sections, 0).0
+}

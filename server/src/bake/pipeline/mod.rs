@@ -1,0 +1,204 @@
+//! The bake: scene → geometry → shape operators (cached) → inter-block transport → clutter
+//! operators → probe volume → DNRT grids → SH responses → optional dense operator →
+//! [`Bundle`].
+//!
+//! # Layout (in data-flow order)
+//! - [`plan`]: which canonical shape each block applies ([`plan::ShapePlan`]).
+//! - [`stages`]: each stage of the bake, cached where its inputs allow.
+//! - [`to_bundle`]: the stages' results as the bundle's sections.
+//! - [`encoding`]: the codecs the bundle is stored with.
+//!
+//! [`bake`] here strings the stages together, times them ([`BakeReport::stage_seconds`]) and
+//! announces each section as it becomes final ([`Progress::sections_ready`]).
+//!
+//! Invariant: the bundle is a pure function of the scene (and its meshes); the cache only saves
+//! time. Operators are stored albedo-free; albedo enters through the layout.
+
+use std::path::Path;
+use std::time::Instant;
+
+use lightfarm_proto::bundle::Bundle;
+use lightfarm_proto::scene::{Scene, SceneError, Transport};
+
+use crate::bake::cache::shape::ShapeCache;
+use crate::bake::cache::transport::CachedTransport;
+use crate::bake::drt::build::DrtStats;
+use crate::bake::drt::compaction::DeltaCompactionStats;
+use crate::bake::mrt::shape::{ShapeError, ShapeOperators};
+use crate::bake::progress::Progress;
+use crate::bake::scene::geometry::{Geometry, GeometryError};
+use crate::bake::sh::responses::ShResponseStats;
+use crate::bake::transport::build::TransportStats;
+
+pub mod encoding;
+pub mod plan;
+pub mod stages;
+pub mod to_bundle;
+
+pub use plan::{shape_plan, ShapePlan};
+pub use stages::{dnrt_grid, mrt_transport};
+pub use to_bundle::{layout_of, surface_atlases_of};
+
+/// What to bake beyond the scene's own settings.
+#[derive(Clone, Debug, Default)]
+pub struct BakeOptions {
+    /// Shape-operator cache (None: compute everything).
+    pub cache: Option<ShapeCache>,
+    /// Also bake the dense one-bounce operator over all texels (`--method full`).
+    pub full: bool,
+    /// Override `settings.transport`.
+    pub transport: Option<Transport>,
+}
+
+/// Figures about a bake.
+#[derive(Clone, Debug, Default)]
+pub struct BakeReport {
+    pub blocks: usize,
+    pub texels: usize,
+    pub unique_shapes: usize,
+    pub shapes_from_cache: usize,
+    pub shapes_computed: usize,
+    pub corrupt_cache_entries: usize,
+    pub ranks: Vec<usize>,
+    pub transport: TransportStats,
+    /// The inter-block transport came from the cache (nothing about the blocks changed).
+    pub transport_from_cache: bool,
+    pub stage_seconds: Vec<(String, f64)>,
+    pub bundle_bytes: usize,
+    pub drt: Option<DrtStats>,
+    /// What the low-rank form of the DRT operators saved (None without DRT or with
+    /// `compact_deltas: false`).
+    pub delta_compaction: Option<DeltaCompactionStats>,
+    pub probes: usize,
+    /// Per dynamic object: (id, seconds to bake its DNRT grid or read it from the cache, grid
+    /// data bytes).
+    pub dnrt: Vec<(String, f64, usize)>,
+    /// SH responses (`settings.sh_responses`), when baked.
+    pub sh: Option<ShResponseStats>,
+}
+
+/// Why a bake failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BakeError {
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    #[error(transparent)]
+    Geometry(#[from] GeometryError),
+    #[error(transparent)]
+    Shape(#[from] ShapeError),
+    #[error("clutter operators: {0}")]
+    Drt(String),
+    #[error("transport compaction: {0}")]
+    Transport(String),
+    #[error("operator cache: {0}")]
+    Cache(#[from] std::io::Error),
+}
+
+/// Bakes a validated scene. `scene_dir` resolves mesh paths.
+pub fn bake(
+    scene: &Scene,
+    scene_dir: &Path,
+    options: &BakeOptions,
+    progress: &dyn Progress,
+) -> Result<(Bundle, BakeReport), BakeError> {
+    scene.validate()?;
+    let mut report = BakeReport::default();
+    let mut timer = Instant::now();
+    let mut lap = |report: &mut BakeReport, name: &str| {
+        report
+            .stage_seconds
+            .push((name.to_string(), timer.elapsed().as_secs_f64()));
+        timer = Instant::now();
+    };
+    // The bundle grows in file order; each step's sections are final once announced.
+    let announce = |bundle: &Bundle| {
+        if progress.wants_sections() {
+            progress.sections_ready(bundle);
+        }
+    };
+    let cache = options.cache.as_ref();
+    let full_geometry = Geometry::from_scene(scene, scene_dir)?;
+    let block_geometry = Geometry::blocks_only(scene);
+    let openings = scene.openings()?;
+    report.blocks = scene.blocks.len();
+    report.texels = full_geometry.texels.len();
+    lap(&mut report, "geometry");
+
+    let plan = shape_plan(scene);
+    let shapes = stages::shape_operators(&plan, cache, progress, &mut report)?;
+    lap(&mut report, "shape operators");
+
+    let block_operators = plan.block_operators(&shapes);
+    let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
+    let transport_kind = options.transport.unwrap_or(scene.settings.transport);
+    let CachedTransport {
+        mrt,
+        compact,
+        stats,
+    } = stages::block_transport(
+        scene,
+        &plan,
+        &block_geometry,
+        &per_block,
+        &openings,
+        transport_kind,
+        cache,
+        progress,
+        &mut report,
+    )?;
+    report.transport = stats;
+    let transport = to_bundle::transport_ops(compact.as_deref(), &mrt);
+    let mut bundle = to_bundle::mrt_bundle(scene, &plan, &shapes, &full_geometry, transport);
+    announce(&bundle);
+    lap(&mut report, "transport");
+
+    let drt = stages::clutter_operators(
+        scene,
+        &openings,
+        &full_geometry,
+        &block_geometry,
+        &per_block,
+        &mrt,
+        cache,
+        progress,
+    )?;
+    if let Some(ops) = &drt {
+        report.drt = Some(ops.stats.clone());
+        let (section, stats) = to_bundle::drt_section(&bundle, ops, &scene.settings)?;
+        report.delta_compaction = stats;
+        bundle.drt = Some(section);
+        announce(&bundle);
+    }
+    lap(&mut report, "clutter operators");
+
+    if let Some(volume) = stages::probe_volume(scene, &full_geometry, &per_block, drt.as_ref()) {
+        report.probes = volume.n_probes;
+        bundle.probes = Some(to_bundle::probe_section(volume));
+        announce(&bundle);
+    }
+    lap(&mut report, "probe volume");
+
+    bundle.dnrt = stages::dnrt_grids(scene, scene_dir, cache, &mut report)?;
+    if bundle.dnrt.is_some() && options.full {
+        announce(&bundle);
+    }
+    lap(&mut report, "dnrt grids");
+
+    if let Some(ops) =
+        stages::sh_responses(scene, &full_geometry, &per_block, drt.as_ref(), progress)?
+    {
+        report.sh = Some(ops.stats.clone());
+        bundle.sh = Some(to_bundle::sh_section(&ops));
+        if options.full {
+            announce(&bundle);
+        }
+        lap(&mut report, "sh responses");
+    }
+
+    if options.full {
+        let rows = stages::dense_operator(scene, &full_geometry, progress);
+        bundle.full = Some(to_bundle::sparse_rows(rows));
+    }
+    lap(&mut report, "dense operator");
+    Ok((bundle, report))
+}

@@ -1,0 +1,98 @@
+//! The shape plan: which canonical shape each block applies, and through which box symmetry.
+//!
+//! Blocks that are rotations or mirror images of one another share one canonical shape, baked,
+//! cached and shipped once; the plan is the first stage of a bake and what the farm's units
+//! (`crate::bake::units`) cut the shape work by.
+//!
+//! Invariant: unique shapes are numbered in order of first use by the scene's blocks, so the
+//! plan (and the bundle's shape list) is a pure function of the scene.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use lightfarm_proto::box_symmetry::BoxSymmetry;
+use lightfarm_proto::scene::Scene;
+
+use crate::bake::mrt::shape::{ShapeOperators, ShapeSpec};
+use crate::bake::mrt::shape_symmetry::instance_operators;
+
+/// The scene's blocks' shape operators, deduplicated by content key up to box symmetry: blocks
+/// that are rotations or mirror images of one another share one canonical shape
+/// (`ShapeSpec::canonical`), baked, cached and shipped once.
+pub struct ShapePlan {
+    /// One per block: its own spec, in its own frame.
+    pub specs: Vec<ShapeSpec>,
+    /// Unique canonical shape keys, in order of first use.
+    pub unique: Vec<String>,
+    /// Per unique shape, its canonical spec (what is baked and cached).
+    pub unique_specs: Vec<ShapeSpec>,
+    /// Per block, its unique shape.
+    pub shape_index: Vec<usize>,
+    /// Per block, the symmetry taking its frame to its shape's.
+    pub symmetry: Vec<BoxSymmetry>,
+}
+
+impl ShapePlan {
+    /// Per block, the key of the operators it applies: its shape's key, and the symmetry when
+    /// it is not the identity (what the transport cache is keyed by).
+    pub fn block_keys(&self) -> Vec<String> {
+        self.shape_index
+            .iter()
+            .zip(&self.symmetry)
+            .map(|(i, g)| g.instance_key(&self.unique[*i]))
+            .collect()
+    }
+
+    /// Per block, the operators it applies, from the unique shapes' (`unique[i]` for shape
+    /// `i`): the shape's own for an identity block, else the shape's seen through the block's
+    /// symmetry, made once per distinct (shape, symmetry) and shared by the blocks using it.
+    pub fn block_operators(&self, unique: &[Arc<ShapeOperators>]) -> Vec<Arc<ShapeOperators>> {
+        let mut instances: HashMap<(usize, BoxSymmetry), Arc<ShapeOperators>> = HashMap::new();
+        (0..self.specs.len())
+            .map(|b| {
+                let (shape, g) = (self.shape_index[b], self.symmetry[b]);
+                if g.is_identity() {
+                    return unique[shape].clone();
+                }
+                instances
+                    .entry((shape, g))
+                    .or_insert_with(|| {
+                        Arc::new(instance_operators(&unique[shape], &self.specs[b], g))
+                    })
+                    .clone()
+            })
+            .collect()
+    }
+}
+
+/// Which shape each block uses, and the unique shapes.
+pub fn shape_plan(scene: &Scene) -> ShapePlan {
+    let specs: Vec<ShapeSpec> = scene
+        .blocks
+        .iter()
+        .map(|b| ShapeSpec::for_block(&b.aabb(), &b.open, &scene.settings, &scene.light_regions))
+        .collect();
+    let mut unique: Vec<String> = Vec::new();
+    let mut unique_specs = Vec::new();
+    let mut shape_index: Vec<usize> = Vec::new();
+    let mut symmetry = Vec::new();
+    let mut key_to_index: HashMap<String, usize> = HashMap::new();
+    for spec in &specs {
+        let (canonical, g) = spec.canonical();
+        let key = canonical.key();
+        let idx = *key_to_index.entry(key.clone()).or_insert_with(|| {
+            unique.push(key);
+            unique_specs.push(canonical);
+            unique.len() - 1
+        });
+        shape_index.push(idx);
+        symmetry.push(g);
+    }
+    ShapePlan {
+        specs,
+        unique,
+        unique_specs,
+        shape_index,
+        symmetry,
+    }
+}

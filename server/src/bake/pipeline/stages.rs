@@ -1,0 +1,379 @@
+//! The bake's stages, in data-flow order: shape operators (cached by content) → inter-block
+//! transport of the blocks alone (cached by the blocks and their shapes) → DRT clutter
+//! operators → probe volume → DNRT grids (cached per object) → SH responses → the dense
+//! operator. Each stage reads the earlier stages' results and returns its own; [`super::bake`]
+//! strings them together and [`super::to_bundle`] turns them into sections.
+//!
+//! Invariant: a stage's result is a pure function of the scene (and meshes); a cache hit gives
+//! what computing would, so the cache only saves time.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use lightfarm_proto::scene::{ProbeVolumeMode, Scene, Transform, Transport};
+
+use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
+use crate::bake::cache::shape::{Lookup, ShapeCache};
+use crate::bake::cache::transport::{transport_key, CachedTransport, TransportCache};
+use crate::bake::dnrt::grid::bake_dnrt_grid;
+use crate::bake::drt::build::{build_drt, DrtOperators};
+use crate::bake::drt::rays::DrtRayCache;
+use crate::bake::math::sampling::Purpose;
+use crate::bake::mrt::one_bounce::gather_rows;
+use crate::bake::mrt::shape::{bake_shape, ShapeOperators};
+use crate::bake::progress::Progress;
+use crate::bake::scene::geometry::{Geometry, GeometryError};
+use crate::bake::scene::mesh::load_mesh;
+use crate::bake::scene::mesh_albedo::SurfaceAlbedo;
+use crate::bake::sh::probe_volume::{build_probe_volume, ProbeVolumeOps};
+use crate::bake::sh::responses::{build_sh_responses, ShResponseOps};
+use crate::bake::tracer::Tracer;
+use crate::bake::transport::build::{lightfield_transport, traced_transport, MrtTransport};
+use crate::bake::transport::compaction::compact_transport;
+
+use super::plan::ShapePlan;
+use super::{BakeError, BakeReport};
+
+/// Every unique shape's operators (index = the plan's unique shape), from the cache or baked
+/// and stored there; counts hits, corrupt entries and computed shapes in `report`.
+pub fn shape_operators(
+    plan: &ShapePlan,
+    cache: Option<&ShapeCache>,
+    progress: &dyn Progress,
+    report: &mut BakeReport,
+) -> Result<Vec<Arc<ShapeOperators>>, BakeError> {
+    let ShapePlan {
+        unique,
+        unique_specs,
+        ..
+    } = plan;
+    report.unique_shapes = unique.len();
+    let mut to_compute: Vec<usize> = Vec::new();
+    let mut slots: Vec<Option<Arc<ShapeOperators>>> = vec![None; unique.len()];
+    for (i, key) in unique.iter().enumerate() {
+        match cache.map(|c| c.get(key)) {
+            Some(Lookup::Hit(ops)) => {
+                report.shapes_from_cache += 1;
+                slots[i] = Some(Arc::from(ops));
+            }
+            Some(Lookup::Corrupt) => {
+                report.corrupt_cache_entries += 1;
+                to_compute.push(i);
+            }
+            _ => to_compute.push(i),
+        }
+    }
+    let texels_to_do: u64 = to_compute
+        .iter()
+        .map(|i| unique_specs[*i].n_texels() as u64)
+        .sum();
+    progress.stage("shape operators", texels_to_do);
+    for i in to_compute {
+        let ops = bake_shape(&unique_specs[i], &|n| progress.advance(n))?;
+        if let Some(cache) = cache {
+            cache.put(&ops)?;
+        }
+        report.shapes_computed += 1;
+        slots[i] = Some(Arc::new(ops));
+    }
+    let shapes: Vec<Arc<ShapeOperators>> = slots
+        .into_iter()
+        .map(|s| s.expect("every shape is cached or computed"))
+        .collect();
+    report.ranks = shapes.iter().map(|s| s.rank()).collect();
+    Ok(shapes)
+}
+
+/// The blocks' inter-block transport: from the cache (keyed by the blocks and their shapes'
+/// keys, so clutter and lights never invalidate it) or computed by [`mrt_transport`] and
+/// stored there. Sets `report.transport_from_cache`.
+#[allow(clippy::too_many_arguments)]
+pub fn block_transport(
+    scene: &Scene,
+    plan: &ShapePlan,
+    block_geometry: &Geometry,
+    per_block: &[&ShapeOperators],
+    openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
+    transport_kind: Transport,
+    cache: Option<&ShapeCache>,
+    progress: &dyn Progress,
+    report: &mut BakeReport,
+) -> Result<CachedTransport, BakeError> {
+    let transport_cache = match cache {
+        Some(c) => Some(TransportCache::open(c.dir())?),
+        None => None,
+    };
+    let block_shape_keys = plan.block_keys();
+    let transport_key = transport_key(scene, transport_kind, &block_shape_keys);
+    let cached = transport_cache.as_ref().and_then(|c| c.get(&transport_key));
+    report.transport_from_cache = cached.is_some();
+    match cached {
+        Some(t) => Ok(t),
+        None => {
+            let computed = mrt_transport(
+                scene,
+                block_geometry,
+                per_block,
+                openings,
+                transport_kind,
+                progress,
+            )?;
+            if let Some(cache) = &transport_cache {
+                cache.put(&transport_key, &computed)?;
+            }
+            Ok(computed)
+        }
+    }
+}
+
+/// The MRT inter-block transport of the blocks alone (and its compaction when the scene ships
+/// compact transport).
+pub fn mrt_transport(
+    scene: &Scene,
+    block_geometry: &Geometry,
+    per_block: &[&ShapeOperators],
+    openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
+    transport_kind: Transport,
+    progress: &dyn Progress,
+) -> Result<CachedTransport, BakeError> {
+    let settings = &scene.settings;
+    let (mrt, mut stats) = match transport_kind {
+        Transport::Lightfield => {
+            progress.stage("lightfield transport", 1);
+            let (blocks, stats) = lightfield_transport(per_block, openings, settings.tolerance);
+            progress.advance(1);
+            (MrtTransport::Lightfield(blocks), stats)
+        }
+        Transport::Traced => {
+            progress.stage("traced transport", block_geometry.texels.len() as u64);
+            let tracer = Tracer::new(block_geometry.primitives.clone(), block_geometry.scale());
+            let (blocks, stats) = traced_transport(
+                block_geometry,
+                &tracer,
+                per_block,
+                settings.rays_per_texel,
+                settings.seed,
+                settings.tolerance,
+                &|n| progress.advance(n),
+            );
+            (MrtTransport::Traced(blocks), stats)
+        }
+    };
+    let compact = if settings.compact_transport {
+        let compact = compact_transport(per_block, &mrt, settings.tolerance)
+            .map_err(|e| BakeError::Transport(e.to_string()))?;
+        stats.compact_ranks = compact.iter().map(|c| c.y.ncols()).collect();
+        Some(compact)
+    } else {
+        None
+    };
+    Ok(CachedTransport {
+        mrt,
+        compact,
+        stats,
+    })
+}
+
+/// DRT: the clutter operators (None for a scene without clutter), with the DRT ray passes
+/// cached beside the shapes.
+#[allow(clippy::too_many_arguments)]
+pub fn clutter_operators(
+    scene: &Scene,
+    openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
+    full_geometry: &Geometry,
+    block_geometry: &Geometry,
+    per_block: &[&ShapeOperators],
+    mrt: &MrtTransport,
+    cache: Option<&ShapeCache>,
+    progress: &dyn Progress,
+) -> Result<Option<DrtOperators>, BakeError> {
+    if scene.clutter.is_empty() {
+        return Ok(None);
+    }
+    let n = full_geometry.texels.len() as u64;
+    progress.stage("clutter operators", n);
+    let ray_cache = match cache {
+        Some(c) => Some(DrtRayCache::open(c.dir())?),
+        None => None,
+    };
+    let ops = build_drt(
+        scene,
+        openings,
+        full_geometry,
+        block_geometry,
+        per_block,
+        mrt,
+        ray_cache.as_ref(),
+        &|k| progress.advance(k),
+    )
+    .map_err(|source| BakeError::Drt(source.to_string()))?;
+    Ok(Some(ops))
+}
+
+/// The clutter objects' DRT projections and the scene-clutter → DRT-clutter index map (empty
+/// and all None without DRT).
+fn clutter_of<'a>(
+    scene: &Scene,
+    drt: Option<&'a DrtOperators>,
+) -> (
+    &'a [crate::bake::drt::build::ClutterProjection],
+    Vec<Option<usize>>,
+) {
+    match drt {
+        Some(ops) => (&ops.clutter, ops.projection_of.clone()),
+        None => (&[], vec![None; scene.clutter.len()]),
+    }
+}
+
+/// `U_dyn`, the probe volume, when something will read it (`settings.probe_volume`: by default
+/// when the scene has dynamic objects).
+pub fn probe_volume(
+    scene: &Scene,
+    full_geometry: &Geometry,
+    per_block: &[&ShapeOperators],
+    drt: Option<&DrtOperators>,
+) -> Option<ProbeVolumeOps> {
+    let wanted = match scene.settings.probe_volume {
+        ProbeVolumeMode::Auto => !scene.dynamic.is_empty(),
+        ProbeVolumeMode::Always => !(scene.clutter.is_empty() && scene.dynamic.is_empty()),
+        ProbeVolumeMode::Never => false,
+    };
+    if !wanted {
+        return None;
+    }
+    let (clutter, projection_of) = clutter_of(scene, drt);
+    Some(build_probe_volume(
+        scene,
+        full_geometry,
+        per_block,
+        clutter,
+        &projection_of,
+        &|_| {},
+    ))
+}
+
+/// The DNRT grids, one per dynamic object in scene order (None without dynamic objects), each
+/// content-cached (a grid depends on its object alone); `report.dnrt` gets each object's
+/// seconds and grid bytes.
+pub fn dnrt_grids(
+    scene: &Scene,
+    scene_dir: &Path,
+    cache: Option<&ShapeCache>,
+    report: &mut BakeReport,
+) -> Result<Option<Vec<lightfarm_proto::dnrt_grid::DnrtGrid>>, BakeError> {
+    if scene.dynamic.is_empty() {
+        return Ok(None);
+    }
+    let cache = match cache {
+        Some(c) => Some(DnrtCache::open(c.dir())?),
+        None => None,
+    };
+    let mut grids = Vec::new();
+    for object in &scene.dynamic {
+        let start = std::time::Instant::now();
+        let grid = dnrt_grid(scene, scene_dir, object, cache.as_ref())?;
+        report.dnrt.push((
+            object.id.clone(),
+            start.elapsed().as_secs_f64(),
+            grid.data_bytes(),
+        ));
+        grids.push(grid);
+    }
+    Ok(Some(grids))
+}
+
+/// A dynamic object's DNRT grid: from the cache, or baked and stored there.
+pub fn dnrt_grid(
+    scene: &Scene,
+    scene_dir: &Path,
+    object: &lightfarm_proto::scene::DynamicObject,
+    cache: Option<&DnrtCache>,
+) -> Result<lightfarm_proto::dnrt_grid::DnrtGrid, BakeError> {
+    let settings = &scene.settings;
+    let mesh = load_mesh(
+        &format!("dynamic \"{}\"", object.id),
+        scene_dir,
+        &object.mesh,
+        &Transform::default(),
+    )
+    .map_err(GeometryError::from)?;
+    let key = dnrt_key(
+        &mesh.triangles,
+        object.albedo,
+        &mesh.albedo,
+        &settings.dnrt,
+        settings.seed,
+    );
+    if let Some(DnrtLookup::Hit(grid)) = cache.map(|c| c.get(&key, &object.id)) {
+        return Ok(*grid);
+    }
+    // The mesh's own colours where it has them, the object's albedo elsewhere.
+    let albedo = if mesh.albedo.is_empty() {
+        SurfaceAlbedo::Uniform(object.albedo)
+    } else {
+        SurfaceAlbedo::Mesh {
+            albedo: &mesh.albedo,
+            fallback: object.albedo,
+        }
+    };
+    let grid = bake_dnrt_grid(
+        &object.id,
+        &mesh.triangles,
+        albedo,
+        &settings.dnrt,
+        settings.seed,
+    );
+    if let Some(c) = cache {
+        c.put(&key, &grid)?;
+    }
+    Ok(grid)
+}
+
+/// SH responses for normal-mapped surfaces (`settings.sh_responses`; None when not asked for).
+pub fn sh_responses(
+    scene: &Scene,
+    full_geometry: &Geometry,
+    per_block: &[&ShapeOperators],
+    drt: Option<&DrtOperators>,
+    progress: &dyn Progress,
+) -> Result<Option<ShResponseOps>, BakeError> {
+    if !scene.settings.sh_responses {
+        return Ok(None);
+    }
+    progress.stage("sh responses", full_geometry.texels.len() as u64);
+    let (clutter, projection_of) = clutter_of(scene, drt);
+    let buried: &[u32] = drt.map_or(&[], |ops| &ops.buried);
+    let ops = build_sh_responses(
+        scene,
+        full_geometry,
+        per_block,
+        clutter,
+        &projection_of,
+        buried,
+        &|k| progress.advance(k),
+    )
+    .map_err(|e| BakeError::Drt(format!("sh responses: {e}")))?;
+    Ok(Some(ops))
+}
+
+/// The dense Hašan-style one-bounce operator over the full geometry: per texel, its gather row
+/// `(column, value)`.
+pub fn dense_operator(
+    scene: &Scene,
+    full_geometry: &Geometry,
+    progress: &dyn Progress,
+) -> Vec<Vec<(u32, f32)>> {
+    let settings = &scene.settings;
+    progress.stage("dense operator", full_geometry.texels.len() as u64);
+    let tracer = Tracer::new(full_geometry.primitives.clone(), full_geometry.scale());
+    let all: Vec<usize> = (0..full_geometry.texels.len()).collect();
+    gather_rows(
+        full_geometry,
+        &tracer,
+        &all,
+        settings.rays_per_texel,
+        settings.seed,
+        Purpose::FullOperator,
+        &|n| progress.advance(n),
+    )
+}

@@ -1,0 +1,335 @@
+//! The bake's results in the bundle's terms: layout, shapes, blocks, transport, the DRT
+//! section, the probe volume, SH responses and the dense operator, each converted from the
+//! engine's f64 operators (faer matrices) to the bundle's f32 types.
+//!
+//! Invariant: conversions only; what a section holds is decided by the stages
+//! ([`super::stages`]), so the bundle stays a pure function of the scene.
+
+use lightfarm_proto::bundle::{self, Bundle, Layout, SparseRows, SurfaceInfo, TransportOps};
+use lightfarm_proto::scene::{Scene, Settings};
+
+use crate::bake::drt::build::{DeltaBlock, DrtOperators};
+use crate::bake::drt::compaction::{compact_entry_keeping, compact_gather, DeltaCompactionStats};
+use crate::bake::math::low_rank::LowRankError;
+use crate::bake::math::matrix::to_matrix;
+use crate::bake::mrt::shape::ShapeOperators;
+use crate::bake::scene::geometry::{Geometry, Primitive, SurfaceOwner};
+use crate::bake::sh::probe_volume::ProbeVolumeOps;
+use crate::bake::sh::responses::ShResponseOps;
+use crate::bake::transport::build::MrtTransport;
+use crate::bake::transport::compaction::CompactTransport;
+
+use super::plan::ShapePlan;
+use super::BakeError;
+
+/// The bundle's transport section: the compact form when the scene ships it, else the
+/// transport as traced or as lightfields.
+pub fn transport_ops(compact: Option<&[CompactTransport]>, mrt: &MrtTransport) -> TransportOps {
+    if let Some(compact) = compact {
+        TransportOps::Compact(
+            compact
+                .iter()
+                .map(|c| bundle::CompactEntry {
+                    target_block: c.target_block as u32,
+                    sources: c.sources.iter().map(|s| *s as u32).collect(),
+                    y: to_matrix(&c.y),
+                    z: to_matrix(&c.z),
+                })
+                .collect(),
+        )
+    } else {
+        match mrt {
+            MrtTransport::Lightfield(blocks) => TransportOps::Lightfield(
+                blocks
+                    .iter()
+                    .map(|b| bundle::PropEntry {
+                        target_block: b.target_block as u32,
+                        target_face: b.target_face.index() as u8,
+                        source_block: b.source_block as u32,
+                        matrix: to_matrix(&b.matrix),
+                    })
+                    .collect(),
+            ),
+            MrtTransport::Traced(blocks) => TransportOps::Traced(
+                blocks
+                    .iter()
+                    .map(|b| bundle::TracedEntry {
+                        target_block: b.target_block as u32,
+                        source_block: b.source_block as u32,
+                        matrix: to_matrix(&b.matrix),
+                    })
+                    .collect(),
+            ),
+        }
+    }
+}
+
+/// The MRT bundle: layout, atlases, the unique shapes' operators, the blocks and `transport`;
+/// every later section empty. Opening operators ship only with lightfield transport (the only
+/// kind the runtime applies them for).
+pub fn mrt_bundle(
+    scene: &Scene,
+    plan: &ShapePlan,
+    shapes: &[std::sync::Arc<ShapeOperators>],
+    full_geometry: &Geometry,
+    transport: TransportOps,
+) -> Bundle {
+    let ship_openings = matches!(transport, TransportOps::Lightfield(_));
+    let layout = layout_of(scene, full_geometry);
+    let surface_atlases = surface_atlases_of(full_geometry, &layout);
+    Bundle {
+        surface_atlases,
+        layout,
+        shapes: shapes
+            .iter()
+            .map(|s| bundle::ShapeOps {
+                key: s.key.clone(),
+                u_b: to_matrix(&s.u_b),
+                t_db: to_matrix(&s.t_db),
+                openings: s
+                    .openings
+                    .iter()
+                    .filter(|_| ship_openings)
+                    .map(|o| bundle::OpeningOps {
+                        face: o.face.index() as u8,
+                        u_r: to_matrix(&o.u_r),
+                    })
+                    .collect(),
+            })
+            .collect(),
+        blocks: scene
+            .blocks
+            .iter()
+            .enumerate()
+            .map(|(b, block)| bundle::BlockOps {
+                symmetry: (!plan.symmetry[b].is_identity()).then(|| bundle::BlockSymmetry {
+                    symmetry: plan.symmetry[b],
+                    closed: bundle::BlockSymmetry::mask(&block.closed_faces()),
+                }),
+                id: block.id.clone(),
+                shape: plan.shape_index[b] as u32,
+                texel_offset: full_geometry.block_texels[b].start as u32,
+            })
+            .collect(),
+        transport: Some(transport),
+        full: None,
+        drt: None,
+        probes: None,
+        dnrt: None,
+        sh: None,
+    }
+}
+
+/// The bundle's DRT section from the DRT operators: delta entries and the exact gather in
+/// low-rank form when `compact_deltas` (see [`crate::bake::drt::compaction`]).
+pub fn drt_section(
+    bundle: &Bundle,
+    ops: &DrtOperators,
+    settings: &Settings,
+) -> Result<(bundle::DrtOps, Option<DeltaCompactionStats>), BakeError> {
+    let clutter: Vec<bundle::ClutterOps> = ops
+        .clutter
+        .iter()
+        .map(|c| bundle::ClutterOps {
+            id: c.id.clone(),
+            texel_offset: c.texel_offset as u32,
+            t_dc: to_matrix(&c.basis.basis.transpose().to_owned()),
+        })
+        .collect();
+    if !settings.compact_deltas {
+        let drt = bundle::DrtOps {
+            clutter,
+            entries: ops.entries.iter().map(to_entry).collect(),
+            buried: ops.buried.clone(),
+            // In the form the bundle stores it (rows by column), so it decodes as it is here.
+            direct_gather: ops.direct_gather.as_ref().map(|g| g.sorted()),
+            replaced: ops.replaced.clone(),
+        };
+        return Ok((drt, None));
+    }
+    let low_rank = |e: LowRankError| BakeError::Drt(format!("delta compaction: {e}"));
+    let mut stats = DeltaCompactionStats::default();
+    let mut entries = Vec::with_capacity(ops.entries.len());
+    let mut buried = ops.buried.clone();
+    buried.sort_unstable();
+    for e in &ops.entries {
+        entries.extend(
+            compact_entry_keeping(
+                &e.rows,
+                e.source,
+                &e.matrix,
+                &buried,
+                settings.tolerance,
+                &mut stats,
+            )
+            .map_err(low_rank)?,
+        );
+    }
+    let mut direct_gather = None;
+    if let Some(g) = &ops.direct_gather {
+        // Source ranges: every block's texels and every clutter object's.
+        let ranges: Vec<(u32, u32)> = bundle
+            .blocks
+            .iter()
+            .map(|b| (b.texel_offset, bundle.shapes[b.shape as usize].u_b.rows))
+            .chain(clutter.iter().map(|c| (c.texel_offset, c.t_dc.cols)))
+            .collect();
+        let (gathered, rest) =
+            compact_gather(g, &ranges, settings.tolerance, &mut stats).map_err(low_rank)?;
+        entries.extend(gathered);
+        direct_gather = rest.map(|g| g.sorted());
+    }
+    let drt = bundle::DrtOps {
+        clutter,
+        entries,
+        buried: ops.buried.clone(),
+        direct_gather,
+        replaced: ops.replaced.clone(),
+    };
+    Ok((drt, Some(stats)))
+}
+
+fn to_entry(e: &DeltaBlock) -> bundle::DeltaEntry {
+    bundle::DeltaEntry {
+        rows: e.rows.clone(),
+        source: e.source,
+        matrix: to_matrix(&e.matrix),
+        mix: None,
+    }
+}
+
+/// The bundle's probe volume (`U_dyn`).
+pub fn probe_section(volume: ProbeVolumeOps) -> bundle::ProbeVolume {
+    bundle::ProbeVolume {
+        origin: volume.origin.map(|x| x as f32),
+        spacing: volume.spacing as f32,
+        dims: volume.dims.map(|d| d as u32),
+        slot: volume.slot,
+        n_probes: volume.n_probes as u32,
+        entries: volume.entries.iter().map(to_entry).collect(),
+    }
+}
+
+/// The bundle's SH responses.
+pub fn sh_section(ops: &ShResponseOps) -> bundle::ShResponses {
+    bundle::ShResponses {
+        entries: ops
+            .entries
+            .iter()
+            .map(|e| bundle::ShEntry {
+                texels: e.texels.clone(),
+                source: e.source,
+                y: to_matrix(&e.y),
+                z: to_matrix(&e.z),
+            })
+            .collect(),
+    }
+}
+
+/// The dense operator's rows (per texel, `(column, value)` ascending) as the bundle's sparse
+/// rows.
+pub fn sparse_rows(rows: Vec<Vec<(u32, f32)>>) -> SparseRows {
+    let mut sparse = SparseRows {
+        n: rows.len() as u32,
+        row_start: vec![0],
+        cols: Vec::new(),
+        values: Vec::new(),
+    };
+    for row in rows {
+        for (c, v) in row {
+            sparse.cols.push(c);
+            sparse.values.push(v);
+        }
+        sparse.row_start.push(sparse.cols.len() as u32);
+    }
+    sparse
+}
+
+/// The bundle layout of a full geometry.
+pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
+    let mut surfaces: Vec<SurfaceInfo> = Vec::new();
+    for s in &g.surfaces {
+        let n = s.n_texels as u32;
+        match surfaces.last_mut() {
+            // Clutter boxes: six faces, one surface name.
+            Some(last) if last.name == s.name => last.texel_count += n,
+            _ => surfaces.push(SurfaceInfo {
+                name: s.name.clone(),
+                texel_offset: s.texel_offset as u32,
+                texel_count: n,
+            }),
+        }
+    }
+    let f3 = |v: [f64; 3]| v.map(|x| x as f32);
+    let mut rects = Vec::new();
+    let mut triangles = Vec::new();
+    for p in &g.primitives {
+        match p {
+            Primitive::Rect {
+                axis,
+                coord,
+                min,
+                max,
+                ..
+            } => rects.push(bundle::Rect {
+                axis: *axis as u8,
+                coord: *coord as f32,
+                min: min.map(|x| x as f32),
+                max: max.map(|x| x as f32),
+            }),
+            Primitive::Triangle { v, .. } => triangles.push(v.map(f3)),
+        }
+    }
+    Layout {
+        scene_name: scene.name.clone(),
+        surfaces,
+        positions: g.texels.iter().map(|t| f3(t.position)).collect(),
+        normals: g.texels.iter().map(|t| f3(t.normal)).collect(),
+        albedo: g.texels.iter().map(|t| f3(t.albedo)).collect(),
+        texel_size: g
+            .texels
+            .iter()
+            .map(|t| {
+                let s = &g.surfaces[t.surface as usize];
+                match s.owner {
+                    // A mesh texel: the side of the square in the normal's dominant tangent
+                    // plane whose lift onto the texel's plane has the texel's area
+                    // (`docs/bundle-format.md`, layout).
+                    SurfaceOwner::ClutterMesh { atlas, .. } => {
+                        let area = g.mesh_atlases[atlas].0.texels[t.index as usize].area;
+                        let dominant = t.normal.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+                        let side = (area * dominant).sqrt() as f32;
+                        [side, side]
+                    }
+                    _ => [
+                        ((s.max[0] - s.min[0]) / s.t as f64) as f32,
+                        ((s.max[1] - s.min[1]) / s.t as f64) as f32,
+                    ],
+                }
+            })
+            .collect(),
+        rects,
+        triangles,
+    }
+}
+
+/// Each mesh surface's lightmap image (its atlas) for the bundle's layout.
+pub fn surface_atlases_of(g: &Geometry, layout: &Layout) -> Vec<bundle::SurfaceAtlas> {
+    g.mesh_atlases
+        .iter()
+        .map(|(atlas, surface)| {
+            let name = &g.surfaces[*surface as usize].name;
+            let index = layout
+                .surfaces
+                .iter()
+                .position(|s| &s.name == name)
+                .expect("every mesh surface is in the layout");
+            bundle::SurfaceAtlas {
+                surface: index as u32,
+                width: atlas.width,
+                height: atlas.height,
+                texel_xy: atlas.texels.iter().map(|t| [t.x, t.y]).collect(),
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,145 @@
+//! A bundle applied to a light set through the client crate, exactly as a game would: the
+//! per-texel radiance the `eval` command writes, the bench scores, and `POST
+//! /v1/bakes/{id}/evaluate` returns. Dynamic objects listed in the light set's `poses` add
+//! their DNRT reflection and occlusion to `indirect`.
+//!
+//! With more than one bounce, everything downstream of the texels sees the bounced light: the
+//! probe volume (MRT's clutter shading, DNRT's input) is fed the radiance leaving the texels,
+//! direct plus indirect, and a dynamic object reflects the point lights plus the probes'
+//! irradiance. One bounce reproduces the papers' light exactly.
+//!
+//! # Layout
+//! - here: [`evaluate`] and its pieces ([`operator_direct`], [`leaving_light`]).
+//! - [`dnrt`]: the light posed dynamic objects add and take away.
+//! - [`sh`]: SH incident radiance per texel (bundle section `sh`).
+//!
+//! Invariant: no file I/O and no HTTP here; callers read bundles and write results.
+
+use lightfarm_client::{
+    direct_from_point_lights, direct_from_point_lights_averaged, irradiance_at, Applied, Bounces,
+    Bundle, DirectLight, IndirectLight, Method, Occluders, ProbeField, Runtime,
+};
+use lightfarm_proto::bundle::Layout;
+use lightfarm_proto::lights::LightSet;
+use lightfarm_proto::result::{ResultFile, TexelRecord};
+
+pub mod dnrt;
+pub mod sh;
+
+pub use dnrt::dnrt_delta;
+
+/// Direct light is averaged over a 4×4 grid per texel before it enters the operators.
+pub const DIRECT_SAMPLES_PER_EDGE: u32 = 4;
+
+/// The direct light the operators are fed for `lights`: texel averages over a
+/// [`DIRECT_SAMPLES_PER_EDGE`]² grid, shadowed by the bundle's own geometry.
+pub fn operator_direct(layout: &Layout, occluders: &Occluders, lights: &LightSet) -> DirectLight {
+    direct_from_point_lights_averaged(layout, occluders, &lights.lights, DIRECT_SAMPLES_PER_EDGE)
+}
+
+/// Applies a bundle to a light set with `bounces` bounces; returns the records the method
+/// models.
+pub fn evaluate(
+    bundle: Bundle,
+    lights: &LightSet,
+    method: Method,
+    bounces: Bounces,
+) -> anyhow::Result<ResultFile> {
+    Ok(evaluate_with_report(bundle, lights, method, bounces)?.0)
+}
+
+/// [`evaluate`], also saying how many bounces the runtime summed.
+pub fn evaluate_with_report(
+    bundle: Bundle,
+    lights: &LightSet,
+    method: Method,
+    bounces: Bounces,
+) -> anyhow::Result<(ResultFile, Applied)> {
+    let occluders = Occluders::from_layout(&bundle.layout);
+    // RESULT.json reports direct light at texel centres; the operators are fed the texel
+    // average, which is what a ray landing in the texel sees.
+    let direct: DirectLight = direct_from_point_lights(&bundle.layout, &occluders, &lights.lights);
+    let averaged = operator_direct(&bundle.layout, &occluders, lights);
+    let mut runtime = Runtime::try_new(bundle)?;
+    // A scene without clutter has no DRT operators: DRT is MRT there.
+    let method = if method == Method::Drt && !runtime.has_drt() {
+        Method::Mrt
+    } else {
+        method
+    };
+    let mut indirect = IndirectLight::default();
+    let applied = runtime.apply(method, bounces, &averaged, &mut indirect)?;
+    // What the probe volume sees: the radiance leaving the texels, direct plus the bounced
+    // indirect light (direct alone for one bounce, the papers' U_dyn).
+    let bounced = is_bounced(bounces);
+    let leaving = if bounced {
+        leaving_light(&averaged, &indirect)
+    } else {
+        averaged.clone()
+    };
+    // MRT shades clutter from the probe volume (U_dyn), as the MRT paper does; DRT gathers.
+    let mut probe_lit: Option<Vec<[f32; 3]>> = None;
+    if method == Method::Mrt && runtime.has_probes() {
+        let mut field = ProbeField::default();
+        runtime.apply_probes(&leaving, &mut field)?;
+        let layout = &runtime.bundle().layout;
+        let volume = runtime.probe_volume().expect("has probes");
+        probe_lit = Some(
+            (0..layout.n_texels())
+                .map(|t| {
+                    let e = irradiance_at(volume, &field, layout.positions[t], layout.normals[t]);
+                    [0, 1, 2].map(|c| layout.albedo[t][c] * std::f32::consts::FRAC_1_PI * e[c])
+                })
+                .collect(),
+        );
+    }
+    let dnrt = dnrt_delta(&mut runtime, &leaving, bounced, &occluders, lights)?;
+    let layout = &runtime.bundle().layout;
+    let mut texels = Vec::with_capacity(layout.n_texels());
+    for surface in &layout.surfaces {
+        let is_clutter = !surface.name.starts_with("block:");
+        // MRT without a probe volume models the blocks only.
+        if method == Method::Mrt && is_clutter && probe_lit.is_none() {
+            continue;
+        }
+        for k in 0..surface.texel_count as usize {
+            let t = surface.texel_offset as usize + k;
+            let f = |v: [f32; 3]| v.map(|x| x as f64);
+            texels.push(TexelRecord {
+                surface: surface.name.clone(),
+                index: k as u32,
+                position: f(layout.positions[t]),
+                normal: f(layout.normals[t]),
+                albedo: f(layout.albedo[t]),
+                direct: f(direct.radiance[t]),
+                indirect: {
+                    let base = match (&probe_lit, is_clutter) {
+                        (Some(lit), true) => lit[t],
+                        _ => indirect.radiance[t],
+                    };
+                    let add = dnrt.as_ref().map_or([0.0; 3], |d| d[t]);
+                    f([0, 1, 2].map(|c| base[c] + add[c]))
+                },
+            });
+        }
+    }
+    Ok((ResultFile { texels }, applied))
+}
+
+/// Whether `bounces` sums more than the first bounce (then the probe volume and DNRT are fed
+/// the bounced light, [`leaving_light`]).
+pub fn is_bounced(bounces: Bounces) -> bool {
+    !matches!(bounces, Bounces::One | Bounces::Fixed(1))
+}
+
+/// The radiance leaving the texels: direct plus indirect.
+pub fn leaving_light(direct: &DirectLight, indirect: &IndirectLight) -> DirectLight {
+    DirectLight {
+        radiance: direct
+            .radiance
+            .iter()
+            .zip(&indirect.radiance)
+            .map(|(d, i)| [d[0] + i[0], d[1] + i[1], d[2] + i[2]])
+            .collect(),
+    }
+}
