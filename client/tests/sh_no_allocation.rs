@@ -3,42 +3,16 @@
 //! Its own test binary, because it replaces the global allocator with one that counts the
 //! current thread's allocations.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
 use lightfarm_client::{DirectLight, Runtime, ShLight};
 use lightfarm_proto::bundle::{
     BlockOps, Bundle, DeltaSource, Layout as TexelLayout, Matrix, ShEntry, ShResponses, ShapeOps,
     SurfaceInfo,
 };
 use lightfarm_proto::sh::SH_COEFFS;
-
-struct CountingAlloc;
-
-thread_local! {
-    static ALLOCS: Cell<u64> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for CountingAlloc {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
+use lightfarm_proto::testing::{allocs, CountingAlloc};
 
 #[global_allocator]
 static GLOBAL: CountingAlloc = CountingAlloc;
-
-fn allocs() -> u64 {
-    ALLOCS.with(|a| a.get())
-}
 
 fn m(rows: usize, cols: usize, salt: f32) -> Matrix {
     Matrix {

@@ -4,7 +4,11 @@
 //! decoder fuzzing here (`tests/decode_fuzz.rs`) and the client runtime's tests mutate and
 //! apply the same bytes.
 //!
-//! Invariant: deterministic; the same seed gives the same bundle bytes on every platform.
+//! Also the fuzz driver both fuzzers run ([`fuzz_mutations`]) and an allocation counter for
+//! the no-allocation tests ([`CountingAlloc`]; each test binary installs it).
+//!
+//! Invariant: deterministic; the same seed gives the same bundle bytes and the same mutations
+//! on every platform.
 
 #![allow(clippy::needless_range_loop)]
 
@@ -321,4 +325,119 @@ pub fn probe_bundle(rng: &mut Lcg, drt: bool) -> Bundle {
 /// contents, so edits inside a payload reach the bundle's validation.
 pub fn join_sections(sections: &[(u32, Vec<u8>)]) -> Vec<u8> {
     write_container(BUNDLE_MAJOR, BUNDLE_MINOR, sections, 0).0
+}
+
+/// What [`fuzz_mutations`] hands its check: which kind of edit made the bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mutation {
+    /// The unmutated encoding (as written, then re-joined from its raw sections).
+    Unmutated,
+    /// One byte anywhere in the file (the checksums catch nearly all of these).
+    FileByte,
+    /// The file cut short.
+    TruncatedFile,
+    /// One byte inside a section, length and checksum repaired, so validation sees it.
+    SectionByte,
+    /// A section cut short inside, length and checksum repaired.
+    TruncatedSection,
+}
+
+/// Of the [`Mutation::SectionByte`] edits: how many were tried and how many `check` accepted.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct FuzzCounts {
+    pub tried: usize,
+    pub accepted: usize,
+}
+
+/// Byte mutations and truncations of `b`'s encoding, half of those inside sections in the
+/// section of kind `focus`: 1,500 file bytes, 500 file truncations, 3,000 section bytes and
+/// 1,000 section truncations, each handed to `check` (which returns whether the bytes
+/// decoded). Panics if the bundle has no `focus` section or `check` refuses the unmutated
+/// encoding.
+pub fn fuzz_mutations(
+    rng: &mut Lcg,
+    b: &Bundle,
+    focus: u32,
+    mut check: impl FnMut(Mutation, &[u8]) -> bool,
+) -> FuzzCounts {
+    let bytes = b.encode();
+    assert!(check(Mutation::Unmutated, &bytes));
+    let sections = b.raw_sections();
+    assert!(check(Mutation::Unmutated, &join_sections(&sections)));
+    let focus_at = sections
+        .iter()
+        .position(|(kind, _)| *kind == focus)
+        .expect("the bundle has the focus section");
+    let mutate = |byte: &mut u8, rng: &mut Lcg| {
+        *byte = match rng.next_u32() % 3 {
+            0 => *byte ^ (1 + rng.next_u32() % 255) as u8,
+            1 => rng.next_u32() as u8,
+            _ => [0x00, 0x01, 0x7f, 0x80, 0xff][rng.next_u32() as usize % 5],
+        };
+    };
+    // Half in the focus section, half in any.
+    let pick = |k: usize, rng: &mut Lcg| {
+        if k % 2 == 0 {
+            focus_at
+        } else {
+            rng.next_u32() as usize % sections.len()
+        }
+    };
+    let mut counts = FuzzCounts::default();
+    for _ in 0..1500 {
+        let mut m = bytes.clone();
+        let at = rng.next_u32() as usize % m.len();
+        mutate(&mut m[at], rng);
+        check(Mutation::FileByte, &m);
+    }
+    for _ in 0..500 {
+        let len = rng.next_u32() as usize % bytes.len();
+        check(Mutation::TruncatedFile, &bytes[..len]);
+    }
+    for k in 0..3000 {
+        let mut s = sections.clone();
+        let i = pick(k, rng);
+        let payload = &mut s[i].1;
+        let at = rng.next_u32() as usize % payload.len();
+        mutate(&mut payload[at], rng);
+        counts.tried += 1;
+        counts.accepted += check(Mutation::SectionByte, &join_sections(&s)) as usize;
+    }
+    for k in 0..1000 {
+        let mut s = sections.clone();
+        let i = pick(k, rng);
+        let len = rng.next_u32() as usize % s[i].1.len();
+        s[i].1.truncate(len);
+        check(Mutation::TruncatedSection, &join_sections(&s));
+    }
+    counts
+}
+
+thread_local! {
+    static ALLOCS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+}
+
+/// A global allocator that counts the current thread's allocations and reallocations (tests
+/// run on separate threads, so a test sees only its own). A test binary installs it with
+/// `#[global_allocator] static GLOBAL: CountingAlloc = CountingAlloc;` and reads
+/// [`allocs`].
+pub struct CountingAlloc;
+
+unsafe impl std::alloc::GlobalAlloc for CountingAlloc {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
+        unsafe { std::alloc::System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        unsafe { std::alloc::System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new_size: usize) -> *mut u8 {
+        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
+        unsafe { std::alloc::System.realloc(ptr, layout, new_size) }
+    }
+}
+
+/// Allocations the current thread made through [`CountingAlloc`] so far.
+pub fn allocs() -> u64 {
+    ALLOCS.with(|a| a.get())
 }

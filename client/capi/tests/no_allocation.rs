@@ -2,40 +2,14 @@
 //! scratch inside `LfRuntime`. Its own test binary, because it replaces the global allocator
 //! with one that counts the current thread's allocations.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
 use lightfarm::*;
 use lightfarm_proto::bundle::{
     BlockOps, Bundle, Layout as TexelLayout, Matrix, ShapeOps, SurfaceInfo,
 };
-
-struct CountingAlloc;
-
-thread_local! {
-    static ALLOCS: Cell<u64> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for CountingAlloc {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
+use lightfarm_proto::testing::{allocs, CountingAlloc};
 
 #[global_allocator]
 static GLOBAL: CountingAlloc = CountingAlloc;
-
-fn allocs() -> u64 {
-    ALLOCS.with(|a| a.get())
-}
 
 /// A block of `n` texels whose rank-2 operator has distinct entries everywhere.
 fn bundle(n: usize) -> Vec<u8> {

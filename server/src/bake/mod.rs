@@ -12,7 +12,8 @@
 //!   compaction).
 //! - [`dnrt`]: DNRT transfer grids of dynamic objects.
 //! - [`sh`]: SH gathering, the probe volume `U_dyn` and SH responses for normal maps.
-//! - [`cache`]: the on-disk caches of shapes, transport and DNRT grids.
+//! - [`cache`]: the on-disk caches of shapes, transport, DRT ray units and DNRT grids, all in
+//!   one entry format.
 //! - [`pipeline`]: scene → bundle, stage by stage, and the codecs a bundle is stored with;
 //!   [`bake()`], [`BakeOptions`], [`BakeReport`] and [`BakeError`] are its facade, re-exported
 //!   here. [`units`]: a bake cut into deterministic cache-filling units (the farm).

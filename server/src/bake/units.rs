@@ -102,7 +102,7 @@ fn unknown(unit: &BakeUnit) -> BakeError {
 }
 
 fn shape_file(key: &str) -> PathBuf {
-    PathBuf::from(format!("{key}.lfshape"))
+    crate::bake::cache::shape::ENTRY.relative_path(key)
 }
 
 /// Cache files a unit reads if present: its own earlier result (reused, or refreshed
@@ -132,7 +132,11 @@ pub fn unit_inputs(
 
 fn transport_file(scene: &Scene, shapes: &ShapePlan) -> PathBuf {
     let keys = shapes.block_keys();
-    TransportCache::relative_path(&transport_key(scene, scene.settings.transport, &keys))
+    crate::bake::cache::transport::ENTRY.relative_path(&transport_key(
+        scene,
+        scene.settings.transport,
+        &keys,
+    ))
 }
 
 /// The cache files holding a unit's result.
@@ -175,7 +179,7 @@ fn outputs(scene: &Scene, scene_dir: &Path, unit: &BakeUnit) -> Result<Vec<PathB
                 &scene.settings.dnrt,
                 scene.settings.seed,
             );
-            vec![DnrtCache::relative_path(&key)]
+            vec![crate::bake::cache::dnrt::ENTRY.relative_path(&key)]
         }
     })
 }

@@ -7,6 +7,7 @@
 
 use super::*;
 use crate::probes::irradiance_at;
+use lightfarm_proto::testing::fuzz_mutations;
 
 /// Decodes `bytes`; a decoded bundle must make a runtime, which must apply every method
 /// without panicking. Returns whether the bytes decoded.
@@ -60,70 +61,17 @@ fn mutated_probe_bundles_never_panic() {
     }
 }
 
-/// Byte mutations and truncations of `b`'s encoding, half of them inside the section of
-/// kind `focus`: none may panic (decode, runtime, apply, apply_probes, irradiance_at). The
-/// same mutations as `fuzz_decode` in `proto/tests/decode_fuzz.rs`, which asserts what decode
-/// makes of them; here, that whatever decodes runs.
+/// [`fuzz_mutations`] of `b` (the mutations `proto/tests/decode_fuzz.rs` checks decode on):
+/// whatever decodes must run; some repaired mutations (a changed value) still decode, so the
+/// runtime ran on them.
 fn fuzz_bundle(rng: &mut Lcg, b: &Bundle, focus: u32) {
-    let bytes = b.encode();
-    assert!(decode_and_apply(&bytes));
-    let sections = b.raw_sections();
-    assert!(decode_and_apply(&join_sections(&sections)));
-    let focus_at = sections
-        .iter()
-        .position(|(kind, _)| *kind == focus)
-        .expect("the bundle has the focus section");
-    let mutate = |byte: &mut u8, rng: &mut Lcg| {
-        *byte = match rng.next_u32() % 3 {
-            0 => *byte ^ (1 + rng.next_u32() % 255) as u8,
-            1 => rng.next_u32() as u8,
-            _ => [0x00, 0x01, 0x7f, 0x80, 0xff][rng.next_u32() as usize % 5],
-        };
-    };
-    let (mut decoded, mut tried) = (0, 0);
-
-    // Single bytes anywhere (the checksums catch nearly all of these).
-    for _ in 0..1500 {
-        let mut m = bytes.clone();
-        let at = rng.next_u32() as usize % m.len();
-        mutate(&mut m[at], rng);
-        decode_and_apply(&m);
-    }
-    // Truncations of the file (decode refuses them all: proto's decode_fuzz).
-    for _ in 0..500 {
-        let len = rng.next_u32() as usize % bytes.len();
-        decode_and_apply(&bytes[..len]);
-    }
-    // Single bytes inside a section, checksum repaired, so validation sees them; half in
-    // the focus section.
-    for k in 0..3000 {
-        let mut s = sections.clone();
-        let i = if k % 2 == 0 {
-            focus_at
-        } else {
-            rng.next_u32() as usize % s.len()
-        };
-        let payload = &mut s[i].1;
-        let at = rng.next_u32() as usize % payload.len();
-        mutate(&mut payload[at], rng);
-        tried += 1;
-        decoded += decode_and_apply(&join_sections(&s)) as usize;
-    }
-    // Sections truncated inside, length and checksum repaired.
-    for k in 0..1000 {
-        let mut s = sections.clone();
-        let i = if k % 2 == 0 {
-            focus_at
-        } else {
-            rng.next_u32() as usize % s.len()
-        };
-        let len = rng.next_u32() as usize % s[i].1.len();
-        s[i].1.truncate(len);
-        decode_and_apply(&join_sections(&s));
-    }
-    // Some repaired mutations (a changed value) still decode, so the runtime ran on them
-    // (that many are refused is proto's decode_fuzz).
-    assert!(decoded > 0, "{decoded} of {tried} decoded");
+    let counts = fuzz_mutations(rng, b, focus, |_, bytes| decode_and_apply(bytes));
+    assert!(
+        counts.accepted > 0,
+        "{} of {} decoded",
+        counts.accepted,
+        counts.tried
+    );
 }
 
 #[test]

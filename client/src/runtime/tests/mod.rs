@@ -24,43 +24,17 @@ use lightfarm_proto::bundle::{
     SparseRows, TracedEntry,
 };
 use lightfarm_proto::testing::{
-    drt_bundle, join_sections, layout, matrix, probe_bundle, random_full, Lcg, N_PROBES,
+    allocs, drt_bundle, join_sections, layout, matrix, probe_bundle, random_full, CountingAlloc,
+    Lcg, N_PROBES,
 };
-use std::alloc::{GlobalAlloc, Layout as AllocLayout, System};
-use std::cell::Cell;
 
 mod bounces;
 mod drt;
 mod fuzz;
 mod probes;
 
-/// Counts allocations made by the current thread (tests run on separate threads).
-struct CountingAlloc;
-
-thread_local! {
-    static ALLOCS: Cell<u64> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for CountingAlloc {
-    unsafe fn alloc(&self, layout: AllocLayout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: AllocLayout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: AllocLayout, new_size: usize) -> *mut u8 {
-        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
 static GLOBAL: CountingAlloc = CountingAlloc;
-
-fn allocs() -> u64 {
-    ALLOCS.with(|a| a.get())
-}
 
 /// Three blocks (shape 0: 4 texels, r = 2, openings +x (q = 3) and -z (q = 2); shape 1:
 /// 11 texels, r = 3, opening -x (q = 2)), then 2 clutter texels.

@@ -87,11 +87,6 @@ impl DnrtCache {
         })
     }
 
-    /// Where the grid with this key lives, relative to the operator cache directory.
-    pub fn relative_path(key: &str) -> PathBuf {
-        ENTRY.relative_path(key)
-    }
-
     /// The cached grid under `key`, renamed to `object`.
     pub fn get(&self, key: &str, object: &str) -> DnrtLookup {
         self.store.get(key, |payload| {

@@ -11,7 +11,7 @@
 //! decode, or holds another texel count than asked for, is corrupt — deleted and missed — so
 //! the unit is traced again. A stale entry (older format or version) is a miss.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use lightfarm_proto::wire::{Reader, WireError, Writer};
 
@@ -121,11 +121,6 @@ impl DrtRayCache {
         Ok(DrtRayCache {
             store: EntryStore::open(dir, ENTRY)?,
         })
-    }
-
-    /// Where the unit with this key lives, relative to the operator cache directory.
-    pub fn relative_path(key: &str) -> PathBuf {
-        ENTRY.relative_path(key)
     }
 
     /// A unit of `texels` texels, each read by `read_texel`; a unit that does not decode (or
@@ -293,7 +288,7 @@ impl DrtRayCache {
 mod tests {
     use super::*;
 
-    fn cache(test: &str) -> (PathBuf, DrtRayCache) {
+    fn cache(test: &str) -> (std::path::PathBuf, DrtRayCache) {
         let root = std::env::temp_dir().join(format!("lf-drt-rays-{test}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
         let cache = DrtRayCache::open(&root).unwrap();
@@ -340,7 +335,7 @@ mod tests {
         };
         cache.put_block("b", &block).unwrap();
         assert_eq!(
-            root.join(DrtRayCache::relative_path("b")),
+            root.join(ENTRY.relative_path("b")),
             root.join("drt/b.lfrays")
         );
         let back = cache.get_block("b", 2).unwrap();

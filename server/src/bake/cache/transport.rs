@@ -10,7 +10,7 @@
 //! Invariant: a hit returns exactly what the computation would (the same f64 bits), so a bake
 //! is the same bytes with or without the cache.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use faer::Mat;
 
@@ -232,11 +232,6 @@ impl TransportCache {
         })
     }
 
-    /// Where the entry with this key lives, relative to the operator cache directory.
-    pub fn relative_path(key: &str) -> PathBuf {
-        ENTRY.relative_path(key)
-    }
-
     /// The cached transport, or None (a corrupt entry is deleted).
     pub fn get(&self, key: &str) -> Option<CachedTransport> {
         self.store.get(key, |payload| decode(payload).ok()).hit()
@@ -302,13 +297,13 @@ mod tests {
             let back = cache.get("k").expect("a hit");
             assert_eq!(encode(&back), encode(&t));
         }
-        assert!(root.join(TransportCache::relative_path("k")).is_file());
+        assert!(root.join(ENTRY.relative_path("k")).is_file());
         // A payload that does not decode (trailing bytes) is corrupt: deleted and missed.
         let mut bytes = encode(&cache.get("k").unwrap());
         bytes.push(0);
         cache.store.put("k", &bytes).unwrap();
         assert!(cache.get("k").is_none());
-        assert!(!root.join(TransportCache::relative_path("k")).exists());
+        assert!(!root.join(ENTRY.relative_path("k")).exists());
         let _ = std::fs::remove_dir_all(&root);
     }
 }

@@ -82,6 +82,18 @@ pub struct TransferCoefficients {
     pub occlusion: Vec<f64>,
 }
 
+/// Rays toward the object alone: its bounding sphere, padded by the tracer's epsilon (and a
+/// relative 1e-6) so no surface point lies outside it, sampled with `alpha` 1.
+fn object_sampler(tracer: &Tracer, sphere: BoundingSphere) -> ClutterGuidedSampler {
+    ClutterGuidedSampler {
+        spheres: vec![Sphere {
+            center: sphere.centre,
+            radius: sphere.radius * (1.0 + 1e-6) + tracer.epsilon,
+        }],
+        alpha: 1.0,
+    }
+}
+
 /// The reflection and occlusion coefficients at arbitrary points `points` (object frame),
 /// `rays` Monte Carlo rays each; `albedo` gives the object's albedo at each hit (triangle
 /// index = primitive index of `tracer`).
@@ -94,13 +106,7 @@ pub fn transfer_at_points(
     seed: u64,
     albedo: SurfaceAlbedo,
 ) -> TransferCoefficients {
-    let sampler = ClutterGuidedSampler {
-        spheres: vec![Sphere {
-            center: sphere.centre,
-            radius: sphere.radius * (1.0 + 1e-6) + tracer.epsilon,
-        }],
-        alpha: 1.0,
-    };
+    let sampler = object_sampler(tracer, sphere);
     let per_point: Vec<(Vec<f64>, Vec<f64>)> = points
         .par_iter()
         .enumerate()
@@ -162,14 +168,8 @@ pub fn convolved_transfer_at_points(
     albedo: SurfaceAlbedo,
 ) -> TransferCoefficients {
     let pi = std::f64::consts::PI;
-    let radius = sphere.radius * (1.0 + 1e-6) + tracer.epsilon;
-    let sampler = ClutterGuidedSampler {
-        spheres: vec![Sphere {
-            center: sphere.centre,
-            radius,
-        }],
-        alpha: 1.0,
-    };
+    let sampler = object_sampler(tracer, sphere);
+    let radius = sampler.spheres[0].radius;
     let nn = n_sh * n_sh;
     let per_point: Vec<(Vec<f64>, Vec<f64>)> = points
         .par_iter()

@@ -671,13 +671,13 @@ impl RayPass<'_> {
 
     /// The cache file (relative to the operator cache directory) of block `b`'s ray unit.
     pub fn block_unit_file(&self, b: usize) -> PathBuf {
-        DrtRayCache::relative_path(&self.block_unit_key(b))
+        crate::bake::cache::drt_rays::ENTRY.relative_path(&self.block_unit_key(b))
     }
 
     /// The cache file of clutter object `c`'s ray unit (None for an object without texels).
     pub fn clutter_unit_file(&self, c: usize) -> Option<PathBuf> {
         (!self.g.clutter_texels[c].is_empty())
-            .then(|| DrtRayCache::relative_path(&self.clutter_unit_key(c)))
+            .then(|| crate::bake::cache::drt_rays::ENTRY.relative_path(&self.clutter_unit_key(c)))
     }
 }
 

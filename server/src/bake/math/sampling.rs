@@ -30,7 +30,7 @@ pub enum Purpose {
     ShapeLightfield = 2,
     /// Traced transport between blocks (`transport::build`).
     TracedTransport = 3,
-    /// The dense per-texel operator, `bake --full` (`pipeline`).
+    /// The dense per-texel operator, `bake --full` (`pipeline::stages`).
     FullOperator = 4,
     /// The reference solver's first bounce (`reference`).
     Reference = 5,

@@ -35,10 +35,6 @@ pub mod plan;
 pub mod stages;
 pub mod to_bundle;
 
-pub use plan::{shape_plan, ShapePlan};
-pub use stages::{dnrt_grid, mrt_transport};
-pub use to_bundle::{layout_of, surface_atlases_of};
-
 /// What to bake beyond the scene's own settings.
 #[derive(Clone, Debug, Default)]
 pub struct BakeOptions {
@@ -124,7 +120,7 @@ pub fn bake(
     report.texels = full_geometry.texels.len();
     lap(&mut report, "geometry");
 
-    let plan = shape_plan(scene);
+    let plan = plan::shape_plan(scene);
     let shapes = stages::shape_operators(&plan, cache, progress, &mut report)?;
     lap(&mut report, "shape operators");
 

@@ -150,6 +150,16 @@ struct MeasuredYardstick {
     brute_force: BruteForce,
 }
 
+impl MeasuredYardstick {
+    /// What a bake setting is measured against: the bounce count and its references.
+    fn yardstick(&self) -> Yardstick<'_> {
+        Yardstick {
+            bounces: self.bounces,
+            references: &self.references,
+        }
+    }
+}
+
 /// The bench's progress: an indicatif bar on a terminal, one timestamped line per step
 /// otherwise (CI logs).
 struct BenchProgress {
@@ -340,13 +350,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 .map(|&b| measure_yardstick(&cache, bench, &scene_t, &plan, b, &bar))
                 .collect::<anyhow::Result<_>>()?;
             brute_force.extend(measured.iter().map(|y| y.brute_force.clone()));
-            let yardsticks: Vec<Yardstick> = measured
-                .iter()
-                .map(|y| Yardstick {
-                    bounces: y.bounces,
-                    references: &y.references,
-                })
-                .collect();
+            let yardsticks: Vec<Yardstick> =
+                measured.iter().map(MeasuredYardstick::yardstick).collect();
             for setting in scene_plan
                 .settings
                 .iter()
@@ -716,13 +721,8 @@ mod tests {
             tolerance: 1e-3,
             codecs: vec![BundleCodec::Auto],
         };
-        let yardsticks: Vec<Yardstick> = measured
-            .iter()
-            .map(|y| Yardstick {
-                bounces: y.bounces,
-                references: &y.references,
-            })
-            .collect();
+        let yardsticks: Vec<Yardstick> =
+            measured.iter().map(MeasuredYardstick::yardstick).collect();
         let points = measure_setting(&bench, &setting, &yardsticks, 3, &|_| {}).unwrap();
         let labels: Vec<(BenchMethod, BounceCount)> =
             points.iter().map(|p| (p.method, p.bounces)).collect();
