@@ -1,6 +1,6 @@
 //! Shared helpers for the end-to-end tests in `tests/tests/`: load the example scenes with
 //! test-sized settings, bake them, apply bundles through the client and compare with the
-//! reference solver.
+//! reference solver; start the test server and learn its address.
 
 use std::path::{Path, PathBuf};
 
@@ -109,4 +109,26 @@ pub fn energy_ratio(result: &ResultFile) -> f64 {
         }
     }
     worst
+}
+
+/// Starts `command` (the test server, `tests/bin/test_server.rs`, with its arguments) with
+/// stdout piped and waits for its first line, `lightfarm: listening on ADDR`: the running
+/// child and ADDR.
+pub fn spawn_listening(command: &mut std::process::Command) -> (std::process::Child, String) {
+    use std::io::{BufRead, BufReader};
+    let mut child = command
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .trim()
+        .strip_prefix("lightfarm: listening on ")
+        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+        .to_string();
+    (child, addr)
 }

@@ -21,6 +21,7 @@
 //!   simply never hit, or hit as their exact tests say).
 
 use lightfarm_proto::bundle::{Layout, Rect};
+use lightfarm_proto::glam::Vec3;
 
 /// Most primitives in a leaf.
 pub const LEAF_SIZE: usize = 4;
@@ -121,7 +122,7 @@ impl Prim {
 
     /// Does the primitive cross the segment `o + t·d` for `tmin < t < tmax`?
     #[inline]
-    fn hit(&self, o: [f32; 3], d: [f32; 3], tmin: f32, tmax: f32) -> bool {
+    fn hit(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
         match *self {
             Prim::Rect {
                 axis,
@@ -143,48 +144,32 @@ impl Prim {
                 let pv = o[v] + t * d[v];
                 pu >= min[0] && pu <= max[0] && pv >= min[1] && pv <= max[1]
             }
-            Prim::Tri([p0, p1, p2]) => {
+            Prim::Tri(p) => {
                 // Möller–Trumbore.
-                let e1 = sub(p1, p0);
-                let e2 = sub(p2, p0);
-                let pv = cross(d, e2);
-                let det = dot(e1, pv);
+                let [p0, p1, p2] = p.map(Vec3::from);
+                let e1 = p1 - p0;
+                let e2 = p2 - p0;
+                let pv = d.cross(e2);
+                let det = e1.dot(pv);
                 if det == 0.0 {
                     return false;
                 }
                 let inv = 1.0 / det;
-                let s = sub(o, p0);
-                let u = dot(s, pv) * inv;
+                let s = o - p0;
+                let u = s.dot(pv) * inv;
                 if !(0.0..=1.0).contains(&u) {
                     return false;
                 }
-                let qv = cross(s, e1);
-                let v = dot(d, qv) * inv;
+                let qv = s.cross(e1);
+                let v = d.dot(qv) * inv;
                 if !(v >= 0.0 && u + v <= 1.0) {
                     return false;
                 }
-                let t = dot(e2, qv) * inv;
+                let t = e2.dot(qv) * inv;
                 t > tmin && t < tmax
             }
         }
     }
-}
-
-#[inline]
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-#[inline]
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-#[inline]
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 fn union(a: ([f32; 3], [f32; 3]), b: ([f32; 3], [f32; 3])) -> ([f32; 3], [f32; 3]) {
@@ -199,14 +184,7 @@ fn union(a: ([f32; 3], [f32; 3]), b: ([f32; 3], [f32; 3])) -> ([f32; 3], [f32; 3
 /// Does the segment `o + t·d`, `tmin ≤ t ≤ tmax`, touch the closed box? Exact for axes the
 /// segment does not move along.
 #[inline]
-fn segment_hits_box(
-    o: [f32; 3],
-    inv_d: [f32; 3],
-    d: [f32; 3],
-    tmin: f32,
-    tmax: f32,
-    n: &Node,
-) -> bool {
+fn segment_hits_box(o: Vec3, inv_d: Vec3, d: Vec3, tmin: f32, tmax: f32, n: &Node) -> bool {
     let (mut t0, mut t1) = (tmin, tmax);
     for a in 0..3 {
         if d[a] == 0.0 {
@@ -245,7 +223,7 @@ impl Occluders {
         let bounds = prims.iter().map(Prim::bounds).reduce(union);
         let scale = match bounds {
             Some((lo, hi)) => {
-                let diag = dot(sub(hi, lo), sub(hi, lo)).sqrt();
+                let diag = (Vec3::from(hi) - Vec3::from(lo)).length();
                 if diag.is_finite() && diag > 0.0 {
                     diag
                 } else {
@@ -289,7 +267,7 @@ impl Occluders {
                 for (c, _) in items.iter() {
                     (clo, chi) = union((clo, chi), (*c, *c));
                 }
-                let ext = sub(chi, clo);
+                let ext = Vec3::from(chi) - Vec3::from(clo);
                 let axis = if ext[0] >= ext[1] && ext[0] >= ext[2] {
                     0
                 } else if ext[1] >= ext[2] {
@@ -349,9 +327,9 @@ impl Occluders {
 
     /// Segment direction and the open parameter interval a hit must fall in; `None` when the
     /// segment is too short (or not finite) to be occluded.
-    fn segment(&self, origin: [f32; 3], target: [f32; 3]) -> Option<([f32; 3], f32, f32)> {
-        let d = sub(target, origin);
-        let len = dot(d, d).sqrt();
+    fn segment(&self, origin: Vec3, target: Vec3) -> Option<(Vec3, f32, f32)> {
+        let d = target - origin;
+        let len = d.length();
         if !(len > 0.0 && len.is_finite()) {
             return None;
         }
@@ -366,10 +344,11 @@ impl Occluders {
         if self.nodes.is_empty() {
             return false;
         }
-        let Some((d, tmin, tmax)) = self.segment(origin, target) else {
+        let origin = Vec3::from(origin);
+        let Some((d, tmin, tmax)) = self.segment(origin, Vec3::from(target)) else {
             return false;
         };
-        let inv_d = [1.0 / d[0], 1.0 / d[1], 1.0 / d[2]];
+        let inv_d = 1.0 / d;
         let mut stack = [0u32; STACK_DEPTH];
         let mut top = 0usize;
         let mut ni = 0usize;
@@ -401,7 +380,8 @@ impl Occluders {
     /// The same query by testing every primitive (the reference for the hierarchy).
     #[cfg(test)]
     fn occluded_brute(&self, origin: [f32; 3], target: [f32; 3]) -> bool {
-        let Some((d, tmin, tmax)) = self.segment(origin, target) else {
+        let origin = Vec3::from(origin);
+        let Some((d, tmin, tmax)) = self.segment(origin, Vec3::from(target)) else {
             return false;
         };
         self.prims.iter().any(|p| p.hit(origin, d, tmin, tmax))

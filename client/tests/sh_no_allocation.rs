@@ -4,12 +4,9 @@
 //! current thread's allocations.
 
 use lightfarm_client::{DirectLight, Runtime, ShLight};
-use lightfarm_proto::bundle::{
-    BlockOps, Bundle, DeltaSource, Layout as TexelLayout, Matrix, ShEntry, ShResponses, ShapeOps,
-    SurfaceInfo,
-};
+use lightfarm_proto::bundle::{Bundle, DeltaSource, Matrix, ShEntry, ShResponses};
 use lightfarm_proto::sh::SH_COEFFS;
-use lightfarm_proto::testing::{allocs, CountingAlloc};
+use lightfarm_proto::testing::{allocs, one_block_bundle, strip_layout, CountingAlloc};
 
 #[global_allocator]
 static GLOBAL: CountingAlloc = CountingAlloc;
@@ -26,48 +23,22 @@ fn m(rows: usize, cols: usize, salt: f32) -> Matrix {
 
 /// One block of `n` texels (rank 2) whose texels all have an SH entry of rank 2.
 fn bundle(n: usize) -> Bundle {
-    Bundle {
-        layout: TexelLayout {
-            scene_name: "strip".into(),
-            surfaces: vec![SurfaceInfo {
-                name: "block:strip/-y".into(),
-                texel_offset: 0,
-                texel_count: n as u32,
-            }],
-            positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
-            normals: vec![[0.0, 1.0, 0.0]; n],
-            albedo: vec![[0.5, 0.6, 0.7]; n],
-            texel_size: vec![[1.0, 1.0]; n],
-            rects: vec![],
-            triangles: vec![],
-        },
-        shapes: vec![ShapeOps {
-            key: "strip".into(),
-            u_b: m(n, 2, 1.0),
-            t_db: m(2, n, 0.5),
-            openings: vec![],
+    let mut b = one_block_bundle(
+        strip_layout(n),
+        "strip",
+        "strip",
+        m(n, 2, 1.0),
+        m(2, n, 0.5),
+    );
+    b.sh = Some(ShResponses {
+        entries: vec![ShEntry {
+            texels: (0..n as u32).collect(),
+            source: DeltaSource::Block(0),
+            y: m(SH_COEFFS * n, 2, 2.0),
+            z: m(2, 2, 3.0),
         }],
-        blocks: vec![BlockOps {
-            symmetry: None,
-            id: "strip".into(),
-            shape: 0,
-            texel_offset: 0,
-        }],
-        transport: None,
-        full: None,
-        drt: None,
-        probes: None,
-        dnrt: None,
-        surface_atlases: Vec::new(),
-        sh: Some(ShResponses {
-            entries: vec![ShEntry {
-                texels: (0..n as u32).collect(),
-                source: DeltaSource::Block(0),
-                y: m(SH_COEFFS * n, 2, 2.0),
-                z: m(2, 2, 3.0),
-            }],
-        }),
-    }
+    });
+    b
 }
 
 #[test]

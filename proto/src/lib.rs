@@ -19,10 +19,14 @@
 //! - [`wire`]: the little-endian encoding the bundle and the operator cache share.
 //! - [`dnrt_grid`]: one dynamic object's DNRT transfer grid (codecs, ranges, placement).
 //! - [`sh`], [`sh_rotation`]: the SH convention and rotation of SH coefficients.
+//! - `glam`: the vector crate, re-exported, so the client (which depends on this crate only)
+//!   writes its f32 geometry (`Vec3`) with the same types the server uses.
 //! - `testing` (feature `testing`, tests only): seeded hand-built bundles for the decoder
 //!   fuzzing here and the client runtime's tests.
 //!
 //! Invariant: this crate does no light-transport math and no I/O beyond bytes and strings.
+
+pub use glam;
 
 pub mod api;
 pub mod bounces;

@@ -5,7 +5,11 @@
 //! `block:<id>/<face>` and `clutter:<id>`; the order is stable for a given scene and settings.
 //! Radiance in W/(sr·m²) per RGB channel.
 
+use std::collections::HashMap;
+
 use serde::{Deserialize, Serialize};
+
+use crate::bundle::Layout;
 
 /// One texel's record.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -27,6 +31,27 @@ pub struct ResultFile {
     pub texels: Vec<TexelRecord>,
 }
 
+impl ResultFile {
+    /// The record of each of `layout`'s texels (matched by surface name and index), in the
+    /// layout's texel order; `None` where this result has no record for the texel.
+    pub fn by_layout_texel(&self, layout: &Layout) -> Vec<Option<&TexelRecord>> {
+        let records: HashMap<(&str, u32), &TexelRecord> = self
+            .texels
+            .iter()
+            .map(|t| ((t.surface.as_str(), t.index), t))
+            .collect();
+        let mut out = vec![None; layout.n_texels()];
+        for s in &layout.surfaces {
+            for k in 0..s.texel_count {
+                if let Some(&t) = records.get(&(s.name.as_str(), k)) {
+                    out[(s.texel_offset + k) as usize] = Some(t);
+                }
+            }
+        }
+        out
+    }
+}
+
 /// Relative L2 error and 95th-percentile texel error of `ours` against `reference`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Comparison {
@@ -42,7 +67,7 @@ pub struct Comparison {
 
 /// Compares the `indirect` fields of two results texel by texel (matched by surface and index).
 pub fn compare(ours: &ResultFile, reference: &ResultFile) -> Comparison {
-    let by_key: std::collections::HashMap<(&str, u32), &TexelRecord> = reference
+    let by_key: HashMap<(&str, u32), &TexelRecord> = reference
         .texels
         .iter()
         .map(|t| ((t.surface.as_str(), t.index), t))

@@ -4,8 +4,10 @@
 //! decoder fuzzing here (`tests/decode_fuzz.rs`) and the client runtime's tests mutate and
 //! apply the same bytes.
 //!
-//! Also the fuzz driver both fuzzers run ([`fuzz_mutations`]) and an allocation counter for
-//! the no-allocation tests ([`CountingAlloc`]; each test binary installs it).
+//! Also the smallest bundle ([`one_block_bundle`]: one block, MRT only) that the C ABI, fetch
+//! and no-allocation tests build theirs on, the fuzz driver both fuzzers run
+//! ([`fuzz_mutations`]) and an allocation counter for the no-allocation tests
+//! ([`CountingAlloc`]; each test binary installs it).
 //!
 //! Invariant: deterministic; the same seed gives the same bundle bytes and the same mutations
 //! on every platform.
@@ -105,6 +107,41 @@ pub fn layout(rng: &mut Lcg, surfaces: &[(&str, usize)]) -> Layout {
     }
 }
 
+/// A shape of `texels` texels and rank `r` with random `U_b`, `T_d→b` and, per `(face, q)` in
+/// `openings`, `U_r` (drawn in that order).
+pub fn shape(
+    rng: &mut Lcg,
+    key: &str,
+    texels: usize,
+    r: usize,
+    openings: &[(u8, usize)],
+) -> ShapeOps {
+    ShapeOps {
+        key: key.into(),
+        u_b: matrix(rng, texels, r),
+        t_db: matrix(rng, r, texels),
+        openings: openings
+            .iter()
+            .map(|&(face, q)| OpeningOps {
+                face,
+                u_r: matrix(rng, texels, q),
+            })
+            .collect(),
+    }
+}
+
+/// Blocks `(id, shape, first texel)` without symmetries.
+pub fn blocks(list: &[(&str, u32, u32)]) -> Vec<BlockOps> {
+    list.iter()
+        .map(|&(id, shape, texel_offset)| BlockOps {
+            symmetry: None,
+            id: id.into(),
+            shape,
+            texel_offset,
+        })
+        .collect()
+}
+
 /// Two blocks (a: shape 0, 4 texels, r = 2, opening +x (q = 3); b: shape 1, 6 texels,
 /// r = 3, opening -x (q = 2)) with traced or lightfield transport between them, one clutter
 /// object (box: 4 texels, m = 2) or two (plus lamp: 3 texels, m = 3), and delta entries of
@@ -118,39 +155,10 @@ pub fn drt_bundle(rng: &mut Lcg, lightfield: bool, two_clutter: bool, full: bool
     let layout = layout(rng, &surfaces);
     let n = layout.n_texels();
     let shapes = vec![
-        ShapeOps {
-            key: "s0".into(),
-            u_b: matrix(rng, 4, 2),
-            t_db: matrix(rng, 2, 4),
-            openings: vec![OpeningOps {
-                face: 1,
-                u_r: matrix(rng, 4, 3),
-            }],
-        },
-        ShapeOps {
-            key: "s1".into(),
-            u_b: matrix(rng, 6, 3),
-            t_db: matrix(rng, 3, 6),
-            openings: vec![OpeningOps {
-                face: 0,
-                u_r: matrix(rng, 6, 2),
-            }],
-        },
+        shape(rng, "s0", 4, 2, &[(1, 3)]),
+        shape(rng, "s1", 6, 3, &[(0, 2)]),
     ];
-    let blocks = vec![
-        BlockOps {
-            symmetry: None,
-            id: "a".into(),
-            shape: 0,
-            texel_offset: 0,
-        },
-        BlockOps {
-            symmetry: None,
-            id: "b".into(),
-            shape: 1,
-            texel_offset: 4,
-        },
-    ];
+    let blocks = blocks(&[("a", 0, 0), ("b", 1, 4)]);
     let r = [2usize, 3];
     let transport = if lightfield {
         // (target, face, q, source)
@@ -319,6 +327,59 @@ pub fn probe_bundle(rng: &mut Lcg, drt: bool) -> Bundle {
         entries,
     });
     b
+}
+
+/// `n` texels in a row on the floor face of block `strip` (1 m apart, albedo (0.5, 0.6, 0.7)):
+/// the layout of the no-allocation tests' [`one_block_bundle`]s.
+pub fn strip_layout(n: usize) -> Layout {
+    Layout {
+        scene_name: "strip".into(),
+        surfaces: vec![SurfaceInfo {
+            name: "block:strip/-y".into(),
+            texel_offset: 0,
+            texel_count: n as u32,
+        }],
+        positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
+        normals: vec![[0.0, 1.0, 0.0]; n],
+        albedo: vec![[0.5, 0.6, 0.7]; n],
+        texel_size: vec![[1.0, 1.0]; n],
+        rects: vec![],
+        triangles: vec![],
+    }
+}
+
+/// A bundle of one block (id `block`, at texel 0) that holds every texel of `layout`, lit by
+/// MRT alone: one shape `key` with `u_b` (texels × r) and `t_db` (r × texels), no openings,
+/// and no other section.
+pub fn one_block_bundle(
+    layout: Layout,
+    block: &str,
+    key: &str,
+    u_b: Matrix,
+    t_db: Matrix,
+) -> Bundle {
+    Bundle {
+        layout,
+        shapes: vec![ShapeOps {
+            key: key.into(),
+            u_b,
+            t_db,
+            openings: vec![],
+        }],
+        blocks: vec![BlockOps {
+            symmetry: None,
+            id: block.into(),
+            shape: 0,
+            texel_offset: 0,
+        }],
+        transport: None,
+        full: None,
+        drt: None,
+        probes: None,
+        dnrt: None,
+        sh: None,
+        surface_atlases: Vec::new(),
+    }
 }
 
 /// A container of raw (uncompressed) sections, with fresh lengths, checksums and table of

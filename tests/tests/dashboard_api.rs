@@ -5,13 +5,12 @@
 //! when `tests/browser` has its npm packages), and the dashboard page itself with every file it
 //! loads.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command};
 use std::time::Duration;
 
 use lightfarm_client::ServiceClient;
-use lightfarm_tests::scene_dir;
+use lightfarm_tests::{scene_dir, spawn_listening};
 use serde_json::{json, Value};
 
 /// A `lightfarm serve` process on 127.0.0.1:0.
@@ -24,24 +23,13 @@ impl Server {
     fn start(data: &Path, config: &str) -> Server {
         let config_path = data.with_extension("toml");
         std::fs::write(&config_path, config).unwrap();
-        let mut child = Command::new(env!("CARGO_BIN_EXE_lightfarm-test-server"))
-            .args(["--addr", "127.0.0.1:0", "--data"])
-            .arg(data)
-            .arg("--config")
-            .arg(&config_path)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .unwrap();
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let addr = line
-            .trim()
-            .strip_prefix("lightfarm: listening on ")
-            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-            .to_string();
+        let (child, addr) = spawn_listening(
+            Command::new(env!("CARGO_BIN_EXE_lightfarm-test-server"))
+                .args(["--addr", "127.0.0.1:0", "--data"])
+                .arg(data)
+                .arg("--config")
+                .arg(&config_path),
+        );
         Server { child, addr }
     }
 }

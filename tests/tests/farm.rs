@@ -28,7 +28,7 @@ use lightfarm_proto::scene::Scene;
 use lightfarm_server::bake::pipeline::encoding::encode_options;
 use lightfarm_server::bake::progress::NoProgress;
 use lightfarm_server::bake::{bake, BakeOptions};
-use lightfarm_tests::scene_dir;
+use lightfarm_tests::{scene_dir, spawn_listening};
 use serde_json::json;
 
 const TEST_SERVER: &str = env!("CARGO_BIN_EXE_lightfarm-test-server");
@@ -101,20 +101,7 @@ impl Replica {
         if let Some(config) = config {
             command.arg("--config").arg(config);
         }
-        let mut child = command
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .unwrap();
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let addr = line
-            .trim()
-            .strip_prefix("lightfarm: listening on ")
-            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-            .to_string();
+        let (child, addr) = spawn_listening(&mut command);
         Replica {
             process: Process(child),
             addr,

@@ -11,7 +11,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use lightfarm_client::{BundleFetcher, FetchError};
-use lightfarm_proto::bundle::{BlockOps, Bundle, Layout, Matrix, ShapeOps, SurfaceInfo};
+use lightfarm_proto::bundle::{Layout, Matrix, SurfaceInfo};
+use lightfarm_proto::testing::one_block_bundle;
 
 const PATH: &str = "/v1/bundles/level1";
 
@@ -25,41 +26,22 @@ fn bundle_bytes(seed: u32) -> Vec<u8> {
         cols: cols as u32,
         data: (0..rows * cols).map(|i| value(i + salt)).collect(),
     };
-    let bundle = Bundle {
-        layout: Layout {
-            scene_name: format!("fetch-test-{seed}"),
-            surfaces: vec![SurfaceInfo {
-                name: "block:a/-y".into(),
-                texel_offset: 0,
-                texel_count: n as u32,
-            }],
-            positions: (0..n).map(|i| [i as f32 * 0.1, 0.0, value(i)]).collect(),
-            normals: vec![[0.0, 1.0, 0.0]; n],
-            albedo: (0..n).map(|i| [value(i), 0.5, 0.5]).collect(),
-            texel_size: vec![[0.1, 0.1]; n],
-            rects: vec![],
-            triangles: vec![],
-        },
-        shapes: vec![ShapeOps {
-            key: format!("shape-{seed}"),
-            u_b: matrix(n, r, 0),
-            t_db: matrix(r, n, 7),
-            openings: vec![],
-        }],
-        blocks: vec![BlockOps {
-            symmetry: None,
-            id: "a".into(),
-            shape: 0,
+    let layout = Layout {
+        scene_name: format!("fetch-test-{seed}"),
+        surfaces: vec![SurfaceInfo {
+            name: "block:a/-y".into(),
             texel_offset: 0,
+            texel_count: n as u32,
         }],
-        transport: None,
-        full: None,
-        drt: None,
-        probes: None,
-        dnrt: None,
-        sh: None,
-        surface_atlases: Vec::new(),
+        positions: (0..n).map(|i| [i as f32 * 0.1, 0.0, value(i)]).collect(),
+        normals: vec![[0.0, 1.0, 0.0]; n],
+        albedo: (0..n).map(|i| [value(i), 0.5, 0.5]).collect(),
+        texel_size: vec![[0.1, 0.1]; n],
+        rects: vec![],
+        triangles: vec![],
     };
+    let key = format!("shape-{seed}");
+    let bundle = one_block_bundle(layout, "a", &key, matrix(n, r, 0), matrix(r, n, 7));
     // Stored raw (no zstd) so the body is large enough to cut mid-transfer.
     let (bytes, _) = bundle.encode_with(&lightfarm_proto::bundle::EncodeOptions {
         zstd_level: 0,

@@ -3,9 +3,8 @@
 //! needs headers): upload, bake, SSE progress, cancel, ETag/304 and ranges, auth isolation,
 //! 429 under a burst, restart after SIGKILL, a corrupt stored bundle.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 use lightfarm_client::{decode, ServiceClient};
@@ -14,7 +13,7 @@ use lightfarm_proto::scene::Scene;
 use lightfarm_server::bake::pipeline::encoding::encode_options;
 use lightfarm_server::bake::progress::NoProgress;
 use lightfarm_server::bake::{bake, BakeOptions};
-use lightfarm_tests::scene_dir;
+use lightfarm_tests::{scene_dir, spawn_listening};
 use serde_json::json;
 
 /// A `lightfarm serve` process.
@@ -41,20 +40,7 @@ impl Server {
         if let Some(c) = &config {
             cmd.arg("--config").arg(c);
         }
-        let mut child = cmd
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .unwrap();
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let addr = line
-            .trim()
-            .strip_prefix("lightfarm: listening on ")
-            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-            .to_string();
+        let (child, addr) = spawn_listening(&mut cmd);
         Server {
             child,
             addr,

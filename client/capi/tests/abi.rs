@@ -9,8 +9,9 @@ use std::ptr::{null, null_mut};
 
 use lightfarm::*;
 use lightfarm_client::{direct_from_point_lights_averaged, Light, Occluders};
-use lightfarm_proto::bundle::{BlockOps, Bundle, Layout, Matrix, ShapeOps, SurfaceInfo};
+use lightfarm_proto::bundle::{Bundle, Layout, Matrix, SurfaceInfo};
 use lightfarm_proto::lights::LightKind;
+use lightfarm_proto::testing::one_block_bundle;
 
 const OK: i32 = LfStatus::Ok as i32;
 
@@ -31,37 +32,17 @@ fn two_texel_bundle() -> Vec<u8> {
         rects: vec![],
         triangles: vec![],
     };
-    let bundle = Bundle {
-        layout,
-        shapes: vec![ShapeOps {
-            key: "pair".into(),
-            u_b: Matrix {
-                rows: 2,
-                cols: 1,
-                data: vec![1.0, 1.0],
-            },
-            t_db: Matrix {
-                rows: 1,
-                cols: 2,
-                data: vec![0.5, 0.5],
-            },
-            openings: vec![],
-        }],
-        blocks: vec![BlockOps {
-            symmetry: None,
-            id: "room".into(),
-            shape: 0,
-            texel_offset: 0,
-        }],
-        transport: None,
-        full: None,
-        drt: None,
-        probes: None,
-        dnrt: None,
-        sh: None,
-        surface_atlases: Vec::new(),
+    let u_b = Matrix {
+        rows: 2,
+        cols: 1,
+        data: vec![1.0, 1.0],
     };
-    bundle.encode()
+    let t_db = Matrix {
+        rows: 1,
+        cols: 2,
+        data: vec![0.5, 0.5],
+    };
+    one_block_bundle(layout, "room", "pair", u_b, t_db).encode()
 }
 
 /// Owns a runtime for the length of a test.

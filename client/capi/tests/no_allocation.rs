@@ -3,58 +3,20 @@
 //! with one that counts the current thread's allocations.
 
 use lightfarm::*;
-use lightfarm_proto::bundle::{
-    BlockOps, Bundle, Layout as TexelLayout, Matrix, ShapeOps, SurfaceInfo,
-};
-use lightfarm_proto::testing::{allocs, CountingAlloc};
+use lightfarm_proto::bundle::Matrix;
+use lightfarm_proto::testing::{allocs, one_block_bundle, strip_layout, CountingAlloc};
 
 #[global_allocator]
 static GLOBAL: CountingAlloc = CountingAlloc;
 
 /// A block of `n` texels whose rank-2 operator has distinct entries everywhere.
 fn bundle(n: usize) -> Vec<u8> {
-    let layout = TexelLayout {
-        scene_name: "strip".into(),
-        surfaces: vec![SurfaceInfo {
-            name: "block:strip/-y".into(),
-            texel_offset: 0,
-            texel_count: n as u32,
-        }],
-        positions: (0..n).map(|i| [i as f32, 0.0, 0.0]).collect(),
-        normals: vec![[0.0, 1.0, 0.0]; n],
-        albedo: vec![[0.5, 0.6, 0.7]; n],
-        texel_size: vec![[1.0, 1.0]; n],
-        rects: vec![],
-        triangles: vec![],
-    };
     let m = |rows: usize, cols: usize| Matrix {
         rows: rows as u32,
         cols: cols as u32,
         data: (0..rows * cols).map(|k| 1.0 / (1 + k) as f32).collect(),
     };
-    Bundle {
-        layout,
-        shapes: vec![ShapeOps {
-            key: "strip".into(),
-            u_b: m(n, 2),
-            t_db: m(2, n),
-            openings: vec![],
-        }],
-        blocks: vec![BlockOps {
-            symmetry: None,
-            id: "strip".into(),
-            shape: 0,
-            texel_offset: 0,
-        }],
-        transport: None,
-        full: None,
-        drt: None,
-        probes: None,
-        dnrt: None,
-        sh: None,
-        surface_atlases: Vec::new(),
-    }
-    .encode()
+    one_block_bundle(strip_layout(n), "strip", "strip", m(n, 2), m(2, n)).encode()
 }
 
 #[test]

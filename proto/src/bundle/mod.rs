@@ -342,13 +342,6 @@ pub struct DeltaEntry {
     pub mix: Option<Matrix>,
 }
 
-impl DeltaEntry {
-    /// Whether only a minor-2 reader understands this entry.
-    pub fn needs_low_rank_format(&self) -> bool {
-        self.mix.is_some() || matches!(self.source, DeltaSource::Direct { .. })
-    }
-}
-
 /// Direct light on one clutter object projected to its basis: `c = t_dc · l_d[texels]`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ClutterOps {

@@ -1,6 +1,8 @@
 //! Reading a bundle: [`Bundle::decode`] and [`Bundle::decode_prefix`] turn the sections the
 //! container hands over into a [`Bundle`] and validate it. Every section kind a 2.x writer
-//! writes is read here; what only 1.x bundles hold is read by `legacy_1x`.
+//! writes is read here, and DRT kinds 6 and 11 (older writers' choice; kind 13's layout without
+//! the replaced list) as kind 13 with nothing replaced; what only 1.x bundles hold in another
+//! layout is read by `legacy_1x`.
 //!
 //! Invariant: reading never panics and never allocates more than the bytes left can fill
 //! (capacities are capped by the remaining input); a section must be consumed exactly (trailing

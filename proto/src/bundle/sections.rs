@@ -12,6 +12,7 @@ pub mod section {
     pub const BLOCKS: u32 = 3;
     pub const TRANSPORT: u32 = 4;
     pub const FULL: u32 = 5;
+    /// The DRT section of 1.x minor 0–1. Read, no longer written (see [`DRT_REPLACING`]).
     pub const DRT: u32 = 6;
     pub const PROBES: u32 = 7;
     /// DNRT grids with `t_j` and `k_j` apart (minor 1). Kind 8 held the paper's `m_j` (minor 0)
@@ -19,16 +20,16 @@ pub mod section {
     pub const DNRT: u32 = 9;
     /// SH incident-radiance responses for normal-mapped surfaces (minor 2).
     pub const SH: u32 = 10;
-    /// The DRT section in the layout of minor 2, which adds low-rank entries and direct-light
-    /// sources (see [`crate::bundle::DeltaEntry`]). Written instead of [`DRT`] only when some
-    /// entry uses them, so a minor-1 reader skips it and lights the scene by MRT alone.
+    /// The DRT section in the layout of 1.x minor 2, which adds low-rank entries and direct-light
+    /// sources (see [`crate::bundle::DeltaEntry`]). Read, no longer written (see
+    /// [`DRT_REPLACING`]).
     pub const DRT_LOW_RANK: u32 = 11;
     /// Where mesh surfaces' texels sit in their own lightmap images (minor 2).
     pub const LIGHTMAP: u32 = 12;
-    /// The DRT section of minor 3: the minor-2 layout followed by the block texels whose MRT
-    /// light the exact gather replaces ([`crate::bundle::DrtOps::replaced`]). Written instead of
-    /// [`DRT_LOW_RANK`] only when that list is not empty, so an older reader skips it and
-    /// lights the scene by MRT alone rather than adding the gather on top of MRT.
+    /// The DRT section of 1.x minor 3: the minor-2 layout followed by the block texels whose MRT
+    /// light the exact gather replaces ([`crate::bundle::DrtOps::replaced`]). A reader that does not know it skips it and lights the scene by MRT
+    /// alone rather than adding the gather on top of MRT. Since 2.0 the only DRT kind written
+    /// (with an empty list when nothing is replaced); [`DRT`] and [`DRT_LOW_RANK`] are read.
     pub const DRT_REPLACING: u32 = 13;
     /// Blocks of format 2: [`BLOCKS`]' records plus each block's box symmetry and closed faces
     /// ([`crate::bundle::BlockSymmetry`]). Written instead of [`BLOCKS`] by 2.x writers.

@@ -3,10 +3,9 @@
 //!
 //! Invariant: the header always carries the writer's version ([`BUNDLE_MAJOR`].[`BUNDLE_MINOR`]),
 //! whatever sections a bundle has, so a streamed prefix and the whole bundle share their header
-//! bytes; blocks are always written as section kind 14 and the exact gather in form 2. The DRT
-//! section's kind still follows what it holds: 6, or 11 when an entry is low-rank or reads direct
-//! light, or 13 when it replaces block texels' MRT light (kinds 6 and 11 share one payload
-//! layout; 13 appends the replaced texels).
+//! bytes. Only current section kinds are written: blocks as kind 14, the exact gather in form 2
+//! and DRT as kind 13 (its replaced-texel list may be empty). The older kinds 3, 6 and 11 are
+//! still read ([`super::read`], [`super::legacy_1x`]) and never written.
 
 use crate::container::write_container;
 use crate::wire::Writer;
@@ -16,8 +15,7 @@ use super::matrix_codec::MatrixEncoder;
 use super::sections::{section, section_name};
 use super::{gather_encoding, sh_responses, symmetric_blocks};
 use super::{
-    Bundle, DeltaEntry, EncodeOptions, EncodeReport, Layout, TransportOps, BUNDLE_MAJOR,
-    BUNDLE_MINOR,
+    Bundle, EncodeOptions, EncodeReport, Layout, TransportOps, BUNDLE_MAJOR, BUNDLE_MINOR,
 };
 
 fn write_vec3s(w: &mut Writer, v: &[[f32; 3]]) {
@@ -165,15 +163,8 @@ impl Bundle {
             write_entries(&mut w, &d.entries, enc);
             w.u32s(&d.buried);
             gather_encoding::write_gather(&mut w, d.direct_gather.as_ref());
-            let kind = if !d.replaced.is_empty() {
-                w.u32s(&d.replaced);
-                section::DRT_REPLACING
-            } else if d.entries.iter().any(DeltaEntry::needs_low_rank_format) {
-                section::DRT_LOW_RANK
-            } else {
-                section::DRT
-            };
-            sections.push((kind, w.bytes));
+            w.u32s(&d.replaced);
+            sections.push((section::DRT_REPLACING, w.bytes));
         }
         if let Some(p) = &self.probes {
             let mut w = Writer::new();

@@ -2,7 +2,6 @@
 //! texel as an atlas PNG for people and a raw f16 file for engines (`lightfarm_client::lightmap`
 //! owns the atlas; this file only writes files).
 
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -32,24 +31,19 @@ impl LightmapFiles {
 /// Per-texel (indirect, direct + indirect) radiance from a result; texels the result does not
 /// model are black.
 fn per_texel(layout: &Layout, result: &ResultFile) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
-    let records: HashMap<(&str, u32), usize> = result
-        .texels
+    let by_texel = result.by_layout_texel(layout);
+    let indirect = by_texel
         .iter()
-        .enumerate()
-        .map(|(k, t)| ((t.surface.as_str(), t.index), k))
+        .map(|t| t.map_or([0.0; 3], |t| t.indirect.map(|x| x as f32)))
         .collect();
-    let mut indirect = vec![[0.0f32; 3]; layout.n_texels()];
-    let mut lit = vec![[0.0f32; 3]; layout.n_texels()];
-    for s in &layout.surfaces {
-        for k in 0..s.texel_count {
-            if let Some(&r) = records.get(&(s.name.as_str(), k)) {
-                let t = &result.texels[r];
-                let at = (s.texel_offset + k) as usize;
-                indirect[at] = t.indirect.map(|x| x as f32);
-                lit[at] = [0, 1, 2].map(|c| (t.indirect[c] + t.direct[c]) as f32);
-            }
-        }
-    }
+    let lit = by_texel
+        .iter()
+        .map(|t| {
+            t.map_or([0.0; 3], |t| {
+                [0, 1, 2].map(|c| (t.indirect[c] + t.direct[c]) as f32)
+            })
+        })
+        .collect();
     (indirect, lit)
 }
 

@@ -4,8 +4,6 @@
 //!
 //! Units: outgoing radiance, W/(sr·m²) per RGB channel, in layout texel order.
 
-use std::collections::HashMap;
-
 use lightfarm_client::{Bundle, Method};
 use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
@@ -62,26 +60,20 @@ pub fn texel_radiance(
 ) -> Result<Vec<[f32; 3]>, ExportError> {
     let layout = bundle.layout.clone();
     let result = evaluate(bundle, lights, options.bounces)?;
-    let records: HashMap<(&str, u32), usize> = result
-        .texels
+    let out = result
+        .by_layout_texel(&layout)
         .iter()
-        .enumerate()
-        .map(|(k, t)| ((t.surface.as_str(), t.index), k))
-        .collect();
-    let mut out = vec![[0.0f32; 3]; layout.n_texels()];
-    for s in &layout.surfaces {
-        for k in 0..s.texel_count {
-            if let Some(&r) = records.get(&(s.name.as_str(), k)) {
-                let t = &result.texels[r];
-                out[(s.texel_offset + k) as usize] = [0, 1, 2].map(|c| {
+        .map(|t| {
+            t.map_or([0.0; 3], |t| {
+                [0, 1, 2].map(|c| {
                     (match options.mode {
                         LightMode::Lit => t.direct[c] + t.indirect[c],
                         LightMode::Direct => t.direct[c],
                         LightMode::Indirect => t.indirect[c],
                     }) as f32
-                });
-            }
-        }
-    }
+                })
+            })
+        })
+        .collect();
     Ok(out)
 }

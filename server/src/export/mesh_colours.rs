@@ -6,6 +6,7 @@
 //! Invariant: every corner gets a colour; with no facing texel within the search, the nearest
 //! texel of any orientation.
 
+use glam::Vec3;
 use lightfarm_client::lightmap::Atlas;
 
 /// Mesh texels: world position, unit normal and sRGB8 colour.
@@ -53,15 +54,10 @@ fn srgb_to_linear(v: u8) -> f32 {
 }
 
 fn normal_of(t: &[[f32; 3]; 3]) -> [f32; 3] {
-    let a = [0, 1, 2].map(|c| t[1][c] - t[0][c]);
-    let b = [0, 1, 2].map(|c| t[2][c] - t[0][c]);
-    let n = [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ];
-    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-20);
-    n.map(|x| x / l)
+    let [p0, p1, p2] = t.map(Vec3::from);
+    let n = (p1 - p0).cross(p2 - p0);
+    // Divided by the length (not `normalize`, which multiplies by its reciprocal).
+    (n / n.length().max(1e-20)).to_array()
 }
 
 /// Per triangle corner, a linear RGBA colour.

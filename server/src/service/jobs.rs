@@ -151,6 +151,32 @@ impl<'de> serde::Deserialize<'de> for BlobKind {
 }
 
 impl JobRecord {
+    /// A newly queued job for `request`, visible to `owners` (the submitting team among them),
+    /// submitted now.
+    pub fn queued(request: &BakeRequest, owners: BTreeSet<String>) -> JobRecord {
+        JobRecord {
+            id: request.id.clone(),
+            scene: request.scene.clone(),
+            settings: request.settings.clone(),
+            owners,
+            state: JobState::Queued,
+            stage: None,
+            stage_done: 0,
+            stage_total: 0,
+            stages_seen: 0,
+            expected_stages: request.expected_stages.max(1),
+            overall: 0.0,
+            stages: Vec::new(),
+            error: None,
+            bundle: None,
+            bundle_bytes: None,
+            submitted_at: unix_now(),
+            finished_at: None,
+            shape_keys: Vec::new(),
+            inputs: request.inputs.clone(),
+        }
+    }
+
     pub fn status(&self, cached: bool) -> BakeStatus {
         BakeStatus {
             id: self.id.clone(),
@@ -547,27 +573,7 @@ impl JobQueue for LocalJobs {
             .map(|j| j.record.owners.clone())
             .unwrap_or_default();
         owners.insert(request.team.clone());
-        let record = JobRecord {
-            id: request.id.clone(),
-            scene: request.scene,
-            settings: request.settings,
-            owners,
-            state: JobState::Queued,
-            stage: None,
-            stage_done: 0,
-            stage_total: 0,
-            stages_seen: 0,
-            expected_stages: request.expected_stages.max(1),
-            overall: 0.0,
-            stages: Vec::new(),
-            error: None,
-            bundle: None,
-            bundle_bytes: None,
-            submitted_at: unix_now(),
-            finished_at: None,
-            shape_keys: Vec::new(),
-            inputs: request.inputs,
-        };
+        let record = JobRecord::queued(&request, owners);
         shared.persist(&record);
         let status = record.status(false);
         match inner.jobs.get_mut(&request.id) {

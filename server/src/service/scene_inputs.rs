@@ -11,6 +11,7 @@
 //! - Settings overrides are merged field by field into the scene's settings and the result is
 //!   validated like any scene; a bake's id hashes the scene id and the effective settings.
 
+use lightfarm_proto::api::SceneCreated;
 use lightfarm_proto::scene::{Scene, Settings};
 
 use super::store::is_hash;
@@ -140,6 +141,18 @@ pub fn texel_count(scene: &Scene) -> u64 {
     let t = scene.settings.texels_per_face as u64;
     let boxes = scene.clutter.iter().filter(|c| c.box_.is_some()).count() as u64;
     Geometry::blocks_only(scene).texels.len() as u64 + boxes * 6 * t * t
+}
+
+/// What `POST /v1/scenes` answers and `GET /v1/scenes` lists for the stored scene `id`.
+pub fn scene_summary(id: String, scene: &Scene) -> SceneCreated {
+    SceneCreated {
+        id,
+        name: scene.name.clone(),
+        blocks: scene.blocks.len() as u64,
+        clutter: scene.clutter.len() as u64,
+        dynamic: scene.dynamic.len() as u64,
+        texels: texel_count(scene),
+    }
 }
 
 /// Stages the bake reports (for the overall progress fraction).

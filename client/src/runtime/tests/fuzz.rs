@@ -48,8 +48,11 @@ fn decode_and_apply(bytes: &[u8]) -> bool {
 fn mutated_drt_bundles_never_panic() {
     let mut rng = Lcg(24);
     let b = drt_bundle(&mut rng, false, true, true);
-    // The test bundle has low-rank entries, so its DRT section is the minor-2 kind.
-    fuzz_bundle(&mut rng, &b, lightfarm_proto::bundle::section::DRT_LOW_RANK);
+    fuzz_bundle(
+        &mut rng,
+        &b,
+        lightfarm_proto::bundle::section::DRT_REPLACING,
+    );
 }
 
 #[test]

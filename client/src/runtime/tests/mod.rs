@@ -20,12 +20,11 @@
 use super::*;
 use crate::probes::ProbeField;
 use lightfarm_proto::bundle::{
-    BlockOps, CompactEntry, DeltaSource, DrtOps, Matrix, OpeningOps, PropEntry, ShapeOps,
-    SparseRows, TracedEntry,
+    CompactEntry, DeltaSource, DrtOps, Matrix, PropEntry, SparseRows, TracedEntry,
 };
 use lightfarm_proto::testing::{
-    allocs, drt_bundle, join_sections, layout, matrix, probe_bundle, random_full, CountingAlloc,
-    Lcg, N_PROBES,
+    allocs, blocks, drt_bundle, join_sections, layout, matrix, probe_bundle, random_full, shape,
+    CountingAlloc, Lcg, N_PROBES,
 };
 
 mod bounces;
@@ -50,51 +49,10 @@ fn bundle(rng: &mut Lcg, transport: Option<TransportOps>, full: bool) -> Bundle 
     );
     let n = layout.n_texels();
     let shapes = vec![
-        ShapeOps {
-            key: "s0".into(),
-            u_b: matrix(rng, 4, 2),
-            t_db: matrix(rng, 2, 4),
-            openings: vec![
-                OpeningOps {
-                    face: 1,
-                    u_r: matrix(rng, 4, 3),
-                },
-                OpeningOps {
-                    face: 4,
-                    u_r: matrix(rng, 4, 2),
-                },
-            ],
-        },
-        ShapeOps {
-            key: "s1".into(),
-            u_b: matrix(rng, 11, 3),
-            t_db: matrix(rng, 3, 11),
-            openings: vec![OpeningOps {
-                face: 0,
-                u_r: matrix(rng, 11, 2),
-            }],
-        },
+        shape(rng, "s0", 4, 2, &[(1, 3), (4, 2)]),
+        shape(rng, "s1", 11, 3, &[(0, 2)]),
     ];
-    let blocks = vec![
-        BlockOps {
-            symmetry: None,
-            id: "a".into(),
-            shape: 0,
-            texel_offset: 0,
-        },
-        BlockOps {
-            symmetry: None,
-            id: "b".into(),
-            shape: 1,
-            texel_offset: 4,
-        },
-        BlockOps {
-            symmetry: None,
-            id: "c".into(),
-            shape: 0,
-            texel_offset: 15,
-        },
-    ];
+    let blocks = blocks(&[("a", 0, 0), ("b", 1, 4), ("c", 0, 15)]);
     let full = full.then(|| random_full(rng, n));
     Bundle {
         layout,

@@ -6,7 +6,9 @@
 //! - [`rays`]: the two ray passes (block texels toward clutter, clutter texels) and their reuse
 //!   across bakes, bounded by [`reach`] (the region a texel's rays swept); stored on disk by
 //!   [`crate::bake::cache::drt_rays`].
-//! - [`build`]: the delta operators `ΔU_b`, `ΔU_c`, `C_b` and the exact gather, from the rays.
+//! - [`build`]: the delta operators `ΔU_b`, `ΔU_c`, `C_b` and the exact gather, from the rays
+//!   ([`build::DrtInputs`]: what it reads), accumulated as [`rows`]; buried block texels get
+//!   [`inpaint`]ed transport.
 //! - [`compaction`]: their low-rank form, where smaller.
 //! - [`error`]: [`error::DrtError`], why a DRT build failed (rays and build share it).
 //! - [`lit_source`]: [`lit_source::LitSource`], the block or clutter object a row reads (the
@@ -17,6 +19,8 @@ pub mod clutter_basis;
 pub mod clutter_sampling;
 pub mod compaction;
 pub mod error;
+pub mod inpaint;
 pub mod lit_source;
 pub mod rays;
 pub mod reach;
+pub mod rows;

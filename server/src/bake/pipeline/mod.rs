@@ -22,7 +22,7 @@ use lightfarm_proto::scene::{Scene, SceneError, Transport};
 
 use crate::bake::cache::shape::ShapeCache;
 use crate::bake::cache::transport::CachedTransport;
-use crate::bake::drt::build::DrtStats;
+use crate::bake::drt::build::{DrtInputs, DrtStats};
 use crate::bake::drt::compaction::DeltaCompactionStats;
 use crate::bake::mrt::shape::{ShapeError, ShapeOperators};
 use crate::bake::progress::Progress;
@@ -148,16 +148,15 @@ pub fn bake(
     announce(&bundle);
     lap(&mut report, "transport");
 
-    let drt = stages::clutter_operators(
+    let drt_inputs = DrtInputs {
         scene,
-        &openings,
-        &full_geometry,
-        &block_geometry,
-        &per_block,
-        &mrt,
-        cache,
-        progress,
-    )?;
+        openings: &openings,
+        geometry: &full_geometry,
+        block_geometry: &block_geometry,
+        shapes: &per_block,
+        mrt: &mrt,
+    };
+    let drt = stages::clutter_operators(&drt_inputs, cache, progress)?;
     if let Some(ops) = &drt {
         report.drt = Some(ops.stats.clone());
         let (section, stats) = to_bundle::drt_section(&bundle, ops, &scene.settings)?;

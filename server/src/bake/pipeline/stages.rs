@@ -16,7 +16,7 @@ use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
 use crate::bake::cache::shape::{Lookup, ShapeCache};
 use crate::bake::cache::transport::{transport_key, CachedTransport, TransportCache};
 use crate::bake::dnrt::grid::bake_dnrt_grid;
-use crate::bake::drt::build::{build_drt, DrtOperators};
+use crate::bake::drt::build::{build_drt, DrtInputs, DrtOperators};
 use crate::bake::drt::rays::DrtRayCache;
 use crate::bake::math::sampling::Purpose;
 use crate::bake::mrt::one_bounce::gather_rows;
@@ -176,37 +176,22 @@ pub fn mrt_transport(
 
 /// DRT: the clutter operators (None for a scene without clutter), with the DRT ray passes
 /// cached beside the shapes.
-#[allow(clippy::too_many_arguments)]
 pub fn clutter_operators(
-    scene: &Scene,
-    openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
-    full_geometry: &Geometry,
-    block_geometry: &Geometry,
-    per_block: &[&ShapeOperators],
-    mrt: &MrtTransport,
+    inputs: &DrtInputs,
     cache: Option<&ShapeCache>,
     progress: &dyn Progress,
 ) -> Result<Option<DrtOperators>, BakeError> {
-    if scene.clutter.is_empty() {
+    if inputs.scene.clutter.is_empty() {
         return Ok(None);
     }
-    let n = full_geometry.texels.len() as u64;
+    let n = inputs.geometry.texels.len() as u64;
     progress.stage("clutter operators", n);
     let ray_cache = match cache {
         Some(c) => Some(DrtRayCache::open(c.dir())?),
         None => None,
     };
-    let ops = build_drt(
-        scene,
-        openings,
-        full_geometry,
-        block_geometry,
-        per_block,
-        mrt,
-        ray_cache.as_ref(),
-        &|k| progress.advance(k),
-    )
-    .map_err(|source| BakeError::Drt(source.to_string()))?;
+    let ops = build_drt(inputs, ray_cache.as_ref(), &|k| progress.advance(k))
+        .map_err(|source| BakeError::Drt(source.to_string()))?;
     Ok(Some(ops))
 }
 

@@ -12,6 +12,8 @@
 //! Invariant: every stored colour and texel is finite and in [0, 1]; [`MeshAlbedo::at`] never
 //! panics for any triangle index below `triangles.len()` and any barycentric coordinates.
 
+use glam::DVec3;
+
 /// A base-colour texture, decoded to linear RGB.
 #[derive(Clone, Debug, PartialEq)]
 pub struct AlbedoTexture {
@@ -163,11 +165,10 @@ impl SurfaceAlbedo<'_> {
 /// Barycentric coordinates of `p` projected onto the triangle's plane (clamped into the
 /// triangle; a degenerate triangle gives its centroid).
 pub fn barycentric(v: &[[f64; 3]; 3], p: [f64; 3]) -> [f64; 3] {
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let (e1, e2, d) = (sub(v[1], v[0]), sub(v[2], v[0]), sub(p, v[0]));
-    let (d11, d12, d22) = (dot(e1, e1), dot(e1, e2), dot(e2, e2));
-    let (d1, d2) = (dot(d, e1), dot(d, e2));
+    let [v0, v1, v2] = v.map(DVec3::from);
+    let (e1, e2, d) = (v1 - v0, v2 - v0, DVec3::from(p) - v0);
+    let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let (d1, d2) = (d.dot(e1), d.dot(e2));
     let den = d11 * d22 - d12 * d12;
     if den.is_nan() || den <= 0.0 {
         return [1.0 / 3.0; 3];

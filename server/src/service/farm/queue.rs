@@ -108,27 +108,7 @@ impl FarmJobs {
             };
             owners.insert(request.team.clone());
             let job = FarmJob {
-                record: JobRecord {
-                    id: request.id.clone(),
-                    scene: request.scene.clone(),
-                    settings: request.settings.clone(),
-                    owners,
-                    state: JobState::Queued,
-                    stage: None,
-                    stage_done: 0,
-                    stage_total: 0,
-                    stages_seen: 0,
-                    expected_stages: request.expected_stages.max(1),
-                    overall: 0.0,
-                    stages: Vec::new(),
-                    error: None,
-                    bundle: None,
-                    bundle_bytes: None,
-                    submitted_at: unix_now(),
-                    finished_at: None,
-                    shape_keys: Vec::new(),
-                    inputs: request.inputs.clone(),
-                },
+                record: JobRecord::queued(&request, owners),
                 attempt,
             };
             let written = match &existing {

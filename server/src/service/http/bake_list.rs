@@ -6,7 +6,6 @@
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
-use axum::http::StatusCode;
 use axum::Json;
 use serde::Deserialize;
 use utoipa::IntoParams;
@@ -15,7 +14,7 @@ use lightfarm_proto::api::{ApiError, BakeList, JobState};
 
 use super::auth::Caller;
 use super::error::{blocking, ApiFailure};
-use super::paging::{page, page_limit, Cursor};
+use super::paging::{page, page_request};
 use super::AppState;
 
 /// Query of `GET /v1/bakes`.
@@ -49,10 +48,8 @@ pub async fn list_bakes(
     Caller(team): Caller,
     query: Result<Query<BakeListQuery>, QueryRejection>,
 ) -> Result<Json<BakeList>, ApiFailure> {
-    let Query(query) =
-        query.map_err(|r| ApiFailure::new(StatusCode::BAD_REQUEST, r.body_text()))?;
-    let limit = page_limit(query.limit)?;
-    let cursor = query.cursor.as_deref().map(Cursor::parse).transpose()?;
+    let Query(query) = query.map_err(ApiFailure::bad_query)?;
+    let (limit, cursor) = page_request(query.limit, query.cursor.as_deref())?;
     let jobs = state.jobs.clone();
     let all = blocking(move || Ok(jobs.list(&team))).await?;
     let items = all

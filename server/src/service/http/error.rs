@@ -37,6 +37,12 @@ impl ApiFailure {
         ApiFailure::new(StatusCode::UNPROCESSABLE_ENTITY, message)
     }
 
+    /// A 400 for a query string the handler's query type does not accept (axum's message
+    /// names the parameter).
+    pub fn bad_query(rejection: axum::extract::rejection::QueryRejection) -> ApiFailure {
+        ApiFailure::new(StatusCode::BAD_REQUEST, rejection.body_text())
+    }
+
     pub fn too_large(message: impl Into<String>) -> ApiFailure {
         ApiFailure::new(StatusCode::PAYLOAD_TOO_LARGE, message)
     }

@@ -56,6 +56,14 @@ fn bad_request(message: &str) -> ApiFailure {
     ApiFailure::new(StatusCode::BAD_REQUEST, message)
 }
 
+/// The page a listing's query asks for: its size ([`page_limit`]) and where it starts.
+pub fn page_request(
+    limit: Option<u32>,
+    cursor: Option<&str>,
+) -> Result<(usize, Option<Cursor>), ApiFailure> {
+    Ok((page_limit(limit)?, cursor.map(Cursor::parse).transpose()?))
+}
+
 /// The page size a request asked for.
 pub fn page_limit(limit: Option<u32>) -> Result<usize, ApiFailure> {
     match limit {

@@ -7,19 +7,18 @@
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
-use axum::http::StatusCode;
 use axum::Json;
 use serde::Deserialize;
 use utoipa::IntoParams;
 
-use lightfarm_proto::api::{ApiError, SceneCreated, SceneList};
+use lightfarm_proto::api::{ApiError, SceneList};
 use lightfarm_proto::scene::Scene;
 
 use super::auth::Caller;
 use super::error::{blocking, ApiFailure};
-use super::paging::{page, page_limit, Cursor};
+use super::paging::{page, page_request};
 use super::AppState;
-use crate::service::scene_inputs::texel_count;
+use crate::service::scene_inputs::scene_summary;
 use crate::service::store::BlobKind;
 
 /// Query of `GET /v1/scenes`.
@@ -51,10 +50,8 @@ pub async fn list_scenes(
     Caller(team): Caller,
     query: Result<Query<SceneListQuery>, QueryRejection>,
 ) -> Result<Json<SceneList>, ApiFailure> {
-    let Query(query) =
-        query.map_err(|r| ApiFailure::new(StatusCode::BAD_REQUEST, r.body_text()))?;
-    let limit = page_limit(query.limit)?;
-    let cursor = query.cursor.as_deref().map(Cursor::parse).transpose()?;
+    let Query(query) = query.map_err(ApiFailure::bad_query)?;
+    let (limit, cursor) = page_request(query.limit, query.cursor.as_deref())?;
     let store = state.store.clone();
     let (scenes, next) = blocking(move || {
         let granted = store
@@ -77,14 +74,7 @@ pub async fn list_scenes(
                 .ok()
                 .and_then(|text| Scene::from_json(text).ok())
                 .ok_or_else(|| ApiFailure::internal("stored scene", &id))?;
-            scenes.push(SceneCreated {
-                id,
-                name: scene.name.clone(),
-                blocks: scene.blocks.len() as u64,
-                clutter: scene.clutter.len() as u64,
-                dynamic: scene.dynamic.len() as u64,
-                texels: texel_count(&scene),
-            });
+            scenes.push(scene_summary(id, &scene));
         }
         Ok((scenes, next))
     })

@@ -17,7 +17,7 @@ use lightfarm_proto::scene::Scene;
 use super::auth::Caller;
 use super::error::{blocking, body_failure, ApiFailure};
 use super::AppState;
-use crate::service::scene_inputs::{canonical_json, rewrite_meshes, texel_count, AssetFormat};
+use crate::service::scene_inputs::{canonical_json, rewrite_meshes, scene_summary, AssetFormat};
 use crate::service::store::BlobKind;
 
 /// Validate and store a scene.
@@ -70,14 +70,7 @@ pub async fn create_scene(
         store
             .grant(&team, BlobKind::Scene, &id)
             .map_err(|e| ApiFailure::internal("store", e))?;
-        Ok(SceneCreated {
-            id,
-            name: scene.name.clone(),
-            blocks: scene.blocks.len() as u64,
-            clutter: scene.clutter.len() as u64,
-            dynamic: scene.dynamic.len() as u64,
-            texels: texel_count(&scene),
-        })
+        Ok(scene_summary(id, &scene))
     })
     .await?;
     Ok((StatusCode::CREATED, Json(created)))

@@ -1,0 +1,62 @@
+//! DRT sections of the kinds older writers chose (6 without low-rank entries, 11 with them)
+//! still decode, to the same [`Bundle`] the current writer's kind 13 gives. The writer now
+//! writes kind 13 only, with an empty replaced-texel list when nothing is replaced, so these
+//! bytes come from bundles already on disk (1.x files, and 2.0 bundles of earlier writers).
+
+use lightfarm_proto::bundle::{section, Bundle, DeltaSource};
+use lightfarm_proto::testing::{drt_bundle, join_sections, Lcg};
+
+/// The test bundle, without its low-rank and direct-light entries when `low_rank` is false
+/// (a kind 6 section could not hold them).
+fn bundle(rng: &mut Lcg, low_rank: bool) -> Bundle {
+    let mut b = drt_bundle(rng, false, true, false);
+    if !low_rank {
+        let entries = &mut b.drt.as_mut().unwrap().entries;
+        entries.retain(|e| e.mix.is_none() && !matches!(e.source, DeltaSource::Direct { .. }));
+        assert!(!entries.is_empty());
+    }
+    b
+}
+
+/// `b`'s raw sections with its DRT section turned into `kind` (kind 13's payload without the
+/// trailing `replaced:u32s`, which must be empty).
+fn with_drt_kind(b: &Bundle, kind: u32) -> Vec<u8> {
+    let mut sections = b.raw_sections();
+    let drt = sections
+        .iter_mut()
+        .find(|(k, _)| *k == section::DRT_REPLACING)
+        .expect("the writer writes DRT as kind 13");
+    // An empty u32 list is its u64 length, 0.
+    let tail = drt.1.split_off(drt.1.len() - 8);
+    assert_eq!(tail, [0u8; 8], "replaced list not empty");
+    drt.0 = kind;
+    join_sections(&sections)
+}
+
+#[test]
+fn the_writer_writes_only_kind_13() {
+    let mut rng = Lcg(61);
+    for (low_rank, replaced) in [(false, false), (true, false), (true, true)] {
+        let mut b = bundle(&mut rng, low_rank);
+        if replaced {
+            b.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
+        }
+        let kinds: Vec<u32> = b.raw_sections().iter().map(|(k, _)| *k).collect();
+        assert!(kinds.contains(&section::DRT_REPLACING), "{kinds:?}");
+        assert!(!kinds.contains(&section::DRT), "{kinds:?}");
+        assert!(!kinds.contains(&section::DRT_LOW_RANK), "{kinds:?}");
+        assert_eq!(Bundle::decode(&b.encode()).expect("decodes"), b);
+    }
+}
+
+#[test]
+fn kinds_6_and_11_decode_as_kind_13_with_nothing_replaced() {
+    let mut rng = Lcg(62);
+    // Without low-rank entries (what kind 6 held) and with them (kind 11).
+    for (low_rank, kind) in [(false, section::DRT), (true, section::DRT_LOW_RANK)] {
+        let b = bundle(&mut rng, low_rank);
+        assert!(b.drt.as_ref().unwrap().replaced.is_empty());
+        let older = Bundle::decode(&with_drt_kind(&b, kind)).expect("older kind decodes");
+        assert_eq!(older, b, "kind {kind}");
+    }
+}
