@@ -1,7 +1,10 @@
 //! The C ABI end to end: bake the Cornell box, compile `client/capi/examples/apply.c` with the
 //! system C compiler against the `liblightfarm` shared library cargo built for this test, run it
 //! on the bundle and two lights, and check that its checksums equal the ones the Rust client
-//! computes through `Runtime::apply` on the same direct light, both at their default (all bounces).
+//! computes through `Runtime::apply` on the same direct light, both at their default (all bounces);
+//! then that the example's engine path (unshadowed direct light it computes itself from the
+//! layout queries, through the lightmap atlas) matches the client's centre-sampled direct light
+//! without occluders, applied the same way, and that its surfaces and atlas are the bundle's.
 //!
 //! The library is found beside this test binary: `lightfarm-client-capi` is a dev-dependency
 //! of this crate, so cargo builds its cdylib into `target/<profile>/deps/` (and, when the capi
@@ -12,7 +15,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use lightfarm_client::{
-    direct_from_point_lights_averaged, Bounces, IndirectLight, Light, Method, Occluders, Runtime,
+    direct_from_point_lights, direct_from_point_lights_averaged, Atlas, Bounces, IndirectLight,
+    Light, Method, Occluders, Runtime,
 };
 use lightfarm_proto::lights::LightKind;
 use lightfarm_proto::scene::Transport;
@@ -71,6 +75,7 @@ fn compile_example(dir: &Path) -> PathBuf {
         .arg("-L")
         .arg(&lib_dir)
         .arg("-llightfarm")
+        .arg("-lm")
         .arg(format!("-Wl,-rpath,{}", lib_dir.display()))
         .arg("-o")
         .arg(&exe)
@@ -143,6 +148,16 @@ fn c_example_matches_the_rust_client() {
         &lights,
         lightfarm::LF_DIRECT_SAMPLES_PER_EDGE,
     );
+    // The engine path: centre sampling, no shadows.
+    let unshadowed = lightfarm_proto::bundle::Layout {
+        rects: vec![],
+        triangles: vec![],
+        ..bundle.layout.clone()
+    };
+    let engine_direct =
+        direct_from_point_lights(&unshadowed, &Occluders::from_layout(&unshadowed), &lights);
+    let atlas = Atlas::from_layout_with(&bundle.layout, &bundle.surface_atlases);
+    let surfaces = bundle.layout.surfaces.clone();
     let mut runtime = Runtime::try_new(bundle).unwrap();
     assert!(runtime.has_drt(), "the Cornell box has clutter");
     // The C runtime sums all bounces unless told otherwise, like the Rust client's default.
@@ -195,6 +210,36 @@ fn c_example_matches_the_rust_client() {
         "direct_checksum",
         number(line, "direct_checksum"),
         sum(&direct.radiance),
+    );
+
+    assert_eq!(
+        field(line, "surfaces").parse::<usize>().unwrap(),
+        surfaces.len()
+    );
+    assert_eq!(field(line, "first_surface"), surfaces[0].name);
+    assert_eq!(
+        field(line, "atlas"),
+        format!("{}x{}", atlas.width, atlas.height)
+    );
+    let mut engine_indirect = IndirectLight::default();
+    runtime
+        .apply(
+            Method::Drt,
+            Bounces::default(),
+            &engine_direct,
+            &mut engine_indirect,
+        )
+        .unwrap();
+    assert!(sum(&engine_direct.radiance) > 0.0);
+    assert_close(
+        "engine_direct_checksum",
+        number(line, "engine_direct_checksum"),
+        sum(&engine_direct.radiance),
+    );
+    assert_close(
+        "engine_checksum",
+        number(line, "engine_checksum"),
+        sum(&engine_indirect.radiance),
     );
 
     // A file that is not a bundle: exit status 1 and the library's reason on stderr.

@@ -6,17 +6,25 @@
  * intensity in W/sr per channel); blank lines and lines starting with '#' are skipped.
  *
  * Loads the bundle, computes direct light from the lights, applies DRT if the bundle has it
- * (else MRT) and prints one line:
+ * (else MRT), then does it again the way an engine with its own direct light does: reads the
+ * texel layout (centres, normals, albedo) and each texel's lightmap-atlas pixel, computes
+ * unshadowed direct light from the same lights into an atlas image (an engine would render it
+ * there on the GPU, with its own shadows), gathers it by texel, applies it and scatters the
+ * indirect light back into the atlas. Prints one line:
  *
- *   texels=N method=drt|mrt checksum=S max=M direct_checksum=D
+ *   texels=N method=drt|mrt applications=A checksum=S max=M direct_checksum=D surfaces=K
+ *   first_surface=NAME atlas=WxH engine_direct_checksum=ED engine_checksum=E
  *
- * with S the sum of every output float, M the largest and D the sum of the direct light (sums
- * in double, in buffer order). Exit status 0 on success, 1 on any error (message on stderr).
+ * with S the sum of every output float, M the largest, D the sum of the direct light, ED the
+ * sum of the engine's direct light and E the sum of the engine path's indirect-light atlas
+ * (sums in double, in buffer or row order). Exit status 0 on success, 1 on any error (message
+ * on stderr).
  *
  * Build (from the repository root, after `cargo build --release -p lightfarm-client-capi`):
  *   cc -std=c99 -Wall -Wextra -I client/capi/include client/capi/examples/apply.c \
- *      -L target/release -llightfarm -Wl,-rpath,"$PWD/target/release" -o apply
+ *      -L target/release -llightfarm -lm -Wl,-rpath,"$PWD/target/release" -o apply
  */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 
@@ -28,6 +36,115 @@ static int fail(void) {
     lf_last_error(message, sizeof message);
     fprintf(stderr, "error: %s\n", message);
     return 1;
+}
+
+/* Checks the layout's surfaces: contiguous, in order, covering every texel; prints
+ * "surfaces=K first_surface=NAME ". Returns 0, or 1 on error. */
+static int check_surfaces(const LfRuntime *rt) {
+    size_t k, count = lf_runtime_surface_count(rt);
+    uint32_t next = 0;
+    for (k = 0; k < count; k++) {
+        uint32_t offset, texels;
+        /* First ask for the name's size, then copy it. */
+        int64_t needed = lf_runtime_surface(rt, k, NULL, 0, NULL, NULL);
+        char *name;
+        if (needed < 0) return fail();
+        name = malloc((size_t)needed);
+        if (!name) { fprintf(stderr, "out of memory\n"); return 1; }
+        if (lf_runtime_surface(rt, k, name, (size_t)needed, &offset, &texels) != needed) {
+            free(name);
+            return fail();
+        }
+        if (offset != next) {
+            fprintf(stderr, "surface %s starts at texel %u, not %u\n", name, (unsigned)offset,
+                    (unsigned)next);
+            free(name);
+            return 1;
+        }
+        if (k == 0) printf("surfaces=%zu first_surface=%s ", count, name);
+        next += texels;
+        free(name);
+    }
+    if (next != lf_runtime_texel_count(rt)) {
+        fprintf(stderr, "surfaces cover %u texels, not %zu\n", (unsigned)next,
+                lf_runtime_texel_count(rt));
+        return 1;
+    }
+    return 0;
+}
+
+/* The engine path: direct light at each texel centre, rho/pi * sum I * max(cos, 0) / r^2 (no
+ * shadows here; an engine applies its own), written into the lightmap atlas, gathered by
+ * texel, applied, and the indirect light scattered back into the atlas. Prints
+ * "atlas=WxH engine_direct_checksum=ED engine_checksum=E". Returns 0, or 1 on error. */
+static int engine_path(LfRuntime *rt, int32_t method, const LfPointLight *lights,
+                       long n_lights) {
+    const double inv_pi = 0.31830988618379067154;
+    size_t n = lf_runtime_texel_count(rt), t, c, i;
+    uint32_t width, height;
+    float *pos = malloc(3 * n * sizeof *pos), *nrm = malloc(3 * n * sizeof *nrm);
+    float *rho = malloc(3 * n * sizeof *rho), *direct = malloc(3 * n * sizeof *direct);
+    float *indirect = malloc(3 * n * sizeof *indirect), *image = NULL;
+    uint32_t *xy = malloc(2 * n * sizeof *xy);
+    double direct_sum = 0.0, atlas_sum = 0.0;
+    int result = 1;
+
+    if (!pos || !nrm || !rho || !direct || !indirect || !xy) {
+        fprintf(stderr, "out of memory\n");
+        goto out;
+    }
+    if (lf_runtime_texel_positions(rt, pos, 3 * n) != LF_STATUS_OK ||
+        lf_runtime_texel_normals(rt, nrm, 3 * n) != LF_STATUS_OK ||
+        lf_runtime_texel_albedo(rt, rho, 3 * n) != LF_STATUS_OK ||
+        lf_runtime_atlas_size(rt, &width, &height) != LF_STATUS_OK ||
+        lf_runtime_atlas_texels(rt, xy, 2 * n) != LF_STATUS_OK) {
+        result = fail();
+        goto out;
+    }
+    image = calloc(3 * (size_t)width * height, sizeof *image);
+    if (!image) {
+        fprintf(stderr, "out of memory\n");
+        goto out;
+    }
+
+    /* "Render" direct light into the atlas: texel t owns pixel (xy[2t], xy[2t+1]). */
+    for (t = 0; t < n; t++) {
+        double e[3] = {0.0, 0.0, 0.0};
+        float *pixel = image + 3 * ((size_t)xy[2 * t + 1] * width + xy[2 * t]);
+        for (i = 0; i < (size_t)n_lights; i++) {
+            double d[3], r2 = 0.0, cosine = 0.0;
+            for (c = 0; c < 3; c++) {
+                d[c] = (double)lights[i].position[c] - pos[3 * t + c];
+                r2 += d[c] * d[c];
+                cosine += nrm[3 * t + c] * d[c];
+            }
+            if (r2 <= 0.0 || cosine <= 0.0) continue;
+            cosine /= sqrt(r2);
+            for (c = 0; c < 3; c++) e[c] += lights[i].intensity[c] * cosine / r2;
+        }
+        for (c = 0; c < 3; c++) pixel[c] = (float)(rho[3 * t + c] * inv_pi * e[c]);
+    }
+    /* Gather it into the vector lf_runtime_apply takes, apply, scatter the result back. */
+    for (t = 0; t < n; t++)
+        for (c = 0; c < 3; c++) {
+            direct[3 * t + c] = image[3 * ((size_t)xy[2 * t + 1] * width + xy[2 * t]) + c];
+            direct_sum += direct[3 * t + c];
+        }
+    if (lf_runtime_apply(rt, method, direct, 3 * n, indirect, 3 * n) != LF_STATUS_OK) {
+        result = fail();
+        goto out;
+    }
+    for (i = 0; i < 3 * (size_t)width * height; i++) image[i] = 0.0f;
+    for (t = 0; t < n; t++)
+        for (c = 0; c < 3; c++)
+            image[3 * ((size_t)xy[2 * t + 1] * width + xy[2 * t]) + c] = indirect[3 * t + c];
+    for (i = 0; i < 3 * (size_t)width * height; i++) atlas_sum += image[i];
+    printf("atlas=%ux%u engine_direct_checksum=%.6e engine_checksum=%.6e", (unsigned)width,
+           (unsigned)height, direct_sum, atlas_sum);
+    result = 0;
+out:
+    free(pos); free(nrm); free(rho); free(direct); free(indirect); free(xy); free(image);
+    return result;
 }
 
 /* Reads a whole file; NULL on error. */
@@ -130,9 +247,11 @@ int main(int argc, char **argv) {
         direct_checksum += direct[i];
         if (indirect[i] > max) max = indirect[i];
     }
-    printf("texels=%zu method=%s applications=%u checksum=%.6e max=%.6e direct_checksum=%.6e\n",
+    printf("texels=%zu method=%s applications=%u checksum=%.6e max=%.6e direct_checksum=%.6e ",
            n_floats / 3, method == LF_METHOD_DRT ? "drt" : "mrt",
            (unsigned)lf_runtime_last_bounces(rt), checksum, max, direct_checksum);
+    if (check_surfaces(rt) || engine_path(rt, method, lights, n_lights)) return 1;
+    printf("\n");
 
     lf_runtime_free(rt);
     free(direct);

@@ -30,7 +30,8 @@ enum LfStatus
    */
   LF_STATUS_NULL_POINTER = -1,
   /**
-   * A buffer length (in floats) is not `3 x texels`.
+   * A buffer length (in elements) is not its per-texel count times the texels (`3 x texels`
+   * floats for an RGB vector).
    */
   LF_STATUS_BAD_LENGTH = -2,
   /**
@@ -63,6 +64,10 @@ enum LfStatus
    * value; the output was not written (`lf_last_error` says which).
    */
   LF_STATUS_NOT_CONVERGING = -9,
+  /**
+   * An index is not below its count (`lf_runtime_surface` past `lf_runtime_surface_count`).
+   */
+  LF_STATUS_BAD_INDEX = -10,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -157,6 +162,136 @@ int32_t lf_runtime_direct_from_point_lights(const LfRuntime *rt,
  * whatever `cap` is.
  */
 size_t lf_last_error(char *buf, size_t cap);
+
+/**
+ * Writes the centre of every texel (world frame, metres) to `out`: `len` = `3 x texels` floats,
+ * `x y z` per texel in layout order.
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER` (`rt`, or `out` with `len > 0`),
+ * `LF_STATUS_BAD_LENGTH` or `LF_STATUS_PANIC`. `out` is written only on success.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`. `out` must be NULL or point to
+ * `len` writable floats that no other thread reads or writes during the call.
+ */
+int32_t lf_runtime_texel_positions(const LfRuntime *rt, float *out, size_t len);
+
+/**
+ * Writes the unit normal of every texel (world frame, on the lit side) to `out`:
+ * `len` = `3 x texels` floats, `x y z` per texel in layout order.
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER` (`rt`, or `out` with `len > 0`),
+ * `LF_STATUS_BAD_LENGTH` or `LF_STATUS_PANIC`. `out` is written only on success.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`. `out` must be NULL or point to
+ * `len` writable floats that no other thread reads or writes during the call.
+ */
+int32_t lf_runtime_texel_normals(const LfRuntime *rt, float *out, size_t len);
+
+/**
+ * Writes the diffuse albedo of every texel (linear RGB, each in `[0, 1)`) to `out`:
+ * `len` = `3 x texels` floats, `r g b` per texel in layout order.
+ *
+ * Direct light handed to `lf_runtime_apply` is outgoing radiance, so it includes this albedo:
+ * for a point light of intensity `I` (W/sr) at distance `r`, `albedo / pi * I * cos / r^2`
+ * (times visibility) per channel.
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER` (`rt`, or `out` with `len > 0`),
+ * `LF_STATUS_BAD_LENGTH` or `LF_STATUS_PANIC`. `out` is written only on success.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`. `out` must be NULL or point to
+ * `len` writable floats that no other thread reads or writes during the call.
+ */
+int32_t lf_runtime_texel_albedo(const LfRuntime *rt, float *out, size_t len);
+
+/**
+ * Writes the size of every texel (metres) to `out`: `len` = `2 x texels` floats, `su sv` per
+ * texel in layout order.
+ *
+ * `su` and `sv` are the texel's extents along the two world axes other than its normal's
+ * dominant axis (the axis of the largest `|n|` component, the lower one on a tie), in
+ * ascending axis order: `(y, z)` for an x-dominant normal, `(x, z)` for y, `(x, y)` for z.
+ * A slanted (mesh) texel's are the extents of its footprint projected along the dominant
+ * axis. The texel covers `centre ± su/2, ± sv/2` along those axes (lifted onto its plane), the
+ * area `lf_runtime_direct_from_point_lights` averages over.
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER` (`rt`, or `out` with `len > 0`),
+ * `LF_STATUS_BAD_LENGTH` or `LF_STATUS_PANIC`. `out` is written only on success.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`. `out` must be NULL or point to
+ * `len` writable floats that no other thread reads or writes during the call.
+ */
+int32_t lf_runtime_texel_sizes(const LfRuntime *rt, float *out, size_t len);
+
+/**
+ * Writes the lightmap atlas's size in pixels to `*width` and `*height`: the image every texel
+ * has a pixel in (`lf_runtime_atlas_texels`), the same atlas as the lightmap files of
+ * `lightfarm eval` (block faces and box clutter as tiles, mesh clutter as its own images below
+ * them). Pixels no texel lands in are unused.
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER` (`rt`, `width` or `height`) or
+ * `LF_STATUS_PANIC`; the outputs are written only on success.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`; `width` and `height` must each be
+ * NULL or point to a writable `uint32_t`.
+ */
+int32_t lf_runtime_atlas_size(const LfRuntime *rt, uint32_t *width, uint32_t *height);
+
+/**
+ * Writes the atlas pixel of every texel to `xy`: `len` = `2 x texels` integers, `x y` per
+ * texel in layout order (`0 <= x < width`, `0 <= y < height` of `lf_runtime_atlas_size`, origin
+ * top left, y down). Tiles and mesh images do not overlap, so an engine can render direct
+ * light into the atlas and gather it into `lf_runtime_apply`'s vector (`direct[3t + c] =
+ * image[xy[2t + 1]][xy[2t]][c]`), or scatter the indirect light back into the image.
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER` (`rt`, or `xy` with `len > 0`),
+ * `LF_STATUS_BAD_LENGTH` or `LF_STATUS_PANIC`. `xy` is written only on success.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`. `xy` must be NULL or point to
+ * `len` writable `uint32_t`s that no other thread reads or writes during the call.
+ */
+int32_t lf_runtime_atlas_texels(const LfRuntime *rt, uint32_t *xy, size_t len);
+
+/**
+ * Number of surfaces of the bundle's layout (`lf_runtime_surface` takes `0` to this minus 1);
+ * 0 for NULL.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`.
+ */
+size_t lf_runtime_surface_count(const LfRuntime *rt);
+
+/**
+ * Describes surface `index`: its name, and the texels it owns, `texel_offset` to
+ * `texel_offset + texel_count - 1` in layout order (surfaces are contiguous and in order).
+ *
+ * The name (`block:<id>/<face>` for a block face, face one of `-x +x -y +y -z +z`, or
+ * `clutter:<id>` for a clutter object) is copied into `name` as a NUL-terminated string, cut
+ * to `cap - 1` bytes (at a UTF-8 character boundary) if it is longer, as `lf_last_error` does.
+ * `name` may be NULL when `cap` is 0 (to ask for the size only); `texel_offset` and
+ * `texel_count` may be NULL when not wanted.
+ *
+ * Returns the buffer size the whole name needs, NUL included (at least 1; the copy is
+ * complete when the result is <= `cap`), or a negative `LfStatus`: `LF_STATUS_NULL_POINTER`
+ * (`rt`, or `name` with `cap > 0`), `LF_STATUS_BAD_INDEX` (`index` is not below
+ * `lf_runtime_surface_count`) or `LF_STATUS_PANIC`. Nothing is written on failure.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`. `name` must be NULL or point to
+ * `cap` writable bytes; `texel_offset` and `texel_count` must each be NULL or point to a
+ * writable `uint32_t`; no other thread may read or write them during the call.
+ */
+int64_t lf_runtime_surface(const LfRuntime *rt,
+                           size_t index,
+                           char *name,
+                           size_t cap,
+                           uint32_t *texel_offset,
+                           uint32_t *texel_count);
 
 /**
  * Loads a bundle (the bytes of an `.lfb` file; they are copied, so the caller may free them

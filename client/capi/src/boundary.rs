@@ -5,12 +5,17 @@
 //! - [`status_call`] returns [`LfStatus::Ok`] (0) exactly when its body returned `Ok`; every
 //!   error or caught panic gives a negative code and sets the thread's last error.
 //! - [`pointer_call`] returns a non-NULL pointer exactly when its body returned `Ok`.
+//! - [`size_call`] returns a size (>= 0) exactly when its body returned `Ok`, else a negative
+//!   [`LfStatus`] as `int64_t`.
 //! - [`slice`] / [`slice_mut`] never build a slice from a NULL pointer; a zero length gives
 //!   an empty slice whatever the pointer.
+//! - [`write_c_string`] always leaves a NUL-terminated string holding no other NUL when it
+//!   writes at all.
 //! - Bodies run under `AssertUnwindSafe`: after a caught panic an `LfRuntime` stays usable
 //!   because the client runtime refills every scratch buffer it reads on each call.
 
 use std::any::Any;
+use std::ffi::c_char;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
 use crate::last_error::set_last_error;
@@ -45,6 +50,19 @@ pub(crate) fn status_call(
     match guarded(function, body) {
         Ok(()) => LfStatus::Ok as i32,
         Err(e) => e.status() as i32,
+    }
+}
+
+/// For entry points that return a size (bytes a string needs) as `int64_t`, or a negative
+/// `LfStatus` on error or panic.
+pub(crate) fn size_call(
+    function: &'static str,
+    body: impl FnOnce() -> Result<usize, CapiError>,
+) -> i64 {
+    match guarded(function, body) {
+        // A size fits: it counts bytes of one allocation, at most `isize::MAX`.
+        Ok(size) => size as i64,
+        Err(e) => e.status() as i64,
     }
 }
 
@@ -101,6 +119,30 @@ pub(crate) unsafe fn slice_mut<'a, T>(
     }
 }
 
+/// Copies `text` into `buf` as a NUL-terminated C string, cut to `cap - 1` bytes at a UTF-8
+/// character boundary if it is longer, each NUL byte of `text` written as a space (so C sees
+/// the whole text as one string); writes nothing when `buf` is NULL or `cap` is 0.
+///
+/// Returns the buffer size the whole text needs, NUL included: `text.len() + 1`.
+///
+/// # Safety
+/// `buf` must be NULL or point to `cap` writable bytes.
+pub(crate) unsafe fn write_c_string(text: &str, buf: *mut c_char, cap: usize) -> usize {
+    if !buf.is_null() && cap > 0 {
+        let mut n = text.len().min(cap - 1);
+        while !text.is_char_boundary(n) {
+            n -= 1;
+        }
+        // SAFETY: the caller guarantees `cap` writable bytes at `buf`, and n + 1 <= cap.
+        let out = unsafe { std::slice::from_raw_parts_mut(buf.cast::<u8>(), n + 1) };
+        for (o, &b) in out.iter_mut().zip(&text.as_bytes()[..n]) {
+            *o = if b == 0 { b' ' } else { b };
+        }
+        out[n] = 0;
+    }
+    text.len() + 1
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -148,6 +190,36 @@ mod tests {
         let p = pointer_call("lf_z", || Ok(Box::into_raw(Box::new(5u8))));
         // SAFETY: from Box::into_raw just above.
         assert_eq!(*unsafe { Box::from_raw(p) }, 5);
+    }
+
+    #[test]
+    fn sizes_and_statuses_share_one_return_value() {
+        assert_eq!(size_call("lf_s", || Ok(12)), 12);
+        assert_eq!(
+            size_call("lf_s", || Err(CapiError::NullPointer("name"))),
+            LfStatus::NullPointer as i64
+        );
+        assert_eq!(last_error(), "lf_s: name is NULL");
+        assert_eq!(size_call("lf_s", || panic!("size boom")), -7);
+    }
+
+    #[test]
+    fn c_strings_are_cut_at_a_character_and_always_terminated() {
+        let mut buf = [0x55u8; 8];
+        let mut write = |text: &str, cap: usize| {
+            buf.fill(0x55);
+            // SAFETY: `cap` <= 8 writable bytes.
+            let needed = unsafe { write_c_string(text, buf.as_mut_ptr().cast(), cap) };
+            (needed, buf)
+        };
+        assert_eq!(write("abc", 8), (4, *b"abc\0\x55\x55\x55\x55"));
+        assert_eq!(write("abcdefghij", 8), (11, *b"abcdefg\0"));
+        // "é" is two bytes: cutting inside it drops it whole.
+        assert_eq!(write("abcdeé", 7), (8, *b"abcde\0\x55\x55"));
+        assert_eq!(write("a\0b", 8), (4, *b"a b\0\x55\x55\x55\x55"));
+        assert_eq!(write("abc", 0), (4, [0x55; 8]));
+        // SAFETY: NULL: nothing is written.
+        assert_eq!(unsafe { write_c_string("abc", std::ptr::null_mut(), 8) }, 4);
     }
 
     #[test]

@@ -8,6 +8,8 @@
 use std::cell::RefCell;
 use std::ffi::c_char;
 
+use crate::boundary::write_c_string;
+
 thread_local! {
     static LAST_ERROR: RefCell<String> = const { RefCell::new(String::new()) };
 }
@@ -37,21 +39,12 @@ pub unsafe extern "C" fn lf_last_error(buf: *mut c_char, cap: usize) -> usize {
         LAST_ERROR
             .try_with(|last| {
                 let last = last.borrow();
-                if !buf.is_null() && cap > 0 {
-                    let mut n = last.len().min(cap - 1);
-                    while !last.is_char_boundary(n) {
-                        n -= 1;
-                    }
-                    // SAFETY: the caller guarantees `cap` writable bytes at `buf`; n + 1 ≤ cap.
-                    unsafe {
-                        std::ptr::copy_nonoverlapping(last.as_ptr(), buf.cast::<u8>(), n);
-                        *buf.add(n) = 0;
-                    }
-                }
+                // SAFETY: NULL or `cap` writable bytes, per the contract.
+                let needed = unsafe { write_c_string(&last, buf, cap) };
                 if last.is_empty() {
                     0
                 } else {
-                    last.len() + 1
+                    needed
                 }
             })
             .unwrap_or(0)

@@ -2,12 +2,24 @@
 //! this crate; `tests/header.rs` keeps it in sync).
 //!
 //! A C program loads an operator bundle once, then every frame turns direct light into
-//! indirect light:
+//! indirect light. Direct light comes either from the library (point lights, shadow rays on
+//! the CPU) or from the engine itself, computed at the texels the layout describes (centres,
+//! normals, albedo, sizes) or rendered into the lightmap atlas and gathered by texel:
 //!
 //! ```c
 //! LfRuntime *rt = lf_runtime_new(bytes, len);           /* NULL on error: see lf_last_error */
 //! size_t n = 3 * lf_runtime_texel_count(rt);             /* floats per RGB vector */
+//! /* either the library's direct light ... */
 //! lf_runtime_direct_from_point_lights(rt, lights, n_lights, direct, n);
+//! /* ... or the engine's: once at load, the layout (and the atlas pixel of each texel) */
+//! lf_runtime_texel_positions(rt, pos, n);
+//! lf_runtime_texel_normals(rt, nrm, n);
+//! lf_runtime_texel_albedo(rt, rho, n);
+//! lf_runtime_atlas_size(rt, &width, &height);
+//! lf_runtime_atlas_texels(rt, xy, 2 * lf_runtime_texel_count(rt));
+//! /* then every frame, the outgoing radiance of texel t: direct[3t+c] = rho[3t+c] / pi * E_c,
+//!    E the irradiance at pos[t], nrm[t] with the engine's shadows; or render it into the
+//!    width x height atlas and read texel t at pixel (xy[2t], xy[2t+1]) */
 //! int32_t method = lf_runtime_has_drt(rt) ? LF_METHOD_DRT : LF_METHOD_MRT;
 //! lf_runtime_set_bounces(rt, LF_BOUNCES_FEEDBACK, 0.0f);  /* optional: all bounces (converged)
 //!                                                            is the default */
@@ -19,6 +31,8 @@
 //! - [`runtime`]: the opaque [`LfRuntime`] (a client `Runtime` plus its occluders and per-frame
 //!   scratch) and the entry points that create, query, apply and free it.
 //! - [`direct`]: [`LfPointLight`] and direct light from point lights at every texel.
+//! - [`layout`]: the texel layout (centres, normals, albedo, sizes, surfaces) and each texel's
+//!   lightmap-atlas pixel, for engines that compute direct light themselves.
 //! - [`method`]: [`LfMethod`], the C names of the client's methods.
 //! - [`bounces`]: [`LfBounces`], the C names of the client's bounce modes.
 //! - [`status`]: [`LfStatus`], the codes every fallible entry point returns, and [`CapiError`],
@@ -29,11 +43,15 @@
 //!
 //! Conventions (the invariants of the whole ABI):
 //! - Every RGB vector is `3 × texels` floats, texel-major (`r g b r g b ...`), in the bundle's
-//!   layout order; every length argument counts floats and must equal `3 × texels` exactly.
+//!   layout order; so is every other per-texel buffer, with its own count per texel (3 floats
+//!   for positions and normals, 2 floats for texel sizes, 2 integers for atlas pixels). Every
+//!   length argument counts elements (not bytes) and must equal that count × texels exactly.
 //! - No panic crosses the boundary: each entry point runs under `catch_unwind` and reports a
 //!   panic as [`LfStatus::Panic`] (or NULL). This needs the default `panic = "unwind"`.
 //! - A failing call returns a negative [`LfStatus`] (or NULL) and sets the calling thread's
-//!   last error; a successful call leaves it unchanged (like `errno`).
+//!   last error; a successful call leaves it unchanged (like `errno`). A call that copies a
+//!   string out ([`lf_last_error`], [`lf_runtime_surface`]) writes it NUL-terminated, cut to the
+//!   buffer's capacity, and returns the size the whole string needs.
 //! - An [`LfRuntime`] may move between threads but must not be used by two threads at once.
 //! - This crate only wraps `lightfarm_client`; it adds no light-transport math.
 
@@ -41,6 +59,7 @@ pub mod bounces;
 mod boundary;
 pub mod direct;
 pub mod last_error;
+pub mod layout;
 pub mod method;
 pub mod runtime;
 pub mod status;
@@ -48,6 +67,11 @@ pub mod status;
 pub use bounces::LfBounces;
 pub use direct::{lf_runtime_direct_from_point_lights, LfPointLight, LF_DIRECT_SAMPLES_PER_EDGE};
 pub use last_error::lf_last_error;
+pub use layout::{
+    lf_runtime_atlas_size, lf_runtime_atlas_texels, lf_runtime_surface, lf_runtime_surface_count,
+    lf_runtime_texel_albedo, lf_runtime_texel_normals, lf_runtime_texel_positions,
+    lf_runtime_texel_sizes,
+};
 pub use method::LfMethod;
 pub use runtime::{
     lf_runtime_apply, lf_runtime_free, lf_runtime_has_drt, lf_runtime_has_full,

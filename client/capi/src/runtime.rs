@@ -6,10 +6,12 @@
 //! - Its direct and indirect scratch always hold exactly `texels` entries (sized in
 //!   [`lf_runtime_new`]), so [`lf_runtime_apply`] allocates nothing: it copies the caller's
 //!   direct light in, applies, and copies the indirect light out.
+//! - Its lightmap atlas is computed once, in [`lf_runtime_new`], from the bundle it applies, so
+//!   the layout queries of [`crate::layout`] only copy.
 //! - C only ever sees `LfRuntime*` from [`lf_runtime_new`] (a leaked `Box`), and
 //!   [`lf_runtime_free`] is the only place that box is dropped.
 
-use lightfarm_client::{Bounces, DirectLight, IndirectLight, Occluders, Runtime};
+use lightfarm_client::{Atlas, Bounces, DirectLight, IndirectLight, Occluders, Runtime};
 use lightfarm_proto::bundle::Bundle;
 
 use crate::bounces::LfBounces;
@@ -22,6 +24,9 @@ pub struct LfRuntime {
     runtime: Runtime,
     /// Shadow-ray geometry of the bundle, for direct light from point lights.
     occluders: Occluders,
+    /// Where each texel lands in the lightmap atlas (`Atlas::from_layout_with` the bundle's
+    /// surface atlases: the image `lightfarm eval` writes).
+    atlas: Atlas,
     /// Scratch: the caller's direct light, one RGB value per texel.
     direct: DirectLight,
     /// Scratch: the indirect light `apply` writes, one RGB value per texel.
@@ -37,11 +42,13 @@ impl LfRuntime {
     fn load(bytes: &[u8]) -> Result<LfRuntime, CapiError> {
         let bundle = Bundle::decode(bytes)?;
         let occluders = Occluders::from_layout(&bundle.layout);
+        let atlas = Atlas::from_layout_with(&bundle.layout, &bundle.surface_atlases);
         let runtime = Runtime::try_new(bundle)?;
         let n = runtime.n_texels();
         Ok(LfRuntime {
             runtime,
             occluders,
+            atlas,
             direct: DirectLight {
                 radiance: vec![[0.0; 3]; n],
             },
@@ -63,28 +70,42 @@ impl LfRuntime {
         &self.occluders
     }
 
-    /// Floats in one RGB vector over every texel.
-    pub(crate) fn rgb_len(&self) -> usize {
-        3 * self.runtime.n_texels()
+    /// Where each texel lands in the lightmap atlas.
+    pub(crate) fn atlas(&self) -> &Atlas {
+        &self.atlas
     }
 }
 
-/// Fails unless `got` is the runtime's `3 x texels`.
-pub(crate) fn check_rgb_len(
+/// Fails unless `got` is `per_texel x texels` of the runtime; `unit` names the elements
+/// (`floats`, `integers`) in the error.
+pub(crate) fn check_len(
     rt: &LfRuntime,
     what: &'static str,
+    unit: &'static str,
+    per_texel: usize,
     got: usize,
 ) -> Result<(), CapiError> {
-    let expected = rt.rgb_len();
+    let expected = per_texel * rt.runtime.n_texels();
     if got == expected {
         Ok(())
     } else {
         Err(CapiError::BadLength {
             what,
+            unit,
+            per_texel,
             expected,
             got,
         })
     }
+}
+
+/// Fails unless `got` is the runtime's `3 x texels` floats (one RGB vector).
+pub(crate) fn check_rgb_len(
+    rt: &LfRuntime,
+    what: &'static str,
+    got: usize,
+) -> Result<(), CapiError> {
+    check_len(rt, what, "floats", 3, got)
 }
 
 /// Loads a bundle (the bytes of an `.lfb` file; they are copied, so the caller may free them

@@ -15,7 +15,8 @@ pub enum LfStatus {
     Ok = 0,
     /// A required pointer argument was NULL.
     NullPointer = -1,
-    /// A buffer length (in floats) is not `3 x texels`.
+    /// A buffer length (in elements) is not its per-texel count times the texels (`3 x texels`
+    /// floats for an RGB vector).
     BadLength = -2,
     /// The method is not one of `LfMethod`.
     BadMethod = -3,
@@ -33,6 +34,8 @@ pub enum LfStatus {
     /// The bounces did not converge (albedo near 1 in a closed room) or produced a non-finite
     /// value; the output was not written (`lf_last_error` says which).
     NotConverging = -9,
+    /// An index is not below its count (`lf_runtime_surface` past `lf_runtime_surface_count`).
+    BadIndex = -10,
 }
 
 /// Why an `lf_*` call failed.
@@ -40,11 +43,20 @@ pub enum LfStatus {
 pub enum CapiError {
     #[error("{0} is NULL")]
     NullPointer(&'static str),
-    #[error("{what} holds {got} floats but this bundle needs {expected} (3 per texel)")]
+    #[error("{what} holds {got} {unit} but this bundle needs {expected} ({per_texel} per texel)")]
     BadLength {
         what: &'static str,
+        /// What the buffer holds: `floats` or `integers`.
+        unit: &'static str,
+        per_texel: usize,
         expected: usize,
         got: usize,
+    },
+    #[error("{what} index {index} is out of range: this bundle has {count} {what}s")]
+    BadIndex {
+        what: &'static str,
+        index: usize,
+        count: usize,
     },
     #[error("unknown method {0}: use LF_METHOD_MRT, LF_METHOD_DRT or LF_METHOD_FULL")]
     BadMethod(i32),
@@ -72,6 +84,7 @@ impl CapiError {
         match self {
             CapiError::NullPointer(_) => LfStatus::NullPointer,
             CapiError::BadLength { .. } => LfStatus::BadLength,
+            CapiError::BadIndex { .. } => LfStatus::BadIndex,
             CapiError::BadMethod(_) => LfStatus::BadMethod,
             CapiError::BadBounces(_) | CapiError::BadTolerance(_) => LfStatus::BadBounces,
             CapiError::NotConverging(_) => LfStatus::NotConverging,
@@ -91,6 +104,8 @@ impl From<ApplyError> for CapiError {
         match e {
             ApplyError::DirectLength { expected, got } => CapiError::BadLength {
                 what: "direct light",
+                unit: "floats",
+                per_texel: 3,
                 expected: 3 * expected,
                 got: 3 * got,
             },
