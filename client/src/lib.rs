@@ -42,6 +42,7 @@
 //! - [`packed`], [`packed_gather`]: operator matrices and the DRT exact gather in the form the
 //!   per-frame kernels read (row panels, narrow indices, 8-bit where the bundle stored 8 bits).
 //! - [`lightmap`]: per-texel radiance as an atlas image (8-bit sRGB for PNG, raw f16).
+//! - [`compare`]: [`relative_l2`], how far one per-texel lighting is from another.
 //! - `fetch` (feature `fetch`, off by default; `fetch-tls` adds https): `BundleFetcher`, a
 //!   blocking HTTP download of a bundle at level load with an on-disk cache (`If-None-Match`),
 //!   resumed downloads (`Range`/`If-Range`) and [`decode`] before anything is cached.
@@ -54,6 +55,7 @@
 //! in layout order with one RGB value per layout texel; operators are albedo-free and the
 //! receiving texel's albedo is multiplied in last.
 
+pub mod compare;
 pub mod direct;
 pub mod dnrt;
 #[cfg(feature = "fetch")]
@@ -67,9 +69,10 @@ pub mod runtime;
 #[cfg(feature = "fetch")]
 pub mod service;
 
+pub use compare::relative_l2;
 pub use direct::{
-    direct_from_point_lights, direct_from_point_lights_averaged, point_light_irradiance_sh,
-    DirectLight,
+    direct_from_point_lights, direct_from_point_lights_adaptive, direct_from_point_lights_averaged,
+    point_light_irradiance_sh, DirectLight,
 };
 pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
 #[cfg(feature = "fetch")]
@@ -80,8 +83,8 @@ pub use lightmap::{auto_exposure, Atlas};
 pub use occluders::Occluders;
 pub use probes::{irradiance_at, irradiance_sh_at, radiance_sh_at, ProbeField};
 pub use runtime::{
-    Applied, ApplyError, Bounces, IndirectLight, Method, Runtime, ShLight, DEFAULT_TOLERANCE,
-    MAX_BOUNCES,
+    Applied, ApplyError, Bounces, DeltaApplied, IndirectLight, Method, Runtime, ShLight,
+    DEFAULT_TOLERANCE, MAX_BOUNCES,
 };
 #[cfg(feature = "fetch")]
 pub use service::{ServiceClient, ServiceError};

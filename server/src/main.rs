@@ -20,6 +20,12 @@ struct Args {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum UpdateArg {
+    /// One light moves; the others stay.
+    OneLight,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum MethodArg {
     Full,
     Mrt,
@@ -120,6 +126,14 @@ enum Command {
         /// Runtime threads (1: the single-thread path; more: the rayon path).
         #[arg(long, default_value_t = 1)]
         threads: usize,
+        /// `one-light`: move one light (`--light`) along a small circle and time relighting by
+        /// its change (its direct light alone, then `Runtime::apply_delta`) against relighting
+        /// everything, direct light included (uses the first `--bounces` mode).
+        #[arg(long, value_enum)]
+        update: Option<UpdateArg>,
+        /// The light `--update one-light` moves (index in the light set).
+        #[arg(long, default_value_t = 0)]
+        light: usize,
     },
     /// Show what a bundle holds: sections, operators, ranks, values.
     Inspect { bundle: PathBuf },
@@ -291,6 +305,8 @@ fn main() -> anyhow::Result<()> {
             bounces,
             frames,
             threads,
+            update,
+            light,
         } => cli::frame_time::run(cli::frame_time::FrameTimeArgs {
             bundle,
             lights,
@@ -298,6 +314,7 @@ fn main() -> anyhow::Result<()> {
             bounces: bounces.into_iter().map(|b| b.0).collect(),
             frames,
             threads,
+            update_light: update.map(|UpdateArg::OneLight| light),
         }),
         Command::Bake {
             scene,

@@ -3,7 +3,7 @@
 //! the runtime's rayon path is bit-identical to the single-thread path, and mutated bundles
 //! never make the decoder or runtime panic.
 
-use lightfarm_client::{Bounces, DirectLight, IndirectLight, Method, Runtime};
+use lightfarm_client::{relative_l2, Bounces, DirectLight, IndirectLight, Method, Runtime};
 use lightfarm_proto::bundle::{Bundle, EncodeOptions, Matrix, TransportOps};
 use lightfarm_proto::codec::{CodecPolicy, MatrixCodec};
 use lightfarm_proto::result::compare;
@@ -44,17 +44,6 @@ fn indirect(bundle: Bundle, method: Method) -> Vec<[f32; 3]> {
     let mut out = IndirectLight::default();
     rt.apply(method, Bounces::One, &direct, &mut out).unwrap();
     out.radiance
-}
-
-fn relative_l2(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
-    let (mut d, mut n) = (0.0f64, 0.0f64);
-    for (x, y) in a.iter().zip(b) {
-        for c in 0..3 {
-            d += (x[c] as f64 - y[c] as f64).powi(2);
-            n += (y[c] as f64).powi(2);
-        }
-    }
-    (d / n).sqrt()
 }
 
 #[test]

@@ -393,6 +393,35 @@ int32_t lf_runtime_apply(LfRuntime *rt,
                          float *out_rgb,
                          size_t out_len);
 
+/**
+ * Relights after a change of direct light, doing work only where the change reaches:
+ * `indirect_rgb` holds what `lf_runtime_apply` returned with `method` and the current bounce
+ * mode for some direct light L; `delta_rgb` is the change of direct light (the new light minus
+ * L: e.g. a moved light's direct light at its new place minus at its old, zero wherever nothing
+ * changed). On success `indirect_rgb` holds the indirect light of L + delta: the same as
+ * `lf_runtime_apply` on the new light within float rounding (`LF_BOUNCES_ONE`) or within the
+ * tolerance (`LF_BOUNCES_CONVERGED`), while only the blocks and clutter objects the change
+ * lights, and what their light reaches bounce by bounce, are computed. Allocates nothing after
+ * its first call.
+ *
+ * Both buffers hold `3 x texels` floats, texel-major RGB in layout order, and must not
+ * overlap. Returns `LF_STATUS_OK`, or the statuses of `lf_runtime_apply`, or
+ * `LF_STATUS_BAD_BOUNCES` in `LF_BOUNCES_FEEDBACK` (its light is the previous frame's, not a
+ * function of the direct light). `indirect_rgb` is changed only on success.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call. `delta_rgb` must be NULL or point to `delta_len` readable floats; `indirect_rgb`
+ * must be NULL or point to `indirect_len` readable and writable floats, not overlapping
+ * `delta_rgb`; no other thread may write either during the call.
+ */
+int32_t lf_runtime_apply_delta(LfRuntime *rt,
+                               int32_t method,
+                               const float *delta_rgb,
+                               size_t delta_len,
+                               float *indirect_rgb,
+                               size_t indirect_len);
+
 #ifdef __cplusplus
 }  // extern "C"
 #endif  // __cplusplus

@@ -24,12 +24,16 @@
 //! lf_runtime_set_bounces(rt, LF_BOUNCES_FEEDBACK, 0.0f);  /* optional: all bounces (converged)
 //!                                                            is the default */
 //! if (lf_runtime_apply(rt, method, direct, n, indirect, n) != LF_STATUS_OK) { ... }
+//! /* when some lights move: only their change of direct light (new minus old), and only
+//!    what it reaches is computed */
+//! lf_runtime_apply_delta(rt, method, change, n, indirect, n);
 //! lf_runtime_free(rt);
 //! ```
 //!
 //! # Layout
 //! - [`runtime`]: the opaque [`LfRuntime`] (a client `Runtime` plus its occluders and per-frame
-//!   scratch) and the entry points that create, query, apply and free it.
+//!   scratch) and the entry points that create, query, apply (all of the direct light, or
+//!   [`lf_runtime_apply_delta`]: its change) and free it.
 //! - [`direct`]: [`LfPointLight`] and direct light from point lights at every texel.
 //! - [`layout`]: the texel layout (centres, normals, albedo, sizes, surfaces) and each texel's
 //!   lightmap-atlas pixel, for engines that compute direct light themselves.
@@ -74,8 +78,8 @@ pub use layout::{
 };
 pub use method::LfMethod;
 pub use runtime::{
-    lf_runtime_apply, lf_runtime_free, lf_runtime_has_drt, lf_runtime_has_full,
-    lf_runtime_last_bounces, lf_runtime_new, lf_runtime_set_bounces, lf_runtime_texel_count,
-    LfRuntime,
+    lf_runtime_apply, lf_runtime_apply_delta, lf_runtime_free, lf_runtime_has_drt,
+    lf_runtime_has_full, lf_runtime_last_bounces, lf_runtime_new, lf_runtime_set_bounces,
+    lf_runtime_texel_count, LfRuntime,
 };
 pub use status::{CapiError, LfStatus};

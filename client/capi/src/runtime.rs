@@ -99,6 +99,25 @@ pub(crate) fn check_len(
     }
 }
 
+/// The arguments every RGB-in, RGB-out call checks, in this order: no NULL buffer with a
+/// non-zero length, a known method, and both lengths `3 x texels`. The method on success.
+fn check_rgb_call(
+    rt: &LfRuntime,
+    method: i32,
+    buffers: [(*const f32, usize, &'static str); 2],
+) -> Result<lightfarm_client::Method, CapiError> {
+    for (ptr, len, what) in buffers {
+        if ptr.is_null() && len > 0 {
+            return Err(CapiError::NullPointer(what));
+        }
+    }
+    let method = LfMethod::from_raw(method)?.method();
+    for (_, len, what) in buffers {
+        check_rgb_len(rt, what, len)?;
+    }
+    Ok(method)
+}
+
 /// Fails unless `got` is the runtime's `3 x texels` floats (one RGB vector).
 pub(crate) fn check_rgb_len(
     rt: &LfRuntime,
@@ -249,17 +268,14 @@ pub unsafe extern "C" fn lf_runtime_apply(
     status_call("lf_runtime_apply", || {
         // SAFETY: NULL or live and unshared, per the contract.
         let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
-        for (ptr, len, what) in [
-            (direct_rgb, direct_len, "direct_rgb"),
-            (out_rgb.cast_const(), out_len, "out_rgb"),
-        ] {
-            if ptr.is_null() && len > 0 {
-                return Err(CapiError::NullPointer(what));
-            }
-        }
-        let method = LfMethod::from_raw(method)?.method();
-        check_rgb_len(rt, "direct_rgb", direct_len)?;
-        check_rgb_len(rt, "out_rgb", out_len)?;
+        let method = check_rgb_call(
+            rt,
+            method,
+            [
+                (direct_rgb, direct_len, "direct_rgb"),
+                (out_rgb.cast_const(), out_len, "out_rgb"),
+            ],
+        )?;
         {
             // SAFETY: `direct_len` readable floats, per the contract. The slice ends before
             // `out_rgb` (which may be the same memory) is touched.
@@ -275,6 +291,72 @@ pub unsafe extern "C" fn lf_runtime_apply(
         // SAFETY: `out_len` writable floats, per the contract; no other slice is alive.
         let out = unsafe { slice_mut(out_rgb, out_len, "out_rgb") }?;
         for (o, v) in out.chunks_exact_mut(3).zip(&rt.indirect.radiance) {
+            o.copy_from_slice(v);
+        }
+        Ok(())
+    })
+}
+
+/// Relights after a change of direct light, doing work only where the change reaches:
+/// `indirect_rgb` holds what `lf_runtime_apply` returned with `method` and the current bounce
+/// mode for some direct light L; `delta_rgb` is the change of direct light (the new light minus
+/// L: e.g. a moved light's direct light at its new place minus at its old, zero wherever nothing
+/// changed). On success `indirect_rgb` holds the indirect light of L + delta: the same as
+/// `lf_runtime_apply` on the new light within float rounding (`LF_BOUNCES_ONE`) or within the
+/// tolerance (`LF_BOUNCES_CONVERGED`), while only the blocks and clutter objects the change
+/// lights, and what their light reaches bounce by bounce, are computed. Allocates nothing after
+/// its first call.
+///
+/// Both buffers hold `3 x texels` floats, texel-major RGB in layout order, and must not
+/// overlap. Returns `LF_STATUS_OK`, or the statuses of `lf_runtime_apply`, or
+/// `LF_STATUS_BAD_BOUNCES` in `LF_BOUNCES_FEEDBACK` (its light is the previous frame's, not a
+/// function of the direct light). `indirect_rgb` is changed only on success.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+/// the call. `delta_rgb` must be NULL or point to `delta_len` readable floats; `indirect_rgb`
+/// must be NULL or point to `indirect_len` readable and writable floats, not overlapping
+/// `delta_rgb`; no other thread may write either during the call.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_apply_delta(
+    rt: *mut LfRuntime,
+    method: i32,
+    delta_rgb: *const f32,
+    delta_len: usize,
+    indirect_rgb: *mut f32,
+    indirect_len: usize,
+) -> i32 {
+    status_call("lf_runtime_apply_delta", || {
+        // SAFETY: NULL or live and unshared, per the contract.
+        let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
+        let method = check_rgb_call(
+            rt,
+            method,
+            [
+                (delta_rgb, delta_len, "delta_rgb"),
+                (indirect_rgb.cast_const(), indirect_len, "indirect_rgb"),
+            ],
+        )?;
+        // SAFETY: `delta_len` readable floats, per the contract; not overlapping `indirect_rgb`.
+        let delta = unsafe { slice(delta_rgb, delta_len, "delta_rgb") }?;
+        for (d, v) in rt.direct.radiance.iter_mut().zip(delta.chunks_exact(3)) {
+            *d = [v[0], v[1], v[2]];
+        }
+        // SAFETY: `indirect_len` readable and writable floats, per the contract.
+        let indirect = unsafe { slice_mut(indirect_rgb, indirect_len, "indirect_rgb") }?;
+        for (o, v) in rt
+            .indirect
+            .radiance
+            .iter_mut()
+            .zip(indirect.chunks_exact(3))
+        {
+            *o = [v[0], v[1], v[2]];
+        }
+        let applied = rt
+            .runtime
+            .apply_delta(method, rt.bounces, &rt.direct, &mut rt.indirect)?;
+        rt.last_bounces = applied.applied.bounces;
+        for (o, v) in indirect.chunks_exact_mut(3).zip(&rt.indirect.radiance) {
             o.copy_from_slice(v);
         }
         Ok(())

@@ -66,6 +66,10 @@ pub enum CapiError {
     BadBounces(i32),
     #[error("tolerance {0}: LF_BOUNCES_CONVERGED takes 0 (the default) or a value in (0, 1)")]
     BadTolerance(f32),
+    /// A call that cannot run in the chosen bounce mode (`lf_runtime_apply_delta` with
+    /// `LF_BOUNCES_FEEDBACK`).
+    #[error(transparent)]
+    BounceMode(ApplyError),
     #[error(transparent)]
     NotConverging(ApplyError),
     #[error(transparent)]
@@ -86,7 +90,9 @@ impl CapiError {
             CapiError::BadLength { .. } => LfStatus::BadLength,
             CapiError::BadIndex { .. } => LfStatus::BadIndex,
             CapiError::BadMethod(_) => LfStatus::BadMethod,
-            CapiError::BadBounces(_) | CapiError::BadTolerance(_) => LfStatus::BadBounces,
+            CapiError::BadBounces(_) | CapiError::BadTolerance(_) | CapiError::BounceMode(_) => {
+                LfStatus::BadBounces
+            }
             CapiError::NotConverging(_) => LfStatus::NotConverging,
             CapiError::MissingOperator(_) => LfStatus::MissingOperator,
             CapiError::InvalidLight { .. } => LfStatus::InvalidLight,
@@ -113,6 +119,7 @@ impl From<ApplyError> for CapiError {
                 CapiError::NotConverging(e)
             }
             ApplyError::BadTolerance(t) => CapiError::BadTolerance(t),
+            e @ ApplyError::DeltaFeedback => CapiError::BounceMode(e),
             other => CapiError::MissingOperator(other),
         }
     }

@@ -866,3 +866,106 @@ fn direct_light_from_the_c_layout_applies_like_the_clients() {
     assert_eq!(from_engine, from_client);
     assert!(from_engine.iter().all(|v| v.is_finite() && *v > 0.0));
 }
+
+impl Rt {
+    fn apply_delta(&self, method: i32, delta: &[f32], indirect: &mut [f32]) -> i32 {
+        // SAFETY: live runtime; the slices are live for the call and do not overlap.
+        unsafe {
+            lf_runtime_apply_delta(
+                self.0,
+                method,
+                delta.as_ptr(),
+                delta.len(),
+                indirect.as_mut_ptr(),
+                indirect.len(),
+            )
+        }
+    }
+}
+
+#[test]
+fn apply_delta_adds_the_indirect_light_of_the_change() {
+    let mrt = LfMethod::Mrt as i32;
+    let new_direct = [2.0f32, 2.0, 3.0, 3.0, 4.0, 9.0];
+    let delta: Vec<f32> = new_direct.iter().zip(&DIRECT).map(|(a, b)| a - b).collect();
+    for (mode, tolerance) in [(LfBounces::One, 0.0), (LfBounces::Converged, 1e-6)] {
+        let rt = Rt::load();
+        // SAFETY: live runtime.
+        assert_eq!(
+            unsafe { lf_runtime_set_bounces(rt.0, mode as i32, tolerance) },
+            OK
+        );
+        let mut indirect = [0.0f32; 6];
+        assert_eq!(rt.apply(mrt, &DIRECT, &mut indirect), OK);
+        let mut want = [0.0f32; 6];
+        assert_eq!(rt.apply(mrt, &new_direct, &mut want), OK);
+        assert_eq!(rt.apply_delta(mrt, &delta, &mut indirect), OK);
+        for (a, b) in indirect.iter().zip(&want) {
+            assert!(
+                (a - b).abs() <= 1e-5 * b.abs(),
+                "{mode:?}: {indirect:?} vs {want:?}"
+            );
+        }
+        // SAFETY: live runtime.
+        assert!(unsafe { lf_runtime_last_bounces(rt.0) } >= 1);
+    }
+    // One bounce on this bundle is exact in f32: 0 + the change's light is MRT of it.
+    let rt = Rt::load();
+    let mut indirect = [0.0f32; 6];
+    assert_eq!(rt.apply_delta(mrt, &DIRECT, &mut indirect), OK);
+    assert_eq!(indirect, MRT);
+}
+
+#[test]
+fn apply_delta_refuses_feedback_bad_lengths_and_nulls_and_leaves_the_light_alone() {
+    let rt = Rt::load();
+    let mrt = LfMethod::Mrt as i32;
+    let mut indirect = MRT;
+    // SAFETY: live runtime.
+    assert_eq!(
+        unsafe { lf_runtime_set_bounces(rt.0, LfBounces::Feedback as i32, 0.0) },
+        OK
+    );
+    assert_eq!(
+        rt.apply_delta(mrt, &DIRECT, &mut indirect),
+        LfStatus::BadBounces as i32
+    );
+    assert!(last_error().contains("Feedback"), "{}", last_error());
+    assert_eq!(indirect, MRT);
+    let rt = Rt::load();
+    assert_eq!(
+        rt.apply_delta(mrt, &DIRECT[..5], &mut indirect),
+        LfStatus::BadLength as i32
+    );
+    assert_eq!(
+        rt.apply_delta(mrt, &DIRECT, &mut indirect[..5]),
+        LfStatus::BadLength as i32
+    );
+    assert_eq!(
+        rt.apply_delta(99, &DIRECT, &mut indirect),
+        LfStatus::BadMethod as i32
+    );
+    // SAFETY: NULL runtime and NULL buffers with non-zero lengths are refused, never read.
+    unsafe {
+        assert_eq!(
+            lf_runtime_apply_delta(
+                null_mut(),
+                mrt,
+                DIRECT.as_ptr(),
+                6,
+                indirect.as_mut_ptr(),
+                6
+            ),
+            LfStatus::NullPointer as i32
+        );
+        assert_eq!(
+            lf_runtime_apply_delta(rt.0, mrt, null(), 6, indirect.as_mut_ptr(), 6),
+            LfStatus::NullPointer as i32
+        );
+        assert_eq!(
+            lf_runtime_apply_delta(rt.0, mrt, DIRECT.as_ptr(), 6, null_mut(), 6),
+            LfStatus::NullPointer as i32
+        );
+    }
+    assert_eq!(indirect, MRT);
+}

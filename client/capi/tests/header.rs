@@ -57,6 +57,7 @@ fn generated_header_declares_every_entry_point_and_type() {
         "bool lf_runtime_has_drt(const LfRuntime *rt);",
         "bool lf_runtime_has_full(const LfRuntime *rt);",
         "int32_t lf_runtime_apply(LfRuntime *rt,",
+        "int32_t lf_runtime_apply_delta(LfRuntime *rt,",
         "int32_t lf_runtime_direct_from_point_lights(const LfRuntime *rt,",
         "int32_t lf_runtime_texel_positions(const LfRuntime *rt, float *out, size_t len);",
         "int32_t lf_runtime_texel_normals(const LfRuntime *rt, float *out, size_t len);",

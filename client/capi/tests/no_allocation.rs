@@ -44,6 +44,19 @@ fn apply_allocates_nothing_and_repeats_bit_for_bit() {
     assert_eq!(statuses, [0, 0]);
     assert_eq!(first, second);
     assert!(first.iter().all(|v| v.is_finite() && *v > 0.0));
+
+    // Relighting by a change allocates only on its first call (the reach's flags).
+    let change: Vec<f32> = (0..120).map(|k| if k < 12 { 0.5 } else { 0.0 }).collect();
+    // SAFETY: live runtime; buffers of 120 floats, not overlapping.
+    let first_delta =
+        unsafe { lf_runtime_apply_delta(rt, 0, change.as_ptr(), 120, first.as_mut_ptr(), 120) };
+    let before = allocs();
+    // SAFETY: as above.
+    let again =
+        unsafe { lf_runtime_apply_delta(rt, 0, change.as_ptr(), 120, second.as_mut_ptr(), 120) };
+    assert_eq!(allocs(), before, "lf_runtime_apply_delta allocated");
+    assert_eq!([first_delta, again], [0, 0]);
+    assert_eq!(first, second);
     // SAFETY: from lf_runtime_new, freed once.
     unsafe { lf_runtime_free(rt) };
 }

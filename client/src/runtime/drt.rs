@@ -28,16 +28,22 @@ impl Runtime {
             c,
             ops,
             scratch,
+            reach,
             ..
         } = self;
         let Some(drt) = &bundle.drt else { return };
         // 2. c_j = t_dc · l_d^j.
-        for ((clutter, t_dc), &(start, m)) in drt
+        for (j, ((clutter, t_dc), &(start, m))) in drt
             .clutter
             .iter()
             .zip(&ops.clutter)
             .zip(clutter_coef.iter())
+            .enumerate()
         {
+            if reach.as_ref().is_some_and(|r| !r.clutter[j]) {
+                c[start..start + 3 * m].fill(0.0);
+                continue;
+            }
             let x = planar(ld, n, clutter.texel_offset as usize, t_dc.cols());
             set_matvec(&mut c[start..start + 3 * m], m, t_dc, x, scratch);
         }
@@ -63,6 +69,27 @@ impl Runtime {
         }
     }
 
+    /// Whether a delta entry's source has non-zero input (always, outside
+    /// [`Runtime::apply_delta`]); an unreached source's coefficients are exact zeros.
+    #[inline]
+    fn source_reached(&self, source: DeltaSource) -> bool {
+        let Some(reach) = &self.reach else {
+            return true;
+        };
+        match source {
+            DeltaSource::Block(k) => reach.blocks[k as usize],
+            DeltaSource::Clutter(j) => reach.clutter[j as usize],
+            DeltaSource::Direct { first, count } => {
+                let n = self.n_texels;
+                let (first, count) = (first as usize, count as usize);
+                (0..3).any(|ch| {
+                    let range = &self.ld[ch * n + first..ch * n + first + count];
+                    range.iter().any(|v| !(*v == 0.0))
+                })
+            }
+        }
+    }
+
     /// DRT step 3, after [`Runtime::project_blocks`] and [`Runtime::project_clutter`]: adds
     /// every delta entry (albedo-free). Does nothing without a DRT section.
     pub(super) fn add_drt_deltas(&mut self, out: &mut [[f32; 3]]) {
@@ -75,6 +102,9 @@ impl Runtime {
             .zip(&self.ops.deltas)
             .zip(&self.ops.delta_mix)
         {
+            if !self.source_reached(e.source) {
+                continue;
+            }
             match mix {
                 None => {
                     let x = self.source_coefficients(e.source, m.cols());

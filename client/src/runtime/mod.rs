@@ -34,6 +34,10 @@
 //! `x` as in DRT step 3 and `rows[i] = probe · 9 + coefficient`. No albedo: a probe holds
 //! incident radiance at a point, not a surface's outgoing radiance (see [`crate::probes`]).
 //!
+//! Relighting by the change ([`Runtime::apply_delta`], in `incremental`): the operators are
+//! linear, so when lights move, `apply_delta` adds the indirect light of the change of direct
+//! light to the previous output, skipping every product whose input is zero.
+//!
 //! Bounces ([`Bounces`]): every method above is one linear map `A` from the radiance leaving
 //! texels to the one-bounce indirect radiance leaving them (same units in and out, albedo
 //! included), so bounce k+1 is `A` applied to bounce k, and all bounces are the Neumann series
@@ -62,6 +66,8 @@
 //! - `sh_apply`: [`Runtime::apply_sh`] and [`ShLight`], SH incident radiance per texel.
 //! - `kernels`: planar views of the scratch, the packed matrix-vector products, the block loop.
 //! - `krylov`: the restarted GMRES of [`Bounces::Converged`].
+//! - `incremental`: [`Runtime::apply_delta`], relighting by the change of direct light: only
+//!   the blocks, clutter objects and entries the change reaches do work, bounce by bounce.
 //! - `tests` (`tests/`): hand-built bundles against dense references, per concept.
 //!
 //! Invariants:
@@ -92,6 +98,7 @@ use crate::packed_gather::PackedGather;
 
 mod drt;
 mod full;
+mod incremental;
 mod kernels;
 mod krylov;
 mod mrt;
@@ -99,6 +106,7 @@ mod packed_ops;
 mod probes;
 mod sh_apply;
 
+pub use incremental::DeltaApplied;
 use krylov::{Krylov, Unsolved};
 use packed_ops::{BlockSlots, PackedOps};
 pub use sh_apply::ShLight;
@@ -200,6 +208,11 @@ pub enum ApplyError {
         "bounces: bounce {bounce} produced a non-finite value (check albedo and direct light)"
     )]
     NonFinite { bounce: u32 },
+    #[error(
+        "bounces: apply_delta cannot follow Feedback (its light is the previous frame's, not a \
+         function of the direct light); use One, Fixed(n) or Converged"
+    )]
+    DeltaFeedback,
 }
 
 /// Decoded bundle plus scratch, ready to apply every frame.
@@ -247,6 +260,15 @@ pub struct Runtime {
     /// [`Bounces::Converged`]'s GMRES workspace (`RESTART + 2` RGB texel vectors, 168 bytes a
     /// texel), made with the runtime so no frame allocates.
     krylov: Option<Krylov>,
+    /// [`Runtime::apply_delta`]: what each application's input reaches (None: everything, as
+    /// in `apply`), the reach kept between calls so none allocates, the change's indirect
+    /// light, and the block projections made.
+    reach: Option<incremental::Reach>,
+    spare_reach: Option<incremental::Reach>,
+    delta_out: IndirectLight,
+    blocks_projected: usize,
+    /// Inside [`Runtime::apply_delta`]: the input is a signed change of light.
+    by_change: bool,
 }
 
 /// [`Bounces::Converged`] refuses an operator whose bounces keep at least this fraction of the
@@ -406,6 +428,13 @@ impl Runtime {
             feedback: vec![[0.0; 3]; n_texels],
             feedback_method: None,
             krylov: Some(Krylov::new(n_texels)),
+            reach: None,
+            spare_reach: None,
+            delta_out: IndirectLight {
+                radiance: vec![[0.0; 3]; n_texels],
+            },
+            blocks_projected: 0,
+            by_change: false,
         })
     }
 
@@ -542,6 +571,9 @@ impl Runtime {
 
     /// One application of the one-bounce operator: `out = A(light)`.
     fn apply_once(&mut self, method: Method, light: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        if self.reach.is_some() {
+            self.find_reach(light);
+        }
         match method {
             Method::Full => self.apply_full(light, out),
             Method::Mrt => {
@@ -629,11 +661,13 @@ impl Runtime {
         );
         self.krylov = Some(krylov);
         let channel_energy = |v: &[[f32; 3]], c: usize| v.iter().map(|x| x[c] as f64).sum::<f64>();
-        // Light: per channel, all bounces carry at least the first bounce's energy.
-        let light = (0..3).all(|c| {
-            let (e1, e) = (channel_energy(&first, c), channel_energy(out, c));
-            e1 <= 0.0 || e >= 0.99 * e1
-        });
+        // Light: per channel, all bounces carry at least the first bounce's energy. A change
+        // of light (`apply_delta`) is signed, so only its gain is checked.
+        let light = self.by_change
+            || (0..3).all(|c| {
+                let (e1, e) = (channel_energy(&first, c), channel_energy(out, c));
+                e1 <= 0.0 || e >= 0.99 * e1
+            });
         self.bounce_in = first;
         let refused = |applications: u32, gain: f64| ApplyError::NotConverging {
             bounces: applications + 1,

@@ -29,8 +29,10 @@ impl Runtime {
             lf,
             ops,
             parallel,
+            reach,
             ..
         } = self;
+        let reach = reach.as_ref();
 
         // Direct light, planar.
         let (ld0, rest) = ld.split_at_mut(n);
@@ -55,6 +57,11 @@ impl Runtime {
             &scratch_range,
             *parallel,
             &|k, b_k: &mut [f32], scratch: &mut [f32]| {
+                if !Runtime::block_reached(reach, k) {
+                    // No input on the block's texels: b = T · 0, without the product.
+                    b_k.fill(0.0);
+                    return;
+                }
                 let blk = &bundle.blocks[k];
                 let t_db = &ops.shapes[blk.shape as usize].1;
                 let x = planar(ld, n, blk.texel_offset as usize, t_db.cols());
@@ -79,9 +86,12 @@ impl Runtime {
             lf,
             ops,
             parallel,
+            reach,
             ..
         } = self;
         let b: &[f32] = b;
+        let reach = reach.as_ref();
+        let reached = |k: u32| Runtime::block_reached(reach, k as usize);
         let coefficients = |k: usize, cols: usize| {
             let s = &blocks[k];
             group(b, s.coef_start, s.rank, cols)
@@ -102,13 +112,18 @@ impl Runtime {
                 let (u_b, _, u_r) = &ops.shapes[blk.shape as usize];
                 let (lf_k, scratch) = lf_k.split_at_mut(slots.scratch_start - slots.lf_start);
                 // 2. l_ind^B = U_b · b_B.
-                add_matvec(out_k, u_b, coefficients(k, u_b.cols()), scratch);
+                if reached(k as u32) {
+                    add_matvec(out_k, u_b, coefficients(k, u_b.cols()), scratch);
+                }
                 let targeting = &entry_order[slots.entries_start..slots.entries_end];
                 // 3. Inter-block transport into this block.
                 match &bundle.transport {
                     Some(TransportOps::Traced(entries)) => {
                         for &i in targeting {
                             let e = &entries[i as usize];
+                            if !reached(e.source_block) {
+                                continue;
+                            }
                             let m = &ops.transport[i as usize];
                             let x = coefficients(e.source_block as usize, m.cols());
                             add_matvec(&mut out_k[..m.rows()], m, x, scratch);
@@ -120,6 +135,10 @@ impl Runtime {
                             let e = &entries[i as usize];
                             let (y, z) = (&ops.transport[i as usize], &ops.transport_z[i as usize]);
                             let (width, k) = (z.cols(), z.rows());
+                            if !e.sources.iter().any(|&s| reached(s)) {
+                                at += 3 * (width + k);
+                                continue;
+                            }
                             let (x, rest) = lf_k[at..].split_at_mut(3 * width);
                             // Stack the sources' coefficients, channel-planar.
                             let mut col = 0;
@@ -146,6 +165,9 @@ impl Runtime {
                         let mut fed = 0u64;
                         for &i in targeting {
                             let e = &entries[i as usize];
+                            if !reached(e.source_block) {
+                                continue;
+                            }
                             let m = &ops.transport[i as usize];
                             let opening = entry_opening[i as usize];
                             let q = m.rows();

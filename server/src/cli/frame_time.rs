@@ -9,6 +9,11 @@
 //! bandwidth measured here with a streaming sum over a buffer much larger than the caches: no
 //! implementation that reads every operator value once per frame can beat it.
 //!
+//! The direct light's own time (every light, texel-averaged as `eval` feeds the operators, one
+//! thread) is printed first, apart from the operators'. With `--update one-light`, one light
+//! moves instead and relighting by the change is timed against relighting everything
+//! ([`super::frame_update`]).
+//!
 //! With `feedback` among the modes, it also prints how many feedback frames the light takes to
 //! come within 1% (relative L2) of `Converged` at 1e-5 after the lights switch on from dark (the
 //! largest jump a light can make), and within 0.1%.
@@ -20,6 +25,7 @@ use anyhow::Context;
 use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, Runtime};
 use lightfarm_proto::lights::LightSet;
 
+use super::frame_update::time_update;
 use super::read_text;
 use crate::evaluate::operator_direct;
 
@@ -33,6 +39,8 @@ pub struct FrameTimeArgs {
     pub frames: usize,
     /// Threads of the runtime's rayon pool (1: the single-thread path).
     pub threads: usize,
+    /// `--update one-light`: time moving light `light` ([`super::frame_update`]) instead.
+    pub update_light: Option<usize>,
 }
 
 /// Frame-time figures of one bounce mode.
@@ -144,7 +152,9 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     let lights = LightSet::from_json(&read_text(&args.lights)?)
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.lights.display()))?;
     let occluders = Occluders::from_layout(&bundle.layout);
+    let start = Instant::now();
     let direct = operator_direct(&bundle.layout, &occluders, &lights);
+    let direct_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut runtime = Runtime::try_new(bundle)?;
     let method = if args.method == Method::Drt && !runtime.has_drt() {
         Method::Mrt
@@ -156,6 +166,55 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     } else {
         args.bounces.clone()
     };
+    if let Some(moved) = args.update_light {
+        let mode = modes[0];
+        let frames = args.frames;
+        let t = time_update(
+            &mut runtime,
+            &occluders,
+            &lights.lights,
+            moved,
+            method,
+            mode,
+            frames,
+        )?;
+        println!(
+            "update=one-light direct light: lights={} texels={} every_sample_ms={:.4} \
+             adaptive_rel_l2={:.2e}",
+            lights.lights.len(),
+            runtime.n_texels(),
+            t.direct_every_sample_ms,
+            t.direct_error
+        );
+        for (name, way) in [("full", t.full), ("update", t.update)] {
+            println!(
+                "update=one-light light={moved} way={name} method={method:?} bounces={} \
+                 frames={frames} direct_ms={:.4} operator_ms={:.4} total_ms={:.4}",
+                mode_name(mode),
+                way.direct_ms,
+                way.operator_ms,
+                way.total_ms
+            );
+        }
+        println!(
+            "update=one-light light={moved} method={method:?} bounces={} frames={frames} \
+             blocks_projected={}/{} drift_rel_l2={:.2e} speedup={:.1} median_ms={:.4}",
+            mode_name(mode),
+            t.blocks_projected,
+            t.blocks_total,
+            t.drift,
+            t.full.total_ms / t.update.total_ms,
+            t.update.total_ms
+        );
+        return Ok(());
+    }
+    // Direct light (every light, texel-averaged as `eval` feeds the operators), computed once
+    // on this thread; the frames below time the operators alone.
+    println!(
+        "direct light: lights={} texels={} direct_ms={direct_ms:.4}",
+        lights.lights.len(),
+        runtime.n_texels()
+    );
     let results = time_frames(
         &mut runtime,
         &direct,

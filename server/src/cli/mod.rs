@@ -4,7 +4,8 @@
 //!
 //! # Layout
 //! - [`bake`], [`inspect`], [`eval`] (with [`eval_sh`] and [`lightmap_files`]), [`reference`],
-//!   [`compare`], [`frame_time`], [`export`] (the lit level as glTF): the offline commands.
+//!   [`compare`], [`frame_time`] (with [`frame_update`]: `--update one-light`), [`export`]
+//!   (the lit level as glTF): the offline commands.
 //! - [`serve`], [`worker`]: the bake service and a farm worker.
 //! - [`bench`] (`bench/`): speed against error, its parts listed in its own module doc.
 //! - [`progress_bar`]: the terminal progress bar the long commands share.
@@ -16,6 +17,7 @@ pub mod eval;
 pub mod eval_sh;
 pub mod export;
 pub mod frame_time;
+pub mod frame_update;
 pub mod inspect;
 pub mod lightmap_files;
 pub mod progress_bar;

@@ -4,6 +4,7 @@
 //! converging to `Converged`, and bit-identical `Converged` at one and two threads.
 
 use super::*;
+use crate::compare::relative_l2;
 
 /// `Σ_{k=1..n} A^k ld` in f64 with `one` the dense one-bounce reference of the method.
 fn reference_bounces(
@@ -105,18 +106,6 @@ fn fixed_bounces_equal_the_sum_of_explicit_bounces() {
     }
 }
 
-/// Relative L2 of `a` against `b` over every texel and channel.
-fn rel_l2(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
-    let (mut num, mut den) = (0.0f64, 0.0f64);
-    for (x, y) in a.iter().zip(b) {
-        for c in 0..3 {
-            num += (x[c] as f64 - y[c] as f64).powi(2);
-            den += (y[c] as f64).powi(2);
-        }
-    }
-    (num / den).sqrt()
-}
-
 #[test]
 fn converged_matches_the_sum_of_many_bounces_within_its_tolerance_in_fewer_applications() {
     let mut rng = Lcg(43);
@@ -152,7 +141,7 @@ fn converged_matches_the_sum_of_many_bounces_within_its_tolerance_in_fewer_appli
             assert!(applied.remaining_fraction <= tolerance, "{applied:?}");
             assert!(applied.bounces >= previous, "{applied:?}");
             previous = applied.bounces;
-            let err = rel_l2(&converged.radiance, &many.radiance);
+            let err = relative_l2(&converged.radiance, &many.radiance);
             let rest = (e_all - energy(&converged.radiance)).abs() / e_all;
             assert!(
                 err <= 3.0 * tolerance as f64 + 1e-5 && rest <= 3.0 * tolerance as f64 + 1e-5,
@@ -207,7 +196,7 @@ fn converged_equals_many_explicit_bounces_for_mrt_and_drt() {
             Ok(applied) => {
                 rt.apply(method, Bounces::Fixed(300), &ld, &mut many)
                     .unwrap();
-                let err = rel_l2(&converged.radiance, &many.radiance);
+                let err = relative_l2(&converged.radiance, &many.radiance);
                 assert!(err <= 5e-4, "{method:?}: {err} after {applied:?}");
             }
             // The random operators may have gain ≥ 1 (no all-bounce light): refused.

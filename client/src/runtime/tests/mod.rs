@@ -14,6 +14,8 @@
 //!   `proto/tests/decode_fuzz.rs`).
 //! - `bounces`: `Fixed`, `Converged` and `Feedback` against hand-iterated series, refusal of a
 //!   gain-one operator, bit-identical results at one and two threads.
+//! - `incremental`: `apply_delta` (relighting by the change of direct light) against applying
+//!   the new light, the reach it follows, `Feedback` refused.
 
 #![allow(clippy::needless_range_loop)]
 
@@ -30,6 +32,7 @@ use lightfarm_proto::testing::{
 mod bounces;
 mod drt;
 mod fuzz;
+mod incremental;
 mod probes;
 
 #[global_allocator]

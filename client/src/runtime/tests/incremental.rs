@@ -1,0 +1,222 @@
+//! Tests of [`Runtime::apply_delta`] (`runtime/incremental.rs`): relighting by the change of
+//! direct light equals applying the new light (within rounding for `One` and `Fixed`, within
+//! the tolerance for `Converged`), for MRT with every transport kind and DRT with every kind of
+//! delta entry; an application under a reach equals the full application of the same input;
+//! the reach follows the change; `Feedback` is refused and leaves `out` alone.
+
+use super::*;
+
+/// `ld` with `change` added on the texels `range` (zero elsewhere): (new light, change).
+fn changed(
+    ld: &DirectLight,
+    range: std::ops::Range<usize>,
+    rng: &mut Lcg,
+) -> (DirectLight, DirectLight) {
+    let mut delta = DirectLight {
+        radiance: vec![[0.0; 3]; ld.radiance.len()],
+    };
+    for x in range {
+        delta.radiance[x] = [
+            rng.range(-0.5, 1.0),
+            rng.range(-0.5, 1.0),
+            rng.range(-0.5, 1.0),
+        ];
+    }
+    let new = DirectLight {
+        radiance: ld
+            .radiance
+            .iter()
+            .zip(&delta.radiance)
+            .map(|(a, d)| [a[0] + d[0], a[1] + d[1], a[2] + d[2]])
+            .collect(),
+    };
+    (new, delta)
+}
+
+/// Largest |a − b| relative to the largest |b|.
+fn max_rel(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    let scale = b
+        .iter()
+        .flatten()
+        .fold(0.0f64, |m, v| m.max(v.abs() as f64));
+    let diff = a
+        .iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs() as f64));
+    diff / scale.max(1e-30)
+}
+
+/// The test bundles with their albedo scaled by `rho` (so bounces lose energy).
+fn cases(rng: &mut Lcg, rho: f32) -> Vec<(Bundle, Method, &'static str)> {
+    let mut out = vec![
+        (
+            {
+                let t = traced(rng);
+                bundle(rng, Some(t), false)
+            },
+            Method::Mrt,
+            "mrt traced",
+        ),
+        (
+            {
+                let t = compact(rng);
+                bundle(rng, Some(t), false)
+            },
+            Method::Mrt,
+            "mrt compact",
+        ),
+        (
+            {
+                let t = lightfield(rng);
+                bundle(rng, Some(t), false)
+            },
+            Method::Mrt,
+            "mrt lightfield",
+        ),
+        (
+            drt_bundle(rng, false, true, false),
+            Method::Drt,
+            "drt traced",
+        ),
+        (
+            drt_bundle(rng, true, true, false),
+            Method::Drt,
+            "drt lightfield",
+        ),
+    ];
+    let mut replaced = drt_bundle(rng, false, true, false);
+    replaced.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
+    out.push((replaced, Method::Drt, "drt replaced"));
+    for (b, _, _) in &mut out {
+        for a in &mut b.layout.albedo {
+            *a = a.map(|x| x * rho);
+        }
+    }
+    out
+}
+
+#[test]
+fn one_and_fixed_bounces_by_the_change_equal_applying_the_new_light() {
+    let mut rng = Lcg(71);
+    for (b, method, name) in cases(&mut rng, 1.0) {
+        let n = b.layout.n_texels();
+        let first_block = b.blocks[0].texel_offset as usize..b.blocks[1].texel_offset as usize;
+        // The change on the first block's texels, then on a clutter object's (DRT).
+        let mut ranges = vec![first_block];
+        if method == Method::Drt {
+            ranges.push(DRT_BOX);
+        }
+        let mut rt = Runtime::new(b);
+        let ld = direct(&mut rng, n);
+        for range in ranges {
+            let (new, delta) = changed(&ld, range.clone(), &mut rng);
+            for bounces in [Bounces::One, Bounces::Fixed(3)] {
+                let mut out = IndirectLight::default();
+                rt.apply(method, bounces, &ld, &mut out).unwrap();
+                let mut want = IndirectLight::default();
+                rt.apply(method, bounces, &new, &mut want).unwrap();
+                let d = rt.apply_delta(method, bounces, &delta, &mut out).unwrap();
+                let err = max_rel(&out.radiance, &want.radiance);
+                assert!(err < 1e-5, "{name} {bounces:?} {range:?}: {err}");
+                assert!(d.blocks_projected <= d.blocks_total, "{d:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn an_application_under_a_reach_equals_the_full_application() {
+    let mut rng = Lcg(72);
+    for (b, method, name) in cases(&mut rng, 1.0) {
+        let n = b.layout.n_texels();
+        let mut rt = Runtime::new(b);
+        let zero = DirectLight {
+            radiance: vec![[0.0; 3]; n],
+        };
+        let (_, delta) = changed(&zero, 0..4, &mut rng);
+        for bounces in [Bounces::One, Bounces::Fixed(2)] {
+            let mut full = IndirectLight::default();
+            rt.apply(method, bounces, &delta, &mut full).unwrap();
+            let mut by_change = IndirectLight {
+                radiance: vec![[0.0; 3]; n],
+            };
+            rt.apply_delta(method, bounces, &delta, &mut by_change)
+                .unwrap();
+            // 0 + x is x: the same values, bit for bit (−0 and +0 compare equal).
+            assert_eq!(by_change.radiance, full.radiance, "{name} {bounces:?}");
+        }
+    }
+}
+
+#[test]
+fn the_reach_follows_the_change() {
+    let mut rng = Lcg(73);
+    // Three blocks, traced transport into a from b (1 ← 0, 0 ← 2, 0 ← 1, 2 ← 2, 0 ← 2): a
+    // change on block b (texels 4..15) is projected on b alone in the first bounce.
+    let t = traced(&mut rng);
+    let b = bundle(&mut rng, Some(t), false);
+    let n = b.layout.n_texels();
+    let mut rt = Runtime::new(b);
+    let zero = DirectLight {
+        radiance: vec![[0.0; 3]; n],
+    };
+    let (_, delta) = changed(&zero, 4..15, &mut rng);
+    let mut out = IndirectLight {
+        radiance: vec![[0.0; 3]; n],
+    };
+    let d = rt
+        .apply_delta(Method::Mrt, Bounces::One, &delta, &mut out)
+        .unwrap();
+    assert_eq!((d.blocks_projected, d.blocks_total), (1, 3));
+    // A change nowhere is projected nowhere and leaves `out` as it was.
+    let before = out.clone();
+    let d = rt
+        .apply_delta(Method::Mrt, Bounces::One, &zero, &mut out)
+        .unwrap();
+    assert_eq!((d.blocks_projected, d.blocks_total), (0, 3));
+    assert_eq!(out, before);
+}
+
+#[test]
+fn converged_by_the_change_is_within_its_tolerance() {
+    let mut rng = Lcg(74);
+    // Albedo scaled down so every operator's bounces lose energy.
+    for (b, method, name) in cases(&mut rng, 0.2) {
+        let n = b.layout.n_texels();
+        let mut rt = Runtime::new(b);
+        let ld = direct(&mut rng, n);
+        let (new, delta) = changed(&ld, 0..4, &mut rng);
+        let bounces = Bounces::Converged { tolerance: 1e-5 };
+        let mut out = IndirectLight::default();
+        rt.apply(method, bounces, &ld, &mut out).unwrap();
+        let mut want = IndirectLight::default();
+        rt.apply(method, bounces, &new, &mut want).unwrap();
+        rt.apply_delta(method, bounces, &delta, &mut out).unwrap();
+        let err = max_rel(&out.radiance, &want.radiance);
+        assert!(err < 1e-4, "{name}: {err}");
+    }
+}
+
+#[test]
+fn feedback_is_refused_and_out_is_unchanged() {
+    let mut rng = Lcg(75);
+    let t = traced(&mut rng);
+    let b = bundle(&mut rng, Some(t), false);
+    let n = b.layout.n_texels();
+    let mut rt = Runtime::new(b);
+    let ld = direct(&mut rng, n);
+    let mut out = IndirectLight::default();
+    rt.apply(Method::Mrt, Bounces::One, &ld, &mut out).unwrap();
+    let before = out.clone();
+    let err = rt
+        .apply_delta(Method::Mrt, Bounces::Feedback, &ld, &mut out)
+        .unwrap_err();
+    assert_eq!(err, ApplyError::DeltaFeedback);
+    assert_eq!(out, before);
+    // And the full apply afterwards still does the full work.
+    let mut again = IndirectLight::default();
+    rt.apply(Method::Mrt, Bounces::One, &ld, &mut again)
+        .unwrap();
+    assert_eq!(again, before);
+}

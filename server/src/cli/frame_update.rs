@@ -1,0 +1,165 @@
+//! `lightfarm frame-time BUNDLE --lights LIGHTS.json --update one-light`: the cost of relighting
+//! when one light moves, against relighting everything.
+//!
+//! Light `--light K` (default 0) moves on a horizontal circle of radius [`PATH_RADIUS`] m
+//! around its position, one turn every [`PATH_FRAMES`] frames. Every frame both ways relight the
+//! level for the light's new position, interleaved so the machine's noise falls on both alike:
+//! - **full**: every light's direct light (texel-averaged over the 4 × 4 samples `eval` feeds the
+//!   operators, with shadow rays only where visibility changes across a texel:
+//!   `direct_from_point_lights_adaptive`), then `Runtime::apply`;
+//! - **update**: the moved light's direct light alone, its change from the previous frame, and
+//!   `Runtime::apply_delta` adding that change's indirect light to the previous frame's.
+//!
+//! The adaptive direct light's error against tracing every sample, and that tracing's time,
+//! are printed first. Each way is reported with its direct-light and operator times apart
+//! (medians), then the
+//! update's total last (`median_ms=…`, like the other `frame-time` lines). The update's drift
+//! from the full relight after the last frame (relative L2 over texels and channels) says the
+//! two agree: within float rounding for one or a fixed number of bounces, within the tolerance
+//! per frame for `all`.
+//!
+//! Units: milliseconds of wall time on this thread (the runtime single-threaded).
+
+use std::time::Instant;
+
+use lightfarm_client::{
+    direct_from_point_lights_adaptive, direct_from_point_lights_averaged, relative_l2, Bounces,
+    DirectLight, IndirectLight, Light, Method, Occluders, Runtime,
+};
+use lightfarm_proto::bundle::Layout;
+
+use crate::evaluate::DIRECT_SAMPLES_PER_EDGE;
+
+/// Radius of the moving light's path, metres.
+pub const PATH_RADIUS: f64 = 0.1;
+/// Frames of one turn of the path.
+pub const PATH_FRAMES: usize = 120;
+
+/// Medians (ms) of one way of relighting.
+#[derive(Clone, Copy, Debug)]
+pub struct Way {
+    pub direct_ms: f64,
+    pub operator_ms: f64,
+    pub total_ms: f64,
+}
+
+/// What [`time_update`] measured.
+#[derive(Clone, Copy, Debug)]
+pub struct UpdateTimes {
+    pub full: Way,
+    pub update: Way,
+    /// Relative L2 between the update's and the full relight's indirect light after the last
+    /// frame.
+    pub drift: f64,
+    /// Relative L2 of the adaptive direct light against tracing every sample (frame 0, every
+    /// light), and the time of tracing every sample (ms).
+    pub direct_error: f64,
+    pub direct_every_sample_ms: f64,
+    /// Block projections the update made per frame (median) and the level's blocks times the
+    /// applications a full apply makes.
+    pub blocks_projected: usize,
+    pub blocks_total: usize,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// The texel-averaged direct light both ways feed the operators, with shadow rays only where
+/// visibility changes across a texel ([`direct_from_point_lights_adaptive`]).
+fn direct_of(layout: &Layout, occluders: &Occluders, lights: &[Light]) -> DirectLight {
+    direct_from_point_lights_adaptive(layout, occluders, lights, DIRECT_SAMPLES_PER_EDGE)
+}
+
+/// Times `frames` frames of light `moved` of `lights` moving along the path (module doc),
+/// relit both ways with `method` and `bounces`.
+pub fn time_update(
+    runtime: &mut Runtime,
+    occluders: &Occluders,
+    lights: &[Light],
+    moved: usize,
+    method: Method,
+    bounces: Bounces,
+    frames: usize,
+) -> anyhow::Result<UpdateTimes> {
+    anyhow::ensure!(
+        moved < lights.len(),
+        "--light {moved}: the light set has {} lights",
+        lights.len()
+    );
+    let layout = runtime.bundle().layout.clone();
+    let mut lights = lights.to_vec();
+    let centre = lights[moved].position;
+    let at = |frame: usize| {
+        let a = std::f64::consts::TAU * frame as f64 / PATH_FRAMES as f64;
+        [
+            centre[0] + PATH_RADIUS * a.cos(),
+            centre[1],
+            centre[2] + PATH_RADIUS * a.sin(),
+        ]
+    };
+    // Frame 0: both ways start from the same light.
+    lights[moved].position = at(0);
+    let start = Instant::now();
+    let every_sample =
+        direct_from_point_lights_averaged(&layout, occluders, &lights, DIRECT_SAMPLES_PER_EDGE);
+    let direct_every_sample_ms = start.elapsed().as_secs_f64() * 1e3;
+    let direct0 = direct_of(&layout, occluders, &lights);
+    let direct_error = relative_l2(&direct0.radiance, &every_sample.radiance);
+    let mut full_out = IndirectLight::default();
+    runtime.apply(method, bounces, &direct0, &mut full_out)?;
+    let mut update_out = full_out.clone();
+    let mut previous = direct_of(&layout, occluders, &lights[moved..=moved]);
+    let mut change = DirectLight {
+        radiance: vec![[0.0; 3]; layout.n_texels()],
+    };
+    let (mut full, mut update) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
+    let mut projected = Vec::new();
+    let mut total = 0;
+    for frame in 1..=frames {
+        lights[moved].position = at(frame);
+        // Full: every light's direct light, then apply.
+        let start = Instant::now();
+        let direct = direct_of(&layout, occluders, &lights);
+        let mid = Instant::now();
+        runtime.apply(method, bounces, &direct, &mut full_out)?;
+        full[0].push((mid - start).as_secs_f64() * 1e3);
+        full[1].push(mid.elapsed().as_secs_f64() * 1e3);
+        // Update: the moved light's direct light and its change, then apply_delta.
+        let start = Instant::now();
+        let now = direct_of(&layout, occluders, &lights[moved..=moved]);
+        for ((c, a), b) in change
+            .radiance
+            .iter_mut()
+            .zip(&now.radiance)
+            .zip(&previous.radiance)
+        {
+            *c = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        }
+        let mid = Instant::now();
+        let d = runtime.apply_delta(method, bounces, &change, &mut update_out)?;
+        update[0].push((mid - start).as_secs_f64() * 1e3);
+        update[1].push(mid.elapsed().as_secs_f64() * 1e3);
+        previous = now;
+        projected.push(d.blocks_projected as f64);
+        total = total.max(d.blocks_total);
+    }
+    let way = |[direct, operators]: [Vec<f64>; 2]| {
+        let sums: Vec<f64> = direct.iter().zip(&operators).map(|(a, b)| a + b).collect();
+        Way {
+            direct_ms: median(direct),
+            operator_ms: median(operators),
+            total_ms: median(sums),
+        }
+    };
+    Ok(UpdateTimes {
+        full: way(full),
+        update: way(update),
+        drift: relative_l2(&update_out.radiance, &full_out.radiance),
+        direct_error,
+        direct_every_sample_ms,
+        blocks_projected: median(projected) as usize,
+        blocks_total: total,
+    })
+}
