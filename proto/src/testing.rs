@@ -130,6 +130,46 @@ pub fn shape(
     }
 }
 
+/// Lightfield transport with a random matrix (q × r of the source) per `(target block, target
+/// face, q, source block)` entry, drawn in order; `r[b]` is block b's rank.
+pub fn lightfield_transport(
+    rng: &mut Lcg,
+    entries: &[(u32, u8, usize, u32)],
+    r: &[usize],
+) -> TransportOps {
+    TransportOps::Lightfield(
+        entries
+            .iter()
+            .map(|&(t, face, q, s)| PropEntry {
+                target_block: t,
+                target_face: face,
+                source_block: s,
+                matrix: matrix(rng, q, r[s as usize]),
+            })
+            .collect(),
+    )
+}
+
+/// Traced transport with a random matrix (target texels × source rank) per `(target block,
+/// source block)` pair, drawn in order; `texels[b]` and `r[b]` are block b's texels and rank.
+pub fn traced_transport(
+    rng: &mut Lcg,
+    pairs: &[(u32, u32)],
+    texels: &[usize],
+    r: &[usize],
+) -> TransportOps {
+    TransportOps::Traced(
+        pairs
+            .iter()
+            .map(|&(t, s)| TracedEntry {
+                target_block: t,
+                source_block: s,
+                matrix: matrix(rng, texels[t as usize], r[s as usize]),
+            })
+            .collect(),
+    )
+}
+
 /// Blocks `(id, shape, first texel)` without symmetries.
 pub fn blocks(list: &[(&str, u32, u32)]) -> Vec<BlockOps> {
     list.iter()
@@ -161,31 +201,9 @@ pub fn drt_bundle(rng: &mut Lcg, lightfield: bool, two_clutter: bool, full: bool
     let blocks = blocks(&[("a", 0, 0), ("b", 1, 4)]);
     let r = [2usize, 3];
     let transport = if lightfield {
-        // (target, face, q, source)
-        let entries = [(0u32, 1u8, 3usize, 1u32), (1, 0, 2, 0), (1, 0, 2, 1)];
-        TransportOps::Lightfield(
-            entries
-                .iter()
-                .map(|&(t, face, q, s)| PropEntry {
-                    target_block: t,
-                    target_face: face,
-                    source_block: s,
-                    matrix: matrix(rng, q, r[s as usize]),
-                })
-                .collect(),
-        )
+        lightfield_transport(rng, &[(0, 1, 3, 1), (1, 0, 2, 0), (1, 0, 2, 1)], &r)
     } else {
-        let texels = [4usize, 6];
-        TransportOps::Traced(
-            [(0u32, 1u32), (1, 0), (1, 1)]
-                .iter()
-                .map(|&(t, s)| TracedEntry {
-                    target_block: t,
-                    source_block: s,
-                    matrix: matrix(rng, texels[t as usize], r[s as usize]),
-                })
-                .collect(),
-        )
+        traced_transport(rng, &[(0, 1), (1, 0), (1, 1)], &[4, 6], &r)
     };
     let mut clutter = vec![ClutterOps {
         id: "box".into(),

@@ -8,15 +8,7 @@ use lightfarm_proto::scene::{Aabb, ClutterBasis, Scene, Transport};
 use lightfarm_tests::*;
 
 fn room_with_box(texels: u32, rays: u32, basis: ClutterBasis) -> Scene {
-    let mut scene = Scene::from_json(
-        r#"{ "format": "lightfarm.scene/1", "name": "box on a floor",
-             "blocks": [ { "id": "room", "min": [0,0,0], "max": [4,3,4], "albedo": [0.7,0.7,0.7],
-                           "face_albedo": { "-x": [0.7, 0.2, 0.2] } } ],
-             "clutter": [ { "id": "crate", "box": { "min": [1.5,0,1.5], "max": [2.5,1.2,2.5] }, "albedo": [0.2,0.6,0.3] } ] }"#,
-    )
-    .unwrap();
-    scene.settings.texels_per_face = texels;
-    scene.settings.rays_per_texel = rays;
+    let mut scene = lightfarm_tests::room_with_box(texels, rays);
     scene.settings.clutter_basis = basis;
     scene
 }

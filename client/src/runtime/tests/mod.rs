@@ -21,12 +21,10 @@
 
 use super::*;
 use crate::probes::ProbeField;
-use lightfarm_proto::bundle::{
-    CompactEntry, DeltaSource, DrtOps, Matrix, PropEntry, SparseRows, TracedEntry,
-};
+use lightfarm_proto::bundle::{CompactEntry, DeltaSource, DrtOps, Matrix, SparseRows};
 use lightfarm_proto::testing::{
-    allocs, blocks, drt_bundle, join_sections, layout, matrix, probe_bundle, random_full, shape,
-    CountingAlloc, Lcg, N_PROBES,
+    allocs, blocks, drt_bundle, join_sections, layout, lightfield_transport, matrix, probe_bundle,
+    random_full, shape, traced_transport, CountingAlloc, Lcg, N_PROBES,
 };
 
 mod bounces;
@@ -79,18 +77,8 @@ const DRT_BOX: std::ops::Range<usize> = 10..14;
 const R: [usize; 3] = [2, 3, 2];
 
 fn traced(rng: &mut Lcg) -> TransportOps {
-    let texels = [4usize, 11, 4];
-    let pairs = [(1u32, 0u32), (0, 2), (0, 1), (2, 2), (0, 2)];
-    TransportOps::Traced(
-        pairs
-            .iter()
-            .map(|&(t, s)| TracedEntry {
-                target_block: t,
-                source_block: s,
-                matrix: matrix(rng, texels[t as usize], R[s as usize]),
-            })
-            .collect(),
-    )
+    let pairs = [(1, 0), (0, 2), (0, 1), (2, 2), (0, 2)];
+    traced_transport(rng, &pairs, &[4, 11, 4], &R)
 }
 
 /// Compact transport: blocks 0 and 2 receive (block 1 none); k = 2 and 3.
@@ -116,23 +104,13 @@ fn compact(rng: &mut Lcg) -> TransportOps {
 fn lightfield(rng: &mut Lcg) -> TransportOps {
     // (target, face, q, source); two entries feed block a's +x opening.
     let entries = [
-        (0u32, 1u8, 3usize, 1u32),
+        (0, 1, 3, 1),
         (0, 4, 2, 2),
         (0, 1, 3, 2),
         (1, 0, 2, 0),
         (2, 1, 3, 0),
     ];
-    TransportOps::Lightfield(
-        entries
-            .iter()
-            .map(|&(t, face, q, s)| PropEntry {
-                target_block: t,
-                target_face: face,
-                source_block: s,
-                matrix: matrix(rng, q, R[s as usize]),
-            })
-            .collect(),
-    )
+    lightfield_transport(rng, &entries, &R)
 }
 
 fn direct(rng: &mut Lcg, n: usize) -> DirectLight {
