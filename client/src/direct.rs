@@ -73,20 +73,11 @@ fn radiance_at(
         if light.intensity.iter().all(|&i| i == 0.0) {
             continue;
         }
-        let to = [
-            light.position[0] - x[0] as f64,
-            light.position[1] - x[1] as f64,
-            light.position[2] - x[2] as f64,
-        ];
-        let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
-        if r2.is_nan() || r2 <= 0.0 {
+        // Unshadowed first: a light behind the texel costs no shadow ray.
+        let g = unshadowed(x, n, light, r2_min);
+        if g == 0.0 || occluders.occluded(x, p) {
             continue;
         }
-        let cos = (n[0] as f64 * to[0] + n[1] as f64 * to[1] + n[2] as f64 * to[2]) / r2.sqrt();
-        if cos.is_nan() || cos <= 0.0 || occluders.occluded(x, p) {
-            continue;
-        }
-        let g = cos / r2.max(r2_min);
         for (e, i) in irr.iter_mut().zip(light.intensity) {
             *e += i * g;
         }
@@ -242,7 +233,7 @@ pub fn direct_from_point_lights_adaptive(
 }
 
 /// `cos θ / max(r², r2_min)` of `light` at point `x` with normal `n`, 0 when the light is
-/// behind (or at) the point; no shadow ray.
+/// behind (or at) the point; no shadow ray. Every direct-light path here shares it.
 fn unshadowed(x: [f32; 3], n: [f32; 3], light: &Light, r2_min: f64) -> f64 {
     let to = [0, 1, 2].map(|k| light.position[k] - x[k] as f64);
     let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
