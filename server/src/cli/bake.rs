@@ -89,8 +89,8 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
                 d.scene_texels_with_rows, d.scene_texels_skipped, d.buried_scene_texels, d.inpainted_without_neighbours, d.buried_clutter_texels, d.scene_texels_gathered, list(&d.clutter_ranks)
             );
             eprintln!(
-                "drt rays: {} texels traced, {} reused from the cache (nothing they saw changed)",
-                d.traced_texels, d.reused_texels
+                "drt rays: {} texels traced, {} reused from the cache (nothing they saw changed), {} not traced (out of clutter's sight through the openings)",
+                d.traced_texels, d.reused_texels, d.culled_texels
             );
         }
         if let Some(s) = &report.sh {

@@ -138,7 +138,8 @@ impl BakeExecutor for PipelineExecutor {
                 scene = %scene_id,
                 traced = drt.traced_texels,
                 reused = drt.reused_texels,
-                "drt rays: texels traced, and reused from earlier bakes"
+                culled = drt.culled_texels,
+                "drt rays: texels traced, reused from earlier bakes, and not traced (out of clutter's sight)"
             );
         }
         Ok(BakeOutput {

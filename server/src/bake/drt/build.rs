@@ -81,6 +81,8 @@ pub struct DrtStats {
     /// cache gave (incremental rebake).
     pub traced_texels: usize,
     pub reused_texels: usize,
+    /// Block texels that cannot see any clutter through the openings: not traced.
+    pub culled_texels: usize,
 }
 
 /// All DRT operators of a scene.
@@ -214,6 +216,7 @@ pub fn build_drt(
     let rays = trace_all(&pass, cache, progress)?;
     stats.traced_texels = rays.traced_texels;
     stats.reused_texels = rays.reused_texels;
+    stats.culled_texels = rays.culled_texels;
 
     let rows = SourceRows {
         l_imp: l_imp_rows(inputs.shapes),

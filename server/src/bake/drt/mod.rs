@@ -3,6 +3,8 @@
 //! # Layout (in data-flow order)
 //! - [`clutter_basis`]: the basis for direct light on a clutter object (`T_d→c`).
 //! - [`clutter_sampling`]: importance sampling toward clutter for the gathers (ours).
+//! - [`sight`]: which block texels could see clutter at all, through the openings, decided
+//!   before any ray (texels that cannot are not traced).
 //! - [`rays`]: the two ray passes (block texels toward clutter, clutter texels) and their reuse
 //!   across bakes, bounded by [`reach`] (the region a texel's rays swept); stored on disk by
 //!   [`crate::bake::cache::drt_rays`].
@@ -24,3 +26,4 @@ pub mod lit_source;
 pub mod rays;
 pub mod reach;
 pub mod rows;
+pub mod sight;

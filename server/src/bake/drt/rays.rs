@@ -41,6 +41,7 @@ use crate::bake::drt::clutter_basis::ClutterBasisOps;
 use crate::bake::drt::clutter_sampling::{ClutterGuidedSampler, Sphere};
 use crate::bake::drt::error::DrtError;
 use crate::bake::drt::reach::RayReach;
+use crate::bake::drt::sight::ClutterSight;
 use crate::bake::math::low_rank::LowRankError;
 use crate::bake::math::sampling::{
     sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose,
@@ -203,6 +204,8 @@ pub struct RayPass<'a> {
     block_tracer: &'a Tracer,
     sampler: ClutterGuidedSampler,
     neighbourhoods: Vec<Neighbourhood>,
+    /// Which block faces could see clutter at all: the others are not traced.
+    sight: ClutterSight,
 }
 
 /// Sums weights per texel in ray order; ascending by texel.
@@ -249,6 +252,7 @@ impl<'a> RayPass<'a> {
                 alpha: scene.settings.clutter_importance,
             },
             neighbourhoods,
+            sight: ClutterSight::new(scene, openings, g),
         }
     }
 
@@ -394,6 +398,19 @@ pub struct RayPassResults {
     pub clutter: Vec<ClutterTexelRays>,
     pub traced_texels: usize,
     pub reused_texels: usize,
+    /// Block texels that cannot see any clutter (`sight`): not traced.
+    pub culled_texels: usize,
+}
+
+/// What one unit did with its texels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct UnitCounts {
+    /// Texels whose rays were traced.
+    pub traced: usize,
+    /// Texels whose rays an earlier bake's cache gave.
+    pub reused: usize,
+    /// Block texels that cannot see any clutter: not traced, and nothing seen.
+    pub culled: usize,
 }
 
 /// How cached texel indices map into the new scene, and what changed.
@@ -508,24 +525,52 @@ fn trace_missing<T: Send>(
 }
 
 /// Block `b`'s ray unit: its texels' rays, reusing what `cache` holds from an earlier bake and
-/// storing the unit. Returns (results in texel order, texels traced, texels reused).
+/// storing the unit. Texels that cannot see any clutter ([`ClutterSight`]) are neither
+/// traced nor looked up: their rays would see no clutter, which is all the delta operators
+/// read; their reach is "everywhere", so a later bake never reuses them.
 pub fn trace_block_unit(
     pass: &RayPass,
     b: usize,
     cache: Option<&DrtRayCache>,
     progress: &(dyn Fn(u64) + Sync),
-) -> std::io::Result<(Vec<BlockTexelRays>, usize, usize)> {
+) -> std::io::Result<(Vec<BlockTexelRays>, UnitCounts)> {
     let g = pass.g;
     let range = g.block_texels[b].clone();
     let first_clutter = pass.gb.texels.len() as u32;
     let new_clutter = clutter_list(g);
     let key = pass.block_unit_key(b);
     let mut texels: Vec<Option<BlockTexelRays>> = vec![None; range.len()];
-    let mut reused = 0;
+    let mut counts = UnitCounts::default();
+    // Texels out of clutter's sight: block, then face, then texel centre.
+    let sees = pass.sight.block_faces(b);
+    let in_sight: Vec<bool> = range
+        .clone()
+        .into_par_iter()
+        .map(|x| {
+            let texel = &g.texels[x];
+            match g.surfaces[texel.surface as usize].owner {
+                SurfaceOwner::Block { face, .. } => {
+                    let goals = &sees[face.index()];
+                    !goals.is_empty() && pass.sight.texel_sees(b, face, texel.position, goals)
+                }
+                _ => true,
+            }
+        })
+        .collect();
+    for (slot, seen) in texels.iter_mut().zip(in_sight) {
+        if !seen {
+            *slot = Some(BlockTexelRays {
+                reach: RayReach::everywhere(),
+                ..BlockTexelRays::default()
+            });
+            counts.culled += 1;
+        }
+    }
     if let Some(old) = cache.and_then(|c| c.get_block(&key, range.len())) {
         let changes = Changes::between(&old.clutter, &new_clutter, g.scale());
         for ((x, slot), cached) in range.clone().zip(texels.iter_mut()).zip(old.texels) {
-            if !changes.untouched(g.texels[x].position, &cached.reach)
+            if slot.is_some()
+                || !changes.untouched(g.texels[x].position, &cached.reach)
                 || pass.guide(x, &old.spheres) != pass.guide(x, &pass.sampler.spheres)
             {
                 continue;
@@ -538,16 +583,17 @@ pub fn trace_block_unit(
                     hits,
                     ..cached
                 });
-                reused += 1;
+                counts.reused += 1;
             }
         }
     }
-    progress(reused as u64);
+    progress((counts.reused + counts.culled) as u64);
     let (texels, traced) = trace_missing(
         texels,
         |i| pass.trace_block_texel(range.start + i),
         progress,
     );
+    counts.traced = traced;
     if let Some(cache) = cache {
         cache.put_block(
             &key,
@@ -558,7 +604,7 @@ pub fn trace_block_unit(
             },
         )?;
     }
-    Ok((texels, traced, reused))
+    Ok((texels, counts))
 }
 
 /// Clutter object `c`'s ray unit (like [`trace_block_unit`]); box and mesh clutter alike.
@@ -567,11 +613,11 @@ pub fn trace_clutter_unit(
     c: usize,
     cache: Option<&DrtRayCache>,
     progress: &(dyn Fn(u64) + Sync),
-) -> std::io::Result<(Vec<ClutterTexelRays>, usize, usize)> {
+) -> std::io::Result<(Vec<ClutterTexelRays>, UnitCounts)> {
     let g = pass.g;
     let range = g.clutter_texels[c].clone();
     if range.is_empty() {
-        return Ok((Vec::new(), 0, 0));
+        return Ok((Vec::new(), UnitCounts::default()));
     }
     let first_clutter = pass.gb.texels.len() as u32;
     let new_clutter = clutter_list(g);
@@ -606,7 +652,14 @@ pub fn trace_clutter_unit(
             },
         )?;
     }
-    Ok((texels, traced, reused))
+    Ok((
+        texels,
+        UnitCounts {
+            traced,
+            reused,
+            culled: 0,
+        },
+    ))
 }
 
 /// Runs both passes unit by unit, reusing what `cache` holds and storing the new units.
@@ -615,25 +668,31 @@ pub fn trace_all(
     cache: Option<&DrtRayCache>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> std::io::Result<RayPassResults> {
-    let mut out = RayPassResults {
-        block: Vec::with_capacity(pass.gb.texels.len()),
-        clutter: Vec::with_capacity(pass.g.texels.len() - pass.gb.texels.len()),
-        traced_texels: 0,
-        reused_texels: 0,
+    let mut total = UnitCounts::default();
+    let mut add = |c: UnitCounts| {
+        total.traced += c.traced;
+        total.reused += c.reused;
+        total.culled += c.culled;
     };
+    let mut block = Vec::with_capacity(pass.gb.texels.len());
     for b in 0..pass.scene.blocks.len() {
-        let (texels, traced, reused) = trace_block_unit(pass, b, cache, progress)?;
-        out.block.extend(texels);
-        out.traced_texels += traced;
-        out.reused_texels += reused;
+        let (texels, counts) = trace_block_unit(pass, b, cache, progress)?;
+        block.extend(texels);
+        add(counts);
     }
+    let mut clutter = Vec::with_capacity(pass.g.texels.len() - pass.gb.texels.len());
     for c in 0..pass.scene.clutter.len() {
-        let (texels, traced, reused) = trace_clutter_unit(pass, c, cache, progress)?;
-        out.clutter.extend(texels);
-        out.traced_texels += traced;
-        out.reused_texels += reused;
+        let (texels, counts) = trace_clutter_unit(pass, c, cache, progress)?;
+        clutter.extend(texels);
+        add(counts);
     }
-    Ok(out)
+    Ok(RayPassResults {
+        block,
+        clutter,
+        traced_texels: total.traced,
+        reused_texels: total.reused,
+        culled_texels: total.culled,
+    })
 }
 
 impl RayPass<'_> {

@@ -15,6 +15,9 @@
 /// Squares per cube face side.
 const CELLS: usize = 4;
 
+/// The cell id [`RayReach::everywhere`] stores: every direction, unbounded.
+const EVERYWHERE: u8 = u8::MAX;
+
 /// Longest segment per direction cell, from one origin.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct RayReach {
@@ -43,6 +46,14 @@ fn tangents(axis: usize) -> (usize, usize) {
 }
 
 impl RayReach {
+    /// A reach that meets every box: for a texel whose rays were not traced, so that nothing
+    /// is ever concluded from them.
+    pub fn everywhere() -> RayReach {
+        RayReach {
+            cells: vec![(EVERYWHERE, f32::INFINITY)],
+        }
+    }
+
     /// Records a segment from the origin along unit direction `d` of length `t` (∞: escaped).
     pub fn add(&mut self, d: [f64; 3], t: f64) {
         let cell = cell_of(d);
@@ -78,6 +89,9 @@ impl RayReach {
         };
         const SLACK: f64 = 1e-6;
         self.cells.iter().any(|&(cell, len)| {
+            if cell == EVERYWHERE {
+                return true;
+            }
             if gap > len as f64 {
                 return false;
             }
