@@ -10,6 +10,7 @@
 //! - [`dnrt`]: DNRT grids of dynamic objects (`dnrt/`).
 //! - [`drt_rays`]: DRT ray-pass units and clutter prior bases (`drt/`), keyed and reused by
 //!   [`crate::bake::drt::rays`].
+//! - [`factors`]: the DRT compaction's truncated SVDs (`factors/`), keyed by the matrix.
 //!
 //! Each cache owns its key and payload serialization; `<dir>` is the operator cache directory
 //! [`shape::ShapeCache`] opens.
@@ -17,5 +18,6 @@
 pub mod dnrt;
 pub mod drt_rays;
 pub mod entry;
+pub mod factors;
 pub mod shape;
 pub mod transport;

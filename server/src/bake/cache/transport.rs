@@ -68,7 +68,7 @@ pub fn transport_key(scene: &Scene, transport: Transport, shape_keys: &[String])
     h.finalize().to_hex().to_string()
 }
 
-fn write_mat(w: &mut Writer, m: &Mat<f64>) {
+pub(crate) fn write_mat(w: &mut Writer, m: &Mat<f64>) {
     w.u32(m.nrows() as u32);
     w.u32(m.ncols() as u32);
     for i in 0..m.nrows() {
@@ -78,7 +78,7 @@ fn write_mat(w: &mut Writer, m: &Mat<f64>) {
     }
 }
 
-fn read_mat(r: &mut Reader) -> Result<Mat<f64>, WireError> {
+pub(crate) fn read_mat(r: &mut Reader) -> Result<Mat<f64>, WireError> {
     let rows = r.u32()? as usize;
     let cols = r.u32()? as usize;
     if rows.saturating_mul(cols).saturating_mul(8) > r.remaining() {

@@ -25,6 +25,7 @@ use faer::Mat;
 
 use lightfarm_proto::bundle::{DeltaEntry, DeltaSource, TexelGather};
 
+use crate::bake::cache::factors::{FactorCache, Factors, MIN_VALUES};
 use crate::bake::math::low_rank::{truncated_svd, LowRankError};
 use crate::bake::math::matrix::to_matrix;
 
@@ -48,8 +49,29 @@ pub struct DeltaCompactionStats {
     pub ranks: Vec<usize>,
 }
 
-/// The factors `(left, mix)` of `m` when they are smaller than [`KEEP_FRACTION`] of it.
-fn factor(m: &Mat<f64>, tolerance: f64) -> Result<Option<(Mat<f64>, Mat<f64>)>, LowRankError> {
+/// The factors `(left, mix)` of `m` when they are smaller than [`KEEP_FRACTION`] of it; from
+/// `cache` when it holds this matrix's outcome (the same bits), stored there otherwise.
+fn factor(
+    m: &Mat<f64>,
+    tolerance: f64,
+    cache: Option<&FactorCache>,
+) -> Result<Factors, LowRankError> {
+    let Some(cache) = cache.filter(|_| m.nrows() * m.ncols() >= MIN_VALUES) else {
+        return factor_now(m, tolerance);
+    };
+    let key = FactorCache::key(m, tolerance);
+    if let Some(hit) = cache.get(&key) {
+        return Ok(hit);
+    }
+    let factors = factor_now(m, tolerance)?;
+    if let Err(e) = cache.put(&key, &factors) {
+        // Only a later rebake's time depends on it.
+        tracing::warn!(error = %e, "could not store a DRT factorisation in the cache");
+    }
+    Ok(factors)
+}
+
+fn factor_now(m: &Mat<f64>, tolerance: f64) -> Result<Factors, LowRankError> {
     let (rows, cols) = (m.nrows(), m.ncols());
     if rows.min(cols) <= 2 {
         return Ok(None);
@@ -70,10 +92,11 @@ pub fn compact_entry(
     source: DeltaSource,
     m: &Mat<f64>,
     tolerance: f64,
+    cache: Option<&FactorCache>,
     stats: &mut DeltaCompactionStats,
 ) -> Result<DeltaEntry, LowRankError> {
     stats.values_before += m.nrows() * m.ncols();
-    Ok(match factor(m, tolerance)? {
+    Ok(match factor(m, tolerance, cache)? {
         Some((left, mix)) => {
             stats.factored += 1;
             stats.ranks.push(mix.nrows());
@@ -106,6 +129,7 @@ pub fn compact_entry_keeping(
     m: &Mat<f64>,
     exact_rows: &[u32],
     tolerance: f64,
+    cache: Option<&FactorCache>,
     stats: &mut DeltaCompactionStats,
 ) -> Result<Vec<DeltaEntry>, LowRankError> {
     let (keep, factor_rows): (Vec<usize>, Vec<usize>) =
@@ -119,7 +143,7 @@ pub fn compact_entry_keeping(
     let mut out = Vec::new();
     if !factor_rows.is_empty() {
         let (r, sub) = pick(&factor_rows);
-        out.push(compact_entry(r, source, &sub, tolerance, stats)?);
+        out.push(compact_entry(r, source, &sub, tolerance, cache, stats)?);
     }
     if !keep.is_empty() {
         let (r, sub) = pick(&keep);
@@ -143,6 +167,7 @@ pub fn compact_gather(
     gather: &TexelGather,
     ranges: &[(u32, u32)],
     tolerance: f64,
+    cache: Option<&FactorCache>,
     stats: &mut DeltaCompactionStats,
 ) -> Result<(Vec<DeltaEntry>, Option<TexelGather>), LowRankError> {
     stats.gather_sparse_before += gather.values.len();
@@ -186,7 +211,7 @@ pub fn compact_gather(
                 }
             }
         }
-        let Some((left, mix)) = factor(&dense, tolerance)? else {
+        let Some((left, mix)) = factor(&dense, tolerance, cache)? else {
             continue;
         };
         let values = left.nrows() * left.ncols() + mix.nrows() * mix.ncols();
@@ -248,6 +273,7 @@ mod tests {
             DeltaSource::Block(0),
             &m,
             0.01,
+            None,
             &mut stats,
         )
         .unwrap();
@@ -287,6 +313,7 @@ mod tests {
             &m,
             &[105, 999],
             0.01,
+            None,
             &mut stats,
         )
         .unwrap();
@@ -307,6 +334,7 @@ mod tests {
             DeltaSource::Clutter(1),
             &m,
             0.01,
+            None,
             &mut stats,
         )
         .unwrap();
@@ -338,7 +366,8 @@ mod tests {
             g.row_start.push(g.cols.len() as u32);
         }
         let mut stats = DeltaCompactionStats::default();
-        let (entries, rest) = compact_gather(&g, &[(0, 20), (30, 10)], 1e-6, &mut stats).unwrap();
+        let (entries, rest) =
+            compact_gather(&g, &[(0, 20), (30, 10)], 1e-6, None, &mut stats).unwrap();
         assert_eq!(entries.len(), 1);
         let e = &entries[0];
         assert_eq!(

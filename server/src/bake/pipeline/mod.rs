@@ -20,6 +20,7 @@ use std::time::Instant;
 use lightfarm_proto::bundle::Bundle;
 use lightfarm_proto::scene::{Scene, SceneError, Transport};
 
+use crate::bake::cache::factors::FactorCache;
 use crate::bake::cache::shape::ShapeCache;
 use crate::bake::cache::transport::CachedTransport;
 use crate::bake::drt::build::{DrtInputs, DrtStats};
@@ -159,7 +160,12 @@ pub fn bake(
     let drt = stages::clutter_operators(&drt_inputs, cache, progress)?;
     if let Some(ops) = &drt {
         report.drt = Some(ops.stats.clone());
-        let (section, stats) = to_bundle::drt_section(&bundle, ops, &scene.settings)?;
+        let factors = match cache {
+            Some(c) => Some(FactorCache::open(c.dir())?),
+            None => None,
+        };
+        let (section, stats) =
+            to_bundle::drt_section(&bundle, ops, &scene.settings, factors.as_ref())?;
         report.delta_compaction = stats;
         bundle.drt = Some(section);
         announce(&bundle);

@@ -8,6 +8,7 @@
 use lightfarm_proto::bundle::{self, Bundle, Layout, SparseRows, SurfaceInfo, TransportOps};
 use lightfarm_proto::scene::{Scene, Settings};
 
+use crate::bake::cache::factors::FactorCache;
 use crate::bake::drt::build::{DeltaBlock, DrtOperators};
 use crate::bake::drt::compaction::{compact_entry_keeping, compact_gather, DeltaCompactionStats};
 use crate::bake::math::low_rank::LowRankError;
@@ -121,11 +122,13 @@ pub fn mrt_bundle(
 }
 
 /// The bundle's DRT section from the DRT operators: delta entries and the exact gather in
-/// low-rank form when `compact_deltas` (see [`crate::bake::drt::compaction`]).
+/// low-rank form when `compact_deltas` (see [`crate::bake::drt::compaction`]), their
+/// factorisations read from and stored in `factors` when given.
 pub fn drt_section(
     bundle: &Bundle,
     ops: &DrtOperators,
     settings: &Settings,
+    factors: Option<&FactorCache>,
 ) -> Result<(bundle::DrtOps, Option<DeltaCompactionStats>), BakeError> {
     let clutter: Vec<bundle::ClutterOps> = ops
         .clutter
@@ -160,6 +163,7 @@ pub fn drt_section(
                 &e.matrix,
                 &buried,
                 settings.tolerance,
+                factors,
                 &mut stats,
             )
             .map_err(low_rank)?,
@@ -174,8 +178,8 @@ pub fn drt_section(
             .map(|b| (b.texel_offset, bundle.shapes[b.shape as usize].u_b.rows))
             .chain(clutter.iter().map(|c| (c.texel_offset, c.t_dc.cols)))
             .collect();
-        let (gathered, rest) =
-            compact_gather(g, &ranges, settings.tolerance, &mut stats).map_err(low_rank)?;
+        let (gathered, rest) = compact_gather(g, &ranges, settings.tolerance, factors, &mut stats)
+            .map_err(low_rank)?;
         entries.extend(gathered);
         direct_gather = rest.map(|g| g.sorted());
     }
