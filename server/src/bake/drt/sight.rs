@@ -7,7 +7,7 @@
 //! leading out of the level: `Opening::Void`); closed faces stop rays from either side. A
 //! segment from a point of face `F` to a point of clutter box `C` lies in the convex hull
 //! `H = conv(F ∪ C)` (the *shaft*), starts in `F`'s block and crosses from block to block only
-//! through open faces, each crossing point inside `H`. So if a breadth-first walk from `F`'s
+//! through open faces, each crossing point inside `H`. So if a walk (a graph search) from `F`'s
 //! block, through the open faces that meet `H`, never reaches a block that `C` overlaps (or the
 //! outside, when `C` is not inside one block), no segment joins them: nothing of `F` sees `C`.
 //! Clutter is ignored as an occluder (it only hides more). A face also cannot see a box that
