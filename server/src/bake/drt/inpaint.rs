@@ -32,14 +32,18 @@ pub fn inpaint(
     let n_blocks = inputs.scene.blocks.len();
     for (target, map) in per_target.iter_mut().enumerate() {
         let range = g.block_texels[target].clone();
+        // Only blocks with a buried texel have anything to inpaint (the source search below
+        // passes over the whole transport, so doing it for every block is quadratic).
+        if !buried[range.clone()].iter().any(|b| *b) {
+            continue;
+        }
         // Every source whose MRT transport reaches the target, not only those with delta rows:
         // a buried texel must cancel light arriving from neighbouring blocks too (a room
         // wholly inside a clutter box still receives MRT light through its openings).
         let mut sources: Vec<LitSource> = map.keys().copied().collect();
         for b in 0..n_blocks {
             let key = LitSource::Block(b as u32);
-            let reaches = b == target || mrt.row(shapes, target, b, 0).is_some();
-            if reaches && !sources.contains(&key) {
+            if mrt.reaches(shapes, target, b) && !sources.contains(&key) {
                 sources.push(key);
             }
         }

@@ -205,7 +205,7 @@ pub struct RayPass<'a> {
     sampler: ClutterGuidedSampler,
     neighbourhoods: Vec<Neighbourhood>,
     /// Which block faces could see clutter at all: the others are not traced.
-    sight: ClutterSight,
+    sight: ClutterSight<'a>,
 }
 
 /// Sums weights per texel in ray order; ascending by texel.

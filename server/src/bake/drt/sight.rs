@@ -27,7 +27,7 @@
 use glam::DVec3;
 
 use lightfarm_proto::face::Face;
-use lightfarm_proto::scene::{Block, Opening, Scene};
+use lightfarm_proto::scene::{Opening, Scene};
 
 use crate::bake::scene::geometry::{Geometry, SurfaceOwner};
 
@@ -66,6 +66,19 @@ impl Box3 {
         let c = (self.min + self.max).dot(n) * 0.5;
         let r = (self.max - self.min).dot(n.abs()) * 0.5;
         (c - r, c + r)
+    }
+
+    /// The flat box of one of its faces.
+    fn face(&self, face: Face) -> Box3 {
+        let k = face.axis();
+        let c = if face.is_max_side() {
+            self.max[k]
+        } else {
+            self.min[k]
+        };
+        let mut out = *self;
+        (out.min[k], out.max[k]) = (c, c);
+        out
     }
 
     fn meets(&self, other: &Box3, margin: f64) -> bool {
@@ -171,49 +184,28 @@ impl Portals {
 
 /// The level's blocks, open faces and clutter, ready to answer per block which of its faces
 /// could see some clutter object (see the module doc).
-pub struct ClutterSight {
+pub struct ClutterSight<'a> {
     portals: Portals,
     goals: Vec<Goal>,
-    /// Per block, per face: the box around its texel centres (None: no texels).
-    faces: Vec<[Option<Box3>; 6]>,
+    /// The full geometry: its block texels' centres bound each face (per block, when asked).
+    g: &'a Geometry,
 }
 
-impl ClutterSight {
+impl<'a> ClutterSight<'a> {
     /// `g` is the full geometry: its clutter shapes' bounds are the goals, and its block
     /// texels' centres (where the DRT rays start) bound each face. The margin is
     /// `1e-6 · g.scale()`, as the tracer's own tolerances.
-    pub fn new(scene: &Scene, openings: &[[Option<Opening>; 6]], g: &Geometry) -> ClutterSight {
+    pub fn new(
+        scene: &Scene,
+        openings: &[[Option<Opening>; 6]],
+        g: &'a Geometry,
+    ) -> ClutterSight<'a> {
         let margin = 1e-6 * g.scale();
         let boxes: Vec<Box3> = scene
             .blocks
             .iter()
             .map(|b| Box3::new(b.min, b.max))
             .collect();
-        let face_rect = |block: &Block, face: Face| {
-            let (lo, hi, c) = block.aabb().face_rect(face);
-            let (u, v) = face.tangent_axes();
-            let (mut min, mut max) = ([0.0; 3], [0.0; 3]);
-            (min[face.axis()], max[face.axis()]) = (c, c);
-            (min[u], max[u], min[v], max[v]) = (lo[0], hi[0], lo[1], hi[1]);
-            Box3::new(min, max)
-        };
-        // The box around each face's texel centres.
-        let mut faces: Vec<[Option<Box3>; 6]> = vec![[None; 6]; scene.blocks.len()];
-        for texel in &g.texels[..g.block_texels.last().map_or(0, |r| r.end)] {
-            let SurfaceOwner::Block { block, face } = g.surfaces[texel.surface as usize].owner
-            else {
-                continue;
-            };
-            let p = DVec3::from(texel.position);
-            let slot = &mut faces[block][face.index()];
-            *slot = Some(match *slot {
-                None => Box3 { min: p, max: p },
-                Some(b) => Box3 {
-                    min: b.min.min(p),
-                    max: b.max.max(p),
-                },
-            });
-        }
         let mut open = vec![Vec::new(); boxes.len()];
         let mut to_outside = Vec::new();
         for (b, by_face) in openings.iter().enumerate() {
@@ -221,7 +213,7 @@ impl ClutterSight {
                 let Some(o) = by_face[face.index()] else {
                     continue;
                 };
-                let rect = face_rect(&scene.blocks[b], face);
+                let rect = boxes[b].face(face);
                 let to = match o {
                     Opening::Neighbour { block, .. } => Some(block),
                     Opening::Void => {
@@ -256,15 +248,33 @@ impl ClutterSight {
                 margin,
             },
             goals,
-            faces,
+            g,
         }
+    }
+
+    /// Per face of block `b`: the box around its texel centres (None: no texels).
+    fn face_boxes(&self, b: usize) -> [Option<Box3>; 6] {
+        let g = self.g;
+        let mut faces = [None; 6];
+        for texel in &g.texels[g.block_texels[b].clone()] {
+            let SurfaceOwner::Block { face, .. } = g.surfaces[texel.surface as usize].owner else {
+                continue;
+            };
+            let p = DVec3::from(texel.position);
+            let slot: &mut Option<Box3> = &mut faces[face.index()];
+            *slot = Some(slot.map_or(Box3 { min: p, max: p }, |b| Box3 {
+                min: b.min.min(p),
+                max: b.max.max(p),
+            }));
+        }
+        faces
     }
 
     /// Per face of block `b` (in [`Face::ALL`] order): the clutter objects (scene clutter
     /// indices, ascending) it could see. Faces without texels (open ones) see none.
     pub fn block_faces(&self, b: usize) -> [Vec<u32>; 6] {
         let mut sees: [Vec<u32>; 6] = Default::default();
-        let faces = &self.faces[b];
+        let faces = self.face_boxes(b);
         for (c, goal) in self.goals.iter().enumerate() {
             if !self.portals.walk(&self.portals.boxes[b], b, goal) {
                 continue;
@@ -427,15 +437,11 @@ mod tests {
         )
     }
 
-    fn sight_of(scene: &Scene) -> ClutterSight {
-        let g = Geometry::from_scene(scene, std::path::Path::new(".")).unwrap();
-        ClutterSight::new(scene, &scene.openings().unwrap(), &g)
-    }
-
     #[test]
     fn a_room_round_two_corners_is_out_of_sight() {
         let scene = round_two_corners();
-        let sight = sight_of(&scene);
+        let g = Geometry::from_scene(&scene, std::path::Path::new(".")).unwrap();
+        let sight = ClutterSight::new(&scene, &scene.openings().unwrap(), &g);
         assert!(sight.block_faces(0).iter().all(|f| f.is_empty()), "room A");
         // D holds the box: its floor sees it; its open faces have no texels.
         let d = sight.block_faces(3);

@@ -213,6 +213,23 @@ pub enum MrtTransport {
 }
 
 impl MrtTransport {
+    /// Whether source block `source`'s light reaches target block `target` (its own block, or
+    /// through an inter-block term): exactly when [`MrtTransport::row`] is `Some`, without
+    /// computing a row.
+    pub fn reaches(&self, shapes: &[&ShapeOperators], target: usize, source: usize) -> bool {
+        target == source
+            || match self {
+                MrtTransport::Traced(blocks) => blocks
+                    .iter()
+                    .any(|b| b.target_block == target && b.source_block == source),
+                MrtTransport::Lightfield(blocks) => blocks.iter().any(|b| {
+                    b.target_block == target
+                        && b.source_block == source
+                        && shapes[target].opening(b.target_face).is_some()
+                }),
+            }
+    }
+
     /// Row `local` of the operator mapping source block `source`'s `b` to indirect light on
     /// target block `target`'s texels (albedo-free): `U_b` for the block itself plus the
     /// inter-block term. None when the source does not reach the target.
