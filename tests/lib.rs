@@ -147,3 +147,66 @@ pub fn spawn_listening(command: &mut std::process::Command) -> (std::process::Ch
         .to_string();
     (child, addr)
 }
+
+/// Checks a bundle's light reach (`LightReach`) against lighting every texel, for each light
+/// alone at each of `positions`: the direct light on the reached spans is bit-identical to the
+/// whole-layout direct light there, and every texel left out is exactly dark in it. Returns
+/// the texels reached and the texels lit, summed over the positions (`samples` per texel edge).
+pub fn check_light_reach(
+    bundle: &lightfarm_proto::bundle::Bundle,
+    light: &lightfarm_client::Light,
+    positions: &[[f64; 3]],
+    samples: u32,
+) -> (usize, usize) {
+    use lightfarm_client::{
+        direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in, direct_scale,
+        LightReach, Occluders,
+    };
+    let layout = &bundle.layout;
+    let occluders = Occluders::from_layout(layout);
+    let scale = direct_scale(layout, &occluders);
+    let mut reach = LightReach::new(bundle).expect("the bundle has rooms");
+    let (mut reached, mut lit) = (0, 0);
+    let mut spans = Vec::new();
+    for p in positions {
+        let mut l = light.clone();
+        l.position = *p;
+        let lights = std::slice::from_ref(&l);
+        let whole = direct_from_point_lights_adaptive(layout, &occluders, lights, samples);
+        reach.texels(layout, *p, &mut spans);
+        let mut part = vec![[f32::NAN; 3]; layout.n_texels()];
+        direct_from_point_lights_adaptive_in(
+            layout, &occluders, lights, samples, scale, &spans, &mut part,
+        );
+        let mut inside = vec![false; layout.n_texels()];
+        for s in &spans {
+            inside[s.texels.clone()].fill(true);
+        }
+        for (t, (w, q)) in whole.radiance.iter().zip(&part).enumerate() {
+            if inside[t] {
+                assert_eq!(
+                    w.map(f32::to_bits),
+                    q.map(f32::to_bits),
+                    "texel {t}, light at {p:?}"
+                );
+            } else {
+                assert_eq!(
+                    *w,
+                    [0.0; 3],
+                    "texel {t} ({}) is lit by the light at {p:?} but out of its reach",
+                    layout
+                        .surfaces
+                        .iter()
+                        .find(|s| (s.texel_offset as usize
+                            ..(s.texel_offset + s.texel_count) as usize)
+                            .contains(&t))
+                        .map_or("?", |s| s.name.as_str())
+                );
+                assert!(q[0].is_nan(), "texel {t} outside the spans was written");
+            }
+            lit += usize::from(*w != [0.0; 3]);
+        }
+        reached += inside.iter().filter(|&&i| i).count();
+    }
+    (reached, lit)
+}

@@ -26,8 +26,13 @@ pub struct DirectLight {
     pub radiance: Vec<[f32; 3]>,
 }
 
-/// The diagonal of the box around the texel centres and the occluders (1 if that is empty or
-/// degenerate).
+/// The scene scale every direct-light call clamps `r²` by: the diagonal of the box around the
+/// texel centres and the occluders (1 if that is empty or degenerate).
+pub fn direct_scale(layout: &Layout, occluders: &Occluders) -> f64 {
+    scene_scale(layout, occluders)
+}
+
+/// See [`direct_scale`].
 fn scene_scale(layout: &Layout, occluders: &Occluders) -> f64 {
     let mut bounds = occluders.bounds();
     for p in &layout.positions {
@@ -125,28 +130,51 @@ pub fn direct_from_point_lights_averaged(
     let r2_min = (R_MIN_REL * scene_scale(layout, occluders)).powi(2);
     let light_pos = light_positions(lights);
     let m = samples_per_edge.max(1) as usize;
-    let mut points = Vec::new();
     let radiance = (0..layout.n_texels())
         .map(|t| {
             let (x, n, rho) = (layout.positions[t], layout.normals[t], layout.albedo[t]);
             let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
-            if m == 1 || size == [0.0, 0.0] {
-                return radiance_at(x, n, rho, lights, &light_pos, occluders, r2_min)
-                    .map(|v| v as f32);
-            }
-            points.resize(m * m, [0.0; 3]);
-            sample_points(x, n, size, m, &mut points);
-            let mut sum = [0.0f64; 3];
-            for &p in &points {
-                let l = radiance_at(p, n, rho, lights, &light_pos, occluders, r2_min);
-                for c in 0..3 {
-                    sum[c] += l[c];
-                }
-            }
-            sum.map(|s| (s / (m * m) as f64) as f32)
+            averaged_texel(x, n, rho, size, m, lights, &light_pos, occluders, r2_min)
         })
         .collect();
     DirectLight { radiance }
+}
+
+/// One texel of [`direct_from_point_lights_averaged`]: the mean over its `m × m` samples (the
+/// centre alone when `m == 1` or the texel has no size).
+#[allow(clippy::too_many_arguments)]
+fn averaged_texel(
+    x: [f32; 3],
+    n: [f32; 3],
+    rho: [f32; 3],
+    size: [f32; 2],
+    m: usize,
+    lights: &[Light],
+    light_pos: &[[f32; 3]],
+    occluders: &Occluders,
+    r2_min: f64,
+) -> [f32; 3] {
+    if m == 1 || size == [0.0, 0.0] {
+        return radiance_at(x, n, rho, lights, light_pos, occluders, r2_min).map(|v| v as f32);
+    }
+    // On the stack up to 8 × 8 samples (no allocation per texel).
+    let mut stack = [[0.0f32; 3]; 64];
+    let mut heap = Vec::new();
+    let points: &mut [[f32; 3]] = if m * m <= stack.len() {
+        &mut stack[..m * m]
+    } else {
+        heap.resize(m * m, [0.0; 3]);
+        &mut heap
+    };
+    sample_points(x, n, size, m, points);
+    let mut sum = [0.0f64; 3];
+    for &p in points.iter() {
+        let l = radiance_at(p, n, rho, lights, light_pos, occluders, r2_min);
+        for c in 0..3 {
+            sum[c] += l[c];
+        }
+    }
+    sum.map(|s| (s / (m * m) as f64) as f32)
 }
 
 /// The most samples per edge [`direct_from_point_lights_adaptive`] handles adaptively (its
@@ -173,63 +201,125 @@ pub fn direct_from_point_lights_adaptive(
     if m == 1 || m > ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize {
         return direct_from_point_lights_averaged(layout, occluders, lights, samples_per_edge);
     }
-    let r2_min = (R_MIN_REL * scene_scale(layout, occluders)).powi(2);
-    let light_pos = light_positions(lights);
-    let radiance = (0..layout.n_texels())
-        .map(|t| {
-            let (x, n, rho) = (layout.positions[t], layout.normals[t], layout.albedo[t]);
-            let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
-            if size == [0.0, 0.0] {
-                return radiance_at(x, n, rho, lights, &light_pos, occluders, r2_min)
-                    .map(|v| v as f32);
-            }
-            let mut points = [[0.0f32; 3]; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
-            let points = &mut points[..m * m];
-            sample_points(x, n, size, m, points);
-            let corners = [0, m - 1, m * (m - 1), m * m - 1];
-            let mut irr = [0.0f64; 3];
-            for (light, &p) in lights.iter().zip(&light_pos) {
-                if light.intensity.iter().all(|&i| i == 0.0) {
-                    continue;
-                }
-                // Unshadowed cos/r² per sample (0 where the light is behind).
-                let mut g = [0.0f64; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
-                let g = &mut g[..m * m];
-                for (gi, q) in g.iter_mut().zip(points.iter()) {
-                    *gi = unshadowed(*q, n, light, r2_min);
-                }
-                if g.iter().all(|&v| v == 0.0) {
-                    continue;
-                }
-                let visible = |k: usize| !occluders.occluded(points[k], p);
-                let corner_seen = corners.map(visible);
-                let sum: f64 = if corner_seen.iter().all(|&v| v == corner_seen[0]) {
-                    if corner_seen[0] {
-                        g.iter().sum()
-                    } else {
-                        0.0
-                    }
-                } else {
-                    (0..m * m)
-                        .filter(|&k| g[k] > 0.0)
-                        .map(|k| match corners.iter().position(|&c| c == k) {
-                            Some(i) if corner_seen[i] => g[k],
-                            Some(_) => 0.0,
-                            None if visible(k) => g[k],
-                            None => 0.0,
-                        })
-                        .sum()
-                };
-                let w = sum / (m * m) as f64;
-                for (e, i) in irr.iter_mut().zip(light.intensity) {
-                    *e += i * w;
-                }
-            }
-            let k = std::f64::consts::FRAC_1_PI;
-            [0, 1, 2].map(|c| (rho[c] as f64 * k * irr[c]) as f32)
-        })
-        .collect();
+    let mut radiance = vec![[0.0f32; 3]; layout.n_texels()];
+    direct_from_point_lights_adaptive_in(
+        layout,
+        occluders,
+        lights,
+        samples_per_edge,
+        direct_scale(layout, occluders),
+        &[TexelSpan {
+            texels: 0..layout.n_texels(),
+            in_sight: false,
+        }],
+        &mut radiance,
+    );
     DirectLight { radiance }
+}
+
+/// A run of layout texels for [`direct_from_point_lights_adaptive_in`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TexelSpan {
+    pub texels: std::ops::Range<usize>,
+    /// The caller knows that every light sees every point of these texels unoccluded (e.g. the
+    /// light's own room holds nothing but its walls, [`crate::light_reach`]): no shadow rays
+    /// are traced there. Only ever set where a shadow ray could not hit anything.
+    pub in_sight: bool,
+}
+
+/// [`direct_from_point_lights_adaptive`] on the texels of `spans` only (e.g. where a light
+/// reaches, [`crate::light_reach::LightReach::texels`]): writes `out[t]` for every `t` in the
+/// spans, bit-identical to the whole-layout call there (spans `in_sight` skip shadow rays that
+/// would have hit nothing), and leaves every other texel of `out` untouched. `out` has one entry per layout texel; spans beyond it are cut off. `scale` is
+/// [`direct_scale`] of the layout and occluders (a pass over every texel, so the caller keeps
+/// it rather than paying it per call).
+pub fn direct_from_point_lights_adaptive_in(
+    layout: &Layout,
+    occluders: &Occluders,
+    lights: &[Light],
+    samples_per_edge: u32,
+    scale: f64,
+    spans: &[TexelSpan],
+    out: &mut [[f32; 3]],
+) {
+    let m = samples_per_edge.max(1) as usize;
+    let r2_min = (R_MIN_REL * scale).powi(2);
+    let light_pos = light_positions(lights);
+    let n = out.len().min(layout.n_texels());
+    let nothing = Occluders::new(&[], &[]);
+    for span in spans {
+        let occluders = if span.in_sight { &nothing } else { occluders };
+        for t in span.texels.start.min(n)..span.texels.end.min(n) {
+            out[t] = if m == 1 || m > ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize {
+                let (x, n, rho) = (layout.positions[t], layout.normals[t], layout.albedo[t]);
+                let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
+                averaged_texel(x, n, rho, size, m, lights, &light_pos, occluders, r2_min)
+            } else {
+                adaptive_texel(layout, t, m, lights, &light_pos, occluders, r2_min)
+            };
+        }
+    }
+}
+
+/// One texel of [`direct_from_point_lights_adaptive`] (`2 ≤ m ≤ ADAPTIVE_MAX_SAMPLES_PER_EDGE`).
+fn adaptive_texel(
+    layout: &Layout,
+    t: usize,
+    m: usize,
+    lights: &[Light],
+    light_pos: &[[f32; 3]],
+    occluders: &Occluders,
+    r2_min: f64,
+) -> [f32; 3] {
+    let (x, n, rho) = (layout.positions[t], layout.normals[t], layout.albedo[t]);
+    let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
+    if size == [0.0, 0.0] {
+        return radiance_at(x, n, rho, lights, light_pos, occluders, r2_min).map(|v| v as f32);
+    }
+    let mut points = [[0.0f32; 3]; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
+    let points = &mut points[..m * m];
+    sample_points(x, n, size, m, points);
+    let corners = [0, m - 1, m * (m - 1), m * m - 1];
+    let mut irr = [0.0f64; 3];
+    for (light, &p) in lights.iter().zip(light_pos) {
+        if light.intensity.iter().all(|&i| i == 0.0) {
+            continue;
+        }
+        // Unshadowed cos/r² per sample (0 where the light is behind).
+        let mut g = [0.0f64; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
+        let g = &mut g[..m * m];
+        for (gi, q) in g.iter_mut().zip(points.iter()) {
+            *gi = unshadowed(*q, n, light, r2_min);
+        }
+        if g.iter().all(|&v| v == 0.0) {
+            continue;
+        }
+        let visible = |k: usize| !occluders.occluded(points[k], p);
+        let corner_seen = corners.map(visible);
+        let sum: f64 = if corner_seen.iter().all(|&v| v == corner_seen[0]) {
+            if corner_seen[0] {
+                g.iter().sum()
+            } else {
+                0.0
+            }
+        } else {
+            (0..m * m)
+                .filter(|&k| g[k] > 0.0)
+                .map(|k| match corners.iter().position(|&c| c == k) {
+                    Some(i) if corner_seen[i] => g[k],
+                    Some(_) => 0.0,
+                    None if visible(k) => g[k],
+                    None => 0.0,
+                })
+                .sum()
+        };
+        let w = sum / (m * m) as f64;
+        for (e, i) in irr.iter_mut().zip(light.intensity) {
+            *e += i * w;
+        }
+    }
+    let k = std::f64::consts::FRAC_1_PI;
+    [0, 1, 2].map(|c| (rho[c] as f64 * k * irr[c]) as f32)
 }
 
 /// `cos θ / max(r², r2_min)` of `light` at point `x` with normal `n`, 0 when the light is

@@ -26,6 +26,9 @@
 //!
 //! # Layout
 //! - [`occluders`]: a BVH over the bundle's occluder rects and triangles; shadow-ray queries.
+//! - [`light_reach`]: which texels a point light can reach, by a portal walk over the bundle's
+//!   rooms (block boxes and openings), so one light's direct light is recomputed where it
+//!   reaches only.
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
 //! - [`runtime`]: the per-frame, allocation-free application of the bundle's operators
 //!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
@@ -60,6 +63,7 @@ pub mod direct;
 pub mod dnrt;
 #[cfg(feature = "fetch")]
 pub mod fetch;
+pub mod light_reach;
 pub mod lightmap;
 pub mod occluders;
 pub mod packed;
@@ -71,12 +75,14 @@ pub mod service;
 
 pub use compare::relative_l2;
 pub use direct::{
-    direct_from_point_lights, direct_from_point_lights_adaptive, direct_from_point_lights_averaged,
-    point_light_irradiance_sh, DirectLight,
+    direct_from_point_lights, direct_from_point_lights_adaptive,
+    direct_from_point_lights_adaptive_in, direct_from_point_lights_averaged, direct_scale,
+    point_light_irradiance_sh, DirectLight, TexelSpan,
 };
 pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
 #[cfg(feature = "fetch")]
 pub use fetch::{BundleFetcher, FetchError, Fetched};
+pub use light_reach::LightReach;
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};

@@ -293,6 +293,7 @@ pub fn drt_bundle(rng: &mut Lcg, lightfield: bool, two_clutter: bool, full: bool
         dnrt: None,
         sh: None,
         surface_atlases: Vec::new(),
+        rooms: None,
     }
 }
 
@@ -397,6 +398,7 @@ pub fn one_block_bundle(
         dnrt: None,
         sh: None,
         surface_atlases: Vec::new(),
+        rooms: None,
     }
 }
 

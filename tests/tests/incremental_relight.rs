@@ -3,14 +3,15 @@
 //! indirect light equals applying the new lights (within float rounding for one bounce and a
 //! fixed count, within the tolerance for all bounces), and the first bounce of the change
 //! projects only the blocks the light lights; the adaptive texel average is within 0.5% of
-//! tracing every sample.
+//! tracing every sample. The light's reach (`LightReach`, the portal walk over the bundle's
+//! rooms) lights exactly what lighting every texel lights.
 
 use lightfarm_client::{
     direct_from_point_lights_adaptive, direct_from_point_lights_averaged, relative_l2, Bounces,
     DirectLight, IndirectLight, Method, Occluders, Runtime,
 };
 use lightfarm_proto::bundle::Bundle;
-use lightfarm_tests::{bake_scene, load_scene, scene_dir};
+use lightfarm_tests::{bake_scene, check_light_reach, load_scene, scene_dir};
 
 #[test]
 fn moving_one_light_relit_by_its_change_equals_relighting_everything() {
@@ -76,4 +77,30 @@ fn moving_one_light_relit_by_its_change_equals_relighting_everything() {
             }
         }
     }
+}
+
+/// Each maze light, at its place and moved about its room: the direct light on the texels its
+/// walk reaches is bit-identical to lighting every texel, every texel left out is dark, and the
+/// walk leaves out most of the maze.
+#[test]
+fn a_light_reaches_what_lighting_everything_lights() {
+    let (scene, lights) = load_scene("maze", 4, 16);
+    let (bytes, _) = bake_scene(&scene, &scene_dir("maze"), scene.settings.transport, false);
+    let bundle = Bundle::decode(&bytes).unwrap();
+    let n = bundle.layout.n_texels();
+    let (mut reached, mut lit, mut checked) = (0, 0, 0);
+    for light in &lights.lights {
+        let p = light.position;
+        let positions: Vec<[f64; 3]> = [[0.0, 0.0], [0.4, 0.0], [-0.4, 0.3], [0.0, -0.45]]
+            .iter()
+            .map(|[dx, dz]| [p[0] + dx, p[1], p[2] + dz])
+            .collect();
+        let (r, l) = check_light_reach(&bundle, light, &positions, 4);
+        reached += r;
+        lit += l;
+        checked += positions.len() * n;
+    }
+    eprintln!("maze T=4: {reached} of {checked} texel visits reached, {lit} lit");
+    assert!(lit > 0 && reached >= lit);
+    assert!(reached * 2 < checked, "{reached} of {checked} reached");
 }

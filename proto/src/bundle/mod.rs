@@ -32,6 +32,8 @@
 //!   [`DeltaSource`] encoding the `sh` section shares.
 //! - `gather_encoding`: how the DRT section stores the exact gather ([`TexelGather`]).
 //! - `sh_responses`: the `sh` section ([`ShResponses`]).
+//! - `rooms`: the level's rooms (section kind 15, [`Rooms`]): each block's box, where each face
+//!   leads and the rooms each layout surface lies in, for a client's light reach.
 //! - `symmetric_blocks`: blocks instancing a shape through a box symmetry (section kind 14,
 //!   [`BlockSymmetry`]) and their unfolding at load.
 //! - `validate`: [`Bundle::validate`], every index, size and rank checked against the data.
@@ -48,12 +50,14 @@ mod gather_encoding;
 mod legacy_1x;
 mod matrix_codec;
 mod read;
+mod rooms;
 mod sections;
 mod sh_responses;
 mod symmetric_blocks;
 mod validate;
 mod write;
 pub use gather_encoding::gather_counts;
+pub use rooms::{FaceLink, Room, Rooms, SurfacePlace};
 pub use sections::{section, section_name};
 pub use sh_responses::{ShEntry, ShResponses};
 pub use symmetric_blocks::BlockSymmetry;
@@ -61,9 +65,10 @@ pub use symmetric_blocks::BlockSymmetry;
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 /// Format 2.0: blocks may instance a shape through a box symmetry (section kind 14) and 8-bit
 /// matrices may be stored predicted (codec tags 4 and 5). A 1.x reader refuses it by its major
-/// version; this reader still reads 1.x bundles (kind 3 blocks, tags 0–3).
+/// version; this reader still reads 1.x bundles (kind 3 blocks, tags 0–3). Minor 1 adds the
+/// rooms section (kind 15), which a 2.0 reader skips.
 pub const BUNDLE_MAJOR: u16 = 2;
-pub const BUNDLE_MINOR: u16 = 0;
+pub const BUNDLE_MINOR: u16 = 1;
 /// The oldest major version this reader decodes.
 pub const OLDEST_READABLE_MAJOR: u16 = 1;
 const READABLE_MAJORS: std::ops::RangeInclusive<u16> = OLDEST_READABLE_MAJOR..=BUNDLE_MAJOR;
@@ -287,6 +292,9 @@ pub struct Bundle {
     /// The lightmap atlas of each mesh surface (mesh clutter), ascending by surface; empty
     /// when the scene has none (and in bundles before minor 2).
     pub surface_atlases: Vec<SurfaceAtlas>,
+    /// The level's rooms, for a client's light reach (format 2.1; `None` in older bundles and
+    /// in bundles built without a scene).
+    pub rooms: Option<Rooms>,
 }
 
 /// Where the texels of one layout surface sit in that surface's own lightmap image: texel `k`

@@ -16,8 +16,8 @@ use super::sections::{is_known_section, section, section_name};
 use super::{gather_encoding, legacy_1x, sh_responses, symmetric_blocks};
 use super::{
     Bundle, BundleError, ClutterOps, CompactEntry, DrtOps, Layout, Matrix, OpeningOps,
-    PartialBundle, ProbeVolume, PropEntry, Rect, ShapeOps, SparseRows, SurfaceAtlas, SurfaceInfo,
-    TracedEntry, TransportOps, READABLE_MAJORS,
+    PartialBundle, ProbeVolume, PropEntry, Rect, Rooms, ShapeOps, SparseRows, SurfaceAtlas,
+    SurfaceInfo, TracedEntry, TransportOps, READABLE_MAJORS,
 };
 
 fn read_vec3s(r: &mut Reader, what: &str) -> Result<Vec<[f32; 3]>, BundleError> {
@@ -146,6 +146,7 @@ impl Bundle {
             (None, None, None, None, None, None, None);
         let (mut dnrt, mut sh) = (None, None);
         let mut surface_atlases = Vec::new();
+        let mut rooms = None;
         for (kind, payload) in &sections {
             let mut p = Reader::new(payload);
             match *kind {
@@ -165,6 +166,7 @@ impl Bundle {
                 section::DNRT => dnrt = Some(read_dnrt(&mut p)?),
                 section::SH => sh = Some(sh_responses::read_sh(&mut p)?),
                 section::LIGHTMAP => surface_atlases = read_surface_atlases(&mut p)?,
+                section::ROOMS => rooms = Some(Rooms::read(&mut p)?),
                 _ => {} // read_sections passes known kinds only
             }
             if p.remaining() != 0 {
@@ -186,6 +188,7 @@ impl Bundle {
             dnrt,
             sh,
             surface_atlases,
+            rooms,
         };
         bundle.validate()?;
         Ok(bundle)

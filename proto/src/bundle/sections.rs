@@ -34,6 +34,9 @@ pub mod section {
     /// Blocks of format 2: [`BLOCKS`]' records plus each block's box symmetry and closed faces
     /// ([`crate::bundle::BlockSymmetry`]). Written instead of [`BLOCKS`] by 2.x writers.
     pub const BLOCKS_SYMMETRIC: u32 = 14;
+    /// The level's rooms (format 2.1, [`crate::bundle::Rooms`]): block boxes, where each face
+    /// leads, where each surface lies. Written right after the blocks.
+    pub const ROOMS: u32 = 15;
 }
 
 /// Report name of a section kind.
@@ -52,6 +55,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::LIGHTMAP => "lightmap",
         section::DRT_REPLACING => "drt",
         section::BLOCKS_SYMMETRIC => "blocks",
+        section::ROOMS => "rooms",
         _ => "unknown",
     }
 }

@@ -324,6 +324,11 @@ impl Bundle {
                 }
             }
         }
+        if let Some(rooms) = &self.rooms {
+            rooms
+                .check(self.blocks.len(), self.layout.surfaces.len())
+                .map_err(BundleError::Invalid)?;
+        }
         let mut previous = None;
         for a in &self.surface_atlases {
             let Some(s) = self.layout.surfaces.get(a.surface as usize) else {

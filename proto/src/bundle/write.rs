@@ -116,6 +116,11 @@ impl Bundle {
         let mut w = Writer::new();
         symmetric_blocks::write_blocks(&mut w, &self.blocks);
         sections.push((section::BLOCKS_SYMMETRIC, w.bytes));
+        if let Some(rooms) = &self.rooms {
+            let mut w = Writer::new();
+            rooms.write(&mut w);
+            sections.push((section::ROOMS, w.bytes));
+        }
 
         if let Some(t) = &self.transport {
             let mut w = Writer::new();

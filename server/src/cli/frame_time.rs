@@ -197,6 +197,17 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             );
         }
         println!(
+            "update=one-light light={moved} reach={} texels_reached={}/{} rooms_reached={}",
+            if t.has_rooms {
+                "rooms"
+            } else {
+                "everywhere (bundle without rooms)"
+            },
+            t.texels_reached,
+            runtime.n_texels(),
+            t.rooms_reached
+        );
+        println!(
             "update=one-light light={moved} method={method:?} bounces={} frames={frames} \
              blocks_projected={}/{} drift_rel_l2={:.2e} speedup={:.1} median_ms={:.4}",
             mode_name(mode),

@@ -7,8 +7,11 @@
 //! - **full**: every light's direct light (texel-averaged over the 4 × 4 samples `eval` feeds the
 //!   operators, with shadow rays only where visibility changes across a texel:
 //!   `direct_from_point_lights_adaptive`), then `Runtime::apply`;
-//! - **update**: the moved light's direct light alone, its change from the previous frame, and
-//!   `Runtime::apply_delta` adding that change's indirect light to the previous frame's.
+//! - **update**: the moved light's direct light alone, on the texels it reaches from where it
+//!   was and where it is now (`LightReach`, the portal walk over the bundle's rooms; every texel
+//!   for a bundle without rooms), its change from the previous frame, and
+//!   `Runtime::apply_delta` adding that change's indirect light to the previous frame's. Both
+//!   the walk and the direct light's bookkeeping touch the reached texels only.
 //!
 //! The adaptive direct light's error against tracing every sample, and that tracing's time,
 //! are printed first. Each way is reported with its direct-light and operator times apart
@@ -22,9 +25,12 @@
 
 use std::time::Instant;
 
+use std::ops::Range;
+
 use lightfarm_client::{
-    direct_from_point_lights_adaptive, direct_from_point_lights_averaged, relative_l2, Bounces,
-    DirectLight, IndirectLight, Light, Method, Occluders, Runtime,
+    direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in,
+    direct_from_point_lights_averaged, direct_scale, relative_l2, Bounces, DirectLight,
+    IndirectLight, Light, LightReach, Method, Occluders, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Layout;
 
@@ -59,6 +65,12 @@ pub struct UpdateTimes {
     /// applications a full apply makes.
     pub blocks_projected: usize,
     pub blocks_total: usize,
+    /// Texels the moved light reaches (median over frames; all of them without rooms) and
+    /// rooms its walk reached.
+    pub texels_reached: usize,
+    pub rooms_reached: usize,
+    /// Whether the bundle has rooms (else the update lights every texel).
+    pub has_rooms: bool,
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -110,12 +122,44 @@ pub fn time_update(
     let mut full_out = IndirectLight::default();
     runtime.apply(method, bounces, &direct0, &mut full_out)?;
     let mut update_out = full_out.clone();
-    let mut previous = direct_of(&layout, occluders, &lights[moved..=moved]);
+    // The update's direct light of the moved light: `previous` and `now` hold it on the spans
+    // it reached (zero elsewhere); `change` is non-zero on `change_spans` only.
+    let n = layout.n_texels();
+    let scale = direct_scale(&layout, occluders);
+    let mut reach = LightReach::new(runtime.bundle());
+    let has_rooms = reach.is_some();
+    let reach_of =
+        |reach: &mut Option<LightReach>, p: [f64; 3], out: &mut Vec<TexelSpan>| match reach {
+            Some(r) => r.texels(&layout, p, out),
+            None => {
+                out.clear();
+                out.push(TexelSpan {
+                    texels: 0..n,
+                    in_sight: false,
+                });
+            }
+        };
+    let one = |light: &Light, spans: &[TexelSpan], out: &mut [[f32; 3]]| {
+        direct_from_point_lights_adaptive_in(
+            &layout,
+            occluders,
+            std::slice::from_ref(light),
+            DIRECT_SAMPLES_PER_EDGE,
+            scale,
+            spans,
+            out,
+        )
+    };
+    let (mut previous, mut now) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
+    let (mut spans_before, mut spans_now) = (Vec::new(), Vec::new());
+    let mut change_spans: Vec<Range<usize>> = Vec::new();
+    reach_of(&mut reach, lights[moved].position, &mut spans_before);
+    one(&lights[moved], &spans_before, &mut previous);
     let mut change = DirectLight {
-        radiance: vec![[0.0; 3]; layout.n_texels()],
+        radiance: vec![[0.0; 3]; n],
     };
     let (mut full, mut update) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
-    let mut projected = Vec::new();
+    let (mut projected, mut reached, mut rooms) = (Vec::new(), Vec::new(), Vec::new());
     let mut total = 0;
     for frame in 1..=frames {
         lights[moved].position = at(frame);
@@ -126,23 +170,34 @@ pub fn time_update(
         runtime.apply(method, bounces, &direct, &mut full_out)?;
         full[0].push((mid - start).as_secs_f64() * 1e3);
         full[1].push(mid.elapsed().as_secs_f64() * 1e3);
-        // Update: the moved light's direct light and its change, then apply_delta.
+        // Update: where the moved light reaches, its direct light there and the change from
+        // the previous frame, then apply_delta.
         let start = Instant::now();
-        let now = direct_of(&layout, occluders, &lights[moved..=moved]);
-        for ((c, a), b) in change
-            .radiance
-            .iter_mut()
-            .zip(&now.radiance)
-            .zip(&previous.radiance)
-        {
-            *c = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        reach_of(&mut reach, lights[moved].position, &mut spans_now);
+        one(&lights[moved], &spans_now, &mut now);
+        for span in &change_spans {
+            change.radiance[span.clone()].fill([0.0; 3]);
         }
+        change_spans.clear();
+        for span in spans_before.iter().chain(&spans_now) {
+            for t in span.texels.clone() {
+                let (a, b) = (now[t], previous[t]);
+                change.radiance[t] = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+            }
+            change_spans.push(span.texels.clone());
+        }
+        for span in &spans_before {
+            previous[span.texels.clone()].fill([0.0; 3]);
+        }
+        std::mem::swap(&mut previous, &mut now);
+        std::mem::swap(&mut spans_before, &mut spans_now);
         let mid = Instant::now();
         let d = runtime.apply_delta(method, bounces, &change, &mut update_out)?;
         update[0].push((mid - start).as_secs_f64() * 1e3);
         update[1].push(mid.elapsed().as_secs_f64() * 1e3);
-        previous = now;
         projected.push(d.blocks_projected as f64);
+        reached.push(spans_before.iter().map(|s| s.texels.len()).sum::<usize>() as f64);
+        rooms.push(reach.as_ref().map_or(0, |r| r.rooms_reached()) as f64);
         total = total.max(d.blocks_total);
     }
     let way = |[direct, operators]: [Vec<f64>; 2]| {
@@ -161,5 +216,8 @@ pub fn time_update(
         direct_every_sample_ms,
         blocks_projected: median(projected) as usize,
         blocks_total: total,
+        texels_reached: median(reached) as usize,
+        rooms_reached: median(rooms) as usize,
+        has_rooms,
     })
 }

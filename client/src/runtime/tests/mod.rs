@@ -66,6 +66,7 @@ fn bundle(rng: &mut Lcg, transport: Option<TransportOps>, full: bool) -> Bundle 
         dnrt: None,
         sh: None,
         surface_atlases: Vec::new(),
+        rooms: None,
     }
 }
 

@@ -145,7 +145,8 @@ pub fn bake(
     )?;
     report.transport = stats;
     let transport = to_bundle::transport_ops(compact.as_deref(), &mrt);
-    let mut bundle = to_bundle::mrt_bundle(scene, &plan, &shapes, &full_geometry, transport);
+    let mut bundle =
+        to_bundle::mrt_bundle(scene, &openings, &plan, &shapes, &full_geometry, transport);
     announce(&bundle);
     lap(&mut report, "transport");
 

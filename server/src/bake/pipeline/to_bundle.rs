@@ -6,7 +6,7 @@
 //! ([`super::stages`]), so the bundle stays a pure function of the scene.
 
 use lightfarm_proto::bundle::{self, Bundle, Layout, SparseRows, SurfaceInfo, TransportOps};
-use lightfarm_proto::scene::{Scene, Settings};
+use lightfarm_proto::scene::{Opening, Scene, Settings};
 
 use crate::bake::cache::factors::FactorCache;
 use crate::bake::drt::build::{DeltaBlock, DrtOperators};
@@ -65,11 +65,12 @@ pub fn transport_ops(compact: Option<&[CompactTransport]>, mrt: &MrtTransport) -
     }
 }
 
-/// The MRT bundle: layout, atlases, the unique shapes' operators, the blocks and `transport`;
-/// every later section empty. Opening operators ship only with lightfield transport (the only
-/// kind the runtime applies them for).
+/// The MRT bundle: layout, atlases, the unique shapes' operators, the blocks, the rooms and
+/// `transport`; every later section empty. Opening operators ship only with lightfield
+/// transport (the only kind the runtime applies them for).
 pub fn mrt_bundle(
     scene: &Scene,
+    openings: &[[Option<Opening>; 6]],
     plan: &ShapePlan,
     shapes: &[std::sync::Arc<ShapeOperators>],
     full_geometry: &Geometry,
@@ -78,7 +79,9 @@ pub fn mrt_bundle(
     let ship_openings = matches!(transport, TransportOps::Lightfield(_));
     let layout = layout_of(scene, full_geometry);
     let surface_atlases = surface_atlases_of(full_geometry, &layout);
+    let rooms = Some(rooms_of(scene, openings, full_geometry, &layout));
     Bundle {
+        rooms,
         surface_atlases,
         layout,
         shapes: shapes
@@ -315,6 +318,76 @@ pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
         rects,
         triangles,
     }
+}
+
+/// The level's rooms ([`bundle::Rooms`]): every block's box and where its faces lead (from
+/// `openings`, `Scene::openings`), and where each layout surface lies: a block face in its
+/// block; a clutter object in every block its bounds touch (touching counts, so the list is a
+/// superset), outside as well unless one block holds its bounds. Objects × blocks box tests.
+pub fn rooms_of(
+    scene: &Scene,
+    openings: &[[Option<Opening>; 6]],
+    g: &Geometry,
+    layout: &Layout,
+) -> bundle::Rooms {
+    let rooms = scene
+        .blocks
+        .iter()
+        .zip(openings)
+        .map(|(block, open)| bundle::Room {
+            min: block.min,
+            max: block.max,
+            faces: open.map(|o| match o {
+                None => bundle::FaceLink::Closed,
+                Some(Opening::Void) => bundle::FaceLink::Void,
+                Some(Opening::Neighbour { block, .. }) => bundle::FaceLink::Neighbour(block as u32),
+            }),
+        })
+        .collect();
+    let place_of = |bounds: &[[f64; 3]; 2]| {
+        let [lo, hi] = *bounds;
+        let mut rooms = Vec::new();
+        let mut inside_one = false;
+        for (k, b) in scene.blocks.iter().enumerate() {
+            if (0..3).all(|a| lo[a] <= b.max[a] && hi[a] >= b.min[a]) {
+                rooms.push(k as u32);
+                inside_one |= (0..3).all(|a| lo[a] >= b.min[a] && hi[a] <= b.max[a]);
+            }
+        }
+        bundle::SurfacePlace::Object {
+            rooms,
+            outside: !inside_one,
+        }
+    };
+    // The first engine surface of each layout surface, in one pass (layout surfaces are the
+    // engine's in order, a clutter box's six faces merged into one).
+    let mut firsts = Vec::with_capacity(layout.surfaces.len());
+    for s in &g.surfaces {
+        if let Some(info) = layout.surfaces.get(firsts.len()) {
+            if info.texel_offset == s.texel_offset as u32 && info.name == s.name {
+                firsts.push(s);
+            }
+        }
+    }
+    assert_eq!(
+        firsts.len(),
+        layout.surfaces.len(),
+        "every layout surface comes from an engine surface"
+    );
+    let surfaces = firsts
+        .into_iter()
+        .map(|s| match s.owner {
+            SurfaceOwner::Block { block, face } => bundle::SurfacePlace::Face {
+                room: block as u32,
+                face: face.index() as u8,
+            },
+            SurfaceOwner::ClutterBox { clutter, .. }
+            | SurfaceOwner::ClutterMesh { clutter, .. } => {
+                place_of(&g.clutter_shapes[clutter].bounds)
+            }
+        })
+        .collect();
+    bundle::Rooms { rooms, surfaces }
 }
 
 /// Each mesh surface's lightmap image (its atlas) for the bundle's layout.
