@@ -29,11 +29,6 @@ pub struct DirectLight {
 /// The scene scale every direct-light call clamps `r²` by: the diagonal of the box around the
 /// texel centres and the occluders (1 if that is empty or degenerate).
 pub fn direct_scale(layout: &Layout, occluders: &Occluders) -> f64 {
-    scene_scale(layout, occluders)
-}
-
-/// See [`direct_scale`].
-fn scene_scale(layout: &Layout, occluders: &Occluders) -> f64 {
     let mut bounds = occluders.bounds();
     for p in &layout.positions {
         bounds = Some(match bounds {
@@ -60,52 +55,87 @@ fn scene_scale(layout: &Layout, occluders: &Occluders) -> f64 {
     }
 }
 
-/// Direct outgoing radiance at one point with normal `n` and albedo `rho`.
-fn radiance_at(
+/// The lights and what every texel's direct light shares: their positions in f32 (the
+/// occluders' precision), the occluders and the `r²` clamp.
+struct Lighting<'a> {
+    lights: &'a [Light],
+    positions: Vec<[f32; 3]>,
+    occluders: &'a Occluders,
+    r2_min: f64,
+}
+
+impl<'a> Lighting<'a> {
+    fn new(lights: &'a [Light], occluders: &'a Occluders, scale: f64) -> Lighting<'a> {
+        Lighting {
+            lights,
+            positions: lights
+                .iter()
+                .map(|l| l.position.map(|x| x as f32))
+                .collect(),
+            occluders,
+            r2_min: (R_MIN_REL * scale).powi(2),
+        }
+    }
+
+    /// Direct outgoing radiance at one point with normal `n` and albedo `rho`.
+    fn radiance_at(&self, x: [f32; 3], n: [f32; 3], rho: [f32; 3]) -> [f64; 3] {
+        let mut irr = [0.0f64; 3];
+        for (light, &p) in self.lights.iter().zip(&self.positions) {
+            match light.kind {
+                LightKind::Point => {}
+            }
+            if light.intensity.iter().all(|&i| i == 0.0) {
+                continue;
+            }
+            // Unshadowed first: a light behind the texel costs no shadow ray.
+            let g = unshadowed(x, n, light, self.r2_min);
+            if g == 0.0 || self.occluders.occluded(x, p) {
+                continue;
+            }
+            for (e, i) in irr.iter_mut().zip(light.intensity) {
+                *e += i * g;
+            }
+        }
+        let k = std::f64::consts::FRAC_1_PI;
+        [
+            rho[0] as f64 * k * irr[0],
+            rho[1] as f64 * k * irr[1],
+            rho[2] as f64 * k * irr[2],
+        ]
+    }
+}
+
+/// What the direct light of one layout texel reads: centre, normal, albedo and extent.
+#[derive(Clone, Copy)]
+struct TexelAt {
     x: [f32; 3],
     n: [f32; 3],
     rho: [f32; 3],
-    lights: &[Light],
-    light_pos: &[[f32; 3]],
-    occluders: &Occluders,
-    r2_min: f64,
-) -> [f64; 3] {
-    let mut irr = [0.0f64; 3];
-    for (light, &p) in lights.iter().zip(light_pos) {
-        match light.kind {
-            LightKind::Point => {}
-        }
-        if light.intensity.iter().all(|&i| i == 0.0) {
-            continue;
-        }
-        // Unshadowed first: a light behind the texel costs no shadow ray.
-        let g = unshadowed(x, n, light, r2_min);
-        if g == 0.0 || occluders.occluded(x, p) {
-            continue;
-        }
-        for (e, i) in irr.iter_mut().zip(light.intensity) {
-            *e += i * g;
-        }
-    }
-    let k = std::f64::consts::FRAC_1_PI;
-    [
-        rho[0] as f64 * k * irr[0],
-        rho[1] as f64 * k * irr[1],
-        rho[2] as f64 * k * irr[2],
-    ]
+    size: [f32; 2],
 }
 
-fn light_positions(lights: &[Light]) -> Vec<[f32; 3]> {
-    lights
-        .iter()
-        .map(|l| {
-            [
-                l.position[0] as f32,
-                l.position[1] as f32,
-                l.position[2] as f32,
-            ]
-        })
-        .collect()
+impl TexelAt {
+    fn of(layout: &Layout, t: usize) -> TexelAt {
+        TexelAt {
+            x: layout.positions[t],
+            n: layout.normals[t],
+            rho: layout.albedo[t],
+            size: layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]),
+        }
+    }
+}
+
+/// One texel's direct light with `m × m` samples: the centre alone when `m == 1` or the texel
+/// has no size, else the adaptive average ([`adaptive_texel`], when `adaptive` and `m` is at
+/// most [`ADAPTIVE_MAX_SAMPLES_PER_EDGE`]) or the average of every sample ([`averaged_texel`]).
+fn texel_direct(lighting: &Lighting, t: TexelAt, m: usize, adaptive: bool) -> [f32; 3] {
+    if m == 1 || t.size == [0.0, 0.0] {
+        lighting.radiance_at(t.x, t.n, t.rho).map(|v| v as f32)
+    } else if adaptive && m <= ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize {
+        adaptive_texel(lighting, t, m)
+    } else {
+        averaged_texel(lighting, t, m)
+    }
 }
 
 /// Direct radiance `ρ/π · Σ I cosθ / r² · V` at each texel centre.
@@ -127,36 +157,17 @@ pub fn direct_from_point_lights_averaged(
     lights: &[Light],
     samples_per_edge: u32,
 ) -> DirectLight {
-    let r2_min = (R_MIN_REL * scene_scale(layout, occluders)).powi(2);
-    let light_pos = light_positions(lights);
+    let lighting = Lighting::new(lights, occluders, direct_scale(layout, occluders));
     let m = samples_per_edge.max(1) as usize;
     let radiance = (0..layout.n_texels())
-        .map(|t| {
-            let (x, n, rho) = (layout.positions[t], layout.normals[t], layout.albedo[t]);
-            let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
-            averaged_texel(x, n, rho, size, m, lights, &light_pos, occluders, r2_min)
-        })
+        .map(|t| texel_direct(&lighting, TexelAt::of(layout, t), m, false))
         .collect();
     DirectLight { radiance }
 }
 
-/// One texel of [`direct_from_point_lights_averaged`]: the mean over its `m × m` samples (the
-/// centre alone when `m == 1` or the texel has no size).
-#[allow(clippy::too_many_arguments)]
-fn averaged_texel(
-    x: [f32; 3],
-    n: [f32; 3],
-    rho: [f32; 3],
-    size: [f32; 2],
-    m: usize,
-    lights: &[Light],
-    light_pos: &[[f32; 3]],
-    occluders: &Occluders,
-    r2_min: f64,
-) -> [f32; 3] {
-    if m == 1 || size == [0.0, 0.0] {
-        return radiance_at(x, n, rho, lights, light_pos, occluders, r2_min).map(|v| v as f32);
-    }
+/// One texel of [`direct_from_point_lights_averaged`] (`m ≥ 2`, a texel with a size): the
+/// mean over its `m × m` samples.
+fn averaged_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
     // On the stack up to 8 × 8 samples (no allocation per texel).
     let mut stack = [[0.0f32; 3]; 64];
     let mut heap = Vec::new();
@@ -166,10 +177,10 @@ fn averaged_texel(
         heap.resize(m * m, [0.0; 3]);
         &mut heap
     };
-    sample_points(x, n, size, m, points);
+    sample_points(t.x, t.n, t.size, m, points);
     let mut sum = [0.0f64; 3];
     for &p in points.iter() {
-        let l = radiance_at(p, n, rho, lights, light_pos, occluders, r2_min);
+        let l = lighting.radiance_at(p, t.n, t.rho);
         for c in 0..3 {
             sum[c] += l[c];
         }
@@ -197,10 +208,6 @@ pub fn direct_from_point_lights_adaptive(
     lights: &[Light],
     samples_per_edge: u32,
 ) -> DirectLight {
-    let m = samples_per_edge.max(1) as usize;
-    if m == 1 || m > ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize {
-        return direct_from_point_lights_averaged(layout, occluders, lights, samples_per_edge);
-    }
     let mut radiance = vec![[0.0f32; 3]; layout.n_texels()];
     direct_from_point_lights_adaptive_in(
         layout,
@@ -243,45 +250,40 @@ pub fn direct_from_point_lights_adaptive_in(
     out: &mut [[f32; 3]],
 ) {
     let m = samples_per_edge.max(1) as usize;
-    let r2_min = (R_MIN_REL * scale).powi(2);
-    let light_pos = light_positions(lights);
+    let lighting = Lighting::new(lights, occluders, scale);
+    // The same lights with nothing in the way, for spans in sight.
+    let in_sight = spans.iter().any(|s| s.in_sight).then(|| Lighting {
+        occluders: no_occluders(),
+        ..Lighting::new(lights, occluders, scale)
+    });
     let n = out.len().min(layout.n_texels());
-    let nothing = Occluders::new(&[], &[]);
     for span in spans {
-        let occluders = if span.in_sight { &nothing } else { occluders };
+        let lighting = match &in_sight {
+            Some(clear) if span.in_sight => clear,
+            _ => &lighting,
+        };
         for t in span.texels.start.min(n)..span.texels.end.min(n) {
-            out[t] = if m == 1 || m > ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize {
-                let (x, n, rho) = (layout.positions[t], layout.normals[t], layout.albedo[t]);
-                let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
-                averaged_texel(x, n, rho, size, m, lights, &light_pos, occluders, r2_min)
-            } else {
-                adaptive_texel(layout, t, m, lights, &light_pos, occluders, r2_min)
-            };
+            out[t] = texel_direct(lighting, TexelAt::of(layout, t), m, true);
         }
     }
 }
 
-/// One texel of [`direct_from_point_lights_adaptive`] (`2 ≤ m ≤ ADAPTIVE_MAX_SAMPLES_PER_EDGE`).
-fn adaptive_texel(
-    layout: &Layout,
-    t: usize,
-    m: usize,
-    lights: &[Light],
-    light_pos: &[[f32; 3]],
-    occluders: &Occluders,
-    r2_min: f64,
-) -> [f32; 3] {
-    let (x, n, rho) = (layout.positions[t], layout.normals[t], layout.albedo[t]);
-    let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
-    if size == [0.0, 0.0] {
-        return radiance_at(x, n, rho, lights, light_pos, occluders, r2_min).map(|v| v as f32);
-    }
+/// The empty occluder set (nothing is ever in the way), built once.
+fn no_occluders() -> &'static Occluders {
+    static NONE: std::sync::OnceLock<Occluders> = std::sync::OnceLock::new();
+    NONE.get_or_init(|| Occluders::new(&[], &[]))
+}
+
+/// One texel of [`direct_from_point_lights_adaptive`] (`2 ≤ m ≤ ADAPTIVE_MAX_SAMPLES_PER_EDGE`,
+/// a texel with a size).
+fn adaptive_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
+    let (n, rho) = (t.n, t.rho);
     let mut points = [[0.0f32; 3]; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
     let points = &mut points[..m * m];
-    sample_points(x, n, size, m, points);
+    sample_points(t.x, n, t.size, m, points);
     let corners = [0, m - 1, m * (m - 1), m * m - 1];
     let mut irr = [0.0f64; 3];
-    for (light, &p) in lights.iter().zip(light_pos) {
+    for (light, &p) in lighting.lights.iter().zip(&lighting.positions) {
         if light.intensity.iter().all(|&i| i == 0.0) {
             continue;
         }
@@ -289,12 +291,12 @@ fn adaptive_texel(
         let mut g = [0.0f64; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
         let g = &mut g[..m * m];
         for (gi, q) in g.iter_mut().zip(points.iter()) {
-            *gi = unshadowed(*q, n, light, r2_min);
+            *gi = unshadowed(*q, n, light, lighting.r2_min);
         }
         if g.iter().all(|&v| v == 0.0) {
             continue;
         }
-        let visible = |k: usize| !occluders.occluded(points[k], p);
+        let visible = |k: usize| !lighting.occluders.occluded(points[k], p);
         let corner_seen = corners.map(visible);
         let sum: f64 = if corner_seen.iter().all(|&v| v == corner_seen[0]) {
             if corner_seen[0] {

@@ -703,16 +703,8 @@ mod tests {
     fn bundle_with(rooms: Option<Rooms>, layout: Layout) -> Bundle {
         Bundle {
             layout,
-            shapes: Vec::new(),
-            blocks: Vec::new(),
-            transport: None,
-            full: None,
-            drt: None,
-            probes: None,
-            dnrt: None,
-            sh: None,
-            surface_atlases: Vec::new(),
             rooms,
+            ..Bundle::default()
         }
     }
 

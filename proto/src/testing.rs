@@ -289,11 +289,7 @@ pub fn drt_bundle(rng: &mut Lcg, lightfield: bool, two_clutter: bool, full: bool
             direct_gather: None,
             replaced: Vec::new(),
         }),
-        probes: None,
-        dnrt: None,
-        sh: None,
-        surface_atlases: Vec::new(),
-        rooms: None,
+        ..Bundle::default()
     }
 }
 
@@ -391,14 +387,7 @@ pub fn one_block_bundle(
             shape: 0,
             texel_offset: 0,
         }],
-        transport: None,
-        full: None,
-        drt: None,
-        probes: None,
-        dnrt: None,
-        sh: None,
-        surface_atlases: Vec::new(),
-        rooms: None,
+        ..Bundle::default()
     }
 }
 

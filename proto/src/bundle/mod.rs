@@ -273,8 +273,9 @@ pub struct SparseRows {
     pub values: Vec<f32>,
 }
 
-/// A decoded bundle.
-#[derive(Clone, Debug, PartialEq)]
+/// A decoded bundle. `Bundle::default()` is the empty bundle (no texels, no operators), the
+/// base hand-built bundles fill in.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Bundle {
     pub layout: Layout,
     pub shapes: Vec<ShapeOps>,

@@ -61,12 +61,7 @@ fn bundle(rng: &mut Lcg, transport: Option<TransportOps>, full: bool) -> Bundle 
         blocks,
         transport,
         full,
-        drt: None,
-        probes: None,
-        dnrt: None,
-        sh: None,
-        surface_atlases: Vec::new(),
-        rooms: None,
+        ..Bundle::default()
     }
 }
 

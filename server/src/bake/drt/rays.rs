@@ -206,6 +206,8 @@ pub struct RayPass<'a> {
     neighbourhoods: Vec<Neighbourhood>,
     /// Which block faces could see clutter at all: the others are not traced.
     sight: ClutterSight<'a>,
+    /// `g.scale()` (a pass over every primitive), once rather than per unit.
+    scale: f64,
 }
 
 /// Sums weights per texel in ray order; ascending by texel.
@@ -253,6 +255,7 @@ impl<'a> RayPass<'a> {
             },
             neighbourhoods,
             sight: ClutterSight::new(scene, openings, g),
+            scale: g.scale(),
         }
     }
 
@@ -567,7 +570,7 @@ pub fn trace_block_unit(
         }
     }
     if let Some(old) = cache.and_then(|c| c.get_block(&key, range.len())) {
-        let changes = Changes::between(&old.clutter, &new_clutter, g.scale());
+        let changes = Changes::between(&old.clutter, &new_clutter, pass.scale);
         for ((x, slot), cached) in range.clone().zip(texels.iter_mut()).zip(old.texels) {
             if slot.is_some()
                 || !changes.untouched(g.texels[x].position, &cached.reach)
@@ -625,7 +628,7 @@ pub fn trace_clutter_unit(
     let mut texels: Vec<Option<ClutterTexelRays>> = vec![None; range.len()];
     let mut reused = 0;
     if let Some(old) = cache.and_then(|cache| cache.get_clutter(&key, range.len())) {
-        let changes = Changes::between(&old.clutter, &new_clutter, g.scale());
+        let changes = Changes::between(&old.clutter, &new_clutter, pass.scale);
         for ((x, slot), cached) in range.clone().zip(texels.iter_mut()).zip(old.texels) {
             if !changes.untouched(g.texels[x].position, &cached.reach) {
                 continue;
@@ -846,8 +849,9 @@ pub fn clutter_basis_unit(
     let key = h.finalize().to_hex().to_string();
     let new_clutter = clutter_list(g);
     if let Some((old_clutter, basis)) = cache.get_basis(&key) {
-        let changes = Changes::between(&old_clutter, &new_clutter, g.scale());
-        let min_r2 = (1e-3 * g.scale()).powi(2);
+        let scale = g.scale();
+        let changes = Changes::between(&old_clutter, &new_clutter, scale);
+        let min_r2 = (1e-3 * scale).powi(2);
         let shadows_same = range.clone().all(|t| {
             let texel = &g.texels[t];
             lights.iter().all(|l| {
