@@ -12,7 +12,9 @@
 //! let direct = direct_from_point_lights(&bundle.layout, &occluders, lights);
 //! let mut runtime = Runtime::new(bundle);
 //! let mut indirect = IndirectLight::default();
-//! // All bounces (the default Converged mode); `Bounces::Feedback` costs one application a frame.
+//! // All bounces (the default Converged mode); `Bounces::Warm` (Converged from the previous
+//! // frame's answer) and `Bounces::Feedback` cost one application a frame while lights hold
+//! // still.
 //! runtime.apply(Method::Mrt, Bounces::default(), &direct, &mut indirect)?;
 //! // Dynamic objects: irradiance at any point and normal from the probe volume.
 //! let mut field = ProbeField::default();

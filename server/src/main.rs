@@ -57,7 +57,8 @@ impl From<CodecArg> for BundleCodec {
     }
 }
 
-/// `--bounces` of `frame-time`: a bounce count or Enlighten-style feedback.
+/// `--bounces` of `frame-time`: a bounce count, Enlighten-style feedback or warm-started
+/// Converged.
 #[derive(Clone, Copy, Debug)]
 struct BouncesArg(Bounces);
 
@@ -68,7 +69,14 @@ impl std::str::FromStr for BouncesArg {
         if s.trim().eq_ignore_ascii_case("feedback") {
             return Ok(BouncesArg(Bounces::Feedback));
         }
-        let count: BounceCount = s.parse().map_err(|e| format!("{e}, or \"feedback\""))?;
+        if s.trim().eq_ignore_ascii_case("warm") {
+            return Ok(BouncesArg(Bounces::Warm {
+                tolerance: lightfarm_client::DEFAULT_TOLERANCE,
+            }));
+        }
+        let count: BounceCount = s
+            .parse()
+            .map_err(|e| format!("{e}, \"feedback\" or \"warm\""))?;
         Ok(BouncesArg(count.into()))
     }
 }
@@ -116,9 +124,11 @@ enum Command {
         lights: PathBuf,
         #[arg(long, value_enum, default_value = "drt")]
         method: MethodArg,
-        /// Bounces: a whole number ≥ 1, `all` (Converged) or `feedback` (one application per
-        /// frame, the previous frame's indirect light fed back); several, comma-separated, are
-        /// timed side by side in interleaved rounds (one line each).
+        /// Bounces: a whole number ≥ 1, `all` (Converged), `feedback` (one application per
+        /// frame, the previous frame's indirect light fed back) or `warm` (Converged from the
+        /// previous frame's answer); several, comma-separated, are timed side by side in
+        /// interleaved rounds (one line each). With `feedback` or `warm`, every mode is also
+        /// timed while light `--light` moves.
         #[arg(long, default_value = "all", value_delimiter = ',')]
         bounces: Vec<BouncesArg>,
         #[arg(long, default_value_t = 1000)]
@@ -131,7 +141,8 @@ enum Command {
         /// everything, direct light included (uses the first `--bounces` mode).
         #[arg(long, value_enum)]
         update: Option<UpdateArg>,
-        /// The light `--update one-light` moves (index in the light set).
+        /// The light `--update one-light` and the moving-light lines move (index in the light
+        /// set).
         #[arg(long, default_value_t = 0)]
         light: usize,
     },
@@ -315,6 +326,7 @@ fn main() -> anyhow::Result<()> {
             frames,
             threads,
             update_light: update.map(|UpdateArg::OneLight| light),
+            moving_light: light,
         }),
         Command::Bake {
             scene,

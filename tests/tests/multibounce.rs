@@ -160,6 +160,40 @@ fn feedback_comes_within_one_percent_in_the_frames_the_geometric_series_predicts
     assert!((8..=13).contains(&b), "{b} frames to 0.1%");
 }
 
+/// A light carried around the closed box (a 0.5 m circle in 60 frames): Converged and Warm stay
+/// within their tolerance of every frame's all bounces, Warm in far fewer applications (its
+/// guess is the last answer moved on by its last change); Feedback lags the moving light.
+#[test]
+fn warm_follows_a_moving_light_within_its_tolerance_in_few_applications() {
+    use lightfarm_client::{Occluders, Runtime};
+    use lightfarm_server::cli::frame_moving::time_moving;
+
+    let scene = closed_box(false);
+    let (bytes, _) = bake_scene(&scene, &std::env::temp_dir(), Transport::Lightfield, false);
+    let bundle = lightfarm_client::decode(&bytes).expect("decode");
+    let occluders = Occluders::from_layout(&bundle.layout);
+    let mut lights = lights();
+    lights.lights[0].position = [1.0, 1.2, 1.0];
+    let runtime = Runtime::try_new(bundle).expect("runtime");
+    let tolerance = 1e-3;
+    let modes = [
+        Bounces::Converged { tolerance },
+        Bounces::Warm { tolerance },
+        Bounces::Feedback,
+    ];
+    let t = time_moving(&runtime, &occluders, &lights, 0, Method::Mrt, &modes, 30).unwrap();
+    eprintln!("{t:?}");
+    let (converged, warm, feedback) = (t[0], t[1], t[2]);
+    assert!(converged.worst_rel_l2 <= 2e-3, "{converged:?}");
+    assert!(warm.worst_rel_l2 <= 2e-3, "{warm:?}");
+    assert!(
+        warm.mean_applications * 2.0 <= converged.mean_applications,
+        "{warm:?} vs {converged:?}"
+    );
+    assert_eq!(feedback.mean_applications, 1.0);
+    assert!(feedback.worst_rel_l2 > warm.worst_rel_l2, "{feedback:?}");
+}
+
 /// The maze with its four pillars (19 blocks, DRT): all bounces against an all-bounce
 /// reference, at test-sized settings. One bounce is ~0.6 away from it (a third of the light);
 /// all bounces close the gap to the operators' own error. Measured values at the time of

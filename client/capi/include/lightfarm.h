@@ -107,6 +107,42 @@ typedef int32_t LfMethod;
 #endif // __cplusplus
 
 /**
+ * How many bounces of indirect light `lf_runtime_apply` sums (passed as `int32_t`).
+ */
+enum LfBounces
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : int32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * The first bounce only (the papers' light).
+   */
+  LF_BOUNCES_ONE = 0,
+  /**
+   * Bounces until the last adds less than the tolerance times the light so far (default).
+   */
+  LF_BOUNCES_CONVERGED = 1,
+  /**
+   * One application per call of the direct light plus the previous call's indirect light:
+   * all bounces for the cost of one once lights hold still (a moving light lags a few frames).
+   */
+  LF_BOUNCES_FEEDBACK = 2,
+  /**
+   * All bounces to the tolerance like `Converged`, starting from the previous call's answer:
+   * one application a frame while lights hold still, a few while they move, as accurate as
+   * `Converged` either way.
+   */
+  LF_BOUNCES_WARM = 3,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum LfBounces LfBounces;
+#else
+typedef int32_t LfBounces;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * A loaded bundle ready to apply every frame (opaque to C).
  */
 typedef struct LfRuntime LfRuntime;
@@ -342,10 +378,10 @@ bool lf_runtime_has_full(const LfRuntime *rt);
 
 /**
  * Picks how many bounces `lf_runtime_apply` sums: `mode` is an `LfBounces`; `tolerance` is
- * `LF_BOUNCES_CONVERGED`'s (stop when a bounce adds less than this fraction of the light so
- * far; 0 for the default 1e-3) and ignored otherwise. A new runtime starts at
- * `LF_BOUNCES_CONVERGED` with the default. Choosing `LF_BOUNCES_FEEDBACK` (again) starts its
- * feedback from zero.
+ * `LF_BOUNCES_CONVERGED`'s and `LF_BOUNCES_WARM`'s (stop when a bounce adds less than this
+ * fraction of the light so far; 0 for the default 1e-3) and ignored otherwise. A new runtime
+ * starts at `LF_BOUNCES_CONVERGED` with the default. Choosing a mode (again) starts
+ * `LF_BOUNCES_FEEDBACK`'s feedback from zero and `LF_BOUNCES_WARM` from a cold solve.
  *
  * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_BOUNCES` (unknown mode, or
  * a tolerance outside `[0, 1)`: the mode is then unchanged) or `LF_STATUS_PANIC`.
@@ -358,7 +394,8 @@ int32_t lf_runtime_set_bounces(LfRuntime *rt, int32_t mode, float tolerance);
 
 /**
  * One-bounce operator applications the last successful `lf_runtime_apply` on `rt` made (the
- * bounces `LF_BOUNCES_CONVERGED` needed; 1 for the other modes); 0 before any, or for NULL.
+ * bounces `LF_BOUNCES_CONVERGED` or `LF_BOUNCES_WARM` needed; 1 for the other modes); 0 before
+ * any, or for NULL.
  *
  * # Safety
  * `rt` must be NULL or a live pointer from `lf_runtime_new`.

@@ -20,30 +20,39 @@ pub enum LfBounces {
     /// One application per call of the direct light plus the previous call's indirect light:
     /// all bounces for the cost of one once lights hold still (a moving light lags a few frames).
     Feedback = 2,
+    /// All bounces to the tolerance like `Converged`, starting from the previous call's answer:
+    /// one application a frame while lights hold still, a few while they move, as accurate as
+    /// `Converged` either way.
+    Warm = 3,
 }
 
 impl LfBounces {
     /// The mode C passed, or `CapiError::BadBounces`.
     pub fn from_raw(raw: i32) -> Result<LfBounces, CapiError> {
-        [LfBounces::One, LfBounces::Converged, LfBounces::Feedback]
-            .into_iter()
-            .find(|m| *m as i32 == raw)
-            .ok_or(CapiError::BadBounces(raw))
+        [
+            LfBounces::One,
+            LfBounces::Converged,
+            LfBounces::Feedback,
+            LfBounces::Warm,
+        ]
+        .into_iter()
+        .find(|m| *m as i32 == raw)
+        .ok_or(CapiError::BadBounces(raw))
     }
 
-    /// The client's mode; `tolerance` is used by `Converged` only, where 0 means the default
-    /// and anything outside `[0, 1)` (or NaN) is refused.
+    /// The client's mode; `tolerance` is used by `Converged` and `Warm` only, where 0 means
+    /// the default and anything outside `[0, 1)` (or NaN) is refused.
     pub fn bounces(self, tolerance: f32) -> Result<Bounces, CapiError> {
+        let tolerance = match self {
+            LfBounces::One => return Ok(Bounces::One),
+            LfBounces::Feedback => return Ok(Bounces::Feedback),
+            _ if tolerance == 0.0 => DEFAULT_TOLERANCE,
+            _ if tolerance > 0.0 && tolerance < 1.0 => tolerance,
+            _ => return Err(CapiError::BadTolerance(tolerance)),
+        };
         Ok(match self {
-            LfBounces::One => Bounces::One,
-            LfBounces::Feedback => Bounces::Feedback,
-            LfBounces::Converged if tolerance == 0.0 => Bounces::Converged {
-                tolerance: DEFAULT_TOLERANCE,
-            },
-            LfBounces::Converged if tolerance > 0.0 && tolerance < 1.0 => {
-                Bounces::Converged { tolerance }
-            }
-            LfBounces::Converged => return Err(CapiError::BadTolerance(tolerance)),
+            LfBounces::Warm => Bounces::Warm { tolerance },
+            _ => Bounces::Converged { tolerance },
         })
     }
 }
@@ -56,6 +65,18 @@ mod tests {
     fn modes_map_and_bad_values_are_refused() {
         assert_eq!(LfBounces::from_raw(0).unwrap(), LfBounces::One);
         assert_eq!(LfBounces::from_raw(2).unwrap(), LfBounces::Feedback);
+        assert_eq!(LfBounces::from_raw(3).unwrap(), LfBounces::Warm);
+        assert_eq!(
+            LfBounces::Warm.bounces(0.0).unwrap(),
+            Bounces::Warm {
+                tolerance: DEFAULT_TOLERANCE
+            }
+        );
+        assert_eq!(
+            LfBounces::Warm.bounces(0.01).unwrap(),
+            Bounces::Warm { tolerance: 0.01 }
+        );
+        assert!(LfBounces::Warm.bounces(1.5).is_err());
         assert!(matches!(
             LfBounces::from_raw(7),
             Err(CapiError::BadBounces(7))

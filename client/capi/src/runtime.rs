@@ -198,10 +198,10 @@ pub unsafe extern "C" fn lf_runtime_has_full(rt: *const LfRuntime) -> bool {
 }
 
 /// Picks how many bounces `lf_runtime_apply` sums: `mode` is an `LfBounces`; `tolerance` is
-/// `LF_BOUNCES_CONVERGED`'s (stop when a bounce adds less than this fraction of the light so
-/// far; 0 for the default 1e-3) and ignored otherwise. A new runtime starts at
-/// `LF_BOUNCES_CONVERGED` with the default. Choosing `LF_BOUNCES_FEEDBACK` (again) starts its
-/// feedback from zero.
+/// `LF_BOUNCES_CONVERGED`'s and `LF_BOUNCES_WARM`'s (stop when a bounce adds less than this
+/// fraction of the light so far; 0 for the default 1e-3) and ignored otherwise. A new runtime
+/// starts at `LF_BOUNCES_CONVERGED` with the default. Choosing a mode (again) starts
+/// `LF_BOUNCES_FEEDBACK`'s feedback from zero and `LF_BOUNCES_WARM` from a cold solve.
 ///
 /// Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_BOUNCES` (unknown mode, or
 /// a tolerance outside `[0, 1)`: the mode is then unchanged) or `LF_STATUS_PANIC`.
@@ -225,7 +225,8 @@ pub unsafe extern "C" fn lf_runtime_set_bounces(
 }
 
 /// One-bounce operator applications the last successful `lf_runtime_apply` on `rt` made (the
-/// bounces `LF_BOUNCES_CONVERGED` needed; 1 for the other modes); 0 before any, or for NULL.
+/// bounces `LF_BOUNCES_CONVERGED` or `LF_BOUNCES_WARM` needed; 1 for the other modes); 0 before
+/// any, or for NULL.
 ///
 /// # Safety
 /// `rt` must be NULL or a live pointer from `lf_runtime_new`.

@@ -445,9 +445,50 @@ fn feedback_reaches_all_bounces_one_application_per_call() {
 }
 
 #[test]
+fn warm_starts_from_the_last_answer_one_application_while_light_holds_still() {
+    let rt = Rt::load_default();
+    // SAFETY: live runtime.
+    assert_eq!(
+        unsafe { lf_runtime_set_bounces(rt.0, LfBounces::Warm as i32, 1e-4) },
+        OK
+    );
+    let want = all_bounces(&DIRECT);
+    let mut out = [0.0f32; 6];
+    assert_eq!(rt.apply(LfMethod::Mrt as i32, &DIRECT, &mut out), OK);
+    // SAFETY: live runtime.
+    let cold = unsafe { lf_runtime_last_bounces(rt.0) };
+    assert!(cold >= 2, "the first call solves cold: {cold}");
+    for call in 0..10 {
+        assert_eq!(rt.apply(LfMethod::Mrt as i32, &DIRECT, &mut out), OK);
+        // SAFETY: live runtime.
+        let bounces = unsafe { lf_runtime_last_bounces(rt.0) };
+        assert!(
+            bounces <= if call == 0 { 3 } else { 1 },
+            "{call}: {bounces}"
+        );
+        for (o, w) in out.iter().zip(want) {
+            assert!((*o as f64 - w).abs() <= 1e-3 * w, "{o} vs {w}");
+        }
+    }
+    // Light that doubles: still all bounces of the new light.
+    let brighter = DIRECT.map(|v| v * 2.0);
+    assert_eq!(rt.apply(LfMethod::Mrt as i32, &brighter, &mut out), OK);
+    for (o, w) in out.iter().zip(all_bounces(&brighter)) {
+        assert!((*o as f64 - w).abs() <= 1e-3 * w, "{o} vs {w}");
+    }
+}
+
+#[test]
 fn unknown_bounce_modes_and_tolerances_are_refused() {
     let rt = Rt::load();
-    for (mode, tolerance) in [(3, 0.0f32), (-1, 0.0), (1, 1.0), (1, -0.5), (1, f32::NAN)] {
+    for (mode, tolerance) in [
+        (4, 0.0f32),
+        (-1, 0.0),
+        (1, 1.0),
+        (1, -0.5),
+        (1, f32::NAN),
+        (3, 2.0),
+    ] {
         // SAFETY: live runtime.
         let status = unsafe { lf_runtime_set_bounces(rt.0, mode, tolerance) };
         assert_eq!(status, LfStatus::BadBounces as i32, "{mode} {tolerance}");

@@ -16,7 +16,8 @@
 //! full application bit for bit (up to the sign of zeros); `apply_delta` then adds `A(Δ)`
 //! (summed over bounces) to the old indirect light, which equals applying the new direct light
 //! within float rounding for `One` and `Fixed(n)`, and within the tolerance (relative to the
-//! change's own indirect light) for `Converged`.
+//! change's own indirect light) for `Converged` (and `Warm`, which here is `Converged`: the
+//! change's light has no previous answer; the answer `Warm` starts from moves by the change).
 //!
 //! What stays proportional to the level: finding the reach (one pass over the input), the
 //! output's fill and albedo (one pass each), and the exact gather (`add_direct_gather`, its
@@ -87,8 +88,8 @@ impl Runtime {
     /// bounces, L)` gave for some direct light L, `delta` is the change `L_new − L` (zero
     /// wherever the change does not reach); `out` becomes the indirect light of `L_new`,
     /// computing only what `delta` reaches (module doc). `Feedback` is refused (its state is
-    /// the previous frame's output, not a function of the direct light); `Full` does the full
-    /// work on `delta`.
+    /// the previous frame's output, not a function of the direct light); `Warm` solves the
+    /// change like `Converged`; `Full` does the full work on `delta`.
     ///
     /// On an error `out` is unchanged.
     pub fn apply_delta(
@@ -98,9 +99,12 @@ impl Runtime {
         delta: &DirectLight,
         out: &mut IndirectLight,
     ) -> Result<DeltaApplied, ApplyError> {
-        if bounces == Bounces::Feedback {
-            return Err(ApplyError::DeltaFeedback);
-        }
+        let bounces = match bounces {
+            Bounces::Feedback => return Err(ApplyError::DeltaFeedback),
+            // The change's own light has no previous answer to start from.
+            Bounces::Warm { tolerance } => Bounces::Converged { tolerance },
+            b => b,
+        };
         if out.radiance.len() != self.n_texels {
             return Err(ApplyError::DirectLength {
                 expected: self.n_texels,
@@ -120,6 +124,10 @@ impl Runtime {
         let result = self.apply(method, bounces, delta, &mut change);
         self.by_change = false;
         self.spare_reach = self.reach.take();
+        if matches!(bounces, Bounces::Converged { .. }) && result.is_ok() {
+            // The answer `Warm` starts from moves with the light.
+            self.warm.add_change(method, &change.radiance);
+        }
         let result = result.map(|applied| {
             for (o, d) in out.radiance.iter_mut().zip(&change.radiance) {
                 o[0] += d[0];

@@ -79,7 +79,7 @@ fn dot(a: &[[f32; 3]], b: &[[f32; 3]]) -> [f64; 3] {
 }
 
 /// The three channels' Euclidean norms.
-fn norm(a: &[[f32; 3]]) -> [f64; 3] {
+pub(super) fn norm(a: &[[f32; 3]]) -> [f64; 3] {
     dot(a, a).map(f64::sqrt)
 }
 

@@ -49,7 +49,9 @@
 //! 4.2e-4 relative L2 from 100 bounces, where the series needs 18 bounces for 7.7e-4);
 //! [`Bounces::Feedback`] applies `A` once per call to the direct light plus the previous call's
 //! indirect light (Enlighten's radiosity feedback), so repeated calls with steady lights converge
-//! to `Converged` at one application each.
+//! to `Converged` at one application each; [`Bounces::Warm`] is `Converged`'s accuracy at
+//! `Feedback`'s cost while lights hold still: it starts from the previous call's answer, checks
+//! it with one application and runs GMRES only on what is left (module `warm`).
 //!
 //! # Layout
 //! - this file: the public types ([`Method`], [`Bounces`], [`Applied`], [`IndirectLight`],
@@ -66,6 +68,7 @@
 //! - `sh_apply`: [`Runtime::apply_sh`] and [`ShLight`], SH incident radiance per texel.
 //! - `kernels`: planar views of the scratch, the packed matrix-vector products, the block loop.
 //! - `krylov`: the restarted GMRES of [`Bounces::Converged`].
+//! - `warm`: [`Bounces::Warm`], the solve that starts from the previous answer.
 //! - `incremental`: [`Runtime::apply_delta`], relighting by the change of direct light: only
 //!   the blocks, clutter objects and entries the change reaches do work, bounce by bounce.
 //! - `tests` (`tests/`): hand-built bundles against dense references, per concept.
@@ -75,7 +78,8 @@
 //!   [`Runtime::try_new`]; always true of a bundle from `Bundle::decode`), so `apply` and
 //!   `apply_probes` index without further checks and their only errors are the ones in
 //!   [`ApplyError`].
-//! - `apply` (except with [`Bounces::Feedback`], whose state is the previous output) and
+//! - `apply` (except with [`Bounces::Feedback`] and [`Bounces::Warm`], whose state is the
+//!   previous output: Warm's result then differs from `Converged`'s within the tolerance) and
 //!   `apply_probes` are deterministic: the same direct light gives bit-identical output every
 //!   call, whatever was applied before (they share scratch but each refills what it reads).
 //! - Bounce loops end: `Converged` stops at [`MAX_BOUNCES`] applications or when a GMRES cycle
@@ -105,6 +109,7 @@ mod mrt;
 mod packed_ops;
 mod probes;
 mod sh_apply;
+mod warm;
 
 pub use incremental::DeltaApplied;
 use krylov::{Krylov, Unsolved};
@@ -135,6 +140,12 @@ pub enum Bounces {
     /// One application per call of the direct light plus the previous call's indirect light
     /// (zero after [`Runtime::reset_feedback`], a method change or a new runtime).
     Feedback,
+    /// All bounces to `tolerance` like [`Bounces::Converged`], starting from the last answer
+    /// of `Converged` or `Warm` with the same method (the previous frame's): one application
+    /// when the lights held still, a few GMRES steps on the change when they moved, a cold
+    /// `Converged` solve when there is no previous answer (after [`Runtime::reset_feedback`],
+    /// a method change or a new runtime).
+    Warm { tolerance: f32 },
 }
 
 /// The default tolerance of [`Bounces::Converged`]: about 0.1% of the light.
@@ -167,10 +178,12 @@ impl From<lightfarm_proto::bounces::BounceCount> for Bounces {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Applied {
     /// Applications of the one-bounce operator: the bounces summed for `One`, `Fixed(n)` and
-    /// `Feedback` (1); for `Converged`, the first bounce plus the GMRES iterations.
+    /// `Feedback` (1); for `Converged`, the first bounce plus the GMRES iterations; for `Warm`,
+    /// the check of the previous answer plus the GMRES iterations (or a cold solve's count).
     pub bounces: u32,
-    /// `Converged`: the estimated error relative to all bounces (the largest channel's GMRES
-    /// residual relative to its first bounce); 0 otherwise.
+    /// `Converged` and `Warm`: the estimated error relative to all bounces (the largest
+    /// channel's GMRES residual relative to its first bounce, for `Warm` the residual over
+    /// `(1 − gain) ·` the light); 0 otherwise.
     pub remaining_fraction: f32,
 }
 
@@ -210,7 +223,7 @@ pub enum ApplyError {
     NonFinite { bounce: u32 },
     #[error(
         "bounces: apply_delta cannot follow Feedback (its light is the previous frame's, not a \
-         function of the direct light); use One, Fixed(n) or Converged"
+         function of the direct light); use One, Fixed(n), Converged or Warm"
     )]
     DeltaFeedback,
 }
@@ -260,6 +273,9 @@ pub struct Runtime {
     /// [`Bounces::Converged`]'s GMRES workspace (`RESTART + 2` RGB texel vectors, 168 bytes a
     /// texel), made with the runtime so no frame allocates.
     krylov: Option<Krylov>,
+    /// [`Bounces::Warm`]: the last all-bounce answer (`Converged` or `Warm`), the method it
+    /// was made with and the operator's gain estimated by that method's last cold solve.
+    warm: warm::WarmStart,
     /// [`Runtime::apply_delta`]: what each application's input reaches (None: everything, as
     /// in `apply`), the reach kept between calls so none allocates, the change's indirect
     /// light, and the block projections made.
@@ -428,6 +444,7 @@ impl Runtime {
             feedback: vec![[0.0; 3]; n_texels],
             feedback_method: None,
             krylov: Some(Krylov::new(n_texels)),
+            warm: warm::WarmStart::new(n_texels),
             reach: None,
             spare_reach: None,
             delta_out: IndirectLight {
@@ -439,10 +456,12 @@ impl Runtime {
     }
 
     /// Forgets the light [`Bounces::Feedback`] feeds back (the next call starts from one
-    /// bounce, as after a cut to another level).
+    /// bounce, as after a cut to another level) and the answer [`Bounces::Warm`] starts from
+    /// (its next call is a cold `Converged` solve).
     pub fn reset_feedback(&mut self) {
         self.feedback.fill([0.0; 3]);
         self.feedback_method = None;
+        self.warm.forget();
     }
 
     /// Runs the per-block work of [`Runtime::apply`] on the current rayon thread pool
@@ -538,7 +557,9 @@ impl Runtime {
         }
         match bounces {
             Bounces::Fixed(0) => return Err(ApplyError::NoBounces),
-            Bounces::Converged { tolerance } if !(tolerance > 0.0 && tolerance < 1.0) => {
+            Bounces::Converged { tolerance } | Bounces::Warm { tolerance }
+                if !(tolerance > 0.0 && tolerance < 1.0) =>
+            {
                 return Err(ApplyError::BadTolerance(tolerance))
             }
             _ => {}
@@ -559,7 +580,15 @@ impl Runtime {
                 self.sum_bounces(method, &direct.radiance, &mut out.radiance, count)
             }
             Bounces::Converged { tolerance } => {
-                self.converge(method, &direct.radiance, &mut out.radiance, tolerance)
+                let result = self.converge(method, &direct.radiance, &mut out.radiance, tolerance);
+                self.remember_answer(method, &direct.radiance, &out.radiance, &result);
+                result
+            }
+            Bounces::Warm { tolerance } => {
+                let result =
+                    self.converge_warm(method, &direct.radiance, &mut out.radiance, tolerance);
+                self.remember_answer(method, &direct.radiance, &out.radiance, &result);
+                result
             }
             Bounces::Feedback => self.apply_feedback(method, &direct.radiance, &mut out.radiance),
         };
@@ -674,10 +703,13 @@ impl Runtime {
             ratio: if gain.is_finite() { gain as f32 } else { 1.0 },
         };
         match solved {
-            Ok(s) if light && s.gain < MAX_CONVERGING_GAIN => Ok(Applied {
-                bounces: s.applications + 1,
-                remaining_fraction: s.residual as f32,
-            }),
+            Ok(s) if light && s.gain < MAX_CONVERGING_GAIN => {
+                self.warm.solved(s.gain);
+                Ok(Applied {
+                    bounces: s.applications + 1,
+                    remaining_fraction: s.residual as f32,
+                })
+            }
             Ok(s) => Err(refused(s.applications, s.gain.max(MAX_CONVERGING_GAIN))),
             Err(Unsolved::Stalled {
                 applications, gain, ..

@@ -17,6 +17,11 @@
 //! With `feedback` among the modes, it also prints how many feedback frames the light takes to
 //! come within 1% (relative L2) of `Converged` at 1e-5 after the lights switch on from dark (the
 //! largest jump a light can make), and within 0.1%.
+//!
+//! The frames above repeat one light set, which is where `Warm` (and `Feedback`) cost one
+//! application. With `warm` or `feedback` among the modes, every mode is also timed while light
+//! `--light K` moves ([`super::frame_moving`]): `moving … median_ms=… mean_applications=…
+//! worst_rel_l2=…` lines.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -25,6 +30,7 @@ use anyhow::Context;
 use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, Runtime};
 use lightfarm_proto::lights::LightSet;
 
+use super::frame_moving::{time_moving, MOVING_FRAMES, MOVING_RADIUS};
 use super::frame_update::time_update;
 use super::read_text;
 use crate::evaluate::operator_direct;
@@ -41,6 +47,8 @@ pub struct FrameTimeArgs {
     pub threads: usize,
     /// `--update one-light`: time moving light `light` ([`super::frame_update`]) instead.
     pub update_light: Option<usize>,
+    /// The light the moving-light lines move ([`super::frame_moving`]).
+    pub moving_light: usize,
 }
 
 /// Frame-time figures of one bounce mode.
@@ -122,6 +130,7 @@ pub fn mode_name(mode: Bounces) -> String {
         Bounces::Fixed(n) => n.to_string(),
         Bounces::Converged { tolerance } => format!("converged({tolerance:e})"),
         Bounces::Feedback => "feedback".to_string(),
+        Bounces::Warm { tolerance } => format!("warm({tolerance:e})"),
     }
 }
 
@@ -252,6 +261,33 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             t.operator_bytes,
             bandwidth / 1e9
         );
+    }
+    if modes
+        .iter()
+        .any(|m| matches!(m, Bounces::Feedback | Bounces::Warm { .. }))
+    {
+        let frames = args.frames.clamp(2, MOVING_FRAMES);
+        let moving = time_moving(
+            &runtime,
+            &occluders,
+            &lights,
+            args.moving_light,
+            method,
+            &modes,
+            frames,
+        )?;
+        for (mode, t) in modes.iter().zip(&moving) {
+            println!(
+                "moving light={} radius_m={MOVING_RADIUS} frames={frames} method={method:?} \
+                 bounces={} threads=1 median_ms={:.4} mean_applications={:.2} \
+                 worst_rel_l2={:.2e}",
+                args.moving_light,
+                mode_name(*mode),
+                t.median_ms,
+                t.mean_applications,
+                t.worst_rel_l2
+            );
+        }
     }
     if modes.contains(&Bounces::Feedback) {
         let (to_1pct, to_01pct) = feedback_frames(&mut runtime, &direct, method)?;

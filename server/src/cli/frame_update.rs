@@ -11,7 +11,10 @@
 //!   was and where it is now (`LightReach`, the portal walk over the bundle's rooms; every texel
 //!   for a bundle without rooms), its change from the previous frame, and
 //!   `Runtime::apply_delta` adding that change's indirect light to the previous frame's. Both
-//!   the walk and the direct light's bookkeeping touch the reached texels only.
+//!   the walk and the direct light's bookkeeping touch the reached texels only. With `warm`
+//!   (all bounces, which reach most of a level anyway) the change's direct light updates the
+//!   level's direct light on the reached texels only and `Runtime::apply` relights it whole
+//!   from the previous frame's answer, on a runtime of its own.
 //!
 //! The adaptive direct light's error against tracing every sample, and that tracing's time,
 //! are printed first. Each way is reported with its direct-light and operator times apart
@@ -158,6 +161,23 @@ pub fn time_update(
     let mut change = DirectLight {
         radiance: vec![[0.0; 3]; n],
     };
+    // Warm: the update way keeps every light's direct light (the others' once, the moved
+    // light's on its spans) and applies it whole on a runtime of its own, so neither way's
+    // guess helps the other.
+    let warm = matches!(bounces, Bounces::Warm { .. });
+    let mut warm_way = warm.then(|| {
+        let mut others = lights.clone();
+        others.remove(moved);
+        let others = direct_of(&layout, occluders, &others);
+        let mut total = others.clone();
+        for (t, p) in total.radiance.iter_mut().zip(&previous) {
+            *t = [t[0] + p[0], t[1] + p[1], t[2] + p[2]];
+        }
+        (runtime.clone(), others, total)
+    });
+    if let Some((rt, _, total)) = warm_way.as_mut() {
+        rt.apply(method, bounces, total, &mut update_out)?;
+    }
     let (mut full, mut update) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
     let (mut projected, mut reached, mut rooms) = (Vec::new(), Vec::new(), Vec::new());
     let mut total = 0;
@@ -186,13 +206,32 @@ pub fn time_update(
             }
             change_spans.push(span.texels.clone());
         }
+        if let Some((_, others, total)) = warm_way.as_mut() {
+            for span in &change_spans {
+                for t in span.clone() {
+                    let (o, l) = (others.radiance[t], now[t]);
+                    total.radiance[t] = [o[0] + l[0], o[1] + l[1], o[2] + l[2]];
+                }
+            }
+        }
         for span in &spans_before {
             previous[span.texels.clone()].fill([0.0; 3]);
         }
         std::mem::swap(&mut previous, &mut now);
         std::mem::swap(&mut spans_before, &mut spans_now);
         let mid = Instant::now();
-        let d = runtime.apply_delta(method, bounces, &change, &mut update_out)?;
+        let d = match warm_way.as_mut() {
+            Some((rt, _, total)) => {
+                let applied = rt.apply(method, bounces, total, &mut update_out)?;
+                let blocks = rt.bundle().blocks.len() * applied.bounces as usize;
+                lightfarm_client::DeltaApplied {
+                    applied,
+                    blocks_projected: blocks,
+                    blocks_total: blocks,
+                }
+            }
+            None => runtime.apply_delta(method, bounces, &change, &mut update_out)?,
+        };
         update[0].push((mid - start).as_secs_f64() * 1e3);
         update[1].push(mid.elapsed().as_secs_f64() * 1e3);
         projected.push(d.blocks_projected as f64);

@@ -1,7 +1,9 @@
 //! Tests of the bounce modes ([`Bounces`], `runtime/mod.rs` and `runtime/krylov.rs`): `Fixed`
 //! against explicit sums of bounces, `Converged` against many bounces within its tolerance and
 //! in fewer applications, refusal of a gain-one operator (never a loop, never NaN), `Feedback`
-//! converging to `Converged`, and bit-identical `Converged` at one and two threads.
+//! converging to `Converged`, `Warm` as accurate as `Converged` at one application while lights
+//! hold still and fewer while they move, and bit-identical `Converged` and `Warm` at one and two
+//! threads.
 
 use super::*;
 use crate::compare::relative_l2;
@@ -327,6 +329,244 @@ fn feedback_converges_to_converged_and_stays_bounded_while_lights_move() {
             );
         }
     }
+}
+
+/// `ld` with every texel changed by up to ±`fraction` of itself (a light that moved a little).
+fn nudged(rng: &mut Lcg, ld: &DirectLight, fraction: f32) -> DirectLight {
+    DirectLight {
+        radiance: ld
+            .radiance
+            .iter()
+            .map(|v| v.map(|x| x * (1.0 + rng.range(-fraction, fraction))))
+            .collect(),
+    }
+}
+
+#[test]
+fn warm_is_as_accurate_as_converged_and_costs_one_application_while_lights_hold_still() {
+    let mut rng = Lcg(61);
+    let t = traced(&mut rng);
+    let tolerance = 1e-3f32;
+    let warm = Bounces::Warm { tolerance };
+    let cold = Bounces::Converged { tolerance };
+    let mut cases = 0;
+    for (b, method) in [
+        (with_gain(bundle(&mut rng, None, true), 0.65), Method::Full),
+        (with_gain(bundle(&mut rng, None, true), 0.9), Method::Full),
+        (bundle(&mut rng, Some(t), false), Method::Mrt),
+        (drt_bundle(&mut rng, false, true, false), Method::Drt),
+        (drt_bundle(&mut rng, true, true, false), Method::Drt),
+    ] {
+        // Darker albedo where the random operators would reflect more than they receive.
+        let mut b = b;
+        if method != Method::Full {
+            for rho in b.layout.albedo.iter_mut().flatten() {
+                *rho *= 0.3;
+            }
+        }
+        let n = b.layout.n_texels();
+        let mut rt = Runtime::new(b);
+        let ld = direct(&mut rng, n);
+        let mut truth = IndirectLight::default();
+        let tight = Bounces::Converged { tolerance: 1e-6 };
+        if rt.apply(method, tight, &ld, &mut truth).is_err() {
+            // Random DRT/MRT operators may have gain ≥ 1: Warm must refuse them too.
+            rt.reset_feedback();
+            let mut out = IndirectLight::default();
+            assert!(rt.apply(method, warm, &ld, &mut out).is_err(), "{method:?}");
+            continue;
+        }
+        cases += 1;
+        // Without a previous answer Warm is a cold Converged solve, bit for bit.
+        let (mut c, mut w) = (IndirectLight::default(), IndirectLight::default());
+        rt.reset_feedback();
+        let applied_cold = rt.apply(method, cold, &ld, &mut c).unwrap();
+        rt.reset_feedback();
+        let applied_first = rt.apply(method, warm, &ld, &mut w).unwrap();
+        assert_eq!(c, w, "{method:?}");
+        assert_eq!(applied_cold, applied_first);
+        // Lights holding still: one application (two on the first still frame, whose guess
+        // the cold solve left just inside the tolerance), as accurate as Converged.
+        for still in 0..5 {
+            let applied = rt.apply(method, warm, &ld, &mut w).unwrap();
+            let most = if still == 0 { 3 } else { 1 };
+            assert!(applied.bounces <= most, "{method:?} {still}: {applied:?}");
+            assert!(applied.remaining_fraction <= tolerance);
+            let err = relative_l2(&w.radiance, &truth.radiance);
+            assert!(err <= 2.0 * tolerance as f64, "{method:?}: {err}");
+        }
+        // A light that moves a little every frame: within the tolerance of each frame's own
+        // light (1% per texel a frame), in fewer applications than solving cold.
+        let (mut light, mut warm_apps, mut cold_apps) = (ld.clone(), 0, 0);
+        for frame in 0..12 {
+            light = nudged(&mut rng, &light, 0.01);
+            let applied = rt.apply(method, warm, &light, &mut w).unwrap();
+            let mut rt_cold = rt.clone();
+            cold_apps += rt_cold.apply(method, cold, &light, &mut c).unwrap().bounces;
+            rt_cold.apply(method, tight, &light, &mut truth).unwrap();
+            warm_apps += applied.bounces;
+            let err = relative_l2(&w.radiance, &truth.radiance);
+            assert!(
+                err <= 3.0 * tolerance as f64,
+                "{method:?} frame {frame}: {err} after {applied:?}"
+            );
+        }
+        assert!(
+            warm_apps < cold_apps,
+            "{method:?}: {warm_apps} vs {cold_apps}"
+        );
+        // A light moving steadily (direct light linear in time): the guess extrapolated from
+        // the last two answers leaves little to solve.
+        let step = direct(&mut rng, n);
+        let (mut warm_apps, mut cold_apps) = (0, 0);
+        for frame in 0..12 {
+            let t = 0.02 * frame as f32;
+            let light = DirectLight {
+                radiance: ld
+                    .radiance
+                    .iter()
+                    .zip(&step.radiance)
+                    .map(|(a, d)| std::array::from_fn(|c| a[c] + t * d[c]))
+                    .collect(),
+            };
+            let applied = rt.apply(method, warm, &light, &mut w).unwrap();
+            let mut rt_cold = rt.clone();
+            rt_cold.apply(method, tight, &light, &mut truth).unwrap();
+            cold_apps += rt_cold.apply(method, cold, &light, &mut c).unwrap().bounces;
+            warm_apps += applied.bounces;
+            let err = relative_l2(&w.radiance, &truth.radiance);
+            assert!(
+                err <= 3.0 * tolerance as f64,
+                "{method:?} ramp {frame}: {err}"
+            );
+        }
+        assert!(
+            2 * warm_apps <= cold_apps,
+            "{method:?} ramp: {warm_apps} vs {cold_apps}"
+        );
+        // A jump to unrelated light, and to darkness: still within the tolerance.
+        for jump in [
+            direct(&mut rng, n),
+            DirectLight {
+                radiance: vec![[0.0; 3]; n],
+            },
+        ] {
+            rt.apply(method, warm, &jump, &mut w).unwrap();
+            rt.clone().apply(method, tight, &jump, &mut truth).unwrap();
+            let scale = energy(&truth.radiance).max(1e-30);
+            let diff: f64 = w
+                .radiance
+                .iter()
+                .zip(&truth.radiance)
+                .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs() as f64).sum::<f64>())
+                .sum();
+            if scale > 1e-20 {
+                let err = relative_l2(&w.radiance, &truth.radiance);
+                assert!(err <= 3.0 * tolerance as f64, "{method:?} jump: {err}");
+            } else {
+                assert!(diff <= 1e-6, "{method:?} dark: {diff}");
+            }
+        }
+        // apply_delta moves the answer Warm starts from: after it, holding still costs one
+        // application again and stays accurate.
+        let (l1, l2) = (direct(&mut rng, n), direct(&mut rng, n));
+        let mut out = IndirectLight::default();
+        rt.apply(method, cold, &l1, &mut out).unwrap();
+        let change = DirectLight {
+            radiance: l1
+                .radiance
+                .iter()
+                .zip(&l2.radiance)
+                .map(|(a, b)| [b[0] - a[0], b[1] - a[1], b[2] - a[2]])
+                .collect(),
+        };
+        rt.apply_delta(method, warm, &change, &mut out).unwrap();
+        let applied = rt.apply(method, warm, &l2, &mut w).unwrap();
+        rt.clone().apply(method, tight, &l2, &mut truth).unwrap();
+        assert!(applied.bounces <= 3, "{method:?}: {applied:?}");
+        let err = relative_l2(&w.radiance, &truth.radiance);
+        assert!(
+            err <= 3.0 * tolerance as f64,
+            "{method:?} after apply_delta: {err}"
+        );
+        for bad in [0.0f32, 1.0, f32::NAN] {
+            assert!(matches!(
+                rt.apply(method, Bounces::Warm { tolerance: bad }, &l2, &mut w),
+                Err(ApplyError::BadTolerance(_))
+            ));
+        }
+    }
+    assert!(cases >= 4, "{cases}");
+}
+
+#[test]
+fn warm_refuses_an_operator_with_gain_one() {
+    let mut rng = Lcg(67);
+    let mut b = bundle(&mut rng, None, true);
+    let f = b.full.as_mut().unwrap();
+    // Every row sums to 1 with albedo 1: a closed white room.
+    for i in 0..f.n as usize {
+        let (s, e) = (f.row_start[i] as usize, f.row_start[i + 1] as usize);
+        let sum: f32 = f.values[s..e].iter().sum();
+        if sum > 0.0 {
+            f.values[s..e].iter_mut().for_each(|v| *v /= sum);
+        }
+    }
+    b.layout.albedo.fill([1.0; 3]);
+    let ld = direct(&mut rng, b.layout.n_texels());
+    let mut rt = Runtime::new(b);
+    let mut out = IndirectLight::default();
+    for _ in 0..3 {
+        let err = rt
+            .apply(
+                Method::Full,
+                Bounces::Warm { tolerance: 1e-3 },
+                &ld,
+                &mut out,
+            )
+            .unwrap_err();
+        assert!(
+            matches!(
+                err,
+                ApplyError::NotConverging { .. } | ApplyError::NonFinite { .. }
+            ),
+            "{err}"
+        );
+        assert!(out.radiance.iter().flatten().all(|&x| x == 0.0));
+    }
+}
+
+#[cfg(feature = "rayon")]
+#[test]
+fn warm_is_bit_identical_at_one_and_two_threads() {
+    let mut rng = Lcg(71);
+    let b = with_gain(bundle(&mut rng, None, true), 0.65);
+    let lights: Vec<DirectLight> = {
+        let first = direct(&mut rng, b.layout.n_texels());
+        let mut v = vec![first.clone(), first.clone()];
+        v.push(nudged(&mut rng, &first, 0.1));
+        v.push(direct(&mut rng, b.layout.n_texels()));
+        v
+    };
+    let mut outputs = Vec::new();
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let mut rt = Runtime::new(b.clone());
+        rt.set_parallel(threads > 1);
+        let mut run = Vec::new();
+        for l in &lights {
+            let mut out = IndirectLight::default();
+            let a = pool
+                .install(|| rt.apply(Method::Full, Bounces::Warm { tolerance: 1e-3 }, l, &mut out))
+                .unwrap();
+            run.push((a, out));
+        }
+        outputs.push(run);
+    }
+    assert_eq!(outputs[0], outputs[1]);
 }
 
 #[cfg(feature = "rayon")]

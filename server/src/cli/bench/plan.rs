@@ -213,7 +213,9 @@ pub fn plan(preset: Preset, bounces: BounceCount) -> SweepPlan {
     if plan.bounces != BounceCount::ONE {
         plan.left_out.push(
             "Feedback (one application per frame, the previous frame's indirect light fed back) \
-             is not timed here: `lightfarm frame-time --bounces 1,all,feedback` times it"
+             and Warm (Converged from the previous frame's answer) are not timed here: \
+             `lightfarm frame-time --bounces 1,all,warm,feedback` times them, still and with a \
+             moving light"
                 .into(),
         );
     }

@@ -1,0 +1,275 @@
+//! [`Bounces::Warm`](super::Bounces::Warm): all bounces to a tolerance, starting from the
+//! previous answer.
+//!
+//! The all-bounce indirect light `x` of direct light `L` solves `x = A (L + x)` (module doc of
+//! [`super`]). Given a guess `x0` — the last all-bounce answer of the same method (the previous
+//! frame's), moved on by its last change when the frame before was solved for other light
+//! (`2 x_{t−1} − x_{t−2}`: a light moving steadily leaves a residual of second order in its
+//! step; after a frame of still light, the answer itself) — one application gives `w = A (L + x0)` and with it the residual
+//! `r0 = w − x0` of `x0` in `(I − A) x = A L`. The error of `x0` is `(I − A)⁻¹ r0`, about
+//! `‖r0‖ / (1 − g)` with `g` the operator's gain (its spectral radius, the fraction of energy a
+//! late bounce keeps). So:
+//! - when `‖r0‖ ≤ tolerance · (1 − g) · ‖w‖` in every channel, `w` is the answer, after one
+//!   application (the cost of [`Bounces::Feedback`](super::Bounces::Feedback)); it is one more
+//!   bounce on `x0`, so its error is `A` times `x0`'s, smaller still;
+//! - otherwise restarted GMRES ([`super::krylov`]) solves `(I − A) δ = r0` to the residual the
+//!   tolerance asks, with a margin of 2 (relative to `r0`: `tolerance · (1 − g) · ‖w‖ / (2 ‖r0‖)`;
+//!   the margin lets the next still frame pass the check at one application) and the answer is
+//!   `x0 + δ`, kept when its residual is within the tolerance of its own light too (a light
+//!   switched off leaves a small answer, which the guess's scale would misjudge; that case, and
+//!   a stalled solve, solve cold). A light that moved a little leaves a small `r0` and costs a
+//!   few applications; a jump costs about a cold solve.
+//!
+//! This is the same stopping rule as [`Bounces::Converged`](super::Bounces::Converged)'s, whose
+//! GMRES stops at `‖r‖ ≤ tolerance · ‖A L‖` with `‖A L‖ ≈ (1 − g) ‖x‖`: the guess decides the
+//! cost, never the accuracy.
+//!
+//! Units: RGB radiance per texel, as everywhere in the runtime; norms are per channel, f64.
+//!
+//! Invariants:
+//! - `g` comes from the method's last cold solve (the Ritz estimate of its first Arnoldi cycle,
+//!   a property of the operator, not of the light), raised by later estimates and never
+//!   lowered; without a previous answer of the same method the call is a cold `Converged`
+//!   solve, and so is any warm solve that stalls.
+//! - The answer depends on the guess (within the tolerance), so on the calls before; for the
+//!   same sequence of calls it is bit-identical at any thread count. An error forgets the guess.
+//! - No allocation: the last two answers and the guess have their own buffers (36 bytes a
+//!   texel); the residual and `δ` use the runtime's bounce scratch.
+
+use super::krylov::{norm, Krylov, Unsolved};
+use super::{energy, Applied, ApplyError, Method, Runtime, MAX_BOUNCES, MAX_CONVERGING_GAIN};
+
+/// The guess [`Bounces::Warm`](super::Bounces::Warm) starts from.
+#[derive(Clone, Debug)]
+pub(super) struct WarmStart {
+    /// The last all-bounce answer (`Converged` or `Warm`), per texel.
+    answer: Vec<[f32; 3]>,
+    /// The answer before it, when it was made with the same method for other direct light
+    /// (`has_previous`: the light moved between the two).
+    previous: Vec<[f32; 3]>,
+    has_previous: bool,
+    /// Fingerprint of the direct light `answer` was made for.
+    light: u64,
+    /// The guess of the current call: `answer`, or extrapolated from `previous`.
+    guess: Vec<[f32; 3]>,
+    /// The method `answer` was made with; None: no guess.
+    method: Option<Method>,
+    /// The operator's gain for `method`.
+    gain: f64,
+    /// The gain the solve of the current call estimated (kept by `remember`).
+    solved_gain: f64,
+}
+
+impl WarmStart {
+    pub(super) fn new(n_texels: usize) -> WarmStart {
+        WarmStart {
+            answer: vec![[0.0; 3]; n_texels],
+            previous: vec![[0.0; 3]; n_texels],
+            has_previous: false,
+            light: 0,
+            guess: vec![[0.0; 3]; n_texels],
+            method: None,
+            gain: 0.0,
+            solved_gain: 0.0,
+        }
+    }
+
+    /// Drops the guess: the next `Warm` call solves cold.
+    pub(super) fn forget(&mut self) {
+        self.method = None;
+        self.has_previous = false;
+    }
+
+    /// Fills `guess`: the last answer moved on by its last change (`2 · answer − previous`),
+    /// or the last answer alone when there is no previous one.
+    fn predict(&mut self) {
+        if self.has_previous {
+            for ((g, a), p) in self.guess.iter_mut().zip(&self.answer).zip(&self.previous) {
+                *g = std::array::from_fn(|c| 2.0 * a[c] - p[c]);
+            }
+        } else {
+            self.guess.copy_from_slice(&self.answer);
+        }
+    }
+
+    /// Records the gain a cold solve estimated (before [`Runtime::remember_answer`]).
+    pub(super) fn solved(&mut self, gain: f64) {
+        self.solved_gain = gain;
+    }
+
+    /// Adds a change of indirect light to the guess (`apply_delta` moved the answer; the
+    /// motion before it is forgotten).
+    pub(super) fn add_change(&mut self, method: Method, change: &[[f32; 3]]) {
+        if self.method == Some(method) {
+            self.has_previous = false;
+            for (a, d) in self.answer.iter_mut().zip(change) {
+                a[0] += d[0];
+                a[1] += d[1];
+                a[2] += d[2];
+            }
+        }
+    }
+}
+
+/// A 64-bit fingerprint of a light vector's bits (equal lights, equal fingerprints; a
+/// collision would only cost a worse guess).
+fn fingerprint(light: &[[f32; 3]]) -> u64 {
+    let mut h = 0x9e37_79b9_7f4a_7c15u64 ^ light.len() as u64;
+    for v in light.iter().flatten() {
+        h = (h ^ v.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
+        h ^= h >> 29;
+    }
+    h
+}
+
+impl Runtime {
+    /// After a `Converged` or `Warm` call: keeps its answer as the next `Warm` call's guess,
+    /// or forgets the guess on an error. A change of light (`apply_delta`) is not an answer.
+    pub(super) fn remember_answer(
+        &mut self,
+        method: Method,
+        direct: &[[f32; 3]],
+        out: &[[f32; 3]],
+        result: &Result<Applied, ApplyError>,
+    ) {
+        if self.by_change {
+            return;
+        }
+        let warm = &mut self.warm;
+        if result.is_ok() {
+            // Only a move of the light is extrapolated, not the solver's own corrections of
+            // the answer for a light that held still.
+            let light = fingerprint(direct);
+            warm.has_previous = warm.method == Some(method) && light != warm.light;
+            warm.light = light;
+            std::mem::swap(&mut warm.previous, &mut warm.answer);
+            warm.answer.copy_from_slice(out);
+            warm.method = Some(method);
+            warm.gain = warm.solved_gain;
+        } else {
+            warm.forget();
+        }
+    }
+
+    /// [`Bounces::Warm`](super::Bounces::Warm) (module doc): `out` is all bounces of `direct`
+    /// to `tolerance`, from the previous answer when there is one.
+    pub(super) fn converge_warm(
+        &mut self,
+        method: Method,
+        direct: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+        tolerance: f32,
+    ) -> Result<Applied, ApplyError> {
+        if self.warm.method != Some(method) || self.by_change {
+            return self.converge(method, direct, out, tolerance);
+        }
+        let gain = self.warm.gain;
+        let scale = 1.0 - gain;
+        self.warm.predict();
+        // w = A (L + x0), then r0 = w − x0 (in `residual`).
+        let mut residual = std::mem::take(&mut self.bounce_in);
+        for ((l, d), x0) in residual.iter_mut().zip(direct).zip(&self.warm.guess) {
+            *l = [d[0] + x0[0], d[1] + x0[1], d[2] + x0[2]];
+        }
+        self.apply_once(method, &residual, out);
+        for ((r, w), x0) in residual.iter_mut().zip(out.iter()).zip(&self.warm.guess) {
+            *r = [w[0] - x0[0], w[1] - x0[1], w[2] - x0[2]];
+        }
+        let (r_norm, w_norm) = (norm(&residual), norm(out));
+        if !energy(out).is_finite() || r_norm.iter().any(|r| !r.is_finite()) {
+            self.bounce_in = residual;
+            return Err(ApplyError::NonFinite { bounce: 1 });
+        }
+        // Per channel: the estimated error of x0 relative to the light.
+        let remaining: [f64; 3] = std::array::from_fn(|c| match (r_norm[c], w_norm[c]) {
+            (r, _) if r == 0.0 => 0.0,
+            (_, w) if w == 0.0 => f64::INFINITY,
+            (r, w) => r / (scale * w),
+        });
+        let worst = remaining.iter().copied().fold(0.0, f64::max);
+        if worst <= tolerance as f64 {
+            self.bounce_in = residual;
+            self.warm.solved(gain);
+            return Ok(Applied {
+                bounces: 1,
+                remaining_fraction: worst as f32,
+            });
+        }
+        if !worst.is_finite() {
+            // No light left to measure against: solve cold.
+            self.bounce_in = residual;
+            return self.cold_after(method, direct, out, tolerance, 1);
+        }
+        // GMRES on the rest: the residual target relative to ‖r0‖, the tightest channel's,
+        // with a margin of 2 so that the next frame, if the lights then hold still, passes
+        // the check at one application.
+        let target = remaining
+            .iter()
+            .filter(|&&e| e > 0.0)
+            .map(|&e| 0.5 * tolerance as f64 / e)
+            .fold(1.0, f64::min);
+        let mut krylov = match self.krylov.take() {
+            Some(k) if k.len() == self.n_texels => k,
+            _ => Krylov::new(self.n_texels),
+        };
+        let mut delta = std::mem::take(&mut self.bounce_out);
+        let solved = krylov.solve(
+            &mut |v, w| self.apply_once(method, v, w),
+            &residual,
+            &mut delta,
+            target,
+            MAX_BOUNCES - 2,
+        );
+        self.krylov = Some(krylov);
+        self.bounce_in = residual;
+        let result = match solved {
+            Ok(s) if s.gain.max(gain) < MAX_CONVERGING_GAIN => {
+                for ((o, x0), d) in out.iter_mut().zip(&self.warm.guess).zip(&delta) {
+                    *o = [x0[0] + d[0], x0[1] + d[1], x0[2] + d[2]];
+                }
+                // The rest measured against the answer's own light, not the guess's: light
+                // that fell sharply (a light switched off) is solved cold instead.
+                let x_norm = norm(out);
+                let rest = (0..3)
+                    .map(|c| match s.residual * r_norm[c] {
+                        r if r == 0.0 => 0.0,
+                        r => r / (scale * x_norm[c]),
+                    })
+                    .fold(0.0, f64::max);
+                (rest <= tolerance as f64).then(|| {
+                    self.warm.solved(gain.max(s.gain));
+                    Ok(Applied {
+                        bounces: 1 + s.applications,
+                        remaining_fraction: rest as f32,
+                    })
+                })
+            }
+            Err(Unsolved::NonFinite { application }) => Some(Err(ApplyError::NonFinite {
+                bounce: application + 1,
+            })),
+            // Stalled, or a gain the cold solve must judge: solve cold.
+            _ => None,
+        };
+        self.bounce_out = delta;
+        match result {
+            Some(r) => r,
+            None => self.cold_after(method, direct, out, tolerance, 1),
+        }
+    }
+
+    /// A cold `Converged` solve after `spent` applications of a warm attempt (counted in).
+    fn cold_after(
+        &mut self,
+        method: Method,
+        direct: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+        tolerance: f32,
+        spent: u32,
+    ) -> Result<Applied, ApplyError> {
+        self.converge(method, direct, out, tolerance)
+            .map(|a| Applied {
+                bounces: a.bounces + spent,
+                ..a
+            })
+    }
+}
