@@ -677,10 +677,7 @@ impl Runtime {
             self.bounce_in = first;
             return Err(ApplyError::NonFinite { bounce: 1 });
         }
-        let mut krylov = match self.krylov.take() {
-            Some(k) if k.len() == self.n_texels => k,
-            _ => Krylov::new(self.n_texels),
-        };
+        let mut krylov = self.take_krylov();
         let solved = krylov.solve(
             &mut |v, w| self.apply_once(method, v, w),
             &first,
@@ -717,6 +714,14 @@ impl Runtime {
             Err(Unsolved::NonFinite { application }) => Err(ApplyError::NonFinite {
                 bounce: application + 1,
             }),
+        }
+    }
+
+    /// The GMRES workspace (given back by the caller; made anew only if it was lost).
+    fn take_krylov(&mut self) -> Krylov {
+        match self.krylov.take() {
+            Some(k) if k.len() == self.n_texels => k,
+            _ => Krylov::new(self.n_texels),
         }
     }
 

@@ -36,7 +36,7 @@
 //! - No allocation: the last two answers and the guess have their own buffers (36 bytes a
 //!   texel); the residual and `δ` use the runtime's bounce scratch.
 
-use super::krylov::{norm, Krylov, Unsolved};
+use super::krylov::{norm, Unsolved};
 use super::{energy, Applied, ApplyError, Method, Runtime, MAX_BOUNCES, MAX_CONVERGING_GAIN};
 
 /// The guess [`Bounces::Warm`](super::Bounces::Warm) starts from.
@@ -208,10 +208,7 @@ impl Runtime {
             .filter(|&&e| e > 0.0)
             .map(|&e| 0.5 * tolerance as f64 / e)
             .fold(1.0, f64::min);
-        let mut krylov = match self.krylov.take() {
-            Some(k) if k.len() == self.n_texels => k,
-            _ => Krylov::new(self.n_texels),
-        };
+        let mut krylov = self.take_krylov();
         let mut delta = std::mem::take(&mut self.bounce_out);
         let solved = krylov.solve(
             &mut |v, w| self.apply_once(method, v, w),

@@ -536,6 +536,18 @@ fn warm_refuses_an_operator_with_gain_one() {
     }
 }
 
+/// A pool of `threads` threads and a runtime of `b` that runs its blocks on it (more than one).
+#[cfg(feature = "rayon")]
+fn runtime_on(threads: usize, b: &Bundle) -> (rayon::ThreadPool, Runtime) {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    let mut rt = Runtime::new(b.clone());
+    rt.set_parallel(threads > 1);
+    (pool, rt)
+}
+
 #[cfg(feature = "rayon")]
 #[test]
 fn warm_is_bit_identical_at_one_and_two_threads() {
@@ -550,12 +562,7 @@ fn warm_is_bit_identical_at_one_and_two_threads() {
     };
     let mut outputs = Vec::new();
     for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        let mut rt = Runtime::new(b.clone());
-        rt.set_parallel(threads > 1);
+        let (pool, mut rt) = runtime_on(threads, &b);
         let mut run = Vec::new();
         for l in &lights {
             let mut out = IndirectLight::default();
@@ -577,12 +584,7 @@ fn converged_is_bit_identical_at_one_and_two_threads() {
     let ld = direct(&mut rng, b.layout.n_texels());
     let mut outputs = Vec::new();
     for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        let mut rt = Runtime::new(b.clone());
-        rt.set_parallel(threads > 1);
+        let (pool, mut rt) = runtime_on(threads, &b);
         let mut out = IndirectLight::default();
         pool.install(|| rt.apply(Method::Drt, Bounces::Fixed(6), &ld, &mut out))
             .unwrap();
