@@ -174,14 +174,23 @@ fn warm_follows_a_moving_light_within_its_tolerance_in_few_applications() {
     let occluders = Occluders::from_layout(&bundle.layout);
     let mut lights = lights();
     lights.lights[0].position = [1.0, 1.2, 1.0];
-    let runtime = Runtime::try_new(bundle).expect("runtime");
+    let mut runtime = Runtime::try_new(bundle).expect("runtime");
     let tolerance = 1e-3;
     let modes = [
         Bounces::Converged { tolerance },
         Bounces::Warm { tolerance },
         Bounces::Feedback,
     ];
-    let t = time_moving(&runtime, &occluders, &lights, 0, Method::Mrt, &modes, 30).unwrap();
+    let t = time_moving(
+        &mut runtime,
+        &occluders,
+        &lights,
+        0,
+        Method::Mrt,
+        &modes,
+        30,
+    )
+    .unwrap();
     eprintln!("{t:?}");
     let (converged, warm, feedback) = (t[0], t[1], t[2]);
     assert!(converged.worst_rel_l2 <= 2e-3, "{converged:?}");

@@ -37,7 +37,7 @@
 //!   texel); the residual and `δ` use the runtime's bounce scratch.
 
 use super::krylov::{norm, Unsolved};
-use super::{energy, Applied, ApplyError, Method, Runtime, MAX_BOUNCES, MAX_CONVERGING_GAIN};
+use super::{Applied, ApplyError, Method, Runtime, MAX_BOUNCES, MAX_CONVERGING_GAIN};
 
 /// The guess [`Bounces::Warm`](super::Bounces::Warm) starts from.
 #[derive(Clone, Debug)]
@@ -50,8 +50,10 @@ pub(super) struct WarmStart {
     has_previous: bool,
     /// Fingerprint of the direct light `answer` was made for.
     light: u64,
-    /// The guess of the current call: `answer`, or extrapolated from `previous`.
+    /// The guess of the current call when extrapolated from `previous` (`extrapolated`; else
+    /// the guess is `answer` itself).
     guess: Vec<[f32; 3]>,
+    extrapolated: bool,
     /// The method `answer` was made with; None: no guess.
     method: Option<Method>,
     /// The operator's gain for `method`.
@@ -68,6 +70,7 @@ impl WarmStart {
             has_previous: false,
             light: 0,
             guess: vec![[0.0; 3]; n_texels],
+            extrapolated: false,
             method: None,
             gain: 0.0,
             solved_gain: 0.0,
@@ -80,15 +83,23 @@ impl WarmStart {
         self.has_previous = false;
     }
 
-    /// Fills `guess`: the last answer moved on by its last change (`2 · answer − previous`),
-    /// or the last answer alone when there is no previous one.
+    /// Makes the guess: the last answer moved on by its last change (`2 · answer −
+    /// previous`, into `guess`), or the last answer itself when there is no previous one.
     fn predict(&mut self) {
-        if self.has_previous {
+        self.extrapolated = self.has_previous;
+        if self.extrapolated {
             for ((g, a), p) in self.guess.iter_mut().zip(&self.answer).zip(&self.previous) {
                 *g = std::array::from_fn(|c| 2.0 * a[c] - p[c]);
             }
+        }
+    }
+
+    /// The guess [`WarmStart::predict`] made.
+    fn guess(&self) -> &[[f32; 3]] {
+        if self.extrapolated {
+            &self.guess
         } else {
-            self.guess.copy_from_slice(&self.answer);
+            &self.answer
         }
     }
 
@@ -112,14 +123,17 @@ impl WarmStart {
 }
 
 /// A 64-bit fingerprint of a light vector's bits (equal lights, equal fingerprints; a
-/// collision would only cost a worse guess).
+/// collision would only cost a worse guess). One lane per channel, so the three multiply
+/// chains run side by side (it is on every `Warm` frame's path).
 fn fingerprint(light: &[[f32; 3]]) -> u64 {
-    let mut h = 0x9e37_79b9_7f4a_7c15u64 ^ light.len() as u64;
-    for v in light.iter().flatten() {
-        h = (h ^ v.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
-        h ^= h >> 29;
+    let mut h = [0x9e37_79b9_7f4a_7c15u64 ^ light.len() as u64; 3];
+    for v in light {
+        for c in 0..3 {
+            h[c] = (h[c] ^ v[c].to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
+            h[c] ^= h[c] >> 29;
+        }
     }
-    h
+    (h[0] ^ h[1].rotate_left(21) ^ h[2].rotate_left(42)).wrapping_mul(0x0100_0000_01b3)
 }
 
 impl Runtime {
@@ -168,15 +182,16 @@ impl Runtime {
         self.warm.predict();
         // w = A (L + x0), then r0 = w − x0 (in `residual`).
         let mut residual = std::mem::take(&mut self.bounce_in);
-        for ((l, d), x0) in residual.iter_mut().zip(direct).zip(&self.warm.guess) {
+        for ((l, d), x0) in residual.iter_mut().zip(direct).zip(self.warm.guess()) {
             *l = [d[0] + x0[0], d[1] + x0[1], d[2] + x0[2]];
         }
         self.apply_once(method, &residual, out);
-        for ((r, w), x0) in residual.iter_mut().zip(out.iter()).zip(&self.warm.guess) {
+        for ((r, w), x0) in residual.iter_mut().zip(out.iter()).zip(self.warm.guess()) {
             *r = [w[0] - x0[0], w[1] - x0[1], w[2] - x0[2]];
         }
+        // A norm is finite exactly when every value is (f32 squares cannot overflow f64).
         let (r_norm, w_norm) = (norm(&residual), norm(out));
-        if !energy(out).is_finite() || r_norm.iter().any(|r| !r.is_finite()) {
+        if r_norm.iter().chain(&w_norm).any(|v| !v.is_finite()) {
             self.bounce_in = residual;
             return Err(ApplyError::NonFinite { bounce: 1 });
         }
@@ -221,7 +236,7 @@ impl Runtime {
         self.bounce_in = residual;
         let result = match solved {
             Ok(s) if s.gain.max(gain) < MAX_CONVERGING_GAIN => {
-                for ((o, x0), d) in out.iter_mut().zip(&self.warm.guess).zip(&delta) {
+                for ((o, x0), d) in out.iter_mut().zip(self.warm.guess()).zip(&delta) {
                     *o = [x0[0] + d[0], x0[1] + d[1], x0[2] + d[2]];
                 }
                 // The rest measured against the answer's own light, not the guess's: light

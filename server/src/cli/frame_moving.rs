@@ -52,9 +52,10 @@ pub fn path_position(centre: [f64; 3], frame: usize) -> [f64; 3] {
 }
 
 /// Times `frames` frames of light `moved` moving (module doc) under each of `modes`, one
-/// thread; one result per mode, in order.
+/// thread; one result per mode, in order. `runtime` makes the yardstick (its feedback and
+/// warm state are then reset); each mode runs on a copy.
 pub fn time_moving(
-    runtime: &Runtime,
+    runtime: &mut Runtime,
     occluders: &Occluders,
     lights: &LightSet,
     moved: usize,
@@ -77,17 +78,16 @@ pub fn time_moving(
         })
         .collect();
     // Every frame's all-bounce light, the yardstick.
-    let mut reference_rt = runtime.clone();
     let truth = direct
         .iter()
         .map(|d| {
             let mut out = IndirectLight::default();
-            reference_rt
+            runtime
                 .apply(method, Bounces::Converged { tolerance: 1e-5 }, d, &mut out)
                 .map(|_| out)
         })
         .collect::<Result<Vec<_>, _>>()?;
-    drop(reference_rt);
+    runtime.reset_feedback();
     let mut runtimes: Vec<Runtime> = modes.iter().map(|_| runtime.clone()).collect();
     let mut outs = vec![IndirectLight::default(); modes.len()];
     for ((rt, out), &mode) in runtimes.iter_mut().zip(&mut outs).zip(modes) {

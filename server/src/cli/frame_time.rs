@@ -268,7 +268,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     {
         let frames = args.frames.clamp(2, MOVING_FRAMES);
         let moving = time_moving(
-            &runtime,
+            &mut runtime,
             &occluders,
             &lights,
             args.moving_light,

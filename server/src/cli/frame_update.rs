@@ -87,6 +87,26 @@ fn direct_of(layout: &Layout, occluders: &Occluders, lights: &[Light]) -> Direct
     direct_from_point_lights_adaptive(layout, occluders, lights, DIRECT_SAMPLES_PER_EDGE)
 }
 
+/// The texels of two lists of ascending, disjoint spans (where the light was and where it is),
+/// as ascending, disjoint ranges: each texel once, however much the two overlap.
+fn union_of(a: &[TexelSpan], b: &[TexelSpan], out: &mut Vec<Range<usize>>) {
+    out.clear();
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() || j < b.len() {
+        let next = if j == b.len() || (i < a.len() && a[i].texels.start <= b[j].texels.start) {
+            i += 1;
+            a[i - 1].texels.clone()
+        } else {
+            j += 1;
+            b[j - 1].texels.clone()
+        };
+        match out.last_mut() {
+            Some(last) if next.start <= last.end => last.end = last.end.max(next.end),
+            _ => out.push(next),
+        }
+    }
+}
+
 /// Times `frames` frames of light `moved` of `lights` moving along the path (module doc),
 /// relit both ways with `method` and `bounces`.
 pub fn time_update(
@@ -198,20 +218,15 @@ pub fn time_update(
         for span in &change_spans {
             change.radiance[span.clone()].fill([0.0; 3]);
         }
-        change_spans.clear();
-        for span in spans_before.iter().chain(&spans_now) {
-            for t in span.texels.clone() {
-                let (a, b) = (now[t], previous[t]);
-                change.radiance[t] = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-            }
-            change_spans.push(span.texels.clone());
-        }
-        if let Some((_, others, total)) = warm_way.as_mut() {
-            for span in &change_spans {
-                for t in span.clone() {
-                    let (o, l) = (others.radiance[t], now[t]);
+        union_of(&spans_before, &spans_now, &mut change_spans);
+        for t in change_spans.iter().flat_map(Range::clone) {
+            let (l, p) = (now[t], previous[t]);
+            match warm_way.as_mut() {
+                Some((_, others, total)) => {
+                    let o = others.radiance[t];
                     total.radiance[t] = [o[0] + l[0], o[1] + l[1], o[2] + l[2]];
                 }
+                None => change.radiance[t] = [l[0] - p[0], l[1] - p[1], l[2] - p[2]],
             }
         }
         for span in &spans_before {
@@ -259,4 +274,32 @@ pub fn time_update(
         rooms_reached: median(rooms) as usize,
         has_rooms,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spans(ranges: &[Range<usize>]) -> Vec<TexelSpan> {
+        ranges
+            .iter()
+            .map(|r| TexelSpan {
+                texels: r.clone(),
+                in_sight: false,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_union_of_two_span_lists_holds_every_texel_once() {
+        let a = spans(&[0..4, 10..20, 30..31]);
+        let b = spans(&[2..6, 6..8, 15..25, 40..41]);
+        let mut out = vec![99..100];
+        union_of(&a, &b, &mut out);
+        assert_eq!(out, vec![0..8, 10..25, 30..31, 40..41]);
+        union_of(&a, &[], &mut out);
+        assert_eq!(out, vec![0..4, 10..20, 30..31]);
+        union_of(&[], &[], &mut out);
+        assert!(out.is_empty());
+    }
 }
