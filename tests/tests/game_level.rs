@@ -4,7 +4,8 @@
 //! that is quadratic in the level's size (the DRT buried-texel test once was: 920 of a
 //! 947 s bake at 1,000 blocks) makes this test take hours instead of seconds, so it cannot come
 //! back unnoticed. A light's reach there (`LightReach`) is a neighbourhood, not the level, and
-//! lights exactly what lighting every texel lights. Also checks that the generator is
+//! lights exactly what lighting every texel lights, and the blocks the bake keeps the f64
+//! transport into for inpainting hold every buried texel. Also checks that the generator is
 //! deterministic.
 
 use std::path::{Path, PathBuf};
@@ -12,6 +13,8 @@ use std::process::Command;
 
 use lightfarm_client::{Bounces, DirectLight, IndirectLight, Method, Runtime};
 use lightfarm_proto::scene::Scene;
+use lightfarm_server::bake::drt::inpaint::inpainting_targets;
+use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_tests::*;
 
 /// Runs the generator into `dir`; returns the scene text.
@@ -59,6 +62,36 @@ fn a_generated_thousand_block_level_bakes_and_relights() {
     assert_eq!(bundle.drt.as_ref().map(|d| d.clutter.len()), Some(pillars));
     let n = bundle.layout.n_texels();
     assert_eq!(n, report.texels);
+
+    // The bake keeps the f64 transport for DRT's inpainting only into blocks where a texel may
+    // be buried, decided before any ray: every buried block texel must lie in one of them.
+    let geometry = Geometry::from_scene(&scene, &dir).unwrap();
+    let targets = inpainting_targets(&scene, &scene.openings().unwrap(), &geometry);
+    let buried_blocks: Vec<usize> = bundle
+        .drt
+        .as_ref()
+        .unwrap()
+        .buried
+        .iter()
+        .filter_map(|&x| {
+            geometry
+                .block_texels
+                .iter()
+                .position(|r| r.contains(&(x as usize)))
+        })
+        .collect();
+    let kept = targets.iter().filter(|t| **t).count();
+    eprintln!(
+        "1,000 blocks: {} buried block texels in {} blocks; the transport is kept into {kept}",
+        buried_blocks.len(),
+        buried_blocks
+            .iter()
+            .collect::<std::collections::BTreeSet<_>>()
+            .len()
+    );
+    assert!(!buried_blocks.is_empty());
+    assert!(buried_blocks.iter().all(|&b| targets[b]));
+    assert!(kept < 1000, "every block kept");
 
     // Direct light of one lamp's worth on every 7th texel: enough to reach the whole level
     // through its bounces, without the client's direct-light pass over 160 lights.

@@ -18,7 +18,7 @@
 //!   [`bake()`], [`BakeOptions`], [`BakeReport`] and [`BakeError`] are its facade, re-exported
 //!   here. [`units`]: a bake cut into deterministic cache-filling units (the farm).
 //! - [`reference`](mod@reference): the brute-force path-tracing reference; [`progress`]: how long work reports
-//!   progress.
+//!   progress; [`memory`]: a finished stage's freed memory handed back to the OS.
 //!
 //! **Invariant:** nothing here imports axum, tokio or serde_json; everything is deterministic
 //! for a given scene and seed, whatever the thread count.
@@ -27,6 +27,7 @@ pub mod cache;
 pub mod dnrt;
 pub mod drt;
 pub mod math;
+pub mod memory;
 pub mod mrt;
 pub mod pipeline;
 pub mod progress;

@@ -12,7 +12,6 @@
 //! the operator cache directory (the one [`ShapeCache`] opens).
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use lightfarm_proto::scene::Scene;
 
@@ -22,7 +21,7 @@ use crate::bake::cache::transport::{transport_key, TransportCache};
 use crate::bake::drt::rays::{trace_block_unit, trace_clutter_unit, DrtRayCache, RayPass};
 use crate::bake::mrt::shape::{bake_shape, ShapeOperators};
 use crate::bake::pipeline::plan::{shape_plan, ShapePlan};
-use crate::bake::pipeline::stages::{dnrt_grid, mrt_transport};
+use crate::bake::pipeline::stages::{dnrt_grid, mrt_transport, SplitShapes};
 use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
 use crate::bake::scene::mesh::load_mesh;
@@ -224,10 +223,10 @@ pub fn run_unit(
             let keys = shapes.block_keys();
             let key = transport_key(scene, scene.settings.transport, &keys);
             if transport_cache.get(&key).is_none() {
-                let mut unique: Vec<Arc<ShapeOperators>> = Vec::new();
+                let mut unique: Vec<ShapeOperators> = Vec::new();
                 for k in &shapes.unique {
                     match cache.get(k) {
-                        Lookup::Hit(ops) => unique.push(Arc::from(ops)),
+                        Lookup::Hit(ops) => unique.push(*ops),
                         _ => {
                             return Err(BakeError::Drt(format!(
                                 "transport needs shape {k}, which is not in the cache"
@@ -235,13 +234,16 @@ pub fn run_unit(
                         }
                     }
                 }
-                let block_operators = shapes.block_operators(&unique);
+                let unique = SplitShapes::new(unique);
+                let block_operators = shapes.block_operators(&unique.operators);
                 let per_block: Vec<&ShapeOperators> =
                     block_operators.iter().map(|s| s.as_ref()).collect();
                 let computed = mrt_transport(
                     scene,
+                    &shapes,
                     &Geometry::blocks_only(scene),
                     &per_block,
+                    unique.lightfields,
                     &scene.openings()?,
                     scene.settings.transport,
                     progress,

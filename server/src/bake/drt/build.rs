@@ -110,7 +110,9 @@ pub struct DrtInputs<'a> {
     pub block_geometry: &'a Geometry,
     /// Per block, its shape's operators (`L_imp` rows are read per hit).
     pub shapes: &'a [&'a ShapeOperators],
-    /// The blocks' MRT transport (what inpainting cancels on buried texels).
+    /// The blocks' MRT transport (what inpainting cancels on buried texels); at least the
+    /// operators into the blocks [`crate::bake::drt::inpaint::inpainting_targets`] marks (a
+    /// bake keeps no others).
     pub mrt: &'a MrtTransport,
 }
 

@@ -9,13 +9,46 @@
 //! neighbour's gather instead (its light is the gather alone).
 //!
 //! Invariant: neighbours are searched in rings of growing radius on the same face, in a fixed
-//! order, so the result is deterministic.
+//! order, so the result is deterministic. Only blocks [`inpainting_targets`] marks are read
+//! from the transport.
 
 use std::collections::BTreeMap;
+
+use lightfarm_proto::scene::{Opening, Scene};
 
 use crate::bake::drt::build::DrtInputs;
 use crate::bake::drt::lit_source::LitSource;
 use crate::bake::drt::rows::{add_row, RowsBySource};
+use crate::bake::drt::sight::ClutterSight;
+use crate::bake::scene::geometry::Geometry;
+
+/// Per block: whether [`inpaint`] may read the MRT transport into it, decided before any ray
+/// so that a bake can drop the rest of the transport first. A block texel is buried when it
+/// lies in a clutter box (then the box meets the block's closed box) or when its rays met a
+/// back face (then it was traced, so clutter is in sight from the block:
+/// [`ClutterSight::block_may_see`]); only blocks holding a buried texel are inpainted.
+pub fn inpainting_targets(
+    scene: &Scene,
+    openings: &[[Option<Opening>; 6]],
+    g: &Geometry,
+) -> Vec<bool> {
+    let sight = ClutterSight::new(scene, openings, g);
+    // The margin of the bake's burial test (`1e-6 · scale`), doubled.
+    let e = 2e-6 * g.scale();
+    scene
+        .blocks
+        .iter()
+        .enumerate()
+        .map(|(b, block)| {
+            let in_a_box = scene.clutter.iter().any(|object| {
+                object.box_.is_some_and(|c| {
+                    (0..3).all(|k| c.min[k] <= block.max[k] + e && c.max[k] >= block.min[k] - e)
+                })
+            });
+            in_a_box || sight.block_may_see(b)
+        })
+        .collect()
+}
 
 /// Inpaints the buried block texels (`buried`, by global texel) of every target block into
 /// `per_target` (or `gathered`); `clutter_widths` are the DRT clutter objects' basis sizes.

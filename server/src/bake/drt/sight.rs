@@ -270,6 +270,15 @@ impl<'a> ClutterSight<'a> {
         faces
     }
 
+    /// Whether anything in block `b` could see some clutter object (what
+    /// [`ClutterSight::block_faces`] narrows per face).
+    pub fn block_may_see(&self, b: usize) -> bool {
+        let from = &self.portals.boxes[b];
+        self.goals
+            .iter()
+            .any(|goal| self.portals.walk(from, b, goal))
+    }
+
     /// Per face of block `b` (in [`Face::ALL`] order): the clutter objects (scene clutter
     /// indices, ascending) it could see. Faces without texels (open ones) see none.
     pub fn block_faces(&self, b: usize) -> [Vec<u32>; 6] {

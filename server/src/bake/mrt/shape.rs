@@ -301,15 +301,29 @@ pub type Triplets = Vec<(u32, u32, f64)>;
 #[derive(Clone, Debug)]
 pub struct OpeningOperators {
     pub face: Face,
-    /// LF × r: outgoing lightfield from the shape's implicit lights.
-    pub out_imp: Mat<f64>,
     /// texels × q.
     pub u_r: Mat<f64>,
-    /// q × LF.
-    pub w: Mat<f64>,
     /// Incoming lightfield at `from` → outgoing lightfield here (LF × LF).
     pub pass_from: Vec<(Face, Triplets)>,
+    /// `OutImp` and `W`, which only the lightfield propagation reads: present on a shape as
+    /// baked or cached, never on a symmetry instance (made on use from the canonical shape's:
+    /// `shape_symmetry::InstanceLightfield`). A bake takes them out
+    /// ([`ShapeOperators::take_lightfields`]) and drops them once the transport is built: they
+    /// are two thirds of a shape's bytes.
+    pub lightfield: Option<OpeningLightfield>,
 }
+
+/// The lightfield side of one opening.
+#[derive(Clone, Debug)]
+pub struct OpeningLightfield {
+    /// LF × r: outgoing lightfield from the shape's implicit lights.
+    pub out_imp: Mat<f64>,
+    /// q × LF: incoming lightfield → the q coefficients `U_r` expands.
+    pub w: Mat<f64>,
+}
+
+/// A shape's openings' lightfields, by face (what [`ShapeOperators::take_lightfields`] takes).
+pub type ShapeLightfields = Vec<(Face, OpeningLightfield)>;
 
 /// Figures about a bake of one shape.
 #[derive(Clone, Debug, Default)]
@@ -343,6 +357,13 @@ impl ShapeOperators {
     }
     pub fn opening(&self, face: Face) -> Option<&OpeningOperators> {
         self.openings.iter().find(|o| o.face == face)
+    }
+    /// Takes the openings' lightfields out (those that have one), leaving `None`.
+    pub fn take_lightfields(&mut self) -> ShapeLightfields {
+        self.openings
+            .iter_mut()
+            .filter_map(|o| o.lightfield.take().map(|l| (o.face, l)))
+            .collect()
     }
 }
 
@@ -565,10 +586,9 @@ pub fn bake_shape(
         let out_imp = &out_ops[k] * &l_imp;
         openings.push(OpeningOperators {
             face: *face,
-            out_imp,
             u_r,
-            w,
             pass_from: passes[k].clone(),
+            lightfield: Some(OpeningLightfield { out_imp, w }),
         });
     }
     Ok(ShapeOperators {
@@ -610,6 +630,9 @@ fn read_mat(r: &mut Reader) -> Result<Mat<f64>, WireError> {
 
 impl ShapeOperators {
     /// Serialises for the operator cache.
+    ///
+    /// Panics on a shape without its lightfields (an instance, or one a bake has taken them
+    /// from): only shapes as baked are cached.
     pub fn encode(&self) -> Vec<u8> {
         let mut w = Writer::new();
         w.str(SHAPE_CODE_VERSION);
@@ -619,10 +642,14 @@ impl ShapeOperators {
         write_mat(&mut w, &self.l_imp);
         w.u32(self.openings.len() as u32);
         for o in &self.openings {
+            let lightfield = o
+                .lightfield
+                .as_ref()
+                .expect("only shapes as baked, with their lightfields, are cached");
             w.u8(o.face.index() as u8);
-            write_mat(&mut w, &o.out_imp);
+            write_mat(&mut w, &lightfield.out_imp);
             write_mat(&mut w, &o.u_r);
-            write_mat(&mut w, &o.w);
+            write_mat(&mut w, &lightfield.w);
             w.u32(o.pass_from.len() as u32);
             for (face, triplets) in &o.pass_from {
                 w.u8(face.index() as u8);
@@ -686,10 +713,9 @@ impl ShapeOperators {
             }
             openings.push(OpeningOperators {
                 face,
-                out_imp,
                 u_r,
-                w,
                 pass_from,
+                lightfield: Some(OpeningLightfield { out_imp, w }),
             });
         }
         let stats = ShapeStats {

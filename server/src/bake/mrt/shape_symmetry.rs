@@ -12,18 +12,27 @@
 //! ships the canonical `U_b`, `T_d→b` once with the block's symmetry and the client permutes at
 //! load (`lightfarm_proto::bundle::BlockSymmetry`).
 //!
+//! An instance stores `U_b`, `L_imp`, `T_d→b`, `U_r` and `Pass` ([`instance_operators`]);
+//! `W` and `OutImp`, which only the transport's propagation reads and which are most of a
+//! shape's bytes, are renumbered on use ([`InstanceLightfield`]), so a level's memory holds
+//! them once per canonical shape rather than once per (shape, symmetry).
+//!
 //! Lightfield indices permute like texels because a frame bins positions on the opening's
 //! ascending tangent axes and directions by the inverse concentric map of their tangent
 //! components, which commutes with the square's reflections and its diagonal swap (tested on
 //! rays below). Invariant: called only with `g` from `ShapeSpec::canonical` of the block's spec,
 //! so every block opening has a canonical opening and every block texel a canonical texel.
 
+use std::borrow::Cow;
+
 use faer::Mat;
 
 use lightfarm_proto::box_symmetry::BoxSymmetry;
 use lightfarm_proto::Face;
 
-use crate::bake::mrt::shape::{OpeningOperators, ShapeOperators, ShapeSpec};
+use crate::bake::mrt::shape::{
+    OpeningLightfield, OpeningOperators, ShapeLightfields, ShapeOperators, ShapeSpec,
+};
 
 /// Per lightfield index of the block's opening `face`, the index on the canonical opening
 /// `g.map_face(face)` (`cells × cells` positions × `dirs × dirs` bins, index layout of
@@ -84,7 +93,7 @@ pub fn instance_operators(
             let o = canonical
                 .opening(image)
                 .expect("the canonical shape has the block's openings");
-            let (_, pi, inv_here) = of_block_face(*f);
+            let (_, _, inv_here) = of_block_face(*f);
             let pass_from = o
                 .pass_from
                 .iter()
@@ -101,12 +110,9 @@ pub fn instance_operators(
                 .collect();
             OpeningOperators {
                 face: *f,
-                out_imp: Mat::from_fn(o.out_imp.nrows(), o.out_imp.ncols(), |i, k| {
-                    o.out_imp[(pi[i] as usize, k)]
-                }),
                 u_r: rows_of(&o.u_r),
-                w: Mat::from_fn(o.w.nrows(), o.w.ncols(), |j, i| o.w[(j, pi[i] as usize)]),
                 pass_from,
+                lightfield: None,
             }
         })
         .collect();
@@ -119,6 +125,76 @@ pub fn instance_operators(
         l_imp: rows_of(&canonical.l_imp),
         openings,
         stats: canonical.stats.clone(),
+    }
+}
+
+/// One block's openings' `OutImp` and `W` seen through its symmetry, renumbered from its
+/// canonical shape's on use (borrowed as they are for a block in the canonical orientation).
+/// The values are the canonical's exactly, so the propagation reads the same numbers as from
+/// stored instance operators.
+pub struct InstanceLightfield<'a> {
+    /// Per block opening: its face, the canonical opening's lightfield, and `π_f` (None for
+    /// the identity).
+    openings: Vec<(Face, &'a OpeningLightfield, Option<Vec<u32>>)>,
+}
+
+impl<'a> InstanceLightfield<'a> {
+    /// The block with spec `block`, which `g` takes onto the shape whose lightfields are
+    /// `canonical` (same invariant as [`instance_operators`]).
+    pub fn new(
+        canonical: &'a ShapeLightfields,
+        block: &ShapeSpec,
+        g: BoxSymmetry,
+    ) -> InstanceLightfield<'a> {
+        let (cells, dirs) = (block.lightfield_cells, block.lightfield_directions);
+        let openings = block
+            .open
+            .iter()
+            .map(|f| {
+                let image = g.map_face(*f);
+                let (_, lightfield) = canonical
+                    .iter()
+                    .find(|(face, _)| *face == image)
+                    .expect("the canonical shape has the block's openings");
+                let pi = (!g.is_identity()).then(|| lightfield_permutation(g, *f, cells, dirs));
+                (*f, lightfield, pi)
+            })
+            .collect();
+        InstanceLightfield { openings }
+    }
+
+    fn of(&self, face: Face) -> Option<(&'a OpeningLightfield, Option<&[u32]>)> {
+        self.openings
+            .iter()
+            .find(|(f, _, _)| *f == face)
+            .map(|(_, l, pi)| (*l, pi.as_deref()))
+    }
+
+    /// `OutImp_f` (LF × r) of the block's opening `face`, if it has one.
+    pub fn out_imp(&self, face: Face) -> Option<Cow<'a, Mat<f64>>> {
+        self.of(face).map(|(l, pi)| match pi {
+            None => Cow::Borrowed(&l.out_imp),
+            Some(pi) => Cow::Owned(Mat::from_fn(
+                l.out_imp.nrows(),
+                l.out_imp.ncols(),
+                |i, k| l.out_imp[(pi[i] as usize, k)],
+            )),
+        })
+    }
+
+    /// `W_f` (q × LF) of the block's opening `face`, if it has one.
+    pub fn w(&self, face: Face) -> Option<Cow<'a, Mat<f64>>> {
+        self.of(face).map(|(l, pi)| match pi {
+            None => Cow::Borrowed(&l.w),
+            Some(pi) => Cow::Owned(Mat::from_fn(l.w.nrows(), l.w.ncols(), |j, i| {
+                l.w[(j, pi[i] as usize)]
+            })),
+        })
+    }
+
+    /// The lightfield's length (LF) at the block's opening `face`, if it has one.
+    pub fn len(&self, face: Face) -> Option<usize> {
+        self.of(face).map(|(l, _)| l.out_imp.nrows())
     }
 }
 
@@ -213,9 +289,14 @@ mod tests {
             rays_per_texel: 512,
             ..canonical_spec
         };
-        let direct = bake_shape(&block, &|_| {}).unwrap();
-        let canonical = bake_shape(&canonical_spec, &|_| {}).unwrap();
+        let mut direct = bake_shape(&block, &|_| {}).unwrap();
+        let mut canonical = bake_shape(&canonical_spec, &|_| {}).unwrap();
         let inst = instance_operators(&canonical, &block, g);
+        let direct_lightfields = direct.take_lightfields();
+        let canonical_lightfields = canonical.take_lightfields();
+        let inst_lightfield = InstanceLightfield::new(&canonical_lightfields, &block, g);
+        let direct_lightfield =
+            InstanceLightfield::new(&direct_lightfields, &block, BoxSymmetry::IDENTITY);
         let relative = |a: &[f64], b: &[f64]| {
             let d: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
             let n: f64 = a.iter().map(|x| x * x).sum();
@@ -223,8 +304,11 @@ mod tests {
         };
         for face in &block.open {
             let (o, d) = (inst.opening(*face).unwrap(), direct.opening(*face).unwrap());
-            let inflow = |o: &OpeningOperators| &o.u_r * &o.w;
-            let (a, b) = (inflow(o), inflow(d));
+            assert!(o.lightfield.is_none(), "instances store no lightfield");
+            let (a, b) = (
+                &o.u_r * inst_lightfield.w(*face).unwrap().as_ref(),
+                &d.u_r * direct_lightfield.w(*face).unwrap().as_ref(),
+            );
             let rows = |m: &Mat<f64>| -> Vec<f64> {
                 (0..m.nrows())
                     .map(|i| (0..m.ncols()).map(|j| m[(i, j)]).sum())
@@ -242,11 +326,19 @@ mod tests {
                 "{face}: per-texel escape differs by {per_texel}"
             );
             assert!(per_bin < 0.06, "{face}: per-bin flux differs by {per_bin}");
-            let oc = canonical.opening(g.map_face(*face)).unwrap();
+            let (_, oc) = canonical_lightfields
+                .iter()
+                .find(|(f, _)| *f == g.map_face(*face))
+                .unwrap();
             // A permutation: the same values, summed in another order.
             let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs();
-            assert!(same(o.out_imp.norm_l2(), oc.out_imp.norm_l2()));
-            assert!(same(o.w.norm_l2(), oc.w.norm_l2()));
+            let out_imp = inst_lightfield.out_imp(*face).unwrap();
+            assert!(same(out_imp.norm_l2(), oc.out_imp.norm_l2()));
+            assert!(same(
+                inst_lightfield.w(*face).unwrap().norm_l2(),
+                oc.w.norm_l2()
+            ));
+            assert_eq!(inst_lightfield.len(*face), Some(oc.out_imp.nrows()));
         }
     }
 

@@ -25,6 +25,8 @@ use crate::bake::cache::shape::ShapeCache;
 use crate::bake::cache::transport::CachedTransport;
 use crate::bake::drt::build::{DrtInputs, DrtStats};
 use crate::bake::drt::compaction::DeltaCompactionStats;
+use crate::bake::drt::inpaint::inpainting_targets;
+use crate::bake::memory::release_freed;
 use crate::bake::mrt::shape::{ShapeError, ShapeOperators};
 use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
@@ -122,14 +124,17 @@ pub fn bake(
     lap(&mut report, "geometry");
 
     let plan = plan::shape_plan(scene);
-    let shapes = stages::shape_operators(&plan, cache, progress, &mut report)?;
+    let stages::SplitShapes {
+        operators: shapes,
+        lightfields,
+    } = stages::shape_operators(&plan, cache, progress, &mut report)?;
     lap(&mut report, "shape operators");
 
     let block_operators = plan.block_operators(&shapes);
     let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
     let transport_kind = options.transport.unwrap_or(scene.settings.transport);
     let CachedTransport {
-        mrt,
+        mut mrt,
         compact,
         stats,
     } = stages::block_transport(
@@ -137,6 +142,7 @@ pub fn bake(
         &plan,
         &block_geometry,
         &per_block,
+        lightfields,
         &openings,
         transport_kind,
         cache,
@@ -144,12 +150,23 @@ pub fn bake(
         &mut report,
     )?;
     report.transport = stats;
+    // Only the bundle reads the compaction (the transport dropped the lightfields itself).
     let transport = to_bundle::transport_ops(compact.as_deref(), &mrt);
+    drop(compact);
     let mut bundle =
         to_bundle::mrt_bundle(scene, &openings, &plan, &shapes, &full_geometry, transport);
     announce(&bundle);
     lap(&mut report, "transport");
 
+    // From here on only DRT's inpainting reads the f64 transport, and only into blocks where a
+    // texel may be buried.
+    let keep = if scene.clutter.is_empty() {
+        vec![false; scene.blocks.len()]
+    } else {
+        inpainting_targets(scene, &openings, &full_geometry)
+    };
+    mrt.retain_targets(&keep);
+    release_freed();
     let drt_inputs = DrtInputs {
         scene,
         openings: &openings,
@@ -171,6 +188,8 @@ pub fn bake(
         bundle.drt = Some(section);
         announce(&bundle);
     }
+    drop(mrt);
+    release_freed();
     lap(&mut report, "clutter operators");
 
     if let Some(volume) = stages::probe_volume(scene, &full_geometry, &per_block, drt.as_ref()) {

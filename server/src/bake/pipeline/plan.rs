@@ -13,8 +13,8 @@ use std::sync::Arc;
 use lightfarm_proto::box_symmetry::BoxSymmetry;
 use lightfarm_proto::scene::Scene;
 
-use crate::bake::mrt::shape::{ShapeOperators, ShapeSpec};
-use crate::bake::mrt::shape_symmetry::instance_operators;
+use crate::bake::mrt::shape::{ShapeLightfields, ShapeOperators, ShapeSpec};
+use crate::bake::mrt::shape_symmetry::{instance_operators, InstanceLightfield};
 
 /// The scene's blocks' shape operators, deduplicated by content key up to box symmetry: blocks
 /// that are rotations or mirror images of one another share one canonical shape
@@ -40,6 +40,23 @@ impl ShapePlan {
             .iter()
             .zip(&self.symmetry)
             .map(|(i, g)| g.instance_key(&self.unique[*i]))
+            .collect()
+    }
+
+    /// Per block, its openings' lightfields (what the transport's propagation reads), seen
+    /// through its symmetry from the unique shapes' (`unique[i]` for shape `i`).
+    pub fn block_lightfields<'a>(
+        &self,
+        unique: &'a [ShapeLightfields],
+    ) -> Vec<InstanceLightfield<'a>> {
+        (0..self.specs.len())
+            .map(|b| {
+                InstanceLightfield::new(
+                    &unique[self.shape_index[b]],
+                    &self.specs[b],
+                    self.symmetry[b],
+                )
+            })
             .collect()
     }
 

@@ -20,7 +20,7 @@ use crate::bake::drt::build::{build_drt, DrtInputs, DrtOperators};
 use crate::bake::drt::rays::DrtRayCache;
 use crate::bake::math::sampling::Purpose;
 use crate::bake::mrt::one_bounce::gather_rows;
-use crate::bake::mrt::shape::{bake_shape, ShapeOperators};
+use crate::bake::mrt::shape::{bake_shape, ShapeLightfields, ShapeOperators};
 use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
 use crate::bake::scene::mesh::load_mesh;
@@ -35,13 +35,15 @@ use super::plan::ShapePlan;
 use super::{BakeError, BakeReport};
 
 /// Every unique shape's operators (index = the plan's unique shape), from the cache or baked
-/// and stored there; counts hits, corrupt entries and computed shapes in `report`.
+/// and stored there; counts hits, corrupt entries and computed shapes in `report`. The
+/// openings' lightfields come apart from the operators ([`SplitShapes`]) so that they can be
+/// dropped once the transport is built.
 pub fn shape_operators(
     plan: &ShapePlan,
     cache: Option<&ShapeCache>,
     progress: &dyn Progress,
     report: &mut BakeReport,
-) -> Result<Vec<Arc<ShapeOperators>>, BakeError> {
+) -> Result<SplitShapes, BakeError> {
     let ShapePlan {
         unique,
         unique_specs,
@@ -49,12 +51,12 @@ pub fn shape_operators(
     } = plan;
     report.unique_shapes = unique.len();
     let mut to_compute: Vec<usize> = Vec::new();
-    let mut slots: Vec<Option<Arc<ShapeOperators>>> = vec![None; unique.len()];
+    let mut slots: Vec<Option<ShapeOperators>> = vec![None; unique.len()];
     for (i, key) in unique.iter().enumerate() {
         match cache.map(|c| c.get(key)) {
             Some(Lookup::Hit(ops)) => {
                 report.shapes_from_cache += 1;
-                slots[i] = Some(Arc::from(ops));
+                slots[i] = Some(*ops);
             }
             Some(Lookup::Corrupt) => {
                 report.corrupt_cache_entries += 1;
@@ -74,14 +76,42 @@ pub fn shape_operators(
             cache.put(&ops)?;
         }
         report.shapes_computed += 1;
-        slots[i] = Some(Arc::new(ops));
+        slots[i] = Some(ops);
     }
-    let shapes: Vec<Arc<ShapeOperators>> = slots
-        .into_iter()
-        .map(|s| s.expect("every shape is cached or computed"))
-        .collect();
-    report.ranks = shapes.iter().map(|s| s.rank()).collect();
+    let shapes = SplitShapes::new(
+        slots
+            .into_iter()
+            .map(|s| s.expect("every shape is cached or computed"))
+            .collect(),
+    );
+    report.ranks = shapes.operators.iter().map(|s| s.rank()).collect();
     Ok(shapes)
+}
+
+/// The unique shapes as a bake holds them: the operators every stage reads, shared by the
+/// blocks, and apart from them the openings' lightfields (`OutImp`, `W`), which only the
+/// transport's propagation reads: two thirds of the bytes, dropped once the transport is built.
+pub struct SplitShapes {
+    pub operators: Vec<Arc<ShapeOperators>>,
+    pub lightfields: Vec<ShapeLightfields>,
+}
+
+impl SplitShapes {
+    /// Takes the lightfields out of `shapes` (as baked or cached).
+    pub fn new(shapes: Vec<ShapeOperators>) -> SplitShapes {
+        let mut lightfields = Vec::with_capacity(shapes.len());
+        let operators = shapes
+            .into_iter()
+            .map(|mut s| {
+                lightfields.push(s.take_lightfields());
+                Arc::new(s)
+            })
+            .collect();
+        SplitShapes {
+            operators,
+            lightfields,
+        }
+    }
 }
 
 /// The blocks' inter-block transport: from the cache (keyed by the blocks and their shapes'
@@ -93,6 +123,7 @@ pub fn block_transport(
     plan: &ShapePlan,
     block_geometry: &Geometry,
     per_block: &[&ShapeOperators],
+    lightfields: Vec<ShapeLightfields>,
     openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
     transport_kind: Transport,
     cache: Option<&ShapeCache>,
@@ -112,8 +143,10 @@ pub fn block_transport(
         None => {
             let computed = mrt_transport(
                 scene,
+                plan,
                 block_geometry,
                 per_block,
+                lightfields,
                 openings,
                 transport_kind,
                 progress,
@@ -127,11 +160,15 @@ pub fn block_transport(
 }
 
 /// The MRT inter-block transport of the blocks alone (and its compaction when the scene ships
-/// compact transport).
+/// compact transport). The unique shapes' `lightfields` are read by the lightfield propagation
+/// only, through each block's symmetry in `plan`, and dropped before the compaction.
+#[allow(clippy::too_many_arguments)]
 pub fn mrt_transport(
     scene: &Scene,
+    plan: &ShapePlan,
     block_geometry: &Geometry,
     per_block: &[&ShapeOperators],
+    lightfields: Vec<ShapeLightfields>,
     openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
     transport_kind: Transport,
     progress: &dyn Progress,
@@ -140,7 +177,12 @@ pub fn mrt_transport(
     let (mrt, mut stats) = match transport_kind {
         Transport::Lightfield => {
             progress.stage("lightfield transport", 1);
-            let (blocks, stats) = lightfield_transport(per_block, openings, settings.tolerance);
+            let (blocks, stats) = lightfield_transport(
+                per_block,
+                &plan.block_lightfields(&lightfields),
+                openings,
+                settings.tolerance,
+            );
             progress.advance(1);
             (MrtTransport::Lightfield(blocks), stats)
         }
@@ -159,6 +201,8 @@ pub fn mrt_transport(
             (MrtTransport::Traced(blocks), stats)
         }
     };
+    drop(lightfields);
+    crate::bake::memory::release_freed();
     let compact = if settings.compact_transport {
         let compact = compact_transport(per_block, &mrt, settings.tolerance)
             .map_err(|e| BakeError::Transport(e.to_string()))?;

@@ -25,6 +25,7 @@ use lightfarm_proto::Face;
 use crate::bake::math::sampling::Purpose;
 use crate::bake::mrt::one_bounce::gather_rows;
 use crate::bake::mrt::shape::ShapeOperators;
+use crate::bake::mrt::shape_symmetry::InstanceLightfield;
 use crate::bake::scene::geometry::Geometry;
 use crate::bake::tracer::Tracer;
 
@@ -69,9 +70,11 @@ fn energy(m: &Mat<f64>) -> f64 {
     e
 }
 
-/// Composes lightfield transport over the connectivity graph.
+/// Composes lightfield transport over the connectivity graph. Per block, `shapes` gives its
+/// openings and `Pass` operators and `lightfields` their `OutImp` and `W`.
 pub fn lightfield_transport(
     shapes: &[&ShapeOperators],
+    lightfields: &[InstanceLightfield],
     openings: &[[Option<Opening>; 6]],
     tolerance: f64,
 ) -> (Vec<PropBlock>, TransportStats) {
@@ -84,18 +87,22 @@ pub fn lightfield_transport(
         for opening in &ops.openings {
             if let Some(Opening::Neighbour { block, face }) = openings[source][opening.face.index()]
             {
-                sent += energy(&opening.out_imp);
-                queue.push_back((block, face, opening.out_imp.clone(), 1));
+                let out_imp = lightfields[source]
+                    .out_imp(opening.face)
+                    .expect("a block's lightfield has its openings")
+                    .into_owned();
+                sent += energy(&out_imp);
+                queue.push_back((block, face, out_imp, 1));
             }
         }
         while let Some((target, face, x, hops)) = queue.pop_front() {
             stats.steps += 1;
             stats.max_hops = stats.max_hops.max(hops);
             let target_ops = shapes[target];
-            let Some(incoming) = target_ops.opening(face) else {
+            let Some(w) = lightfields[target].w(face) else {
                 continue;
             };
-            let reduced = &incoming.w * &x;
+            let reduced = w.as_ref() * &x;
             acc.entry((target, face.index(), source))
                 .and_modify(|m| *m += &reduced)
                 .or_insert(reduced);
@@ -114,7 +121,10 @@ pub fn lightfield_transport(
                 else {
                     continue;
                 };
-                let mut carried = Mat::<f64>::zeros(next.out_imp.nrows(), x.ncols());
+                let lf = lightfields[target]
+                    .len(next.face)
+                    .expect("a block's lightfield has its openings");
+                let mut carried = Mat::<f64>::zeros(lf, x.ncols());
                 for &(row, col, v) in triplets {
                     for j in 0..x.ncols() {
                         carried[(row as usize, j)] += v * x[(col as usize, j)];
@@ -213,6 +223,21 @@ pub enum MrtTransport {
 }
 
 impl MrtTransport {
+    /// Keeps only the operators into target blocks `keep` marks (what a later reader needs);
+    /// returns how many were dropped.
+    pub fn retain_targets(&mut self, keep: &[bool]) -> usize {
+        fn retain<T>(blocks: &mut Vec<T>, keep: impl Fn(&T) -> bool) -> usize {
+            let before = blocks.len();
+            blocks.retain(keep);
+            blocks.shrink_to_fit();
+            before - blocks.len()
+        }
+        match self {
+            MrtTransport::Lightfield(blocks) => retain(blocks, |b| keep[b.target_block]),
+            MrtTransport::Traced(blocks) => retain(blocks, |b| keep[b.target_block]),
+        }
+    }
+
     /// Whether source block `source`'s light reaches target block `target` (its own block, or
     /// through an inter-block term): exactly when [`MrtTransport::row`] is `Some`, without
     /// computing a row.
