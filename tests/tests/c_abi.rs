@@ -4,7 +4,9 @@
 //! computes through `Runtime::apply` on the same direct light, both at their default (all bounces);
 //! then that the example's engine path (unshadowed direct light it computes itself from the
 //! layout queries, through the lightmap atlas) matches the client's centre-sampled direct light
-//! without occluders, applied the same way, and that its surfaces and atlas are the bundle's.
+//! without occluders, applied the same way, and that its surfaces and atlas are the bundle's;
+//! and that its moved light, relit through the one-light path (reach, direct light on the
+//! spans, `lf_runtime_apply_delta`), agrees with relighting everything.
 //!
 //! The library is found beside this test binary: `lightfarm-client-capi` is a dev-dependency
 //! of this crate, so cargo builds its cdylib into `target/<profile>/deps/` (and, when the capi
@@ -240,6 +242,14 @@ fn c_example_matches_the_rust_client() {
         "engine_checksum",
         number(line, "engine_checksum"),
         sum(&engine_indirect.radiance),
+    );
+    // Light 0 moved and relit by its change (reach, direct light there, apply_delta) against
+    // relighting everything, both at all bounces to the default tolerance 1e-3.
+    assert!(field(line, "moved_spans").parse::<usize>().unwrap() >= 1);
+    let moved_error = number(line, "moved_error");
+    assert!(
+        moved_error < 3e-3,
+        "moved light relit by its change: {moved_error:.2e}"
     );
 
     // A file that is not a bundle: exit status 1 and the library's reason on stderr.

@@ -104,3 +104,158 @@ fn a_light_reaches_what_lighting_everything_lights() {
     assert!(lit > 0 && reached >= lit);
     assert!(reached * 2 < checked, "{reached} of {checked} reached");
 }
+
+/// The C ABI's one-light path on the maze: a light's reach before and after each move
+/// (`lf_runtime_light_reach`), its direct light computed there only
+/// (`lf_runtime_direct_in_spans`), the change and `lf_runtime_apply_delta` give what
+/// relighting everything through `lf_runtime_apply` gives, and the light's direct light kept
+/// this way is bit-identical to computing it at every texel.
+#[test]
+fn the_c_abi_moves_one_light_by_its_change() {
+    use lightfarm::{
+        lf_runtime_apply, lf_runtime_apply_delta, lf_runtime_direct_in_spans, lf_runtime_free,
+        lf_runtime_light_reach, lf_runtime_new, lf_runtime_set_bounces, lf_runtime_texel_count,
+        LfBounces, LfMethod, LfPointLight, LfStatus, LfTexelSpan,
+    };
+    const OK: i32 = LfStatus::Ok as i32;
+    let (scene, lights) = load_scene("maze", 4, 64);
+    let (bytes, _) = bake_scene(&scene, &scene_dir("maze"), scene.settings.transport, false);
+    // SAFETY: `bytes` is live for the call; every later call gets this live runtime and
+    // buffers of the lengths passed.
+    unsafe {
+        let rt = lf_runtime_new(bytes.as_ptr(), bytes.len());
+        assert!(!rt.is_null());
+        assert_eq!(lf_runtime_set_bounces(rt, LfBounces::One as i32, 0.0), OK);
+        let texels = lf_runtime_texel_count(rt);
+        let n = 3 * texels;
+        let everything = [LfTexelSpan {
+            start: 0,
+            end: texels as u32,
+            in_sight: 0,
+        }];
+        let c_light = |position: [f64; 3], intensity: [f64; 3]| LfPointLight {
+            position: position.map(|x| x as f32),
+            intensity: intensity.map(|x| x as f32),
+        };
+        let direct = |lights: &[LfPointLight], spans: &[LfTexelSpan], out: &mut [f32]| {
+            let status = lf_runtime_direct_in_spans(
+                rt,
+                lights.as_ptr(),
+                lights.len(),
+                spans.as_ptr(),
+                spans.len(),
+                out.as_mut_ptr(),
+                out.len(),
+            );
+            assert_eq!(status, OK);
+        };
+        let reach = |p: [f32; 3]| {
+            let mut count = 0usize;
+            // Too small a buffer: BAD_LENGTH and the count needed.
+            let status =
+                lf_runtime_light_reach(rt, p.as_ptr(), std::ptr::null_mut(), 0, &mut count);
+            assert_eq!(status, LfStatus::BadLength as i32);
+            assert!(count > 0);
+            let mut spans = vec![LfTexelSpan::default(); count];
+            let status =
+                lf_runtime_light_reach(rt, p.as_ptr(), spans.as_mut_ptr(), count, &mut count);
+            assert_eq!(status, OK);
+            spans
+        };
+        let mdrt = LfMethod::Drt as i32;
+        let apply = |d: &[f32], out: &mut [f32]| {
+            assert_eq!(
+                lf_runtime_apply(rt, mdrt, d.as_ptr(), d.len(), out.as_mut_ptr(), out.len()),
+                OK
+            );
+        };
+
+        let others: Vec<LfPointLight> = lights.lights[1..]
+            .iter()
+            .map(|l| c_light(l.position, l.intensity))
+            .collect();
+        let mut rest = vec![0.0f32; n];
+        direct(&others, &everything, &mut rest);
+        let light = &lights.lights[0];
+        let mut p = light.position;
+        let mut moving = vec![0.0f32; n];
+        direct(
+            &[c_light(p, light.intensity)],
+            &reach(p.map(|x| x as f32)),
+            &mut moving,
+        );
+        let total =
+            |moving: &[f32]| -> Vec<f32> { rest.iter().zip(moving).map(|(a, b)| a + b).collect() };
+        let mut indirect = vec![0.0f32; n];
+        apply(&total(&moving), &mut indirect);
+        let mut reached_less = false;
+        for step in 0..4 {
+            let before = moving.clone();
+            let old_spans = reach(p.map(|x| x as f32));
+            p[0] += 0.37;
+            p[2] += if step % 2 == 0 { 0.5 } else { -0.3 };
+            let new_spans = reach(p.map(|x| x as f32));
+            // The light left the old reach and lights the new one.
+            for s in &old_spans {
+                moving[s.start as usize * 3..s.end as usize * 3].fill(0.0);
+            }
+            direct(&[c_light(p, light.intensity)], &new_spans, &mut moving);
+            let covered: u32 = new_spans.iter().map(|s| s.end - s.start).sum();
+            reached_less |= (covered as usize) < texels;
+            let mut whole = vec![0.0f32; n];
+            direct(&[c_light(p, light.intensity)], &everything, &mut whole);
+            assert_eq!(
+                moving, whole,
+                "step {step}: direct light on the reach differs"
+            );
+            // Texels outside the spans are never written.
+            let mut marked = vec![7.0f32; n];
+            direct(&[c_light(p, light.intensity)], &new_spans, &mut marked);
+            let inside = |t: usize| {
+                new_spans
+                    .iter()
+                    .any(|s| (s.start as usize..s.end as usize).contains(&t))
+            };
+            for t in 0..texels {
+                let want = if inside(t) {
+                    &whole[3 * t..3 * t + 3]
+                } else {
+                    &[7.0f32; 3][..]
+                };
+                assert_eq!(&marked[3 * t..3 * t + 3], want, "step {step}: texel {t}");
+            }
+            let change: Vec<f32> = moving.iter().zip(&before).map(|(a, b)| a - b).collect();
+            assert_eq!(
+                lf_runtime_apply_delta(rt, mdrt, change.as_ptr(), n, indirect.as_mut_ptr(), n),
+                OK
+            );
+            let mut want = vec![0.0f32; n];
+            apply(&total(&moving), &mut want);
+            let err = relative_l2(indirect.as_chunks::<3>().0, want.as_chunks::<3>().0);
+            assert!(
+                err < 1e-5,
+                "step {step}: by the change {err:.2e} from everything"
+            );
+        }
+        assert!(reached_less, "the light reached every texel at every step");
+        // A span past the layout is refused, and the output is left alone.
+        let bad = [LfTexelSpan {
+            start: 0,
+            end: texels as u32 + 1,
+            in_sight: 0,
+        }];
+        let mut untouched = vec![7.0f32; n];
+        let status = lf_runtime_direct_in_spans(
+            rt,
+            others.as_ptr(),
+            others.len(),
+            bad.as_ptr(),
+            1,
+            untouched.as_mut_ptr(),
+            n,
+        );
+        assert_eq!(status, LfStatus::BadIndex as i32);
+        assert!(untouched.iter().all(|&v| v == 7.0));
+        lf_runtime_free(rt);
+    }
+}

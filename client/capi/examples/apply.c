@@ -14,11 +14,13 @@
  *
  *   texels=N method=drt|mrt applications=A checksum=S max=M direct_checksum=D surfaces=K
  *   first_surface=NAME atlas=WxH engine_direct_checksum=ED engine_checksum=E
+ *   moved_spans=MS moved_error=ME
  *
  * with S the sum of every output float, M the largest, D the sum of the direct light, ED the
  * sum of the engine's direct light and E the sum of the engine path's indirect-light atlas
- * (sums in double, in buffer or row order). Exit status 0 on success, 1 on any error (message
- * on stderr).
+ * (sums in double, in buffer or row order); then moves light 0 by 0.25 m and relights by the
+ * change (MS: the spans it reaches, ME: relative L2 against relighting everything). Exit status
+ * 0 on success, 1 on any error (message on stderr).
  *
  * Build (from the repository root, after `cargo build --release -p lightfarm-client-capi`):
  *   cc -std=c99 -Wall -Wextra -I client/capi/include client/capi/examples/apply.c \
@@ -206,6 +208,71 @@ static long read_lights(const char *path, LfPointLight **lights) {
     return n;
 }
 
+/* Moves light 0 by 0.25 m along x the way a game relights one moving light: where it reaches
+ * before and after (lf_runtime_light_reach), its direct light there only
+ * (lf_runtime_direct_in_spans), the change, and lf_runtime_apply_delta on `indirect` (which
+ * holds the indirect light of `direct`). Then relights everything for the moved lights and
+ * prints "moved_spans=S moved_error=R": the spans the moved light reaches and the relative L2
+ * between the two answers. Returns 0, or 1 on error. */
+static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long n_lights,
+                      const float *direct, float *indirect, size_t n_floats) {
+    size_t i, k, n_old = 0, n_new = 0;
+    int32_t status;
+    LfTexelSpan *old_spans, *new_spans;
+    float *light0, *change, *moved, *want;
+    double diff = 0.0, norm = 0.0;
+    if (n_lights < 1) { printf(" moved_spans=0 moved_error=0"); return 0; }
+    light0 = calloc(n_floats, sizeof *light0);
+    change = malloc(n_floats * sizeof *change);
+    moved = malloc(n_floats * sizeof *moved);
+    want = malloc(n_floats * sizeof *want);
+    if (!light0 || !change || !moved || !want) { fprintf(stderr, "out of memory\n"); return 1; }
+    /* Ask for the count first (LF_STATUS_BAD_LENGTH when there are any), then take them. */
+    status = lf_runtime_light_reach(rt, lights[0].position, NULL, 0, &n_old);
+    if (status != LF_STATUS_OK && status != LF_STATUS_BAD_LENGTH) return fail();
+    old_spans = malloc((n_old + 1) * sizeof *old_spans);
+    if (!old_spans) { fprintf(stderr, "out of memory\n"); return 1; }
+    if (lf_runtime_light_reach(rt, lights[0].position, old_spans, n_old, &n_old) != LF_STATUS_OK)
+        return fail();
+    /* Light 0's direct light alone, on its reach (zero elsewhere, as it is). */
+    if (lf_runtime_direct_in_spans(rt, lights, 1, old_spans, n_old, light0, n_floats)
+        != LF_STATUS_OK)
+        return fail();
+    for (i = 0; i < n_floats; i++) change[i] = -light0[i];
+    lights[0].position[0] += 0.25f;
+    status = lf_runtime_light_reach(rt, lights[0].position, NULL, 0, &n_new);
+    if (status != LF_STATUS_OK && status != LF_STATUS_BAD_LENGTH) return fail();
+    new_spans = malloc((n_new + 1) * sizeof *new_spans);
+    if (!new_spans) { fprintf(stderr, "out of memory\n"); return 1; }
+    if (lf_runtime_light_reach(rt, lights[0].position, new_spans, n_new, &n_new) != LF_STATUS_OK)
+        return fail();
+    for (k = 0; k < n_old; k++)
+        for (i = 3 * (size_t)old_spans[k].start; i < 3 * (size_t)old_spans[k].end; i++)
+            light0[i] = 0.0f;
+    if (lf_runtime_direct_in_spans(rt, lights, 1, new_spans, n_new, light0, n_floats)
+        != LF_STATUS_OK)
+        return fail();
+    for (i = 0; i < n_floats; i++) change[i] += light0[i];
+    if (lf_runtime_apply_delta(rt, method, change, n_floats, indirect, n_floats) != LF_STATUS_OK)
+        return fail();
+    /* Everything again, for the moved lights. */
+    for (i = 0; i < n_floats; i++) moved[i] = direct[i] + change[i];
+    if (lf_runtime_apply(rt, method, moved, n_floats, want, n_floats) != LF_STATUS_OK)
+        return fail();
+    for (i = 0; i < n_floats; i++) {
+        diff += ((double)indirect[i] - want[i]) * ((double)indirect[i] - want[i]);
+        norm += (double)want[i] * want[i];
+    }
+    printf(" moved_spans=%zu moved_error=%.3e", n_new, norm > 0.0 ? sqrt(diff / norm) : 0.0);
+    free(old_spans);
+    free(new_spans);
+    free(light0);
+    free(change);
+    free(moved);
+    free(want);
+    return 0;
+}
+
 int main(int argc, char **argv) {
     size_t len = 0, n_floats, i;
     unsigned char *bytes;
@@ -251,6 +318,7 @@ int main(int argc, char **argv) {
            n_floats / 3, method == LF_METHOD_DRT ? "drt" : "mrt",
            (unsigned)lf_runtime_last_bounces(rt), checksum, max, direct_checksum);
     if (check_surfaces(rt) || engine_path(rt, method, lights, n_lights)) return 1;
+    if (move_light(rt, method, lights, n_lights, direct, indirect, n_floats)) return 1;
     printf("\n");
 
     lf_runtime_free(rt);

@@ -31,7 +31,8 @@ enum LfStatus
   LF_STATUS_NULL_POINTER = -1,
   /**
    * A buffer length (in elements) is not its per-texel count times the texels (`3 x texels`
-   * floats for an RGB vector).
+   * floats for an RGB vector), or a capacity is below what is to be written
+   * (`lf_runtime_light_reach`).
    */
   LF_STATUS_BAD_LENGTH = -2,
   /**
@@ -65,7 +66,8 @@ enum LfStatus
    */
   LF_STATUS_NOT_CONVERGING = -9,
   /**
-   * An index is not below its count (`lf_runtime_surface` past `lf_runtime_surface_count`).
+   * An index is not below its count (`lf_runtime_surface` past `lf_runtime_surface_count`),
+   * or a texel span is not a range of the layout's texels.
    */
   LF_STATUS_BAD_INDEX = -10,
 };
@@ -154,6 +156,20 @@ typedef struct {
   float position[3];
   float intensity[3];
 } LfPointLight;
+
+/**
+ * A run of texels in layout order: `start` (inclusive) to `end` (exclusive).
+ */
+typedef struct {
+  uint32_t start;
+  uint32_t end;
+  /**
+   * 1 when the light whose reach this is sees every point of these texels unoccluded (its
+   * own room, holding nothing but its walls): `lf_runtime_direct_in_spans` traces no shadow
+   * rays there. Set it only on spans passed together with that one light; 0 otherwise.
+   */
+  uint8_t in_sight;
+} LfTexelSpan;
 
 #ifdef __cplusplus
 extern "C" {
@@ -328,6 +344,56 @@ int64_t lf_runtime_surface(const LfRuntime *rt,
                            size_t cap,
                            uint32_t *texel_offset,
                            uint32_t *texel_count);
+
+/**
+ * Writes the texel spans the point light at `position` (3 floats, world metres) can reach to
+ * `out_spans`, and their number to `*out_count`.
+ *
+ * Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, `position` or `out_count`, or
+ * `out_spans` when spans are to be written), `LF_STATUS_INVALID_LIGHT` (a non-finite
+ * position), `LF_STATUS_BAD_LENGTH` (`capacity` is below the number of spans: `*out_count`
+ * then holds the number needed and nothing is written to `out_spans`) or `LF_STATUS_PANIC`.
+ * Allocates only while a walk reaches more than any before it.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call. `position` must be NULL or point to 3 readable floats; `out_spans` must be NULL or
+ * point to `capacity` writable `LfTexelSpan`s; `out_count` must be NULL or writable.
+ */
+int32_t lf_runtime_light_reach(LfRuntime *rt,
+                               const float *position,
+                               LfTexelSpan *out_spans,
+                               size_t capacity,
+                               size_t *out_count);
+
+/**
+ * Computes direct outgoing radiance from `n_lights` point lights on the texels of `spans`
+ * only (e.g. where a moved light reaches, before and after the move), with shadow rays against
+ * the bundle's geometry, averaged over each texel adaptively; every other texel of `out_rgb`
+ * keeps its value.
+ *
+ * `out_rgb` holds `out_len` = `3 x texels` floats (texel-major RGB, layout order): e.g. one
+ * light's direct light, updated in place where it moved, to take the change from.
+ *
+ * Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_LENGTH`,
+ * `LF_STATUS_INVALID_LIGHT`, `LF_STATUS_BAD_INDEX` (a span that is not a range of the
+ * layout's texels: `start > end` or `end > texels`) or `LF_STATUS_PANIC`. `out_rgb` is
+ * written only on success. Allocates a copy of the lights and spans; costs shadow rays only on
+ * the spans' texels.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`. `lights` must be NULL or point
+ * to `n_lights` readable `LfPointLight`s, `spans` to
+ * `n_spans` readable `LfTexelSpan`s; `out_rgb` must be NULL or point to `out_len` writable
+ * floats overlapping neither; no other thread may write any of them during the call.
+ */
+int32_t lf_runtime_direct_in_spans(const LfRuntime *rt,
+                                   const LfPointLight *lights,
+                                   size_t n_lights,
+                                   const LfTexelSpan *spans,
+                                   size_t n_spans,
+                                   float *out_rgb,
+                                   size_t out_len);
 
 /**
  * Loads a bundle (the bytes of an `.lfb` file; they are copied, so the caller may free them

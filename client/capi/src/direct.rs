@@ -26,7 +26,7 @@ pub struct LfPointLight {
 
 impl LfPointLight {
     /// The client's light, or why this one is refused.
-    fn to_light(self) -> Result<Light, &'static str> {
+    pub(crate) fn to_light(self) -> Result<Light, &'static str> {
         if !self.position.iter().all(|x| x.is_finite()) {
             return Err("position is not finite");
         }

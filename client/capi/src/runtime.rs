@@ -11,7 +11,10 @@
 //! - C only ever sees `LfRuntime*` from [`lf_runtime_new`] (a leaked `Box`), and
 //!   [`lf_runtime_free`] is the only place that box is dropped.
 
-use lightfarm_client::{Atlas, Bounces, DirectLight, IndirectLight, Occluders, Runtime};
+use lightfarm_client::{
+    direct_scale, Atlas, Bounces, DirectLight, IndirectLight, LightReach, Occluders, Runtime,
+    TexelSpan,
+};
 use lightfarm_proto::bundle::Bundle;
 
 use crate::bounces::LfBounces;
@@ -35,6 +38,12 @@ pub struct LfRuntime {
     bounces: Bounces,
     /// One-bounce applications the last successful `lf_runtime_apply` made.
     last_bounces: u32,
+    /// A point light's reach over the bundle's rooms (None: the bundle has no rooms section).
+    reach: Option<LightReach>,
+    /// Scratch: the spans of the last `lf_runtime_light_reach`.
+    reach_spans: Vec<TexelSpan>,
+    /// The direct light's clamp scale (`direct_scale`: a pass over every texel, made once).
+    direct_scale: f64,
 }
 
 impl LfRuntime {
@@ -43,9 +52,14 @@ impl LfRuntime {
         let bundle = Bundle::decode(bytes)?;
         let occluders = Occluders::from_layout(&bundle.layout);
         let atlas = Atlas::from_layout_with(&bundle.layout, &bundle.surface_atlases);
+        let reach = LightReach::new(&bundle);
+        let direct_scale = direct_scale(&bundle.layout, &occluders);
         let runtime = Runtime::try_new(bundle)?;
         let n = runtime.n_texels();
         Ok(LfRuntime {
+            reach,
+            reach_spans: Vec::new(),
+            direct_scale,
             runtime,
             occluders,
             atlas,
@@ -68,6 +82,27 @@ impl LfRuntime {
     /// The shadow-ray geometry of the bundle.
     pub(crate) fn occluders(&self) -> &Occluders {
         &self.occluders
+    }
+
+    /// `direct_scale` of the bundle's layout and occluders.
+    pub(crate) fn direct_scale(&self) -> f64 {
+        self.direct_scale
+    }
+
+    /// The texel spans a point light at `light` can reach (every texel without rooms).
+    pub(crate) fn light_reach(&mut self, light: [f64; 3]) -> &[TexelSpan] {
+        let layout = &self.runtime.bundle().layout;
+        match &mut self.reach {
+            Some(reach) => reach.texels(layout, light, &mut self.reach_spans),
+            None => {
+                self.reach_spans.clear();
+                self.reach_spans.push(TexelSpan {
+                    texels: 0..layout.n_texels(),
+                    in_sight: false,
+                });
+            }
+        }
+        &self.reach_spans
     }
 
     /// Where each texel lands in the lightmap atlas.

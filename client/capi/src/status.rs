@@ -16,7 +16,8 @@ pub enum LfStatus {
     /// A required pointer argument was NULL.
     NullPointer = -1,
     /// A buffer length (in elements) is not its per-texel count times the texels (`3 x texels`
-    /// floats for an RGB vector).
+    /// floats for an RGB vector), or a capacity is below what is to be written
+    /// (`lf_runtime_light_reach`).
     BadLength = -2,
     /// The method is not one of `LfMethod`.
     BadMethod = -3,
@@ -34,7 +35,8 @@ pub enum LfStatus {
     /// The bounces did not converge (albedo near 1 in a closed room) or produced a non-finite
     /// value; the output was not written (`lf_last_error` says which).
     NotConverging = -9,
-    /// An index is not below its count (`lf_runtime_surface` past `lf_runtime_surface_count`).
+    /// An index is not below its count (`lf_runtime_surface` past `lf_runtime_surface_count`),
+    /// or a texel span is not a range of the layout's texels.
     BadIndex = -10,
 }
 
@@ -51,6 +53,19 @@ pub enum CapiError {
         per_texel: usize,
         expected: usize,
         got: usize,
+    },
+    #[error("{what} holds {got} but {needed} are needed")]
+    TooFew {
+        what: &'static str,
+        needed: usize,
+        got: usize,
+    },
+    #[error("spans[{index}] = [{start}, {end}) is not a range of this bundle's {texels} texels")]
+    BadSpan {
+        index: usize,
+        start: usize,
+        end: usize,
+        texels: usize,
     },
     #[error("{what} index {index} is out of range: this bundle has {count} {what}s")]
     BadIndex {
@@ -87,8 +102,8 @@ impl CapiError {
     pub fn status(&self) -> LfStatus {
         match self {
             CapiError::NullPointer(_) => LfStatus::NullPointer,
-            CapiError::BadLength { .. } => LfStatus::BadLength,
-            CapiError::BadIndex { .. } => LfStatus::BadIndex,
+            CapiError::BadLength { .. } | CapiError::TooFew { .. } => LfStatus::BadLength,
+            CapiError::BadIndex { .. } | CapiError::BadSpan { .. } => LfStatus::BadIndex,
             CapiError::BadMethod(_) => LfStatus::BadMethod,
             CapiError::BadBounces(_) | CapiError::BadTolerance(_) | CapiError::BounceMode(_) => {
                 LfStatus::BadBounces

@@ -4,7 +4,8 @@
 //! then the bounce modes (all bounces by default, one, feedback) against the geometric series
 //! of the same operator. Then the texel layout and atlas queries on a four-surface bundle
 //! with a mesh atlas: exact values, every error path, and direct light an engine computes from
-//! them applying like the client's.
+//! them applying like the client's. Last, the one-light entry points (reach spans, direct light
+//! on spans) and their error paths.
 
 use std::ffi::CStr;
 use std::ptr::{null, null_mut};
@@ -1009,4 +1010,124 @@ fn apply_delta_refuses_feedback_bad_lengths_and_nulls_and_leaves_the_light_alone
         );
     }
     assert_eq!(indirect, MRT);
+}
+
+/// The one-light entry points on the two-texel bundle (no rooms section: a light reaches
+/// everything): the spans, the count protocol, direct light written on a span only, and every
+/// error path.
+#[test]
+fn light_reach_and_direct_in_spans() {
+    let rt = Rt::load();
+    let p = [0.5f32, 1.0, 0.25];
+    let mut count = 99usize;
+    // SAFETY: live runtime; every buffer is live for its call with the length passed; NULLs
+    // are refused, never read.
+    unsafe {
+        assert_eq!(
+            lf_runtime_light_reach(rt.0, p.as_ptr(), null_mut(), 0, &mut count),
+            LfStatus::BadLength as i32
+        );
+        assert_eq!(count, 1);
+        assert!(
+            last_error().contains("out_spans holds 0 but 1 are needed"),
+            "{}",
+            last_error()
+        );
+        let mut spans = [LfTexelSpan::default(); 2];
+        assert_eq!(
+            lf_runtime_light_reach(rt.0, p.as_ptr(), spans.as_mut_ptr(), 2, &mut count),
+            OK
+        );
+        assert_eq!(count, 1);
+        assert_eq!(
+            spans[0],
+            LfTexelSpan {
+                start: 0,
+                end: 2,
+                in_sight: 0
+            }
+        );
+        let refused = |status: i32, what: &str| {
+            assert_eq!(status, LfStatus::NullPointer as i32, "{what}");
+            let message = last_error();
+            assert!(message.contains(&format!("{what} is NULL")), "{message}");
+        };
+        let out = spans.as_mut_ptr();
+        refused(
+            lf_runtime_light_reach(null_mut(), p.as_ptr(), out, 2, &mut count),
+            "rt",
+        );
+        refused(
+            lf_runtime_light_reach(rt.0, null(), out, 2, &mut count),
+            "position",
+        );
+        refused(
+            lf_runtime_light_reach(rt.0, p.as_ptr(), out, 2, null_mut()),
+            "out_count",
+        );
+        refused(
+            lf_runtime_light_reach(rt.0, p.as_ptr(), null_mut(), 2, &mut count),
+            "out_spans",
+        );
+        let nan = [f32::NAN, 1.0, 0.0];
+        assert_eq!(
+            lf_runtime_light_reach(rt.0, nan.as_ptr(), spans.as_mut_ptr(), 2, &mut count),
+            LfStatus::InvalidLight as i32
+        );
+
+        // Direct light on texel 1 only: texel 0 keeps its value, texel 1 gets what lighting
+        // both gives.
+        let light = LfPointLight {
+            position: p,
+            intensity: [2.0, 1.0, 0.5],
+        };
+        let everything = [LfTexelSpan {
+            start: 0,
+            end: 2,
+            in_sight: 0,
+        }];
+        let second = [LfTexelSpan {
+            start: 1,
+            end: 2,
+            in_sight: 0,
+        }];
+        let mut whole = [0.0f32; 6];
+        let mut part = [-1.0f32; 6];
+        let call = |spans: &[LfTexelSpan], out: &mut [f32]| {
+            lf_runtime_direct_in_spans(
+                rt.0,
+                &light,
+                1,
+                spans.as_ptr(),
+                spans.len(),
+                out.as_mut_ptr(),
+                out.len(),
+            )
+        };
+        assert_eq!(call(&everything, &mut whole), OK);
+        assert!(whole.iter().all(|v| *v > 0.0), "{whole:?}");
+        assert_eq!(call(&second, &mut part), OK);
+        assert_eq!(part[..3], [-1.0; 3]);
+        assert_eq!(part[3..], whole[3..]);
+        // A span past the layout, or reversed: BAD_INDEX, output untouched.
+        for bad in [(0, 3), (2, 1)] {
+            let span = [LfTexelSpan {
+                start: bad.0,
+                end: bad.1,
+                in_sight: 0,
+            }];
+            let mut out = [5.0f32; 6];
+            assert_eq!(call(&span, &mut out), LfStatus::BadIndex as i32);
+            assert!(last_error().contains("spans[0]"), "{}", last_error());
+            assert_eq!(out, [5.0; 6]);
+        }
+        assert_eq!(
+            call(&everything, &mut whole[..5]),
+            LfStatus::BadLength as i32
+        );
+        assert_eq!(
+            lf_runtime_direct_in_spans(rt.0, &light, 1, null(), 1, whole.as_mut_ptr(), 6),
+            LfStatus::NullPointer as i32
+        );
+    }
 }

@@ -1,0 +1,180 @@
+//! One moving light at a time, for C callers: where a point light can reach
+//! ([`lf_runtime_light_reach`]) and direct light computed only there
+//! ([`lf_runtime_direct_in_spans`]), so that a game relights by the change of direct light
+//! (`lf_runtime_apply_delta`) without lighting the whole level every frame.
+//!
+//! The spans are those of `lightfarm_client::LightReach` (the bundle's rooms and the windows
+//! between them): a texel outside them has no straight segment to the light, so the light's
+//! direct light there is exactly 0. The direct light in spans is the client's adaptive texel
+//! average (`direct_from_point_lights_adaptive_in`, [`crate::LF_DIRECT_SAMPLES_PER_EDGE`]
+//! samples per edge where a texel's corners disagree about visibility), bit-identical on the
+//! spans to computing it for every texel.
+//!
+//! Invariants: spans come out ascending, disjoint and inside the layout; a bundle without a
+//! rooms section (format before 2.1) reaches everything (one span over every texel). Texels
+//! outside the spans are never written.
+
+use lightfarm_client::{direct_from_point_lights_adaptive_in, TexelSpan};
+
+use crate::boundary::{slice, slice_mut, status_call};
+use crate::direct::{LfPointLight, LF_DIRECT_SAMPLES_PER_EDGE};
+use crate::runtime::{check_rgb_len, LfRuntime};
+use crate::status::CapiError;
+
+/// A run of texels in layout order: `start` (inclusive) to `end` (exclusive).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LfTexelSpan {
+    pub start: u32,
+    pub end: u32,
+    /// 1 when the light whose reach this is sees every point of these texels unoccluded (its
+    /// own room, holding nothing but its walls): `lf_runtime_direct_in_spans` traces no shadow
+    /// rays there. Set it only on spans passed together with that one light; 0 otherwise.
+    pub in_sight: u8,
+}
+
+/// Writes the texel spans the point light at `position` (3 floats, world metres) can reach to
+/// `out_spans`, and their number to `*out_count`.
+///
+/// Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, `position` or `out_count`, or
+/// `out_spans` when spans are to be written), `LF_STATUS_INVALID_LIGHT` (a non-finite
+/// position), `LF_STATUS_BAD_LENGTH` (`capacity` is below the number of spans: `*out_count`
+/// then holds the number needed and nothing is written to `out_spans`) or `LF_STATUS_PANIC`.
+/// Allocates only while a walk reaches more than any before it.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+/// the call. `position` must be NULL or point to 3 readable floats; `out_spans` must be NULL or
+/// point to `capacity` writable `LfTexelSpan`s; `out_count` must be NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_light_reach(
+    rt: *mut LfRuntime,
+    position: *const f32,
+    out_spans: *mut LfTexelSpan,
+    capacity: usize,
+    out_count: *mut usize,
+) -> i32 {
+    status_call("lf_runtime_light_reach", || {
+        // SAFETY: NULL or live and unshared, per the contract.
+        let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
+        // SAFETY: 3 readable floats, per the contract.
+        let position = unsafe { slice(position, 3, "position") }?;
+        // SAFETY: NULL or writable, per the contract.
+        let count = unsafe { out_count.as_mut() }.ok_or(CapiError::NullPointer("out_count"))?;
+        if !position.iter().all(|x| x.is_finite()) {
+            return Err(CapiError::InvalidLight {
+                index: 0,
+                reason: "position is not finite",
+            });
+        }
+        let spans = rt.light_reach([0, 1, 2].map(|k| f64::from(position[k])));
+        *count = spans.len();
+        if spans.len() > capacity {
+            return Err(CapiError::TooFew {
+                what: "out_spans",
+                needed: spans.len(),
+                got: capacity,
+            });
+        }
+        if out_spans.is_null() && !spans.is_empty() {
+            return Err(CapiError::NullPointer("out_spans"));
+        }
+        // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
+        let out = unsafe { slice_mut(out_spans, spans.len(), "out_spans") }?;
+        for (o, s) in out.iter_mut().zip(spans) {
+            *o = LfTexelSpan {
+                start: s.texels.start as u32,
+                end: s.texels.end as u32,
+                in_sight: u8::from(s.in_sight),
+            };
+        }
+        Ok(())
+    })
+}
+
+/// Computes direct outgoing radiance from `n_lights` point lights on the texels of `spans`
+/// only (e.g. where a moved light reaches, before and after the move), with shadow rays against
+/// the bundle's geometry, averaged over each texel adaptively; every other texel of `out_rgb`
+/// keeps its value.
+///
+/// `out_rgb` holds `out_len` = `3 x texels` floats (texel-major RGB, layout order): e.g. one
+/// light's direct light, updated in place where it moved, to take the change from.
+///
+/// Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_LENGTH`,
+/// `LF_STATUS_INVALID_LIGHT`, `LF_STATUS_BAD_INDEX` (a span that is not a range of the
+/// layout's texels: `start > end` or `end > texels`) or `LF_STATUS_PANIC`. `out_rgb` is
+/// written only on success. Allocates a copy of the lights and spans; costs shadow rays only on
+/// the spans' texels.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`. `lights` must be NULL or point
+/// to `n_lights` readable `LfPointLight`s, `spans` to
+/// `n_spans` readable `LfTexelSpan`s; `out_rgb` must be NULL or point to `out_len` writable
+/// floats overlapping neither; no other thread may write any of them during the call.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_direct_in_spans(
+    rt: *const LfRuntime,
+    lights: *const LfPointLight,
+    n_lights: usize,
+    spans: *const LfTexelSpan,
+    n_spans: usize,
+    out_rgb: *mut f32,
+    out_len: usize,
+) -> i32 {
+    status_call("lf_runtime_direct_in_spans", || {
+        // SAFETY: NULL or live, per the contract.
+        let rt = unsafe { rt.as_ref() }.ok_or(CapiError::NullPointer("rt"))?;
+        // SAFETY: `n_lights` readable lights and `n_spans` readable spans, per the contract.
+        let (lights, spans) = unsafe {
+            (
+                slice(lights, n_lights, "lights")?,
+                slice(spans, n_spans, "spans")?,
+            )
+        };
+        if out_rgb.is_null() && out_len > 0 {
+            return Err(CapiError::NullPointer("out_rgb"));
+        }
+        check_rgb_len(rt, "out_rgb", out_len)?;
+        let lights = lights
+            .iter()
+            .enumerate()
+            .map(|(index, l)| {
+                l.to_light()
+                    .map_err(|reason| CapiError::InvalidLight { index, reason })
+            })
+            .collect::<Result<Vec<_>, CapiError>>()?;
+        let texels = rt.runtime().n_texels();
+        let spans = spans
+            .iter()
+            .enumerate()
+            .map(|(index, s)| {
+                let (start, end) = (s.start as usize, s.end as usize);
+                if start > end || end > texels {
+                    return Err(CapiError::BadSpan {
+                        index,
+                        start,
+                        end,
+                        texels,
+                    });
+                }
+                Ok(TexelSpan {
+                    texels: start..end,
+                    in_sight: s.in_sight != 0,
+                })
+            })
+            .collect::<Result<Vec<_>, CapiError>>()?;
+        // SAFETY: `out_len` writable floats, per the contract, overlapping no input.
+        let out = unsafe { slice_mut(out_rgb, out_len, "out_rgb") }?;
+        let (out, _) = out.as_chunks_mut::<3>();
+        direct_from_point_lights_adaptive_in(
+            &rt.runtime().bundle().layout,
+            rt.occluders(),
+            &lights,
+            LF_DIRECT_SAMPLES_PER_EDGE,
+            rt.direct_scale(),
+            &spans,
+            out,
+        );
+        Ok(())
+    })
+}
