@@ -208,6 +208,21 @@ static long read_lights(const char *path, LfPointLight **lights) {
     return n;
 }
 
+/* The spans a light at `position` reaches (malloc'd, `*n` of them), or NULL on error. Asks for
+ * the count first (LF_STATUS_BAD_LENGTH when there are any), then takes them. */
+static LfTexelSpan *reach_of(LfRuntime *rt, const float *position, size_t *n) {
+    LfTexelSpan *spans;
+    int32_t status = lf_runtime_light_reach(rt, position, NULL, 0, n);
+    if (status != LF_STATUS_OK && status != LF_STATUS_BAD_LENGTH) return NULL;
+    spans = malloc((*n + 1) * sizeof *spans);
+    if (!spans) { fprintf(stderr, "out of memory\n"); return NULL; }
+    if (lf_runtime_light_reach(rt, position, spans, *n, n) != LF_STATUS_OK) {
+        free(spans);
+        return NULL;
+    }
+    return spans;
+}
+
 /* Moves light 0 by 0.25 m along x the way a game relights one moving light: where it reaches
  * before and after (lf_runtime_light_reach), its direct light there only
  * (lf_runtime_direct_in_spans), the change, and lf_runtime_apply_delta on `indirect` (which
@@ -217,7 +232,6 @@ static long read_lights(const char *path, LfPointLight **lights) {
 static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long n_lights,
                       const float *direct, float *indirect, size_t n_floats) {
     size_t i, k, n_old = 0, n_new = 0;
-    int32_t status;
     LfTexelSpan *old_spans, *new_spans;
     float *light0, *change, *moved, *want;
     double diff = 0.0, norm = 0.0;
@@ -227,25 +241,16 @@ static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long 
     moved = malloc(n_floats * sizeof *moved);
     want = malloc(n_floats * sizeof *want);
     if (!light0 || !change || !moved || !want) { fprintf(stderr, "out of memory\n"); return 1; }
-    /* Ask for the count first (LF_STATUS_BAD_LENGTH when there are any), then take them. */
-    status = lf_runtime_light_reach(rt, lights[0].position, NULL, 0, &n_old);
-    if (status != LF_STATUS_OK && status != LF_STATUS_BAD_LENGTH) return fail();
-    old_spans = malloc((n_old + 1) * sizeof *old_spans);
-    if (!old_spans) { fprintf(stderr, "out of memory\n"); return 1; }
-    if (lf_runtime_light_reach(rt, lights[0].position, old_spans, n_old, &n_old) != LF_STATUS_OK)
-        return fail();
+    old_spans = reach_of(rt, lights[0].position, &n_old);
+    if (!old_spans) return fail();
     /* Light 0's direct light alone, on its reach (zero elsewhere, as it is). */
     if (lf_runtime_direct_in_spans(rt, lights, 1, old_spans, n_old, light0, n_floats)
         != LF_STATUS_OK)
         return fail();
     for (i = 0; i < n_floats; i++) change[i] = -light0[i];
     lights[0].position[0] += 0.25f;
-    status = lf_runtime_light_reach(rt, lights[0].position, NULL, 0, &n_new);
-    if (status != LF_STATUS_OK && status != LF_STATUS_BAD_LENGTH) return fail();
-    new_spans = malloc((n_new + 1) * sizeof *new_spans);
-    if (!new_spans) { fprintf(stderr, "out of memory\n"); return 1; }
-    if (lf_runtime_light_reach(rt, lights[0].position, new_spans, n_new, &n_new) != LF_STATUS_OK)
-        return fail();
+    new_spans = reach_of(rt, lights[0].position, &n_new);
+    if (!new_spans) return fail();
     for (k = 0; k < n_old; k++)
         for (i = 3 * (size_t)old_spans[k].start; i < 3 * (size_t)old_spans[k].end; i++)
             light0[i] = 0.0f;

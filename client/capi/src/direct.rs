@@ -26,7 +26,7 @@ pub struct LfPointLight {
 
 impl LfPointLight {
     /// The client's light, or why this one is refused.
-    pub(crate) fn to_light(self) -> Result<Light, &'static str> {
+    fn to_light(self) -> Result<Light, &'static str> {
         if !self.position.iter().all(|x| x.is_finite()) {
             return Err("position is not finite");
         }
@@ -39,6 +39,18 @@ impl LfPointLight {
             intensity: self.intensity.map(f64::from),
         })
     }
+}
+
+/// The client's lights for C's, or the first refused (by its index).
+pub(crate) fn client_lights(lights: &[LfPointLight]) -> Result<Vec<Light>, CapiError> {
+    lights
+        .iter()
+        .enumerate()
+        .map(|(index, l)| {
+            l.to_light()
+                .map_err(|reason| CapiError::InvalidLight { index, reason })
+        })
+        .collect()
 }
 
 /// Computes direct outgoing radiance at every texel from `n_lights` point lights, with shadow
@@ -76,14 +88,7 @@ pub unsafe extern "C" fn lf_runtime_direct_from_point_lights(
             return Err(CapiError::NullPointer("out_rgb"));
         }
         check_rgb_len(rt, "out_rgb", out_len)?;
-        let lights = lights
-            .iter()
-            .enumerate()
-            .map(|(index, l)| {
-                l.to_light()
-                    .map_err(|reason| CapiError::InvalidLight { index, reason })
-            })
-            .collect::<Result<Vec<Light>, CapiError>>()?;
+        let lights = client_lights(lights)?;
         let direct = direct_from_point_lights_averaged(
             &rt.runtime().bundle().layout,
             rt.occluders(),

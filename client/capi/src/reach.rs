@@ -17,7 +17,7 @@
 use lightfarm_client::{direct_from_point_lights_adaptive_in, TexelSpan};
 
 use crate::boundary::{slice, slice_mut, status_call};
-use crate::direct::{LfPointLight, LF_DIRECT_SAMPLES_PER_EDGE};
+use crate::direct::{client_lights, LfPointLight, LF_DIRECT_SAMPLES_PER_EDGE};
 use crate::runtime::{check_rgb_len, LfRuntime};
 use crate::status::CapiError;
 
@@ -135,14 +135,7 @@ pub unsafe extern "C" fn lf_runtime_direct_in_spans(
             return Err(CapiError::NullPointer("out_rgb"));
         }
         check_rgb_len(rt, "out_rgb", out_len)?;
-        let lights = lights
-            .iter()
-            .enumerate()
-            .map(|(index, l)| {
-                l.to_light()
-                    .map_err(|reason| CapiError::InvalidLight { index, reason })
-            })
-            .collect::<Result<Vec<_>, CapiError>>()?;
+        let lights = client_lights(lights)?;
         let texels = rt.runtime().n_texels();
         let spans = spans
             .iter()
