@@ -136,19 +136,29 @@ fn closed_box_matches_the_geometric_series_for_the_reference_full_mrt_and_drt() 
     }
 }
 
+/// The closed box without clutter, baked (lightfield transport), and its occluders.
+fn baked_closed_box() -> (lightfarm_client::Bundle, lightfarm_client::Occluders) {
+    let (bytes, _) = bake_scene(
+        &closed_box(false),
+        &std::env::temp_dir(),
+        Transport::Lightfield,
+        false,
+    );
+    let bundle = lightfarm_client::decode(&bytes).expect("decode");
+    let occluders = lightfarm_client::Occluders::from_layout(&bundle.layout);
+    (bundle, occluders)
+}
+
 /// Feedback (one application per frame, the last frame's indirect light fed back) is, from
 /// dark, exactly the sum of as many bounces as frames: in the closed box of albedo 0.5 the light
 /// left out after k frames is 0.5^k of all bounces, so it comes within 1% in about 7 frames.
 #[test]
 fn feedback_comes_within_one_percent_in_the_frames_the_geometric_series_predicts() {
-    use lightfarm_client::{Occluders, Runtime};
+    use lightfarm_client::Runtime;
     use lightfarm_server::cli::frame_time::feedback_frames;
     use lightfarm_server::evaluate::operator_direct;
 
-    let scene = closed_box(false);
-    let (bytes, _) = bake_scene(&scene, &std::env::temp_dir(), Transport::Lightfield, false);
-    let bundle = lightfarm_client::decode(&bytes).expect("decode");
-    let occluders = Occluders::from_layout(&bundle.layout);
+    let (bundle, occluders) = baked_closed_box();
     let direct = operator_direct(&bundle.layout, &occluders, &lights());
     let mut runtime = Runtime::try_new(bundle).expect("runtime");
     let (to_1pct, to_01pct) = feedback_frames(&mut runtime, &direct, Method::Mrt).unwrap();
@@ -165,13 +175,10 @@ fn feedback_comes_within_one_percent_in_the_frames_the_geometric_series_predicts
 /// guess is the last answer moved on by its last change); Feedback lags the moving light.
 #[test]
 fn warm_follows_a_moving_light_within_its_tolerance_in_few_applications() {
-    use lightfarm_client::{Occluders, Runtime};
+    use lightfarm_client::Runtime;
     use lightfarm_server::cli::frame_moving::time_moving;
 
-    let scene = closed_box(false);
-    let (bytes, _) = bake_scene(&scene, &std::env::temp_dir(), Transport::Lightfield, false);
-    let bundle = lightfarm_client::decode(&bytes).expect("decode");
-    let occluders = Occluders::from_layout(&bundle.layout);
+    let (bundle, occluders) = baked_closed_box();
     let mut lights = lights();
     lights.lights[0].position = [1.0, 1.2, 1.0];
     let mut runtime = Runtime::try_new(bundle).expect("runtime");

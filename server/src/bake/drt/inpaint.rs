@@ -23,30 +23,20 @@ use crate::bake::drt::sight::ClutterSight;
 use crate::bake::scene::geometry::Geometry;
 
 /// Per block: whether [`inpaint`] may read the MRT transport into it, decided before any ray
-/// so that a bake can drop the rest of the transport first. A block texel is buried when it
-/// lies in a clutter box (then the box meets the block's closed box) or when its rays met a
-/// back face (then it was traced, so clutter is in sight from the block:
-/// [`ClutterSight::block_may_see`]); only blocks holding a buried texel are inpainted.
+/// so that a bake can drop the rest of the transport first: whether clutter may be in sight
+/// from the block ([`ClutterSight::block_may_see`]). Only blocks holding a buried texel are
+/// inpainted, and a block texel is buried when it lies in a clutter box (then the box, a
+/// sight goal grown by the burial test's margin, meets the block, and the walk starts in a
+/// goal's block) or when its rays met a back face (then it was traced, which only texels in
+/// clutter's sight are).
 pub fn inpainting_targets(
     scene: &Scene,
     openings: &[[Option<Opening>; 6]],
     g: &Geometry,
 ) -> Vec<bool> {
     let sight = ClutterSight::new(scene, openings, g);
-    // The margin of the bake's burial test (`1e-6 · scale`), doubled.
-    let e = 2e-6 * g.scale();
-    scene
-        .blocks
-        .iter()
-        .enumerate()
-        .map(|(b, block)| {
-            let in_a_box = scene.clutter.iter().any(|object| {
-                object.box_.is_some_and(|c| {
-                    (0..3).all(|k| c.min[k] <= block.max[k] + e && c.max[k] >= block.min[k] - e)
-                })
-            });
-            in_a_box || sight.block_may_see(b)
-        })
+    (0..scene.blocks.len())
+        .map(|b| sight.block_may_see(b))
         .collect()
 }
 

@@ -159,13 +159,8 @@ pub fn bake(
     lap(&mut report, "transport");
 
     // From here on only DRT's inpainting reads the f64 transport, and only into blocks where a
-    // texel may be buried.
-    let keep = if scene.clutter.is_empty() {
-        vec![false; scene.blocks.len()]
-    } else {
-        inpainting_targets(scene, &openings, &full_geometry)
-    };
-    mrt.retain_targets(&keep);
+    // texel may be buried (none without clutter).
+    mrt.retain_targets(&inpainting_targets(scene, &openings, &full_geometry));
     release_freed();
     let drt_inputs = DrtInputs {
         scene,
