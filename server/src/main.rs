@@ -264,6 +264,16 @@ enum Command {
         /// measured at one bounce against one-bounce references, as rows of their own.
         #[arg(long, default_value = "all")]
         bounces: BounceCount,
+        /// Measure only how costs grow with the level: generated levels of these block counts
+        /// (comma-separated, e.g. 20,80,320,1000): bake stages, peak memory, bytes per section,
+        /// frame times, error. Writes OUT/scale.json and the markdown's scale section (keeping
+        /// OUT/results.json's). With --quick: 4 texels per face and 128 rays instead of 8 and
+        /// 1,024.
+        #[arg(long, value_delimiter = ',')]
+        scale: Option<Vec<u32>>,
+        /// The level generator of --scale.
+        #[arg(long, default_value = "scripts/gen_level.py")]
+        generator: PathBuf,
     },
     /// Print the JSON Schema of the scene description.
     Schema,
@@ -455,6 +465,8 @@ fn main() -> anyhow::Result<()> {
             embree_script,
             replot,
             bounces,
+            scale,
+            generator,
         } => cli::bench::run(cli::bench::BenchArgs {
             preset: if quick {
                 cli::bench::Preset::Quick
@@ -466,10 +478,13 @@ fn main() -> anyhow::Result<()> {
             reference_cache,
             scenes,
             seed,
-            embree: (!no_embree).then_some((python, embree_script)),
+            embree: (!no_embree).then_some((python.clone(), embree_script)),
             command_line: std::env::args().collect::<Vec<_>>().join(" "),
             replot,
             bounces,
+            scale,
+            python,
+            generator,
         }),
         Command::Schema => {
             println!(

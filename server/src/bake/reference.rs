@@ -109,19 +109,33 @@ pub fn reference(
     settings: &ReferenceSettings,
     progress: &(dyn Fn(u64) + Sync),
 ) -> ResultFile {
+    let stride = settings.texel_stride.max(1);
+    let selected: Vec<usize> = (0..g.texels.len())
+        .filter(|&x| g.texels[x].index % stride == 0)
+        .collect();
+    reference_at(g, lights, settings, selected, progress)
+}
+
+/// [`reference`] for the texels of `g` listed in `selected` (indices into `g.texels`, in the
+/// order the records come out; `settings.texel_stride` is not applied). Each texel's samples
+/// depend only on the seed and its index in `g`, so a texel's record is the same whichever
+/// others are listed with it.
+pub fn reference_at(
+    g: &Geometry,
+    lights: &[Light],
+    settings: &ReferenceSettings,
+    selected: Vec<usize>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> ResultFile {
     let ReferenceSettings {
         rays,
         bounces,
         seed,
-        texel_stride,
+        ..
     } = *settings;
-    let stride = texel_stride.max(1);
     let tracer = Tracer::new(g.primitives.clone(), g.scale());
     let min_r2 = (1e-4 * g.scale()).powi(2);
     let sign = |s: u32| g.surfaces[s as usize].normal_sign;
-    let selected: Vec<usize> = (0..g.texels.len())
-        .filter(|&x| g.texels[x].index % stride == 0)
-        .collect();
     let texels: Vec<TexelRecord> = selected
         .into_par_iter()
         .map(|x| {
@@ -386,6 +400,22 @@ mod tests {
             .texels
             .iter()
             .all(|t| t.indirect[0] <= rho * max_direct + 1e-12));
+    }
+
+    /// A texel's record depends on the seed and its own index only: listing a few texels, in
+    /// any order, gives exactly their records of the whole run.
+    #[test]
+    fn a_listed_texel_gets_the_record_it_has_in_the_whole_run() {
+        let g = closed_box(0.6, 4);
+        let lights = [light([0.6, 1.3, 0.9], 1.5)];
+        let settings = ReferenceSettings::new(64, BounceCount::All, 7);
+        let whole = reference(&g, &lights, &settings, &|_| {});
+        let listed = [57, 3, 90, 3];
+        let some = reference_at(&g, &lights, &settings, listed.to_vec(), &|_| {});
+        assert_eq!(some.texels.len(), listed.len());
+        for (record, &x) in some.texels.iter().zip(&listed) {
+            assert_eq!(*record, whole.texels[x]);
+        }
     }
 
     #[test]

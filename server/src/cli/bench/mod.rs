@@ -20,6 +20,8 @@
 //! - [`throughput`]: our tracer against Embree on the same rays.
 //! - [`results`]: what a run measured (`results.json`); [`pareto`], [`plots`] and [`report`]
 //!   read it.
+//! - [`scale`]: `--scale`, the sweep over level sizes (`scale.json`); [`scale_report`] draws
+//!   its figure and writes its section of the markdown.
 //!
 //! Invariants:
 //! - Everything random is seeded (`--seed`): light sets, the reference, the exported rays.
@@ -45,6 +47,8 @@ pub mod plots;
 pub mod reference_cache;
 pub mod report;
 pub mod results;
+pub mod scale;
+pub mod scale_report;
 pub mod throughput;
 
 pub use plan::{plan, Preset, ScenePlan, SweepPlan};
@@ -83,6 +87,12 @@ pub struct BenchArgs {
     pub replot: bool,
     /// Bounces of the main yardstick (references, runtime mode, brute force).
     pub bounces: BounceCount,
+    /// `--scale`: measure only the sweep over these level sizes (blocks), into OUT/scale.json.
+    pub scale: Option<Vec<u32>>,
+    /// Python interpreter and the level generator of `--scale` (Embree's interpreter is in
+    /// `embree`).
+    pub python: String,
+    pub generator: PathBuf,
 }
 
 fn load_bench_scene(
@@ -312,10 +322,10 @@ fn row_of(point: BenchPoint, yardsticks: &[MeasuredYardstick]) -> Row {
 
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     if args.replot {
-        let path = args.out.join("results.json");
-        let results: BenchResults = serde_json::from_str(&super::read_text(&path)?)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        return write_outputs(&results, &args);
+        return write_outputs(&args);
+    }
+    if let Some(sizes) = &args.scale {
+        return run_scale(&args, sizes);
     }
     let started = Instant::now();
     let plan = plan(args.preset, args.bounces);
@@ -394,19 +404,86 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         throughput,
     };
     write_json(&args.out.join("results.json"), &results)?;
-    write_outputs(&results, &args)
+    write_outputs(&args)
 }
 
-/// Plots and markdown from the results.
-fn write_outputs(results: &BenchResults, args: &BenchArgs) -> anyhow::Result<()> {
+/// `--scale`: the sweep over level sizes ([`scale`]), into OUT/scale.json; the markdown is
+/// then rewritten with it (and with OUT/results.json's sweep when there is one).
+fn run_scale(args: &BenchArgs, sizes: &[u32]) -> anyhow::Result<()> {
+    std::fs::create_dir_all(&args.out)?;
+    let quick = args.preset == Preset::Quick;
+    let scale_args = scale::ScaleArgs {
+        sizes: sizes.to_vec(),
+        python: args.python.clone(),
+        generator: args.generator.clone(),
+        seed: args.seed,
+        texels_per_face: if quick { 4 } else { 8 },
+        rays_per_texel: if quick { 128 } else { 1024 },
+        tolerance: 0.001,
+        reference_rays: if quick { 256 } else { 1024 },
+        frames: if quick { 8 } else { 20 },
+        levels: std::env::temp_dir().join(format!("lightfarm-bench-levels-{}", std::process::id())),
+        command_line: args.command_line.clone(),
+    };
+    let bar = BenchProgress::new(sizes.len() as u64 * 4);
+    let sweep = scale::measure_scale(&scale_args, &|step| {
+        bar.message(step);
+        bar.inc();
+    });
+    bar.finish();
+    let _ = std::fs::remove_dir_all(&scale_args.levels);
+    let sweep = sweep?;
+    write_json(&args.out.join("scale.json"), &sweep)?;
+    write_outputs(args)
+}
+
+/// Plots and markdown from OUT/results.json and OUT/scale.json (either may be missing, not
+/// both).
+fn write_outputs(args: &BenchArgs) -> anyhow::Result<()> {
     let markdown_path = args
         .markdown
         .clone()
         .unwrap_or_else(|| args.out.join("BENCHMARKS.md"));
-    let plots = plots::write_plots(results, &args.out)?;
-    let markdown = report::markdown(results, &plots, &markdown_path);
+    let read = |name: &str| -> anyhow::Result<Option<String>> {
+        let path = args.out.join(name);
+        if path.exists() {
+            Ok(Some(super::read_text(&path)?))
+        } else {
+            Ok(None)
+        }
+    };
+    let parse =
+        |name: &str, text: &str| anyhow::anyhow!("{}: {text}", args.out.join(name).display());
+    let results: Option<BenchResults> = read("results.json")?
+        .map(|t| serde_json::from_str(&t).map_err(|e| parse("results.json", &e.to_string())))
+        .transpose()?;
+    let sweep: Option<scale::ScaleSweep> = read("scale.json")?
+        .map(|t| serde_json::from_str(&t).map_err(|e| parse("scale.json", &e.to_string())))
+        .transpose()?;
+    anyhow::ensure!(
+        results.is_some() || sweep.is_some(),
+        "{}: neither results.json nor scale.json; run `lightfarm bench` (or `--scale`) first",
+        args.out.display()
+    );
+    let mut markdown = match &results {
+        Some(results) => {
+            let plots = plots::write_plots(results, &args.out)?;
+            report::markdown(results, &plots, &markdown_path)
+        }
+        None => report::header(),
+    };
+    if let Some(sweep) = &sweep {
+        let (_, png) = scale_report::write_scale_plot(sweep, &args.out)?;
+        let base = markdown_path.parent().unwrap_or(Path::new("."));
+        if !markdown.ends_with("\n\n") {
+            markdown.push('\n');
+        }
+        markdown.push_str(&scale_report::scale_markdown(sweep, &png, base));
+    }
     super::write_atomic(&markdown_path, markdown.as_bytes())?;
-    println!("{}", report::summary(results));
+    if let Some(results) = &results {
+        println!("{}", report::summary(results));
+    }
     println!("markdown: {}", markdown_path.display());
     Ok(())
 }
@@ -617,6 +694,9 @@ mod tests {
             command_line: String::new(),
             replot: true,
             bounces: BounceCount::All,
+            scale: None,
+            python: "python3".into(),
+            generator: PathBuf::from("unused"),
         })
         .unwrap();
         let md = std::fs::read_to_string(out.join("BENCHMARKS.md")).unwrap();
@@ -663,9 +743,82 @@ mod tests {
             command_line: String::new(),
             replot: true,
             bounces: BounceCount::ONE,
+            scale: None,
+            python: "python3".into(),
+            generator: PathBuf::from("unused"),
         })
         .unwrap();
         assert_eq!(md, std::fs::read_to_string(out.join("again.md")).unwrap());
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+
+    /// `bench --quick --scale 2,6`: generates, bakes and measures two small levels, writes
+    /// scale.json, the figure and a markdown of the scale section alone; a replot next to a
+    /// main sweep's results.json keeps both.
+    #[test]
+    fn the_scale_sweep_measures_every_level_and_reports_it() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let out = std::env::temp_dir().join(format!("lf-bench-scale-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let args = |replot: bool| BenchArgs {
+            preset: Preset::Quick,
+            out: out.clone(),
+            markdown: None,
+            reference_cache: out.join("refs"),
+            scenes: root.join("scenes"),
+            seed: 1,
+            embree: None,
+            command_line: "lightfarm bench --quick --scale 2,6".into(),
+            replot,
+            bounces: BounceCount::All,
+            scale: Some(vec![2, 6]),
+            python: "python3".into(),
+            generator: root.join("scripts/gen_level.py"),
+        };
+        run(args(false)).unwrap();
+        let sweep: scale::ScaleSweep =
+            serde_json::from_str(&std::fs::read_to_string(out.join("scale.json")).unwrap())
+                .unwrap();
+        assert_eq!(sweep.points.len(), 2);
+        let (small, large) = (&sweep.points[0], &sweep.points[1]);
+        assert_eq!((small.blocks, large.blocks), (2, 6));
+        // 4 texels per face: 6 faces · 16 texels per block, fewer where faces are open.
+        assert!(small.texels < large.texels && large.texels <= 6 * 96 + 96 * large.clutter);
+        for p in &sweep.points {
+            assert!(p.bake_seconds > 0.0 && p.stage_seconds.iter().any(|(n, _)| n == "encode"));
+            assert!(p.peak_rss_bytes >= p.rss_before_bytes && p.rss_before_bytes > 0);
+            let stored: u64 = p.sections.iter().map(|s| s.1).sum();
+            assert!(
+                stored > 0 && stored < p.bundle_bytes,
+                "{stored} of {}",
+                p.bundle_bytes
+            );
+            assert!(p.apply_one_ms > 0.0 && p.apply_converged_ms > 0.0);
+            assert!(
+                p.converged_applications >= 2,
+                "{}",
+                p.converged_applications
+            );
+            assert!(p.one_light.total_ms > 0.0 && p.relight_all.total_ms > 0.0);
+            // One bounce: relighting by the change agrees with relighting everything to
+            // float rounding.
+            assert!(p.one_light_drift < 1e-4, "drift {}", p.one_light_drift);
+            assert!(p.error_texels > 0);
+            // All bounces against all bounces: a one-bounce answer would be ~0.6 off.
+            assert!(p.relative_l2 < 0.3, "error {}", p.relative_l2);
+            assert!(p.reference_noise > 0.0 && p.reference_noise < 0.2);
+        }
+        assert!(out.join("scale.svg").exists() && out.join("scale.png").exists());
+        let md = std::fs::read_to_string(out.join("BENCHMARKS.md")).unwrap();
+        assert!(md.starts_with("# Benchmarks"), "{md}");
+        assert!(md.contains("## Scale: levels of 2, 6 blocks"), "{md}");
+        assert!(md.contains("![scale sweep](scale.png)"), "{md}");
+        assert!(md.contains(&format!("\n| 6 | {} | ", large.texels)), "{md}");
+        // A replot next to the main sweep's results keeps both.
+        write_json(&out.join("results.json"), &results_with_both_yardsticks()).unwrap();
+        run(args(true)).unwrap();
+        let md = std::fs::read_to_string(out.join("BENCHMARKS.md")).unwrap();
+        assert!(md.contains("- **cornell, all bounces**") && md.contains("## Scale: levels"));
         std::fs::remove_dir_all(&out).unwrap();
     }
 

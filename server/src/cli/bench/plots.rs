@@ -79,7 +79,7 @@ fn colour(method: BenchMethod) -> RGBColor {
     }
 }
 
-fn short(v: f64) -> String {
+pub(super) fn short(v: f64) -> String {
     let a = v.abs();
     if a >= 1e9 {
         format!("{:.1}G", v / 1e9)
@@ -235,7 +235,7 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, data: &PlotData) -> an
     Ok(())
 }
 
-fn register_font() {
+pub(super) fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         // The font is compiled in; it parses or the build is broken.
