@@ -8,6 +8,10 @@
 //! has at most 65,536 texels. Anything else keeps the bundle's u32 / f32 form. An entry is then
 //! read as 3 bytes instead of 8 (the gather is the largest sparse operator of a DRT frame).
 //!
+//! [`GatherIndex`] lists, per unit (a block's, a clutter object's texels), the rows reading it,
+//! so relighting by a change confined to some units runs their rows alone
+//! ([`PackedGather::add_rows_to_padded`]), each summed exactly as the whole gather sums it.
+//!
 //! Invariants:
 //! - Lossless: with 8-bit weights a row is summed as `unit · Σ count · l` instead of `Σ (unit ·
 //!   count) · l`; the two agree exactly when `unit` is a power of two (the usual
@@ -17,6 +21,8 @@
 //!   on the CPU. No allocation per call.
 //! - The bundle decoder has validated the gather (column indices < texel count, ascending
 //!   `row_start`), so indexing here cannot go out of bounds.
+
+use std::ops::Range;
 
 use lightfarm_proto::bundle::{gather_counts, TexelGather};
 
@@ -81,6 +87,11 @@ impl PackedGather {
         cols + weights + 4 * (self.rows.len() + self.row_start.len())
     }
 
+    /// Rows of the gather.
+    pub fn n_rows(&self) -> usize {
+        self.rows.len()
+    }
+
     /// Whether the weights are kept as 8-bit counts (for reports and tests).
     pub fn is_8bit(&self) -> bool {
         matches!(self.weights, Weights::Counts { .. })
@@ -91,19 +102,93 @@ impl PackedGather {
     /// each entry is a load, a broadcast weight, a multiply and an add on four lanes (the
     /// fourth unused) instead of three scalar multiply-adds.
     pub fn add_to_padded(&self, direct: &[[f32; 4]], out: &mut [[f32; 3]]) {
+        self.add_rows(0..self.rows.len(), direct, out);
+    }
+
+    /// [`PackedGather::add_to_padded`] for the listed rows only (indices into the gather's
+    /// rows, each at most once, in any order): each row's sum is the one the whole gather makes.
+    pub fn add_rows_to_padded(&self, rows: &[u32], direct: &[[f32; 4]], out: &mut [[f32; 3]]) {
+        self.add_rows(rows.iter().map(|&i| i as usize), direct, out);
+    }
+
+    /// The rows `rows` of the gather, whatever its storage.
+    fn add_rows(
+        &self,
+        rows: impl Iterator<Item = usize>,
+        direct: &[[f32; 4]],
+        out: &mut [[f32; 3]],
+    ) {
         match (&self.cols, &self.weights) {
             (Columns::U16(c), Weights::Counts { unit, counts }) => {
-                self.accumulate(c, counts, *unit, direct, out)
+                self.accumulate(rows, c, counts, *unit, direct, out)
             }
             (Columns::U32(c), Weights::Counts { unit, counts }) => {
-                self.accumulate(c, counts, *unit, direct, out)
+                self.accumulate(rows, c, counts, *unit, direct, out)
             }
-            (Columns::U16(c), Weights::F32(v)) => self.accumulate(c, v, 1.0, direct, out),
-            (Columns::U32(c), Weights::F32(v)) => self.accumulate(c, v, 1.0, direct, out),
+            (Columns::U16(c), Weights::F32(v)) => self.accumulate(rows, c, v, 1.0, direct, out),
+            (Columns::U32(c), Weights::F32(v)) => self.accumulate(rows, c, v, 1.0, direct, out),
         }
     }
 
-    /// `out[row] += scale · Σ w · direct[col]` per row; one loop for every storage. Entry `k`
+    /// Which rows read each of `units` (disjoint texel ranges of the layout): the rows a
+    /// change of light confined to some units can move (see [`GatherIndex`]). Texels in no
+    /// unit form units of their own, after `units`, which [`GatherIndex::always`] lists.
+    /// Allocates; made once, on the first relight by the change.
+    pub fn index_by_units(&self, units: &[Range<usize>], n_texels: usize) -> GatherIndex {
+        const NONE: u32 = u32::MAX;
+        let mut unit_of = vec![NONE; n_texels];
+        let mut ranges = units.to_vec();
+        for (u, r) in units.iter().enumerate() {
+            unit_of[r.clone()].fill(u as u32);
+        }
+        // The texels in no unit, as ranges of their own.
+        let mut t = 0;
+        while t < n_texels {
+            if unit_of[t] != NONE {
+                t += 1;
+                continue;
+            }
+            let start = t;
+            while t < n_texels && unit_of[t] == NONE {
+                unit_of[t] = ranges.len() as u32;
+                t += 1;
+            }
+            ranges.push(start..t);
+        }
+        let cols: Vec<u32> = match &self.cols {
+            Columns::U16(c) => c.iter().map(|&c| c as u32).collect(),
+            Columns::U32(c) => c.clone(),
+        };
+        let mut pairs: Vec<(u32, u32)> = Vec::new();
+        let mut seen: Vec<u32> = Vec::new();
+        for i in 0..self.rows.len() {
+            seen.clear();
+            let (start, end) = (self.row_start[i] as usize, self.row_start[i + 1] as usize);
+            for &c in &cols[start..end] {
+                let u = unit_of[c as usize];
+                if !seen.contains(&u) {
+                    seen.push(u);
+                    pairs.push((u, i as u32));
+                }
+            }
+        }
+        pairs.sort_unstable();
+        let mut unit_start = vec![0u32; ranges.len() + 1];
+        for &(u, _) in &pairs {
+            unit_start[u as usize + 1] += 1;
+        }
+        for u in 0..ranges.len() {
+            unit_start[u + 1] += unit_start[u];
+        }
+        GatherIndex {
+            units: units.len(),
+            ranges,
+            unit_start,
+            rows: pairs.into_iter().map(|(_, i)| i).collect(),
+        }
+    }
+
+    /// `out[row] += scale · Σ w · direct[col]` for the listed rows; one loop for every storage. Entry `k`
     /// of a row goes to partial sum `k mod 4` and the partials are added as `(p0 + p1) + (p2 +
     /// p3)`: four independent chains instead of one hide the adder's latency (one chain bound
     /// the loop at one entry per 4 cycles), and the order is still fixed by the code. Each lane
@@ -111,6 +196,7 @@ impl PackedGather {
     /// bit.
     fn accumulate<C, W>(
         &self,
+        rows: impl Iterator<Item = usize>,
         cols: &[C],
         weights: &[W],
         scale: f32,
@@ -120,14 +206,43 @@ impl PackedGather {
         C: Copy + Into<u32>,
         W: Copy + Into<f32>,
     {
-        for (i, &row) in self.rows.iter().enumerate() {
+        for i in rows {
             let (start, end) = (self.row_start[i] as usize, self.row_start[i + 1] as usize);
             let q = row_sum(&cols[start..end], &weights[start..end], direct);
-            let o = &mut out[row as usize];
+            let o = &mut out[self.rows[i] as usize];
             for ch in 0..3 {
                 o[ch] += scale * q[ch];
             }
         }
+    }
+}
+
+/// Per unit (a texel range: a block's, a clutter object's, or texels in neither), the gather
+/// rows that read any of its texels, so a change of light confined to some units moves only
+/// their rows (every other row reads zeros). Made by [`PackedGather::index_by_units`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct GatherIndex {
+    /// The units given; `ranges[units..]` are the texels in none of them.
+    units: usize,
+    ranges: Vec<Range<usize>>,
+    unit_start: Vec<u32>,
+    rows: Vec<u32>,
+}
+
+impl GatherIndex {
+    /// The rows reading unit `u`'s texels (ascending).
+    pub fn rows_of(&self, u: usize) -> &[u32] {
+        &self.rows[self.unit_start[u] as usize..self.unit_start[u + 1] as usize]
+    }
+
+    /// The texel range of unit `u`.
+    pub fn range(&self, u: usize) -> Range<usize> {
+        self.ranges[u].clone()
+    }
+
+    /// The units of texels in no given unit (always treated as reached).
+    pub fn always(&self) -> Range<usize> {
+        self.units..self.ranges.len()
     }
 }
 
@@ -213,6 +328,63 @@ where
 mod tests {
     use super::*;
     use crate::occluders::tests::Lcg;
+
+    /// The index lists, per unit, exactly the rows with a column in it (texels in no unit
+    /// form units of their own), and the listed rows alone give those rows' sums.
+    #[test]
+    fn the_index_lists_every_row_reading_a_unit_and_its_rows_sum_as_the_whole() {
+        let mut rng = Lcg(11);
+        let n = 500;
+        // Rows reading windows of 60 texels here and there.
+        let mut source = TexelGather {
+            row_start: vec![0],
+            ..Default::default()
+        };
+        for r in 0..40u32 {
+            source.rows.push(r * 12);
+            let first = (rng.unit() * 440.0) as u32;
+            for c in (first..first + 60).step_by(1 + (rng.unit() * 9.0) as usize) {
+                source.cols.push(c);
+                source
+                    .values
+                    .push((1 + (rng.unit() * 30.0) as u32) as f32 / 1024.0);
+            }
+            source.row_start.push(source.cols.len() as u32);
+        }
+        let g = PackedGather::new(&source, n);
+        let units = [0..100, 100..250, 300..480];
+        let index = g.index_by_units(&units, n);
+        assert_eq!(index.always(), 3..5);
+        assert_eq!((index.range(3), index.range(4)), (250..300, 480..500));
+        for u in 0..5 {
+            let range = index.range(u);
+            let want: Vec<u32> = (0..source.rows.len() as u32)
+                .filter(|&i| {
+                    let (a, b) = (
+                        source.row_start[i as usize],
+                        source.row_start[i as usize + 1],
+                    );
+                    source.cols[a as usize..b as usize]
+                        .iter()
+                        .any(|&c| range.contains(&(c as usize)))
+                })
+                .collect();
+            assert_eq!(index.rows_of(u), want.as_slice(), "unit {u}");
+        }
+        // Light on unit 1 alone: its rows give what the whole gather gives, row by row.
+        let mut direct = vec![[0.0f32; 3]; n];
+        for d in &mut direct[100..250] {
+            *d = [rng.unit(), rng.unit(), rng.unit()];
+        }
+        let mut whole = vec![[0.0f32; 3]; n];
+        g.add_to(&direct, &mut whole);
+        let mut padded = vec![[0.0f32; 4]; n];
+        pad_direct(&direct, &mut padded);
+        let mut listed = vec![[0.0f32; 3]; n];
+        g.add_rows_to_padded(index.rows_of(1), &padded, &mut listed);
+        assert_eq!(listed, whole);
+        assert!(index.rows_of(1).len() < g.n_rows());
+    }
 
     #[test]
     fn simd_and_portable_row_sums_agree_bit_for_bit() {

@@ -11,7 +11,11 @@
 //! applied in the bundle's order, so the result is deterministic; nothing allocates (scratch is
 //! taken from the runtime and given back).
 
+use std::ops::Range;
+
 use lightfarm_proto::bundle::DeltaSource;
+
+use crate::packed_gather::{pad_direct, GatherIndex};
 
 use super::kernels::{group, planar, scatter_matvec, set_matvec};
 use super::Runtime;
@@ -132,11 +136,95 @@ impl Runtime {
         }
     }
 
-    /// DRT exact clutter gather: sparse rows over the direct light (albedo-free).
+    /// DRT exact clutter gather: sparse rows over the direct light (albedo-free). Relighting by
+    /// the change ([`Runtime::apply_delta`]), only the rows reading a reached block's or
+    /// clutter object's texels run, over a four-lane copy of those texels alone (every other
+    /// row would sum zeros): the gather's cost follows the change, not the level.
     pub(super) fn add_direct_gather(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
-        if let Some(g) = &self.ops.gather {
-            crate::packed_gather::pad_direct(direct, &mut self.direct_padded);
+        let Some(g) = &self.ops.gather else { return };
+        let Some(reach) = &self.reach else {
+            pad_direct(direct, &mut self.direct_padded);
             g.add_to_padded(&self.direct_padded, out);
+            return;
+        };
+        let by_change = self.gather_by_change.get_or_insert_with(|| {
+            let mut units: Vec<Range<usize>> = self
+                .blocks
+                .iter()
+                .map(|s| s.texel_start..s.texel_end)
+                .collect();
+            if let Some(d) = &self.bundle.drt {
+                units.extend(d.clutter.iter().map(|c| {
+                    let start = c.texel_offset as usize;
+                    start..start + c.t_dc.cols as usize
+                }));
+            }
+            GatherByChange::new(
+                g.index_by_units(&units, self.n_texels),
+                g.n_rows(),
+                self.n_texels,
+            )
+        });
+        let n_blocks = reach.blocks.len();
+        let reached = (0..n_blocks)
+            .filter(|&k| reach.blocks[k])
+            .chain(
+                (0..reach.clutter.len())
+                    .filter(|&j| reach.clutter[j])
+                    .map(|j| n_blocks + j),
+            )
+            .chain(by_change.index.always());
+        by_change.rows_of(reached, direct);
+        g.add_rows_to_padded(&by_change.rows, &by_change.padded, out);
+    }
+}
+
+/// The exact gather's state when relighting by the change: which rows read each unit (block,
+/// clutter object, or texels in neither), the four-lane direct light of the last reached
+/// units (zero everywhere else), and the rows of one application.
+#[derive(Clone, Debug)]
+pub(super) struct GatherByChange {
+    index: GatherIndex,
+    /// Four-lane direct light, non-zero only on the units in `padded_units`.
+    padded: Vec<[f32; 4]>,
+    padded_units: Vec<usize>,
+    /// The rows of this application, each once (`marked` while listed).
+    rows: Vec<u32>,
+    marked: Vec<bool>,
+}
+
+impl GatherByChange {
+    fn new(index: GatherIndex, n_rows: usize, n_texels: usize) -> GatherByChange {
+        GatherByChange {
+            index,
+            padded: vec![[0.0; 4]; n_texels],
+            padded_units: Vec::new(),
+            rows: Vec::new(),
+            marked: vec![false; n_rows],
+        }
+    }
+
+    /// Clears the last application's copy, copies `direct` on the `reached` units and lists
+    /// the rows reading them, each once.
+    fn rows_of(&mut self, reached: impl Iterator<Item = usize>, direct: &[[f32; 3]]) {
+        for &u in &self.padded_units {
+            self.padded[self.index.range(u)].fill([0.0; 4]);
+        }
+        self.padded_units.clear();
+        for &r in &self.rows {
+            self.marked[r as usize] = false;
+        }
+        self.rows.clear();
+        for u in reached {
+            let range = self.index.range(u);
+            pad_direct(&direct[range.clone()], &mut self.padded[range]);
+            self.padded_units.push(u);
+            for &r in self.index.rows_of(u) {
+                if !self.marked[r as usize] {
+                    self.marked[r as usize] = true;
+                    self.rows.push(r);
+                }
+            }
         }
     }
 }

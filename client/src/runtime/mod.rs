@@ -62,7 +62,8 @@
 //!   bundle's) and `BlockSlots` (one block's ranges in the block-major scratch).
 //! - `mrt`: MRT steps 1–4 (`project_blocks`, `mrt_albedo_free`, `multiply_albedo`).
 //! - `drt`: DRT steps 1–3 beyond MRT (`project_clutter`, `source_coefficients`,
-//!   `add_drt_deltas`, `drop_replaced`, `add_direct_gather`).
+//!   `add_drt_deltas`, `drop_replaced`, `add_direct_gather`) and `GatherByChange`, the
+//!   gather's rows by the texels they read, for relighting by the change.
 //! - `full`: [`Method::Full`], the sparse dense-bounce operator.
 //! - `probes`: [`Runtime::apply_probes`], the probe volume's SH radiance.
 //! - `sh_apply`: [`Runtime::apply_sh`] and [`ShLight`], SH incident radiance per texel.
@@ -285,6 +286,9 @@ pub struct Runtime {
     blocks_projected: usize,
     /// Inside [`Runtime::apply_delta`]: the input is a signed change of light.
     by_change: bool,
+    /// [`Runtime::apply_delta`] with an exact gather: its rows by the units they read (made on
+    /// the first such call).
+    gather_by_change: Option<drt::GatherByChange>,
 }
 
 /// [`Bounces::Converged`] refuses an operator whose bounces keep at least this fraction of the
@@ -452,6 +456,7 @@ impl Runtime {
             },
             blocks_projected: 0,
             by_change: false,
+            gather_by_change: None,
         })
     }
 

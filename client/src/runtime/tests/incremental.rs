@@ -5,6 +5,7 @@
 //! the reach follows the change; `Feedback` is refused and leaves `out` alone.
 
 use super::*;
+use lightfarm_proto::bundle::TexelGather;
 
 /// `ld` with `change` added on the texels `range` (zero elsewhere): (new light, change).
 fn changed(
@@ -88,6 +89,26 @@ fn cases(rng: &mut Lcg, rho: f32) -> Vec<(Bundle, Method, &'static str)> {
     let mut replaced = drt_bundle(rng, false, true, false);
     replaced.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
     out.push((replaced, Method::Drt, "drt replaced"));
+    // An exact gather whose rows read one block, two blocks, a block and clutter, the two
+    // clutter objects, and nothing (from a generator of its own, so the other cases' light is
+    // what it was).
+    let rng = &mut Lcg(97);
+    let mut gathered = drt_bundle(rng, false, true, false);
+    let reads: [&[u32]; 5] = [&[0, 2], &[3, 4, 9], &[7, 11, 12], &[13, 14, 16], &[]];
+    let mut gather = TexelGather {
+        rows: vec![1, 5, 8, 12, 15],
+        row_start: vec![0],
+        ..TexelGather::default()
+    };
+    for cols in reads {
+        gather.cols.extend_from_slice(cols);
+        gather
+            .values
+            .extend(cols.iter().map(|_| rng.range(0.01, 0.2)));
+        gather.row_start.push(gather.cols.len() as u32);
+    }
+    gathered.drt.as_mut().unwrap().direct_gather = Some(gather);
+    out.push((gathered, Method::Drt, "drt exact gather"));
     for (b, _, _) in &mut out {
         for a in &mut b.layout.albedo {
             *a = a.map(|x| x * rho);
@@ -102,10 +123,11 @@ fn one_and_fixed_bounces_by_the_change_equal_applying_the_new_light() {
     for (b, method, name) in cases(&mut rng, 1.0) {
         let n = b.layout.n_texels();
         let first_block = b.blocks[0].texel_offset as usize..b.blocks[1].texel_offset as usize;
-        // The change on the first block's texels, then on a clutter object's (DRT).
+        // The change on the first block's texels, then on a clutter object's and on both
+        // clutter objects' (DRT).
         let mut ranges = vec![first_block];
         if method == Method::Drt {
-            ranges.push(DRT_BOX);
+            ranges.extend([DRT_BOX, 12..17]);
         }
         let mut rt = Runtime::new(b);
         let ld = direct(&mut rng, n);
@@ -189,10 +211,14 @@ fn converged_by_the_change_is_within_its_tolerance() {
         let (new, delta) = changed(&ld, 0..4, &mut rng);
         let bounces = Bounces::Converged { tolerance: 1e-5 };
         let mut out = IndirectLight::default();
-        rt.apply(method, bounces, &ld, &mut out).unwrap();
+        let fail = |e: ApplyError| -> Applied { panic!("{name}: {e}") };
+        rt.apply(method, bounces, &ld, &mut out)
+            .unwrap_or_else(fail);
         let mut want = IndirectLight::default();
-        rt.apply(method, bounces, &new, &mut want).unwrap();
-        rt.apply_delta(method, bounces, &delta, &mut out).unwrap();
+        rt.apply(method, bounces, &new, &mut want)
+            .unwrap_or_else(fail);
+        rt.apply_delta(method, bounces, &delta, &mut out)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
         let err = max_rel(&out.radiance, &want.radiance);
         assert!(err < 1e-4, "{name}: {err}");
     }
