@@ -66,6 +66,16 @@ pub struct ScaleArgs {
     /// Python interpreter and the level generator.
     pub python: String,
     pub generator: PathBuf,
+    pub settings: ScaleSettings,
+    /// Scratch directory of the generated levels (the caller removes it; the generator's
+    /// command writes any of them again, byte for byte).
+    pub levels: PathBuf,
+    pub command_line: String,
+}
+
+/// The settings every level of a sweep is generated, baked and measured with.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+pub struct ScaleSettings {
     pub seed: u64,
     pub texels_per_face: u32,
     pub rays_per_texel: u32,
@@ -75,10 +85,6 @@ pub struct ScaleArgs {
     /// Timed frames of each apply (the one-light comparison times a quarter of them, at
     /// least 4: relighting everything includes every light's direct light).
     pub frames: usize,
-    /// Scratch directory of the generated levels (the caller removes it; the generator's
-    /// command writes any of them again, byte for byte).
-    pub levels: PathBuf,
-    pub command_line: String,
 }
 
 /// Median milliseconds of one way of relighting, direct light and operators apart.
@@ -133,12 +139,8 @@ pub struct ScaleSweep {
     pub machine: Machine,
     pub command_line: String,
     pub wall_seconds: f64,
-    pub seed: u64,
-    pub texels_per_face: u32,
-    pub rays_per_texel: u32,
-    pub tolerance: f64,
-    pub reference_rays: u32,
-    pub frames: usize,
+    #[serde(flatten)]
+    pub settings: ScaleSettings,
     pub points: Vec<ScalePoint>,
 }
 
@@ -168,10 +170,10 @@ fn generate(args: &ScaleArgs, blocks: u32, dir: &Path) -> anyhow::Result<()> {
         .arg(&args.generator)
         .arg(dir)
         .args(["--blocks", &blocks.to_string()])
-        .args(["--seed", &args.seed.to_string()])
-        .args(["--texels", &args.texels_per_face.to_string()])
-        .args(["--rays", &args.rays_per_texel.to_string()])
-        .args(["--tolerance", &args.tolerance.to_string()])
+        .args(["--seed", &args.settings.seed.to_string()])
+        .args(["--texels", &args.settings.texels_per_face.to_string()])
+        .args(["--rays", &args.settings.rays_per_texel.to_string()])
+        .args(["--tolerance", &args.settings.tolerance.to_string()])
         .args(["--dynamic", "0"])
         .output()
         .map_err(|e| {
@@ -290,7 +292,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         &direct,
         method,
         &[Bounces::One, converged],
-        args.frames,
+        args.settings.frames,
         1,
     )?;
     let update = time_update(
@@ -300,7 +302,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         0,
         method,
         Bounces::One,
-        (args.frames / 4).max(4),
+        (args.settings.frames / 4).max(4),
     )?;
     drop(runtime);
     let way = |w: crate::cli::frame_update::Way| WayMs {
@@ -315,7 +317,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
     let sample = texels_near(&geometry, &error_lights, ERROR_RADIUS, ERROR_TEXELS);
     let start = Instant::now();
     let reference_of = |seed: u64| {
-        let settings = ReferenceSettings::new(args.reference_rays, BounceCount::All, seed);
+        let settings = ReferenceSettings::new(args.settings.reference_rays, BounceCount::All, seed);
         reference_at(
             &geometry,
             &error_lights.lights,
@@ -324,9 +326,9 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
             &|_| {},
         )
     };
-    let reference = reference_of(args.seed);
+    let reference = reference_of(args.settings.seed);
     let reference_seconds = start.elapsed().as_secs_f64();
-    let second = reference_of(args.seed + 1);
+    let second = reference_of(args.settings.seed + 1);
     let mut ours = matching(
         evaluate(decoded, &error_lights, method, converged)?,
         &reference,
@@ -380,12 +382,7 @@ pub fn measure_scale(args: &ScaleArgs, step: &dyn Fn(&str)) -> anyhow::Result<Sc
         machine: Machine::detect(),
         command_line: args.command_line.clone(),
         wall_seconds: started.elapsed().as_secs_f64(),
-        seed: args.seed,
-        texels_per_face: args.texels_per_face,
-        rays_per_texel: args.rays_per_texel,
-        tolerance: args.tolerance,
-        reference_rays: args.reference_rays,
-        frames: args.frames,
+        settings: args.settings,
         points,
     })
 }
