@@ -87,6 +87,11 @@ impl PackedGather {
         cols + weights + 4 * (self.rows.len() + self.row_start.len())
     }
 
+    /// The texel row `i` of the gather adds to.
+    pub fn row_texel(&self, i: usize) -> usize {
+        self.rows[i] as usize
+    }
+
     /// Rows of the gather.
     pub fn n_rows(&self) -> usize {
         self.rows.len()

@@ -76,7 +76,7 @@ impl Runtime {
     /// Whether a delta entry's source has non-zero input (always, outside
     /// [`Runtime::apply_delta`]); an unreached source's coefficients are exact zeros.
     #[inline]
-    fn source_reached(&self, source: DeltaSource) -> bool {
+    pub(super) fn source_reached(&self, source: DeltaSource) -> bool {
         let Some(reach) = &self.reach else {
             return true;
         };
@@ -202,6 +202,14 @@ impl GatherByChange {
             rows: Vec::new(),
             marked: vec![false; n_rows],
         }
+    }
+
+    /// The texels the last application's rows wrote.
+    pub(super) fn texels_written<'a>(
+        &'a self,
+        gather: &'a crate::packed_gather::PackedGather,
+    ) -> impl Iterator<Item = usize> + 'a {
+        self.rows.iter().map(|&i| gather.row_texel(i as usize))
     }
 
     /// Clears the last application's copy, copies `direct` on the `reached` units and lists

@@ -289,6 +289,10 @@ pub struct Runtime {
     /// [`Runtime::apply_delta`] with an exact gather: its rows by the units they read (made on
     /// the first such call).
     gather_by_change: Option<drt::GatherByChange>,
+    /// [`Runtime::apply_delta`] at one bounce: where `ld` and the change's light may be
+    /// non-zero (made on the first such call); `ld_everywhere`: a full copy filled `ld`.
+    sparse: Option<incremental::Sparse>,
+    ld_everywhere: bool,
 }
 
 /// [`Bounces::Converged`] refuses an operator whose bounces keep at least this fraction of the
@@ -457,6 +461,8 @@ impl Runtime {
             blocks_projected: 0,
             by_change: false,
             gather_by_change: None,
+            sparse: None,
+            ld_everywhere: true,
         })
     }
 

@@ -30,15 +30,23 @@ impl Runtime {
             ops,
             parallel,
             reach,
+            sparse,
+            ld_everywhere,
             ..
         } = self;
         let reach = reach.as_ref();
+        // Relighting by the change at one bounce: `ld` holds the reached units' light already
+        // (zero elsewhere), and an unreached block's `b` is never read.
+        let sparse = sparse.as_ref().is_some_and(|s| s.active);
 
         // Direct light, planar.
-        let (ld0, rest) = ld.split_at_mut(n);
-        let (ld1, ld2) = rest.split_at_mut(n);
-        for (((l, a), bb), c) in direct.iter().zip(ld0).zip(ld1).zip(ld2) {
-            (*a, *bb, *c) = (l[0], l[1], l[2]);
+        if !sparse {
+            let (ld0, rest) = ld.split_at_mut(n);
+            let (ld1, ld2) = rest.split_at_mut(n);
+            for (((l, a), bb), c) in direct.iter().zip(ld0).zip(ld1).zip(ld2) {
+                (*a, *bb, *c) = (l[0], l[1], l[2]);
+            }
+            *ld_everywhere = true;
         }
 
         // 1. b_B = T_d→b · l_d^B.
@@ -59,7 +67,9 @@ impl Runtime {
             &|k, b_k: &mut [f32], scratch: &mut [f32]| {
                 if !Runtime::block_reached(reach, k) {
                     // No input on the block's texels: b = T · 0, without the product.
-                    b_k.fill(0.0);
+                    if !sparse {
+                        b_k.fill(0.0);
+                    }
                     return;
                 }
                 let blk = &bundle.blocks[k];
@@ -73,8 +83,13 @@ impl Runtime {
     /// MRT steps 2–3, after [`Runtime::project_blocks`]: writes `U_b b + transport`
     /// (albedo-free) to block texels and 0 to every other texel. Each block's texels depend on
     /// its own work only, so blocks run independently.
+    /// Relighting by the change at one bounce, `out` is zero outside the blocks it writes
+    /// already (no fill) and blocks it does not write are skipped.
     pub(super) fn mrt_albedo_free(&mut self, out: &mut [[f32; 3]]) {
-        out.fill([0.0; 3]);
+        let sparse = self.sparse.as_ref().is_some_and(|s| s.active);
+        if !sparse {
+            out.fill([0.0; 3]);
+        }
         let Runtime {
             bundle,
             blocks,
@@ -92,6 +107,7 @@ impl Runtime {
         let b: &[f32] = b;
         let reach = reach.as_ref();
         let reached = |k: u32| Runtime::block_reached(reach, k as usize);
+        let transport = bundle.transport.as_ref();
         let coefficients = |k: usize, cols: usize| {
             let s = &blocks[k];
             group(b, s.coef_start, s.rank, cols)
@@ -108,6 +124,16 @@ impl Runtime {
             *parallel,
             &|k, out_k: &mut [[f32; 3]], lf_k: &mut [f32]| {
                 let slots = &blocks[k];
+                if sparse
+                    && !Runtime::block_written(
+                        reach,
+                        transport,
+                        &entry_order[slots.entries_start..slots.entries_end],
+                        k,
+                    )
+                {
+                    return;
+                }
                 let blk = &bundle.blocks[k];
                 let (u_b, _, u_r) = &ops.shapes[blk.shape as usize];
                 let (lf_k, scratch) = lf_k.split_at_mut(slots.scratch_start - slots.lf_start);
@@ -140,15 +166,21 @@ impl Runtime {
                                 continue;
                             }
                             let (x, rest) = lf_k[at..].split_at_mut(3 * width);
-                            // Stack the sources' coefficients, channel-planar.
+                            // Stack the sources' coefficients, channel-planar (an unreached
+                            // source's are zero, and relighting by the change leaves its `b`
+                            // unwritten).
                             let mut col = 0;
                             for &s in &e.sources {
                                 let src = &blocks[s as usize];
                                 let r = src.rank;
                                 for ch in 0..3 {
                                     let from = src.coef_start + ch * r;
-                                    x[ch * width + col..ch * width + col + r]
-                                        .copy_from_slice(&b[from..from + r]);
+                                    let to = &mut x[ch * width + col..ch * width + col + r];
+                                    if reached(s) {
+                                        to.copy_from_slice(&b[from..from + r]);
+                                    } else {
+                                        to.fill(0.0);
+                                    }
                                 }
                                 col += r;
                             }
@@ -189,6 +221,30 @@ impl Runtime {
                 }
             },
         );
+    }
+
+    /// Whether MRT writes block `k`'s texels under `reach`: the block is reached, or a
+    /// transport entry into it (`targeting`) has a reached source.
+    pub(super) fn block_written(
+        reach: Option<&super::incremental::Reach>,
+        transport: Option<&TransportOps>,
+        targeting: &[u32],
+        k: usize,
+    ) -> bool {
+        let reached = |s: u32| Runtime::block_reached(reach, s as usize);
+        reached(k as u32)
+            || match transport {
+                Some(TransportOps::Traced(e)) => targeting
+                    .iter()
+                    .any(|&i| reached(e[i as usize].source_block)),
+                Some(TransportOps::Lightfield(e)) => targeting
+                    .iter()
+                    .any(|&i| reached(e[i as usize].source_block)),
+                Some(TransportOps::Compact(e)) => targeting
+                    .iter()
+                    .any(|&i| e[i as usize].sources.iter().any(|&s| reached(s))),
+                None => false,
+            }
     }
 
     /// Multiplies every texel by its albedo (the operators are albedo-free).

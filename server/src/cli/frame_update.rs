@@ -10,7 +10,8 @@
 //! - **update**: the moved light's direct light alone, on the texels it reaches from where it
 //!   was and where it is now (`LightReach`, the portal walk over the bundle's rooms; every texel
 //!   for a bundle without rooms), its change from the previous frame, and
-//!   `Runtime::apply_delta` adding that change's indirect light to the previous frame's. Both
+//!   `Runtime::apply_delta` adding that change's indirect light to the previous frame's, on a
+//!   runtime of its own (a game relighting by the change does nothing else with it). Both
 //!   the walk and the direct light's bookkeeping touch the reached texels only. With `warm`
 //!   (all bounces, which reach most of a level anyway) the change's direct light updates the
 //!   level's direct light on the reached texels only and `Runtime::apply` relights it whole
@@ -145,6 +146,9 @@ pub fn time_update(
     let mut full_out = IndirectLight::default();
     runtime.apply(method, bounces, &direct0, &mut full_out)?;
     let mut update_out = full_out.clone();
+    // The update way relights on a runtime of its own, as a game relighting by the change
+    // would: the full way's passes over the level leave nothing for it to clear.
+    let mut by_change = (!matches!(bounces, Bounces::Warm { .. })).then(|| runtime.clone());
     // The update's direct light of the moved light: `previous` and `now` hold it on the spans
     // it reached (zero elsewhere); `change` is non-zero on `change_spans` only.
     let n = layout.n_texels();
@@ -245,7 +249,12 @@ pub fn time_update(
                     blocks_total: blocks,
                 }
             }
-            None => runtime.apply_delta(method, bounces, &change, &mut update_out)?,
+            None => by_change.as_mut().expect("made unless warm").apply_delta(
+                method,
+                bounces,
+                &change,
+                &mut update_out,
+            )?,
         };
         update[0].push((mid - start).as_secs_f64() * 1e3);
         update[1].push(mid.elapsed().as_secs_f64() * 1e3);

@@ -147,6 +147,38 @@ fn one_and_fixed_bounces_by_the_change_equal_applying_the_new_light() {
     }
 }
 
+/// Changes one after another on one runtime, with no full application between them (one
+/// bounce skips its passes over the level: each call clears only what the last one wrote):
+/// every step equals applying the new light on a runtime of its own.
+#[test]
+fn consecutive_changes_relight_like_the_new_light() {
+    let mut rng = Lcg(75);
+    for (b, method, name) in cases(&mut rng, 1.0) {
+        let n = b.layout.n_texels();
+        let second = b.blocks[1].texel_offset as usize;
+        let second_block = second..second + 3;
+        let mut ranges = vec![0..4, second_block.clone(), 0..4, 2..second_block.end];
+        if method == Method::Drt {
+            ranges.extend([DRT_BOX, 12..17, 3..5, DRT_BOX]);
+        }
+        let mut rt = Runtime::new(b);
+        let mut fresh = rt.clone();
+        let mut ld = direct(&mut rng, n);
+        let mut out = IndirectLight::default();
+        rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
+        for (step, range) in ranges.into_iter().enumerate() {
+            let (new, delta) = changed(&ld, range.clone(), &mut rng);
+            rt.apply_delta(method, Bounces::One, &delta, &mut out)
+                .unwrap();
+            let mut want = IndirectLight::default();
+            fresh.apply(method, Bounces::One, &new, &mut want).unwrap();
+            let err = max_rel(&out.radiance, &want.radiance);
+            assert!(err < 1e-5, "{name} step {step} {range:?}: {err}");
+            ld = new;
+        }
+    }
+}
+
 #[test]
 fn an_application_under_a_reach_equals_the_full_application() {
     let mut rng = Lcg(72);
