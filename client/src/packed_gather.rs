@@ -140,26 +140,7 @@ impl PackedGather {
     /// unit form units of their own, after `units`, which [`GatherIndex::always`] lists.
     /// Allocates; made once, on the first relight by the change.
     pub fn index_by_units(&self, units: &[Range<usize>], n_texels: usize) -> GatherIndex {
-        const NONE: u32 = u32::MAX;
-        let mut unit_of = vec![NONE; n_texels];
-        let mut ranges = units.to_vec();
-        for (u, r) in units.iter().enumerate() {
-            unit_of[r.clone()].fill(u as u32);
-        }
-        // The texels in no unit, as ranges of their own.
-        let mut t = 0;
-        while t < n_texels {
-            if unit_of[t] != NONE {
-                t += 1;
-                continue;
-            }
-            let start = t;
-            while t < n_texels && unit_of[t] == NONE {
-                unit_of[t] = ranges.len() as u32;
-                t += 1;
-            }
-            ranges.push(start..t);
-        }
+        let (ranges, unit_of) = texel_units(units, n_texels);
         let cols: Vec<u32> = match &self.cols {
             Columns::U16(c) => c.iter().map(|&c| c as u32).collect(),
             Columns::U32(c) => c.clone(),
@@ -220,6 +201,34 @@ impl PackedGather {
             }
         }
     }
+}
+
+/// `units` (disjoint texel ranges of a layout of `n_texels`) followed by each run of texels
+/// in none of them as a unit of its own, and every texel's unit.
+pub(crate) fn texel_units(
+    units: &[Range<usize>],
+    n_texels: usize,
+) -> (Vec<Range<usize>>, Vec<u32>) {
+    const NONE: u32 = u32::MAX;
+    let mut unit_of = vec![NONE; n_texels];
+    let mut ranges = units.to_vec();
+    for (u, r) in units.iter().enumerate() {
+        unit_of[r.clone()].fill(u as u32);
+    }
+    let mut t = 0;
+    while t < n_texels {
+        if unit_of[t] != NONE {
+            t += 1;
+            continue;
+        }
+        let start = t;
+        while t < n_texels && unit_of[t] == NONE {
+            unit_of[t] = ranges.len() as u32;
+            t += 1;
+        }
+        ranges.push(start..t);
+    }
+    (ranges, unit_of)
 }
 
 /// Per unit (a texel range: a block's, a clutter object's, or texels in neither), the gather

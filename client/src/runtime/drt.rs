@@ -11,8 +11,6 @@
 //! applied in the bundle's order, so the result is deterministic; nothing allocates (scratch is
 //! taken from the runtime and given back).
 
-use std::ops::Range;
-
 use lightfarm_proto::bundle::DeltaSource;
 
 use crate::packed_gather::{pad_direct, GatherIndex};
@@ -147,24 +145,13 @@ impl Runtime {
             g.add_to_padded(&self.direct_padded, out);
             return;
         };
-        let by_change = self.gather_by_change.get_or_insert_with(|| {
-            let mut units: Vec<Range<usize>> = self
-                .blocks
-                .iter()
-                .map(|s| s.texel_start..s.texel_end)
-                .collect();
-            if let Some(d) = &self.bundle.drt {
-                units.extend(d.clutter.iter().map(|c| {
-                    let start = c.texel_offset as usize;
-                    start..start + c.t_dc.cols as usize
-                }));
-            }
-            GatherByChange::new(
-                g.index_by_units(&units, self.n_texels),
-                g.n_rows(),
-                self.n_texels,
-            )
-        });
+        if self.gather_by_change.is_none() {
+            let index = g.index_by_units(&self.texel_units(), self.n_texels);
+            self.gather_by_change = Some(GatherByChange::new(index, g.n_rows(), self.n_texels));
+        }
+        let Some(by_change) = self.gather_by_change.as_mut() else {
+            return;
+        };
         let n_blocks = reach.blocks.len();
         let reached = (0..n_blocks)
             .filter(|&k| reach.blocks[k])

@@ -44,6 +44,7 @@
 use std::ops::Range;
 
 use super::{Applied, ApplyError, Bounces, DirectLight, IndirectLight, Method, Runtime};
+use crate::packed_gather::texel_units;
 
 /// Which blocks and clutter objects an application's input reaches (see the module doc).
 #[derive(Clone, Debug, Default)]
@@ -92,37 +93,10 @@ pub(super) struct Sparse {
 
 impl Sparse {
     fn new(rt: &Runtime) -> Sparse {
-        let n = rt.n_texels;
-        let mut ranges: Vec<Range<usize>> = rt
-            .blocks
-            .iter()
-            .map(|s| s.texel_start..s.texel_end)
-            .collect();
-        let n_blocks = ranges.len();
-        if let Some(d) = &rt.bundle.drt {
-            ranges.extend(d.clutter.iter().map(|c| {
-                let start = c.texel_offset as usize;
-                start..start + c.t_dc.cols as usize
-            }));
-        }
-        let n_clutter = ranges.len() - n_blocks;
-        let mut unit_of = vec![u32::MAX; n];
-        for (u, r) in ranges.iter().enumerate() {
-            unit_of[r.clone()].fill(u as u32);
-        }
-        let mut t = 0;
-        while t < n {
-            if unit_of[t] != u32::MAX {
-                t += 1;
-                continue;
-            }
-            let start = t;
-            while t < n && unit_of[t] == u32::MAX {
-                unit_of[t] = ranges.len() as u32;
-                t += 1;
-            }
-            ranges.push(start..t);
-        }
+        let units = rt.texel_units();
+        let n_blocks = rt.blocks.len();
+        let n_clutter = units.len() - n_blocks;
+        let (ranges, unit_of) = texel_units(&units, rt.n_texels);
         Sparse {
             marked: vec![false; ranges.len()],
             ranges,
@@ -172,6 +146,19 @@ impl Runtime {
             }
         }
         self.blocks_projected += reach.blocks.iter().filter(|r| **r).count();
+    }
+
+    /// The texel ranges of the blocks, then of the clutter objects: the units relighting by
+    /// the change works in.
+    pub(super) fn texel_units(&self) -> Vec<Range<usize>> {
+        let blocks = self.blocks.iter().map(|s| s.texel_start..s.texel_end);
+        let clutter = self.bundle.drt.iter().flat_map(|d| {
+            d.clutter.iter().map(|c| {
+                let start = c.texel_offset as usize;
+                start..start + c.t_dc.cols as usize
+            })
+        });
+        blocks.chain(clutter).collect()
     }
 
     /// Whether block `k` is reached (always, outside [`Runtime::apply_delta`]).
