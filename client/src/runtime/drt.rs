@@ -97,6 +97,12 @@ impl Runtime {
     pub(super) fn add_drt_deltas(&mut self, out: &mut [[f32; 3]]) {
         let Some(drt) = &self.bundle.drt else { return };
         let mut scratch = std::mem::take(&mut self.scratch);
+        // Relighting by the change at one bounce: the rows written are marked.
+        let mut sparse = if self.sparse.as_ref().is_some_and(|s| s.active) {
+            self.sparse.take()
+        } else {
+            None
+        };
         // 3. out[rows[i]] += matrix.row(i) · (b_source or c_source).
         for ((e, m), mix) in drt
             .entries
@@ -106,6 +112,9 @@ impl Runtime {
         {
             if !self.source_reached(e.source) {
                 continue;
+            }
+            if let Some(sparse) = sparse.as_mut() {
+                sparse.mark_texels(e.rows.iter().map(|&r| r as usize));
             }
             match mix {
                 None => {
@@ -123,6 +132,9 @@ impl Runtime {
             }
         }
         self.scratch = scratch;
+        if sparse.is_some() {
+            self.sparse = sparse;
+        }
     }
 
     /// DRT with `scene_gather: exact`: texels whose light is the gather alone lose MRT's.
@@ -163,6 +175,9 @@ impl Runtime {
             .chain(by_change.index.always());
         by_change.rows_of(reached, direct);
         g.add_rows_to_padded(&by_change.rows, &by_change.padded, out);
+        if let Some(sparse) = self.sparse.as_mut().filter(|s| s.active) {
+            sparse.mark_texels(by_change.rows.iter().map(|&i| g.row_texel(i as usize)));
+        }
     }
 }
 
@@ -189,14 +204,6 @@ impl GatherByChange {
             rows: Vec::new(),
             marked: vec![false; n_rows],
         }
-    }
-
-    /// The texels the last application's rows wrote.
-    pub(super) fn texels_written<'a>(
-        &'a self,
-        gather: &'a crate::packed_gather::PackedGather,
-    ) -> impl Iterator<Item = usize> + 'a {
-        self.rows.iter().map(|&i| gather.row_texel(i as usize))
     }
 
     /// Clears the last application's copy, copies `direct` on the `reached` units and lists

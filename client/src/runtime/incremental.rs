@@ -117,6 +117,19 @@ impl Sparse {
             self.written.push(u);
         }
     }
+
+    /// Marks the units of `texels` as written (the stages that scatter into rows call this
+    /// while the call is active).
+    pub(super) fn mark_texels(&mut self, texels: impl Iterator<Item = usize>) {
+        for t in texels {
+            self.mark(self.unit_of[t] as usize);
+        }
+    }
+
+    /// Whether block `k`'s texels are written this call (marked before MRT runs).
+    pub(super) fn writes_block(&self, k: usize) -> bool {
+        self.marked[k]
+    }
 }
 
 /// What one [`Runtime::apply_delta`] did, beyond [`Applied`]: how far the change reached.
@@ -205,18 +218,13 @@ impl Runtime {
         self.blocks_projected = 0;
         let sparse = matches!(bounces, Bounces::One | Bounces::Fixed(1)) && method != Method::Full;
         let result = if sparse {
-            if delta.radiance.len() != self.n_texels {
-                Err(ApplyError::DirectLength {
-                    expected: self.n_texels,
-                    got: delta.radiance.len(),
-                })
-            } else {
+            self.check_arguments(method, bounces, delta).map(|()| {
                 self.apply_once_sparse(method, &delta.radiance, &mut change.radiance);
-                Ok(Applied {
+                Applied {
                     bounces: 1,
                     remaining_fraction: 0.0,
-                })
-            }
+                }
+            })
         } else {
             if let Some(s) = self.sparse.as_mut() {
                 s.change_everywhere = true;
@@ -318,6 +326,16 @@ impl Runtime {
             }
         }
         sparse.in_ld.clone_from(&sparse.reached);
+        // What is written: MRT's blocks, marked here (MRT skips the others); the delta entries'
+        // and the gather's rows, marked by those stages as they scatter.
+        let reach = self.reach.as_ref();
+        let transport = self.bundle.transport.as_ref();
+        for (k, slots) in self.blocks.iter().enumerate() {
+            let targeting = &self.entry_order[slots.entries_start..slots.entries_end];
+            if Runtime::block_written(reach, transport, targeting, k) {
+                sparse.mark(k);
+            }
+        }
         sparse.active = true;
         self.sparse = Some(sparse);
 
@@ -330,31 +348,8 @@ impl Runtime {
             self.add_direct_gather(delta, change);
         }
 
-        // What was written: MRT's blocks, the delta entries' rows, the gather's rows.
         let mut sparse = self.sparse.take().expect("set above");
         sparse.active = false;
-        let reach = self.reach.as_ref();
-        let transport = self.bundle.transport.as_ref();
-        for (k, slots) in self.blocks.iter().enumerate() {
-            let targeting = &self.entry_order[slots.entries_start..slots.entries_end];
-            if Runtime::block_written(reach, transport, targeting, k) {
-                sparse.mark(k);
-            }
-        }
-        if let Some(drt) = &self.bundle.drt {
-            for e in &drt.entries {
-                if self.source_reached(e.source) {
-                    for &row in &e.rows {
-                        sparse.mark(sparse.unit_of[row as usize] as usize);
-                    }
-                }
-            }
-        }
-        if let (Some(g), Some(by_change)) = (&self.ops.gather, &self.gather_by_change) {
-            for t in by_change.texels_written(g) {
-                sparse.mark(sparse.unit_of[t] as usize);
-            }
-        }
         let albedo = &self.bundle.layout.albedo;
         for &u in &sparse.written {
             for t in sparse.ranges[u].clone() {

@@ -554,27 +554,7 @@ impl Runtime {
         out: &mut IndirectLight,
     ) -> Result<Applied, ApplyError> {
         let n = self.n_texels;
-        if direct.radiance.len() != n {
-            return Err(ApplyError::DirectLength {
-                expected: n,
-                got: direct.radiance.len(),
-            });
-        }
-        if method == Method::Full && self.bundle.full.is_none() {
-            return Err(ApplyError::MissingFull);
-        }
-        if method == Method::Drt && self.bundle.drt.is_none() {
-            return Err(ApplyError::MissingDrt);
-        }
-        match bounces {
-            Bounces::Fixed(0) => return Err(ApplyError::NoBounces),
-            Bounces::Converged { tolerance } | Bounces::Warm { tolerance }
-                if !(tolerance > 0.0 && tolerance < 1.0) =>
-            {
-                return Err(ApplyError::BadTolerance(tolerance))
-            }
-            _ => {}
-        }
+        self.check_arguments(method, bounces, direct)?;
         if out.radiance.len() != n {
             out.radiance.clear();
             out.radiance.resize(n, [0.0; 3]);
@@ -607,6 +587,37 @@ impl Runtime {
             out.radiance.fill([0.0; 3]);
         }
         result
+    }
+
+    /// The argument errors of [`Runtime::apply`] (and [`Runtime::apply_delta`]): the direct
+    /// light's length, the method's section, the bounce mode.
+    fn check_arguments(
+        &self,
+        method: Method,
+        bounces: Bounces,
+        direct: &DirectLight,
+    ) -> Result<(), ApplyError> {
+        if direct.radiance.len() != self.n_texels {
+            return Err(ApplyError::DirectLength {
+                expected: self.n_texels,
+                got: direct.radiance.len(),
+            });
+        }
+        if method == Method::Full && self.bundle.full.is_none() {
+            return Err(ApplyError::MissingFull);
+        }
+        if method == Method::Drt && self.bundle.drt.is_none() {
+            return Err(ApplyError::MissingDrt);
+        }
+        match bounces {
+            Bounces::Fixed(0) => Err(ApplyError::NoBounces),
+            Bounces::Converged { tolerance } | Bounces::Warm { tolerance }
+                if !(tolerance > 0.0 && tolerance < 1.0) =>
+            {
+                Err(ApplyError::BadTolerance(tolerance))
+            }
+            _ => Ok(()),
+        }
     }
 
     /// One application of the one-bounce operator: `out = A(light)`.

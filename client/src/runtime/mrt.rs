@@ -86,10 +86,6 @@ impl Runtime {
     /// Relighting by the change at one bounce, `out` is zero outside the blocks it writes
     /// already (no fill) and blocks it does not write are skipped.
     pub(super) fn mrt_albedo_free(&mut self, out: &mut [[f32; 3]]) {
-        let sparse = self.sparse.as_ref().is_some_and(|s| s.active);
-        if !sparse {
-            out.fill([0.0; 3]);
-        }
         let Runtime {
             bundle,
             blocks,
@@ -102,12 +98,16 @@ impl Runtime {
             ops,
             parallel,
             reach,
+            sparse,
             ..
         } = self;
+        let sparse_state = sparse.as_ref().filter(|s| s.active);
+        if sparse_state.is_none() {
+            out.fill([0.0; 3]);
+        }
         let b: &[f32] = b;
         let reach = reach.as_ref();
         let reached = |k: u32| Runtime::block_reached(reach, k as usize);
-        let transport = bundle.transport.as_ref();
         let coefficients = |k: usize, cols: usize| {
             let s = &blocks[k];
             group(b, s.coef_start, s.rank, cols)
@@ -124,14 +124,7 @@ impl Runtime {
             *parallel,
             &|k, out_k: &mut [[f32; 3]], lf_k: &mut [f32]| {
                 let slots = &blocks[k];
-                if sparse
-                    && !Runtime::block_written(
-                        reach,
-                        transport,
-                        &entry_order[slots.entries_start..slots.entries_end],
-                        k,
-                    )
-                {
+                if sparse_state.is_some_and(|s| !s.writes_block(k)) {
                     return;
                 }
                 let blk = &bundle.blocks[k];

@@ -179,6 +179,34 @@ fn consecutive_changes_relight_like_the_new_light() {
     }
 }
 
+/// Relighting by the change refuses what `apply` refuses, whatever the bounce mode, and
+/// leaves `out` alone.
+#[test]
+fn the_change_is_refused_where_apply_refuses() {
+    let mut rng = Lcg(76);
+    let t = traced(&mut rng);
+    let b = bundle(&mut rng, Some(t), false);
+    let n = b.layout.n_texels();
+    let mut rt = Runtime::new(b);
+    let ld = direct(&mut rng, n);
+    let mut out = IndirectLight::default();
+    rt.apply(Method::Mrt, Bounces::One, &ld, &mut out).unwrap();
+    let before = out.clone();
+    for bounces in [Bounces::One, Bounces::Fixed(1), Bounces::Fixed(2)] {
+        let refused = rt.apply_delta(Method::Drt, bounces, &ld, &mut out);
+        assert_eq!(refused.unwrap_err(), ApplyError::MissingDrt, "{bounces:?}");
+        let short = DirectLight {
+            radiance: vec![[0.0; 3]; n - 1],
+        };
+        let refused = rt.apply_delta(Method::Mrt, bounces, &short, &mut out);
+        assert!(
+            matches!(refused, Err(ApplyError::DirectLength { .. })),
+            "{bounces:?}"
+        );
+        assert_eq!(out, before);
+    }
+}
+
 #[test]
 fn an_application_under_a_reach_equals_the_full_application() {
     let mut rng = Lcg(72);

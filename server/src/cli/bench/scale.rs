@@ -277,11 +277,11 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
     };
     let mut runtime = Runtime::try_new(decoded.clone())?;
     let occluders = Occluders::from_layout(&decoded.layout);
-    let client_lights: Vec<_> = lights.lights.clone();
+    let client_lights = &lights.lights;
     let direct = direct_from_point_lights_adaptive(
         &decoded.layout,
         &occluders,
-        &client_lights,
+        client_lights,
         DIRECT_SAMPLES_PER_EDGE,
     );
     let converged = Bounces::Converged {
@@ -298,7 +298,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
     let update = time_update(
         &mut runtime,
         &occluders,
-        &client_lights,
+        client_lights,
         0,
         method,
         Bounces::One,
