@@ -148,36 +148,41 @@ pub fn spawn_listening(command: &mut std::process::Command) -> (std::process::Ch
     (child, addr)
 }
 
-/// Checks a bundle's light reach (`LightReach`) against lighting every texel, for each light
-/// alone at each of `positions`: the direct light on the reached spans is bit-identical to the
-/// whole-layout direct light there, and every texel left out is exactly dark in it. Returns
-/// the texels reached and the texels lit, summed over the positions (`samples` per texel edge).
+/// Checks a bundle's light reach against lighting every texel, for each light alone at each
+/// of `positions`: the direct light on the reached spans, traced against the reached rooms'
+/// occluders only (`ReachDirect::light`), is bit-identical to the whole-layout direct light
+/// there, and every texel left out is exactly dark in it; and every position's light at once
+/// lit light by light where each reaches (`ReachDirect::all_lights`) is bit-identical to
+/// lighting every texel with them all. Returns the texels reached, the texels lit and the
+/// positions whose shadow rays met fewer occluders than the level's, summed over the positions
+/// (`samples` per texel edge).
 pub fn check_light_reach(
     bundle: &lightfarm_proto::bundle::Bundle,
     light: &lightfarm_client::Light,
     positions: &[[f64; 3]],
     samples: u32,
-) -> (usize, usize) {
+) -> (usize, usize, usize) {
     use lightfarm_client::{
-        direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in, direct_scale,
-        LightReach, Occluders,
+        direct_from_point_lights_adaptive, direct_scale, Occluders, ReachDirect,
     };
     let layout = &bundle.layout;
     let occluders = Occluders::from_layout(layout);
     let scale = direct_scale(layout, &occluders);
-    let mut reach = LightReach::new(bundle).expect("the bundle has rooms");
-    let (mut reached, mut lit) = (0, 0);
+    let mut reach = ReachDirect::new(bundle, &occluders).expect("the bundle has rooms");
+    let (mut reached, mut lit, mut cut) = (0, 0, 0);
     let mut spans = Vec::new();
+    let mut every = Vec::new();
     for p in positions {
         let mut l = light.clone();
         l.position = *p;
+        every.push(l.clone());
         let lights = std::slice::from_ref(&l);
         let whole = direct_from_point_lights_adaptive(layout, &occluders, lights, samples);
-        reach.texels(layout, *p, &mut spans);
         let mut part = vec![[f32::NAN; 3]; layout.n_texels()];
-        direct_from_point_lights_adaptive_in(
-            layout, &occluders, lights, samples, scale, &spans, &mut part,
+        reach.light(
+            layout, &occluders, &l, samples, scale, &mut spans, &mut part,
         );
+        cut += usize::from(reach.occluders_traced() < occluders.len());
         let mut inside = vec![false; layout.n_texels()];
         for s in &spans {
             inside[s.texels.clone()].fill(true);
@@ -208,5 +213,14 @@ pub fn check_light_reach(
         }
         reached += inside.iter().filter(|&&i| i).count();
     }
-    (reached, lit)
+    let whole = direct_from_point_lights_adaptive(layout, &occluders, &every, samples);
+    let by_reach = reach.all_lights(layout, &occluders, &every, samples, scale);
+    for (t, (w, r)) in whole.radiance.iter().zip(&by_reach.radiance).enumerate() {
+        assert_eq!(
+            w.map(f32::to_bits),
+            r.map(f32::to_bits),
+            "texel {t}: every light at once against light by light where each reaches"
+        );
+    }
+    (reached, lit, cut)
 }

@@ -80,29 +80,40 @@ impl<'a> Lighting<'a> {
     /// Direct outgoing radiance at one point with normal `n` and albedo `rho`.
     fn radiance_at(&self, x: [f32; 3], n: [f32; 3], rho: [f32; 3]) -> [f64; 3] {
         let mut irr = [0.0f64; 3];
-        for (light, &p) in self.lights.iter().zip(&self.positions) {
-            match light.kind {
-                LightKind::Point => {}
-            }
-            if light.intensity.iter().all(|&i| i == 0.0) {
-                continue;
-            }
-            // Unshadowed first: a light behind the texel costs no shadow ray.
-            let g = unshadowed(x, n, light, self.r2_min);
-            if g == 0.0 || self.occluders.occluded(x, p) {
-                continue;
-            }
-            for (e, i) in irr.iter_mut().zip(light.intensity) {
-                *e += i * g;
-            }
+        for li in 0..self.lights.len() {
+            self.add_point(li, x, n, &mut irr);
         }
-        let k = std::f64::consts::FRAC_1_PI;
-        [
-            rho[0] as f64 * k * irr[0],
-            rho[1] as f64 * k * irr[1],
-            rho[2] as f64 * k * irr[2],
-        ]
+        outgoing(rho, irr)
     }
+
+    /// Adds light `li`'s `I · cosθ / r² · V` at point `x` with normal `n` into `irr`.
+    fn add_point(&self, li: usize, x: [f32; 3], n: [f32; 3], irr: &mut [f64; 3]) {
+        let light = &self.lights[li];
+        match light.kind {
+            LightKind::Point => {}
+        }
+        if light.intensity.iter().all(|&i| i == 0.0) {
+            return;
+        }
+        // Unshadowed first: a light behind the texel costs no shadow ray.
+        let g = unshadowed(x, n, light, self.r2_min);
+        if g == 0.0 || self.occluders.occluded(x, self.positions[li]) {
+            return;
+        }
+        for (e, i) in irr.iter_mut().zip(light.intensity) {
+            *e += i * g;
+        }
+    }
+}
+
+/// Outgoing radiance `ρ/π · irr` of a texel of albedo `rho` (f64, before the f32 store).
+fn outgoing(rho: [f32; 3], irr: [f64; 3]) -> [f64; 3] {
+    let k = std::f64::consts::FRAC_1_PI;
+    [
+        rho[0] as f64 * k * irr[0],
+        rho[1] as f64 * k * irr[1],
+        rho[2] as f64 * k * irr[2],
+    ]
 }
 
 /// What the direct light of one layout texel reads: centre, normal, albedo and extent.
@@ -277,51 +288,119 @@ fn no_occluders() -> &'static Occluders {
 /// One texel of [`direct_from_point_lights_adaptive`] (`2 ≤ m ≤ ADAPTIVE_MAX_SAMPLES_PER_EDGE`,
 /// a texel with a size).
 fn adaptive_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
-    let (n, rho) = (t.n, t.rho);
     let mut points = [[0.0f32; 3]; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
     let points = &mut points[..m * m];
-    sample_points(t.x, n, t.size, m, points);
-    let corners = [0, m - 1, m * (m - 1), m * m - 1];
+    sample_points(t.x, t.n, t.size, m, points);
     let mut irr = [0.0f64; 3];
-    for (light, &p) in lighting.lights.iter().zip(&lighting.positions) {
-        if light.intensity.iter().all(|&i| i == 0.0) {
-            continue;
-        }
-        // Unshadowed cos/r² per sample (0 where the light is behind).
-        let mut g = [0.0f64; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
-        let g = &mut g[..m * m];
-        for (gi, q) in g.iter_mut().zip(points.iter()) {
-            *gi = unshadowed(*q, n, light, lighting.r2_min);
-        }
-        if g.iter().all(|&v| v == 0.0) {
-            continue;
-        }
-        let visible = |k: usize| !lighting.occluders.occluded(points[k], p);
-        let corner_seen = corners.map(visible);
-        let sum: f64 = if corner_seen.iter().all(|&v| v == corner_seen[0]) {
-            if corner_seen[0] {
-                g.iter().sum()
-            } else {
-                0.0
-            }
+    for li in 0..lighting.lights.len() {
+        add_adaptive(lighting, li, t.n, points, m, &mut irr);
+    }
+    outgoing(t.rho, irr).map(|v| v as f32)
+}
+
+/// Adds light `li`'s term of a texel's adaptive average into `irr`: `I` times the mean over the
+/// `m × m` sample `points` (normal `n`) of `cosθ / r² · V`, with `V` traced at the four corner
+/// samples and at every sample only where the corners disagree.
+fn add_adaptive(
+    lighting: &Lighting,
+    li: usize,
+    n: [f32; 3],
+    points: &[[f32; 3]],
+    m: usize,
+    irr: &mut [f64; 3],
+) {
+    let (light, p) = (&lighting.lights[li], lighting.positions[li]);
+    if light.intensity.iter().all(|&i| i == 0.0) {
+        return;
+    }
+    let corners = [0, m - 1, m * (m - 1), m * m - 1];
+    // Unshadowed cos/r² per sample (0 where the light is behind).
+    let mut g = [0.0f64; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
+    let g = &mut g[..m * m];
+    for (gi, q) in g.iter_mut().zip(points.iter()) {
+        *gi = unshadowed(*q, n, light, lighting.r2_min);
+    }
+    if g.iter().all(|&v| v == 0.0) {
+        return;
+    }
+    let visible = |k: usize| !lighting.occluders.occluded(points[k], p);
+    let corner_seen = corners.map(visible);
+    let sum: f64 = if corner_seen.iter().all(|&v| v == corner_seen[0]) {
+        if corner_seen[0] {
+            g.iter().sum()
         } else {
-            (0..m * m)
-                .filter(|&k| g[k] > 0.0)
-                .map(|k| match corners.iter().position(|&c| c == k) {
-                    Some(i) if corner_seen[i] => g[k],
-                    Some(_) => 0.0,
-                    None if visible(k) => g[k],
-                    None => 0.0,
-                })
-                .sum()
+            0.0
+        }
+    } else {
+        (0..m * m)
+            .filter(|&k| g[k] > 0.0)
+            .map(|k| match corners.iter().position(|&c| c == k) {
+                Some(i) if corner_seen[i] => g[k],
+                Some(_) => 0.0,
+                None if visible(k) => g[k],
+                None => 0.0,
+            })
+            .sum()
+    };
+    let w = sum / (m * m) as f64;
+    for (e, i) in irr.iter_mut().zip(light.intensity) {
+        *e += i * w;
+    }
+}
+
+/// Adds one light's term of [`direct_from_point_lights_adaptive_in`]'s texel value, before
+/// albedo (`I ·` the texel-averaged `cosθ / r² · V`), into `irr[t]` for every texel `t` of
+/// `spans`: summed over the lights in order and finished by [`finish_irradiance`], the terms
+/// give that function's values bit for bit (a texel a light cannot reach gets a zero term,
+/// which leaves the sum as it is). `m = samples_per_edge` must be at most
+/// [`ADAPTIVE_MAX_SAMPLES_PER_EDGE`] (more averages samples over every light at once).
+pub(crate) fn add_light_term_in(
+    layout: &Layout,
+    occluders: &Occluders,
+    light: &Light,
+    samples_per_edge: u32,
+    scale: f64,
+    spans: &[TexelSpan],
+    irr: &mut [[f64; 3]],
+) {
+    let m = samples_per_edge.max(1) as usize;
+    debug_assert!(m <= ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize);
+    let lights = std::slice::from_ref(light);
+    let lighting = Lighting::new(lights, occluders, scale);
+    let clear = spans.iter().any(|s| s.in_sight).then(|| Lighting {
+        occluders: no_occluders(),
+        ..Lighting::new(lights, occluders, scale)
+    });
+    let n = irr.len().min(layout.n_texels());
+    let mut points = [[0.0f32; 3]; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
+    let points = &mut points[..m * m];
+    for span in spans {
+        let lighting = match &clear {
+            Some(clear) if span.in_sight => clear,
+            _ => &lighting,
         };
-        let w = sum / (m * m) as f64;
-        for (e, i) in irr.iter_mut().zip(light.intensity) {
-            *e += i * w;
+        for t in span.texels.start.min(n)..span.texels.end.min(n) {
+            let at = TexelAt::of(layout, t);
+            if m == 1 || at.size == [0.0, 0.0] {
+                lighting.add_point(0, at.x, at.n, &mut irr[t]);
+            } else {
+                sample_points(at.x, at.n, at.size, m, points);
+                add_adaptive(lighting, 0, at.n, points, m, &mut irr[t]);
+            }
         }
     }
-    let k = std::f64::consts::FRAC_1_PI;
-    [0, 1, 2].map(|c| (rho[c] as f64 * k * irr[c]) as f32)
+}
+
+/// The direct light of texels whose lights' terms ([`add_light_term_in`]) sum to `irr`:
+/// `ρ/π · irr` per texel.
+pub(crate) fn finish_irradiance(layout: &Layout, irr: &[[f64; 3]]) -> DirectLight {
+    DirectLight {
+        radiance: irr
+            .iter()
+            .zip(&layout.albedo)
+            .map(|(e, &rho)| outgoing(rho, *e).map(|v| v as f32))
+            .collect(),
+    }
 }
 
 /// `cos θ / max(r², r2_min)` of `light` at point `x` with normal `n`, 0 when the light is

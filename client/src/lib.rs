@@ -31,6 +31,8 @@
 //! - [`light_reach`]: which texels a point light can reach, by a portal walk over the bundle's
 //!   rooms (block boxes and openings), so one light's direct light is recomputed where it
 //!   reaches only.
+//! - [`reach_direct`]: one light's direct light on the texels it reaches, shadow rays traced
+//!   against only the occluders of the rooms it reaches (exactly the level's answer there).
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
 //! - [`runtime`]: the per-frame, allocation-free application of the bundle's operators
 //!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
@@ -71,6 +73,7 @@ pub mod occluders;
 pub mod packed;
 pub mod packed_gather;
 pub mod probes;
+pub mod reach_direct;
 pub mod runtime;
 #[cfg(feature = "fetch")]
 pub mod service;
@@ -90,6 +93,7 @@ pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};
 pub use occluders::Occluders;
 pub use probes::{irradiance_at, irradiance_sh_at, radiance_sh_at, ProbeField};
+pub use reach_direct::ReachDirect;
 pub use runtime::{
     Applied, ApplyError, Bounces, DeltaApplied, IndirectLight, Method, Runtime, ShLight,
     DEFAULT_TOLERANCE, MAX_BOUNCES,

@@ -205,6 +205,8 @@ pub struct LightReach {
     surfaces: Vec<u32>,
     /// The last walk left the level (or started outside it).
     left_level: bool,
+    /// The last walk ran to its end (it did not give up).
+    complete: bool,
 }
 
 impl LightReach {
@@ -275,12 +277,27 @@ impl LightReach {
             surface_seen: vec![false; rooms.surfaces.len()],
             surfaces: Vec::new(),
             left_level: false,
+            complete: false,
         })
     }
 
     /// Rooms the last [`LightReach::texels`] call reached.
     pub fn rooms_reached(&self) -> usize {
         self.touched.len()
+    }
+
+    /// The rooms (indices into the bundle's rooms) the last [`LightReach::texels`] call's walk
+    /// reached, when that walk ran to its end without leaving the level: then a segment from
+    /// the light to any point of a reached texel stays inside these rooms' closed boxes up to
+    /// its first wall or object. `None` when the walk gave up, left the level or started
+    /// outside it (segments may then pass anywhere).
+    pub fn rooms_of_last_walk(&self) -> Option<&[u32]> {
+        (self.complete && !self.left_level).then_some(&self.touched[..])
+    }
+
+    /// The bundle's rooms, as boxes `(min, max)` in metres.
+    pub fn room_boxes(&self) -> impl Iterator<Item = ([f64; 3], [f64; 3])> + '_ {
+        self.rooms.iter().map(|r| (r.min, r.max))
     }
 
     /// Sets `out` to the texel spans of `layout` (the bundle's) the light at `light` can reach
@@ -296,6 +313,7 @@ impl LightReach {
         self.stack.clear();
         let finite = light.iter().all(|x| x.is_finite());
         let complete = finite && self.walk(light);
+        self.complete = complete;
         if !complete {
             push_span(out, 0..layout.n_texels(), false);
             return;
@@ -516,21 +534,21 @@ fn push_span(out: &mut Vec<TexelSpan>, r: Range<usize>, in_sight: bool) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::occluders::Occluders;
     use lightfarm_proto::bundle::{Rect, Rooms, SurfaceInfo};
 
     /// xorshift64*: a seeded stream for the tests.
-    struct Rng(u64);
+    pub(crate) struct Rng(pub(crate) u64);
     impl Rng {
-        fn next(&mut self) -> f64 {
+        pub(crate) fn next(&mut self) -> f64 {
             self.0 ^= self.0 >> 12;
             self.0 ^= self.0 << 25;
             self.0 ^= self.0 >> 27;
             (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
         }
-        fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        pub(crate) fn range(&mut self, lo: f64, hi: f64) -> f64 {
             lo + (hi - lo) * self.next()
         }
     }
@@ -604,7 +622,12 @@ mod tests {
 
     /// A level of `nx × nz` cells (random widths, so faces coincide), random openings between
     /// cells and to the outside, `t × t` texels on every closed face, occluders the closed faces.
-    fn level(rng: &mut Rng, nx: usize, nz: usize, t: usize) -> (Rooms, Layout, Occluders) {
+    pub(crate) fn level(
+        rng: &mut Rng,
+        nx: usize,
+        nz: usize,
+        t: usize,
+    ) -> (Rooms, Layout, Occluders) {
         let mut xs = vec![0.0];
         let mut zs = vec![0.0];
         for _ in 0..nx {
@@ -700,7 +723,7 @@ mod tests {
         (rooms, layout, occluders)
     }
 
-    fn bundle_with(rooms: Option<Rooms>, layout: Layout) -> Bundle {
+    pub(crate) fn bundle_with(rooms: Option<Rooms>, layout: Layout) -> Bundle {
         Bundle {
             layout,
             rooms,

@@ -3,8 +3,9 @@
 //! Owns a small bounding-volume hierarchy: median split over primitive centroids along the
 //! longest centroid axis, leaves of at most [`LEAF_SIZE`] primitives, nodes in one flat array
 //! (an inner node's children sit next to each other), traversed iteratively with a fixed-size
-//! stack. The only query is [`Occluders::occluded`]: does any primitive cross the open segment
-//! between two points?
+//! stack. The query is [`Occluders::occluded`]: does any primitive cross the open segment
+//! between two points? [`Occluders::prims_in_box`] and [`Occluders::subset`] cut out the part
+//! of a level some segments can meet (`reach_direct`), keeping the level's margins.
 //!
 //! Invariants:
 //! - Hits count only strictly inside the segment, away from both ends by
@@ -219,7 +220,6 @@ impl Occluders {
             });
         }
         prims.extend(triangles.iter().map(|t| Prim::Tri(*t)));
-
         let bounds = prims.iter().map(Prim::bounds).reduce(union);
         let scale = match bounds {
             Some((lo, hi)) => {
@@ -232,6 +232,12 @@ impl Occluders {
             }
             None => 1.0,
         };
+        Occluders::build(prims, scale)
+    }
+
+    /// The hierarchy over `prims`, with margins and node padding relative to `scale`.
+    fn build(mut prims: Vec<Prim>, scale: f32) -> Occluders {
+        let bounds = prims.iter().map(Prim::bounds).reduce(union);
         let pad = BOX_PAD * scale;
 
         let mut nodes: Vec<Node> = Vec::with_capacity(2 * prims.len().div_ceil(LEAF_SIZE).max(1));
@@ -303,6 +309,43 @@ impl Occluders {
             bounds,
             scale,
         }
+    }
+
+    /// Appends to `out` the indices (in this hierarchy's primitive order, for
+    /// [`Occluders::subset`]) of the primitives whose bounds meet the closed box `[lo, hi]`.
+    pub fn prims_in_box(&self, lo: [f32; 3], hi: [f32; 3], out: &mut Vec<u32>) {
+        let meets = |a: &[f32; 3], b: &[f32; 3]| (0..3).all(|k| a[k] <= hi[k] && b[k] >= lo[k]);
+        if self.nodes.is_empty() {
+            return;
+        }
+        let mut stack = vec![0usize];
+        while let Some(ni) = stack.pop() {
+            let node = &self.nodes[ni];
+            if !meets(&node.min, &node.max) {
+                continue;
+            }
+            if node.count == 0 {
+                stack.extend([node.first as usize, node.first as usize + 1]);
+                continue;
+            }
+            for i in node.first..node.first + node.count {
+                let (a, b) = self.prims[i as usize].bounds();
+                if meets(&a, &b) {
+                    out.push(i);
+                }
+            }
+        }
+    }
+
+    /// The primitives `indices` (from [`Occluders::prims_in_box`]) in a hierarchy of their
+    /// own that keeps this one's [`Occluders::scale`], so its margins are this one's:
+    /// `subset(ix).occluded(a, b)` is true exactly when one of those primitives crosses the
+    /// segment as [`Occluders::occluded`] tests it.
+    pub fn subset(&self, indices: &[u32]) -> Occluders {
+        Occluders::build(
+            indices.iter().map(|&i| self.prims[i as usize]).collect(),
+            self.scale,
+        )
     }
 
     /// Number of primitives.

@@ -80,28 +80,38 @@ fn moving_one_light_relit_by_its_change_equals_relighting_everything() {
 }
 
 /// Each maze light, at its place and moved about its room: the direct light on the texels its
-/// walk reaches is bit-identical to lighting every texel, every texel left out is dark, and the
-/// walk leaves out most of the maze.
+/// walk reaches, traced against the reached rooms' occluders, is bit-identical to lighting
+/// every texel, every texel left out is dark, the walk leaves out most of the maze, and the
+/// lights lit one by one where each reaches sum to lighting every texel with them all.
 #[test]
 fn a_light_reaches_what_lighting_everything_lights() {
     let (scene, lights) = load_scene("maze", 4, 16);
     let (bytes, _) = bake_scene(&scene, &scene_dir("maze"), scene.settings.transport, false);
     let bundle = Bundle::decode(&bytes).unwrap();
     let n = bundle.layout.n_texels();
-    let (mut reached, mut lit, mut checked) = (0, 0, 0);
+    let (mut reached, mut lit, mut checked, mut cut) = (0, 0, 0, 0);
     for light in &lights.lights {
         let p = light.position;
         let positions: Vec<[f64; 3]> = [[0.0, 0.0], [0.4, 0.0], [-0.4, 0.3], [0.0, -0.45]]
             .iter()
             .map(|[dx, dz]| [p[0] + dx, p[1], p[2] + dz])
             .collect();
-        let (r, l) = check_light_reach(&bundle, light, &positions, 4);
+        let (r, l, c) = check_light_reach(&bundle, light, &positions, 4);
         reached += r;
         lit += l;
+        cut += c;
         checked += positions.len() * n;
     }
-    eprintln!("maze T=4: {reached} of {checked} texel visits reached, {lit} lit");
+    eprintln!(
+        "maze T=4: {reached} of {checked} texel visits reached, {lit} lit, {cut} of {} \
+         positions traced against the reached rooms' occluders only",
+        4 * lights.lights.len()
+    );
     assert!(lit > 0 && reached >= lit);
+    assert!(
+        cut * 2 > 4 * lights.lights.len(),
+        "{cut} positions cut the occluders"
+    );
     assert!(reached * 2 < checked, "{reached} of {checked} reached");
 }
 

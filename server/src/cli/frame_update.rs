@@ -6,10 +6,13 @@
 //! level for the light's new position, interleaved so the machine's noise falls on both alike:
 //! - **full**: every light's direct light (texel-averaged over the 4 × 4 samples `eval` feeds the
 //!   operators, with shadow rays only where visibility changes across a texel:
-//!   `direct_from_point_lights_adaptive`), then `Runtime::apply`;
+//!   `direct_from_point_lights_adaptive`; with rooms each light is traced only where it reaches,
+//!   against the occluders there, `ReachDirect::all_lights`, the same bits), then
+//!   `Runtime::apply`;
 //! - **update**: the moved light's direct light alone, on the texels it reaches from where it
-//!   was and where it is now (`LightReach`, the portal walk over the bundle's rooms; every texel
-//!   for a bundle without rooms), its change from the previous frame, and
+//!   was and where it is now (`ReachDirect::light`: the portal walk over the bundle's rooms, and
+//!   shadow rays against the reached rooms' occluders only; every texel against the level's
+//!   occluders for a bundle without rooms), its change from the previous frame, and
 //!   `Runtime::apply_delta` adding that change's indirect light to the previous frame's, on a
 //!   runtime of its own (a game relighting by the change does nothing else with it). Both
 //!   the walk and the direct light's bookkeeping touch the reached texels only. With `warm`
@@ -34,7 +37,7 @@ use std::ops::Range;
 use lightfarm_client::{
     direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in,
     direct_from_point_lights_averaged, direct_scale, relative_l2, Bounces, DirectLight,
-    IndirectLight, Light, LightReach, Method, Occluders, Runtime, TexelSpan,
+    IndirectLight, Light, Method, Occluders, ReachDirect, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Layout;
 
@@ -83,9 +86,21 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 /// The texel-averaged direct light both ways feed the operators, with shadow rays only where
-/// visibility changes across a texel ([`direct_from_point_lights_adaptive`]).
-fn direct_of(layout: &Layout, occluders: &Occluders, lights: &[Light]) -> DirectLight {
-    direct_from_point_lights_adaptive(layout, occluders, lights, DIRECT_SAMPLES_PER_EDGE)
+/// visibility changes across a texel ([`direct_from_point_lights_adaptive`]); with rooms, each
+/// light on the texels it reaches only ([`ReachDirect::all_lights`], the same bits).
+fn direct_of(
+    reach: &mut Option<ReachDirect>,
+    layout: &Layout,
+    occluders: &Occluders,
+    lights: &[Light],
+    scale: f64,
+) -> DirectLight {
+    match reach {
+        Some(r) => r.all_lights(layout, occluders, lights, DIRECT_SAMPLES_PER_EDGE, scale),
+        None => {
+            direct_from_point_lights_adaptive(layout, occluders, lights, DIRECT_SAMPLES_PER_EDGE)
+        }
+    }
 }
 
 /// The texels of two lists of ascending, disjoint spans (where the light was and where it is),
@@ -104,6 +119,46 @@ fn union_of(a: &[TexelSpan], b: &[TexelSpan], out: &mut Vec<Range<usize>>) {
         match out.last_mut() {
             Some(last) if next.start <= last.end => last.end = last.end.max(next.end),
             _ => out.push(next),
+        }
+    }
+}
+
+/// The moved light's reach (every texel without rooms) into `spans`, and its direct light
+/// there into `out`.
+fn moved_direct(
+    reach: &mut Option<ReachDirect>,
+    layout: &Layout,
+    occluders: &Occluders,
+    light: &Light,
+    scale: f64,
+    spans: &mut Vec<TexelSpan>,
+    out: &mut [[f32; 3]],
+) {
+    match reach {
+        Some(r) => r.light(
+            layout,
+            occluders,
+            light,
+            DIRECT_SAMPLES_PER_EDGE,
+            scale,
+            spans,
+            out,
+        ),
+        None => {
+            spans.clear();
+            spans.push(TexelSpan {
+                texels: 0..layout.n_texels(),
+                in_sight: false,
+            });
+            direct_from_point_lights_adaptive_in(
+                layout,
+                occluders,
+                std::slice::from_ref(light),
+                DIRECT_SAMPLES_PER_EDGE,
+                scale,
+                spans,
+                out,
+            )
         }
     }
 }
@@ -141,7 +196,10 @@ pub fn time_update(
     let every_sample =
         direct_from_point_lights_averaged(&layout, occluders, &lights, DIRECT_SAMPLES_PER_EDGE);
     let direct_every_sample_ms = start.elapsed().as_secs_f64() * 1e3;
-    let direct0 = direct_of(&layout, occluders, &lights);
+    let scale = direct_scale(&layout, occluders);
+    // Each way walks its lights' reaches with scratch of its own.
+    let mut full_reach = ReachDirect::new(runtime.bundle(), occluders);
+    let direct0 = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
     let direct_error = relative_l2(&direct0.radiance, &every_sample.radiance);
     let mut full_out = IndirectLight::default();
     runtime.apply(method, bounces, &direct0, &mut full_out)?;
@@ -152,36 +210,18 @@ pub fn time_update(
     // The update's direct light of the moved light: `previous` and `now` hold it on the spans
     // it reached (zero elsewhere); `change` is non-zero on `change_spans` only.
     let n = layout.n_texels();
-    let scale = direct_scale(&layout, occluders);
-    let mut reach = LightReach::new(runtime.bundle());
+    let mut reach = ReachDirect::new(runtime.bundle(), occluders);
     let has_rooms = reach.is_some();
-    let reach_of =
-        |reach: &mut Option<LightReach>, p: [f64; 3], out: &mut Vec<TexelSpan>| match reach {
-            Some(r) => r.texels(&layout, p, out),
-            None => {
-                out.clear();
-                out.push(TexelSpan {
-                    texels: 0..n,
-                    in_sight: false,
-                });
-            }
-        };
-    let one = |light: &Light, spans: &[TexelSpan], out: &mut [[f32; 3]]| {
-        direct_from_point_lights_adaptive_in(
-            &layout,
-            occluders,
-            std::slice::from_ref(light),
-            DIRECT_SAMPLES_PER_EDGE,
-            scale,
-            spans,
-            out,
-        )
-    };
     let (mut previous, mut now) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
     let (mut spans_before, mut spans_now) = (Vec::new(), Vec::new());
     let mut change_spans: Vec<Range<usize>> = Vec::new();
-    reach_of(&mut reach, lights[moved].position, &mut spans_before);
-    one(&lights[moved], &spans_before, &mut previous);
+    let lit = |reach: &mut Option<ReachDirect>,
+               light: &Light,
+               spans: &mut Vec<TexelSpan>,
+               out: &mut [[f32; 3]]| {
+        moved_direct(reach, &layout, occluders, light, scale, spans, out)
+    };
+    lit(&mut reach, &lights[moved], &mut spans_before, &mut previous);
     let mut change = DirectLight {
         radiance: vec![[0.0; 3]; n],
     };
@@ -192,7 +232,7 @@ pub fn time_update(
     let mut warm_way = warm.then(|| {
         let mut others = lights.clone();
         others.remove(moved);
-        let others = direct_of(&layout, occluders, &others);
+        let others = direct_of(&mut full_reach, &layout, occluders, &others, scale);
         let mut total = others.clone();
         for (t, p) in total.radiance.iter_mut().zip(&previous) {
             *t = [t[0] + p[0], t[1] + p[1], t[2] + p[2]];
@@ -209,7 +249,7 @@ pub fn time_update(
         lights[moved].position = at(frame);
         // Full: every light's direct light, then apply.
         let start = Instant::now();
-        let direct = direct_of(&layout, occluders, &lights);
+        let direct = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
         let mid = Instant::now();
         runtime.apply(method, bounces, &direct, &mut full_out)?;
         full[0].push((mid - start).as_secs_f64() * 1e3);
@@ -217,8 +257,7 @@ pub fn time_update(
         // Update: where the moved light reaches, its direct light there and the change from
         // the previous frame, then apply_delta.
         let start = Instant::now();
-        reach_of(&mut reach, lights[moved].position, &mut spans_now);
-        one(&lights[moved], &spans_now, &mut now);
+        lit(&mut reach, &lights[moved], &mut spans_now, &mut now);
         for span in &change_spans {
             change.radiance[span.clone()].fill([0.0; 3]);
         }

@@ -295,8 +295,9 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
          (`nproc` = {}) in {:.1} min. Bake: cold (no shape cache), peak resident memory of the \
          process during the bake and its encoding. Frames: one thread, every light of the \
          level, DRT (MRT in a level without clutter); \"one light\" moves light 0 and relights by its change \
-         (`frame-time --update one-light`), \"relight all\" lights every texel and applies \
-         everything; both include their direct light. Error: DRT at all bounces against the \
+         (`frame-time --update one-light`), \"relight all\" lights every light where it reaches \
+         (its rooms' texels, shadow rays against the occluders there: the same bits as \
+         lighting every texel) and applies everything; both include their direct light. Error: DRT at all bounces against the \
          path tracer at all bounces ({} rays) on up to {} texels within {} m of up to {} of \
          the level's lights (those lights alone); the reference's own noise (two seeds) beside \
          it.\n",
@@ -387,10 +388,10 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         w,
         "Growth with the block count N (least-squares slope on the log–log points): bake {}, \
          peak memory {}, bundle bytes {}, apply at one bounce {}, at all bounces {}, relighting \
-         everything {}, moving one light {}. Relighting everything computes every light's \
-         direct light at every texel, and a level's lights grow with it, so that cost grows \
-         as N²; moving one light lights only the texels it reaches, which depend on where \
-         the light is, not on the level's size.\n",
+         everything {}, moving one light {}. Relighting everything lights each of the level's \
+         lights (which grow with it) where that light reaches and applies every operator, so \
+         it grows about linearly; moving one light lights only the texels it reaches, which \
+         depend on where the light is, not on the level's size.\n",
         grows(&series(&|p| p.bake_seconds)),
         grows(&series(&|p| p.peak_rss_bytes as f64)),
         grows(&series(&|p| p.bundle_bytes as f64)),
