@@ -8,7 +8,8 @@ Openings: a random spanning tree over the rooms (every room reachable), plus loo
 fraction of the remaining walls between rooms). About a fifth of the large rooms (both sides
 at least 4 m) hold a pillar (a 0.5 m box, 2.8 m high, away from the walls); about 15% of the
 rooms hold a point light (at least one in the level); `--dynamic K` adds K moving balls with a
-pose each in the lights file. The same arguments always write the same bytes.
+pose each in the lights file and its room as the region it moves in (the probe volume is baked
+over those rooms only). The same arguments always write the same bytes.
 
 Usage:
     scripts/gen_level.py OUT_DIR [--blocks 1000] [--seed 1] [--texels 8] [--rays 1024]
@@ -171,6 +172,10 @@ def generate(blocks, seed, texels, rays, tolerance, pillar_fraction, light_fract
             x = xs[c[0]] + widths[c[0]] / 2
             z = zs[c[1]] + depths[c[1]] / 2
             poses.append({"id": f"ball_{k}", "translation": [round(x, 3), 0.5, round(z, 3)]})
+            # The ball rolls about its room: the probe volume is baked there only.
+            scene["dynamic"][k]["regions"] = [{
+                "min": [xs[c[0]], 0.0, zs[c[1]]],
+                "max": [xs[c[0]] + widths[c[0]], HEIGHT, zs[c[1]] + depths[c[1]]]}]
     light_set = {"lights": lights}
     if poses:
         light_set["poses"] = poses

@@ -430,6 +430,12 @@ pub struct DynamicObject {
     pub id: String,
     pub mesh: String,
     pub albedo: [f64; 3],
+    /// Boxes the object stays within (its whole extent, world metres). Empty (the default): it
+    /// may go anywhere in the blocks. When every dynamic object lists regions, the probe volume
+    /// it reads (U_dyn) is baked only over them ([`Scene::probe_regions`]), so a large level
+    /// with a few moving objects pays for their neighbourhoods, not for the level.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub regions: Vec<Aabb>,
 }
 
 /// Two blocks joined through coincident open faces.
@@ -611,6 +617,9 @@ impl Scene {
             let name = format!("dynamic \"{}\"", object.id);
             check_albedo(&name, "albedo", &object.albedo)?;
             check_mesh_path(&name, &object.mesh)?;
+            for (k, region) in object.regions.iter().enumerate() {
+                check_box(&name, &region.min, &region.max, &format!("regions[{k}]."))?;
+            }
         }
         for (k, region) in self.light_regions.iter().enumerate() {
             check_box(&format!("light_regions[{k}]"), &region.min, &region.max, "")?;
@@ -630,6 +639,29 @@ impl Scene {
                 .ceil()
                 .max(1.0)
         })
+    }
+
+    /// Where the probe volume is baked: `Some(boxes)` when the scene has dynamic objects and
+    /// every one lists [`DynamicObject::regions`] — each region grown by one `probe_spacing` on
+    /// every side, so that a lookup anywhere inside a region finds the 8 grid points around it
+    /// — and `None` for the whole level (an object that may go anywhere, or no dynamic object:
+    /// the probes then shade clutter). The bake adds each clutter object's bounds, grown the
+    /// same, to the boxes: MRT shades clutter from the probes.
+    pub fn probe_regions(&self) -> Option<Vec<Aabb>> {
+        if self.dynamic.is_empty() || self.dynamic.iter().any(|d| d.regions.is_empty()) {
+            return None;
+        }
+        let grow = self.settings.probe_spacing;
+        Some(
+            self.dynamic
+                .iter()
+                .flat_map(|d| &d.regions)
+                .map(|r| Aabb {
+                    min: r.min.map(|x| x - grow),
+                    max: r.max.map(|x| x + grow),
+                })
+                .collect(),
+        )
     }
 
     /// The probe volume is baked when the scene has clutter or dynamic objects; refuse a grid

@@ -1255,3 +1255,60 @@ fn mesh_paths_may_not_leave_the_scene_directory() {
         );
     }
 }
+
+#[test]
+fn dynamic_regions_are_boxes_and_every_object_must_list_them_to_narrow_the_probes() {
+    let robot = |regions: Value| {
+        json!([{ "id": "robot", "mesh": "robot.gltf", "albedo": [0.2, 0.2, 0.2],
+                 "regions": regions }])
+    };
+    let v = with(
+        rich(),
+        "/dynamic",
+        robot(json!([{ "min": [1, 0, 1], "max": [1, 2, 3] }])),
+    );
+    check_exact(
+        v,
+        r#"dynamic "robot": regions[0].max.x (1) <= regions[0].min.x (1)"#,
+    );
+    let v = with(
+        rich(),
+        "/dynamic",
+        robot(json!([{ "min": [0, 0, 0], "max": [1, 1, 1] }, { "min": [2, 0, 0] }])),
+    );
+    assert!(
+        Scene::from_json(&v.to_string()).is_err(),
+        "a region without max"
+    );
+
+    // Every object lists regions: the probes follow them, grown by one probe spacing.
+    let v = with(
+        rich(),
+        "/dynamic",
+        robot(json!([{ "min": [1, 0, 1], "max": [2, 1, 3] }])),
+    );
+    let scene = Scene::from_json(&v.to_string()).unwrap();
+    let s = scene.settings.probe_spacing;
+    let regions = scene
+        .probe_regions()
+        .expect("every dynamic object lists regions");
+    assert_eq!(regions.len(), 1);
+    assert_eq!(regions[0].min, [1.0 - s, -s, 1.0 - s]);
+    assert_eq!(regions[0].max, [2.0 + s, 1.0 + s, 3.0 + s]);
+    // One object without regions may go anywhere: the whole level.
+    let mut two = v.clone();
+    two["dynamic"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({ "id": "cat", "mesh": "cat.glb", "albedo": [0.5, 0.5, 0.5] }));
+    assert_eq!(
+        Scene::from_json(&two.to_string()).unwrap().probe_regions(),
+        None
+    );
+    assert_eq!(
+        Scene::from_json(&rich().to_string())
+            .unwrap()
+            .probe_regions(),
+        None
+    );
+}

@@ -281,3 +281,93 @@ fn units_then_assembly_give_the_bundle_of_one_piece() {
         let _ = std::fs::remove_dir_all(&cache_dir);
     }
 }
+
+/// `lightfarm bake --cache`: a rebake of inputs this build baked before hands back the bundle
+/// it wrote without baking (the shape entries deleted in between stay gone: nothing was read
+/// or computed); a changed mesh file bakes again, as does a corrupt memo entry, dropped — and
+/// every time the bytes are the same.
+#[test]
+fn a_rebake_of_unchanged_inputs_reuses_the_bundle_and_any_change_bakes() {
+    use lightfarm_server::cli::bake::{run, BakeArgs};
+    let root = std::env::temp_dir().join(format!("lf-memo-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    let src = scene_dir("cornell_mesh");
+    for f in ["short_box.gltf", "short_box.bin"] {
+        std::fs::copy(src.join(f), root.join(f)).unwrap();
+    }
+    let (scene, _) = load_scene("cornell_mesh", 4, 64);
+    std::fs::write(
+        root.join("scene.json"),
+        serde_json::to_string(&scene).unwrap(),
+    )
+    .unwrap();
+    let cache = root.join("cache");
+    let bake_to = |out: &str| {
+        run(BakeArgs {
+            scene: root.join("scene.json"),
+            out: root.join(out),
+            cache: Some(cache.clone()),
+            full: false,
+            transport: None,
+            codec: None,
+            quiet: true,
+        })
+        .unwrap();
+        std::fs::read(root.join(out)).unwrap()
+    };
+    let files = |dir: &std::path::Path, ext: &str| -> Vec<std::path::PathBuf> {
+        std::fs::read_dir(dir)
+            .map(|d| {
+                d.map(|e| e.unwrap().path())
+                    .filter(|p| p.extension().is_some_and(|e| e == ext))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let forget_shapes = || {
+        for p in files(&cache, "lfshape") {
+            std::fs::remove_file(p).unwrap();
+        }
+    };
+    let first = bake_to("a.lfb");
+    assert!(!files(&cache, "lfshape").is_empty());
+    assert_eq!(files(&cache.join("bundles"), "lfbundle").len(), 1);
+
+    forget_shapes();
+    assert!(bake_to("b.lfb") == first, "the memoised bundle differs");
+    assert!(files(&cache, "lfshape").is_empty(), "the rebake baked");
+
+    // The glTF file changed (a space after its JSON: the same geometry): a bake, same bytes.
+    let gltf = root.join("short_box.gltf");
+    let mut text = std::fs::read(&gltf).unwrap();
+    text.push(b' ');
+    std::fs::write(&gltf, &text).unwrap();
+    assert!(bake_to("c.lfb") == first);
+    assert!(
+        !files(&cache, "lfshape").is_empty(),
+        "a changed mesh file did not bake"
+    );
+    assert_eq!(files(&cache.join("bundles"), "lfbundle").len(), 2);
+
+    // Corrupt memo entries are dropped and baked again.
+    for p in files(&cache.join("bundles"), "lfbundle") {
+        let mut bytes = std::fs::read(&p).unwrap();
+        let mid = bytes.len() / 2;
+        bytes[mid] ^= 0x40;
+        std::fs::write(&p, &bytes).unwrap();
+    }
+    forget_shapes();
+    assert!(bake_to("d.lfb") == first);
+    assert!(
+        !files(&cache, "lfshape").is_empty(),
+        "a corrupt memo entry was used"
+    );
+    forget_shapes();
+    assert!(bake_to("e.lfb") == first);
+    assert!(
+        files(&cache, "lfshape").is_empty(),
+        "the rewritten entry was not used"
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -6,6 +6,7 @@ use lightfarm_proto::scene::{BundleCodec, Scene, Transport};
 
 use super::progress_bar::Bar;
 use super::{read_text, write_atomic};
+use crate::bake::cache::bundle_memo::{BundleMemo, MemoOptions};
 use crate::bake::cache::shape::ShapeCache;
 use crate::bake::pipeline::encoding::encode_options;
 use crate::bake::{bake, BakeOptions};
@@ -56,6 +57,40 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
         Some(dir) => Some(ShapeCache::open(dir)?),
         None => None,
     };
+    // A rebake of inputs this build baked before: the bytes it wrote then.
+    let memo = match &args.cache {
+        Some(cache_dir) => {
+            let options = MemoOptions {
+                full: args.full,
+                transport: args.transport,
+                codec: args.codec,
+            };
+            let key = BundleMemo::key(&scene, &dir, &options);
+            Some((BundleMemo::open(cache_dir)?, key))
+        }
+        None => None,
+    };
+    if let Some((memo, Some(key))) = &memo {
+        let start = std::time::Instant::now();
+        if let Some(bytes) = memo.get(key) {
+            write_atomic(&args.out, &bytes)?;
+            if !args.quiet {
+                eprintln!(
+                    "baked {}: the same inputs (scene, options, mesh files) were baked by this \
+                     build before; their bundle is reused from the cache ({})",
+                    scene.name,
+                    memo.path(key).display()
+                );
+                println!(
+                    "bundle={} bytes={} bake_seconds={:.3}",
+                    args.out.display(),
+                    bytes.len(),
+                    start.elapsed().as_secs_f64()
+                );
+            }
+            return Ok(());
+        }
+    }
     let options = BakeOptions {
         cache,
         full: args.full,
@@ -67,6 +102,12 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
     let (bytes, encoded) = bundle.encode_with(&encode_options(&scene.settings, args.codec));
     report.bundle_bytes = bytes.len();
     write_atomic(&args.out, &bytes)?;
+    if let Some((memo, Some(key))) = &memo {
+        if let Err(e) = memo.put(key, &bytes) {
+            // Only a later rebake's time depends on it.
+            tracing::warn!(error = %e, "could not memoise the bundle in the cache");
+        }
+    }
     if !args.quiet {
         eprintln!(
             "baked {}: {} blocks, {} texels, {} shapes ({} from cache, {} computed), ranks {}",

@@ -11,10 +11,14 @@
 //! - [`drt_rays`]: DRT ray-pass units and clutter prior bases (`drt/`), keyed and reused by
 //!   [`crate::bake::drt::rays`].
 //! - [`factors`]: the DRT compaction's truncated SVDs (`factors/`), keyed by the matrix.
+//! - [`bundle_memo`]: whole encoded bundles (`bundles/`), keyed by everything a bake reads
+//!   (the engine's build, the scene, the options, the mesh files), so a rebake with nothing
+//!   changed costs a lookup.
 //!
 //! Each cache owns its key and payload serialization; `<dir>` is the operator cache directory
 //! [`shape::ShapeCache`] opens.
 
+pub mod bundle_memo;
 pub mod dnrt;
 pub mod drt_rays;
 pub mod entry;

@@ -30,7 +30,8 @@ use std::process::Command;
 use std::time::Instant;
 
 use lightfarm_client::{
-    direct_from_point_lights_adaptive, Bounces, Method, Occluders, Runtime, DEFAULT_TOLERANCE,
+    direct_from_point_lights_adaptive, direct_scale, Bounces, Method, Occluders, ReachDirect,
+    Runtime, DEFAULT_TOLERANCE,
 };
 use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
@@ -278,12 +279,22 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
     let mut runtime = Runtime::try_new(decoded.clone())?;
     let occluders = Occluders::from_layout(&decoded.layout);
     let client_lights = &lights.lights;
-    let direct = direct_from_point_lights_adaptive(
-        &decoded.layout,
-        &occluders,
-        client_lights,
-        DIRECT_SAMPLES_PER_EDGE,
-    );
+    // Every light lit where it reaches (the same bits as lighting every texel).
+    let direct = match ReachDirect::new(&decoded, &occluders) {
+        Some(mut reach) => reach.all_lights(
+            &decoded.layout,
+            &occluders,
+            client_lights,
+            DIRECT_SAMPLES_PER_EDGE,
+            direct_scale(&decoded.layout, &occluders),
+        ),
+        None => direct_from_point_lights_adaptive(
+            &decoded.layout,
+            &occluders,
+            client_lights,
+            DIRECT_SAMPLES_PER_EDGE,
+        ),
+    };
     let converged = Bounces::Converged {
         tolerance: DEFAULT_TOLERANCE,
     };

@@ -389,9 +389,10 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         "Growth with the block count N (least-squares slope on the log–log points): bake {}, \
          peak memory {}, bundle bytes {}, apply at one bounce {}, at all bounces {}, relighting \
          everything {}, moving one light {}. Relighting everything lights each of the level's \
-         lights (which grow with it) where that light reaches and applies every operator, so \
-         it grows about linearly; moving one light lights only the texels it reaches, which \
-         depend on where the light is, not on the level's size.\n",
+         lights (which grow with it) where that light reaches and applies every operator: it \
+         grows with the lights times what each one reaches, not with the lights times the \
+         level's texels; moving one light lights only the texels it reaches, which depend on \
+         where the light is, not on the level's size.\n",
         grows(&series(&|p| p.bake_seconds)),
         grows(&series(&|p| p.peak_rss_bytes as f64)),
         grows(&series(&|p| p.bundle_bytes as f64)),
