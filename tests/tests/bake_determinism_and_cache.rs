@@ -113,6 +113,8 @@ fn moving_one_pillar_retraces_its_neighbourhood_only_and_matches_a_fresh_bake() 
         block_texels
     );
     assert_eq!(second.shapes_computed, 0);
+    // The transport came from the cache (read for the blocks holding a buried texel only).
+    assert!(second.transport_from_cache);
     // What could see the pillar's old or new place is traced again: under a third of the level.
     assert!(
         d2.reused_texels > 0 && d2.traced_texels * 3 < block_texels,
@@ -137,6 +139,47 @@ fn moving_one_pillar_retraces_its_neighbourhood_only_and_matches_a_fresh_bake() 
     }
     let (again, third) = bake(&moved, &dir, &options, &NoProgress).unwrap();
     assert_eq!(third.drt.unwrap().reused_texels, 0);
+    assert!(again.encode() == fresh);
+
+    // The pillar stands on a floor texel's centre: that texel is buried, so inpainting reads
+    // the cached transport into hall_n. Corrupt every target block's transport entry (the
+    // main entry reads fine): the loss is found mid-bake, by inpainting; the main entry is
+    // dropped and the bake runs once more, computing the transport: same bytes, and the
+    // transport is stored again, then read block by block.
+    let mut on_texel = moved.clone();
+    let pillar = on_texel
+        .clutter
+        .iter_mut()
+        .find(|c| c.id == "pillar_n_b")
+        .unwrap();
+    let b = pillar.box_.as_mut().unwrap();
+    (b.min[0], b.max[0], b.min[2], b.max[2]) = (9.5, 10.0, 16.25, 16.75);
+    let (fresh, _) = bake_scene(&on_texel, &dir, Transport::Lightfield, false);
+    let mut corrupted = 0;
+    for entry in std::fs::read_dir(cache_dir.join("transport")).unwrap() {
+        let path = entry.unwrap().path();
+        if !path.file_name().unwrap().to_string_lossy().contains(".t") {
+            continue;
+        }
+        let mut bytes = std::fs::read(&path).unwrap();
+        let mid = bytes.len() / 2;
+        bytes[mid] ^= 0x40;
+        std::fs::write(&path, &bytes).unwrap();
+        corrupted += 1;
+    }
+    assert!(corrupted > 1);
+    let (again, fourth) = bake(&on_texel, &dir, &options, &NoProgress).unwrap();
+    assert!(fourth.drt.unwrap().buried_scene_texels > 0);
+    assert!(
+        !fourth.transport_from_cache,
+        "the unreadable transport was used"
+    );
+    assert!(again.encode() == fresh);
+    let (again, fifth) = bake(&on_texel, &dir, &options, &NoProgress).unwrap();
+    assert!(
+        fifth.transport_from_cache,
+        "the transport was not stored again"
+    );
     assert!(again.encode() == fresh);
     let _ = std::fs::remove_dir_all(&cache_dir);
 }

@@ -2,14 +2,25 @@
 //! depends on: the blocks (boxes, open faces, shape keys) and the transport settings. MRT
 //! transport ignores clutter, so moving, adding or removing clutter reuses it whole.
 //!
-//! Owns the key ([`transport_key`]), the entries' kind ([`ENTRY`]:
-//! `<dir>/transport/<key>.lftransport`) and the payload (f64 matrices, bit-exact). Framing,
-//! atomic writes, verification and marking use are [`crate::bake::cache::entry`]'s: a stale
-//! entry is a miss, a corrupt one (or one that does not decode) is deleted and missed.
+//! Owns the key ([`transport_key`]), the entries' kind ([`ENTRY`]) and the payloads (f64
+//! matrices, bit-exact), in two parts:
+//! - the main entry `<dir>/transport/<key>.lftransport`: every operator's header (target block,
+//!   target face, source block) in transport order, the compaction and the statistics: what a
+//!   hit reads ([`TransportCache::get`]);
+//! - per target block `<key>.t<block>.lftransport`: that block's operators' matrices in header
+//!   order, read only when asked for ([`LazyTransport`], a
+//!   [`crate::bake::transport::source::TransportSource`]): DRT's inpainting needs the blocks
+//!   holding a buried texel, a handful, where the whole is 1.86 GB at 1,000 blocks.
+//!
+//! Framing, atomic writes, verification and marking use are [`crate::bake::cache::entry`]'s: a
+//! stale entry is a miss, a corrupt one (or one that does not decode) is deleted and missed; a
+//! target block's entry that cannot be read when asked for also deletes the main entry, so the
+//! next bake computes the transport (and [`crate::bake::bake`] bakes once more at once).
 //!
 //! Invariant: a hit returns exactly what the computation would (the same f64 bits), so a bake
 //! is the same bytes with or without the cache.
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use faer::Mat;
@@ -21,10 +32,11 @@ use lightfarm_proto::Face;
 use crate::bake::cache::entry::{EntryKind, EntryStore};
 use crate::bake::transport::build::{MrtTransport, PropBlock, TracedBlock, TransportStats};
 use crate::bake::transport::compaction::CompactTransport;
+use crate::bake::transport::source::{TransportSource, TransportUnavailable};
 
 /// Bumped whenever the transport computed for the same inputs, or its payload, changes (2: the
-/// shared entry framing). In every key, and every entry's version tag.
-const CODE_VERSION: &str = "lightfarm-transport-2";
+/// shared entry framing; 3: each target block's operators an entry of their own). In every key, and every entry's version tag.
+const CODE_VERSION: &str = "lightfarm-transport-3";
 
 /// Where transport entries live and their version.
 pub const ENTRY: EntryKind = EntryKind {
@@ -93,28 +105,62 @@ pub(crate) fn read_mat(r: &mut Reader) -> Result<Mat<f64>, WireError> {
     Ok(m)
 }
 
-fn encode(t: &CachedTransport) -> Vec<u8> {
+/// Per transport operator, in transport order: its target block, its target face (lightfield;
+/// `None` traced) and its source block. The main entry lists these; each target block's
+/// matrices are an entry of their own, in this order.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Header {
+    target: usize,
+    face: Option<Face>,
+    source: usize,
+}
+
+fn headers(mrt: &MrtTransport) -> Vec<Header> {
+    match mrt {
+        MrtTransport::Lightfield(blocks) => blocks
+            .iter()
+            .map(|b| Header {
+                target: b.target_block,
+                face: Some(b.target_face),
+                source: b.source_block,
+            })
+            .collect(),
+        MrtTransport::Traced(blocks) => blocks
+            .iter()
+            .map(|b| Header {
+                target: b.target_block,
+                face: None,
+                source: b.source_block,
+            })
+            .collect(),
+    }
+}
+
+fn matrices(mrt: &MrtTransport) -> Vec<&Mat<f64>> {
+    match mrt {
+        MrtTransport::Lightfield(blocks) => blocks.iter().map(|b| &b.matrix).collect(),
+        MrtTransport::Traced(blocks) => blocks.iter().map(|b| &b.matrix).collect(),
+    }
+}
+
+/// The key of target block `target`'s matrices beside main entry `key`.
+fn target_key(key: &str, target: usize) -> String {
+    format!("{key}.t{target}")
+}
+
+/// The main entry: the kind, every operator's header, the compaction and the statistics.
+fn encode_main(t: &CachedTransport) -> Vec<u8> {
     let mut w = Writer::new();
-    match &t.mrt {
-        MrtTransport::Lightfield(blocks) => {
-            w.u8(0);
-            w.u32(blocks.len() as u32);
-            for b in blocks {
-                w.u32(b.target_block as u32);
-                w.u8(b.target_face.index() as u8);
-                w.u32(b.source_block as u32);
-                write_mat(&mut w, &b.matrix);
-            }
-        }
-        MrtTransport::Traced(blocks) => {
-            w.u8(1);
-            w.u32(blocks.len() as u32);
-            for b in blocks {
-                w.u32(b.target_block as u32);
-                w.u32(b.source_block as u32);
-                write_mat(&mut w, &b.matrix);
-            }
-        }
+    w.u8(match t.mrt {
+        MrtTransport::Lightfield(_) => 0,
+        MrtTransport::Traced(_) => 1,
+    });
+    let hs = headers(&t.mrt);
+    w.u32(hs.len() as u32);
+    for h in &hs {
+        w.u32(h.target as u32);
+        w.u8(h.face.map_or(u8::MAX, |f| f.index() as u8));
+        w.u32(h.source as u32);
     }
     match &t.compact {
         None => w.u8(0),
@@ -143,41 +189,41 @@ fn encode(t: &CachedTransport) -> Vec<u8> {
     w.bytes
 }
 
-fn decode(bytes: &[u8]) -> Result<CachedTransport, WireError> {
+/// What the main entry holds.
+struct Main {
+    traced: bool,
+    headers: Vec<Header>,
+    compact: Option<Vec<CompactTransport>>,
+    stats: TransportStats,
+}
+
+fn decode_main(bytes: &[u8]) -> Result<Main, WireError> {
     let mut r = Reader::new(bytes);
-    let kind = r.u8()?;
-    let n = r.u32()? as usize;
-    let mrt = match kind {
-        0 => {
-            let mut blocks = Vec::with_capacity(n.min(r.remaining() / 17));
-            for _ in 0..n {
-                let target_block = r.u32()? as usize;
-                let face = r.u8()? as usize;
-                let target_face = *Face::ALL
-                    .get(face)
-                    .ok_or_else(|| WireError::Invalid("face".into()))?;
-                blocks.push(PropBlock {
-                    target_block,
-                    target_face,
-                    source_block: r.u32()? as usize,
-                    matrix: read_mat(&mut r)?,
-                });
-            }
-            MrtTransport::Lightfield(blocks)
-        }
-        1 => {
-            let mut blocks = Vec::with_capacity(n.min(r.remaining() / 16));
-            for _ in 0..n {
-                blocks.push(TracedBlock {
-                    target_block: r.u32()? as usize,
-                    source_block: r.u32()? as usize,
-                    matrix: read_mat(&mut r)?,
-                });
-            }
-            MrtTransport::Traced(blocks)
-        }
+    let traced = match r.u8()? {
+        0 => false,
+        1 => true,
         _ => return Err(WireError::Invalid("transport kind".into())),
     };
+    let n = r.u32()? as usize;
+    let mut headers = Vec::with_capacity(n.min(r.remaining() / 9));
+    for _ in 0..n {
+        let target = r.u32()? as usize;
+        let face = match (r.u8()?, traced) {
+            (u8::MAX, true) => None,
+            (f, false) => Some(
+                *Face::ALL
+                    .get(f as usize)
+                    .ok_or_else(|| WireError::Invalid("face".into()))?,
+            ),
+            _ => return Err(WireError::Invalid("face".into())),
+        };
+        let source = r.u32()? as usize;
+        headers.push(Header {
+            target,
+            face,
+            source,
+        });
+    }
     let compact = match r.u8()? {
         0 => None,
         1 => {
@@ -211,11 +257,113 @@ fn decode(bytes: &[u8]) -> Result<CachedTransport, WireError> {
     if r.remaining() != 0 {
         return Err(WireError::Invalid("trailing bytes".into()));
     }
-    Ok(CachedTransport {
-        mrt,
+    Ok(Main {
+        traced,
+        headers,
         compact,
         stats,
     })
+}
+
+/// `count` matrices, back to back (one target block's entry).
+fn decode_matrices(bytes: &[u8], count: usize) -> Result<Vec<Mat<f64>>, WireError> {
+    let mut r = Reader::new(bytes);
+    let out = (0..count)
+        .map(|_| read_mat(&mut r))
+        .collect::<Result<Vec<_>, _>>()?;
+    if r.remaining() != 0 {
+        return Err(WireError::Invalid("trailing bytes".into()));
+    }
+    Ok(out)
+}
+
+/// What a cache hit hands out: the compaction and statistics read, the f64 transport left on
+/// disk until someone asks for the blocks it needs.
+pub struct CachedHit {
+    pub compact: Option<Vec<CompactTransport>>,
+    pub stats: TransportStats,
+    pub transport: LazyTransport,
+}
+
+/// A cached f64 transport read block by block ([`TransportSource`]): each target block's
+/// operators are an entry of their own, verified when read. A block that cannot be read drops
+/// the main entry, so the next bake computes the transport again.
+pub struct LazyTransport {
+    store: EntryStore,
+    key: String,
+    traced: bool,
+    headers: Vec<Header>,
+}
+
+impl LazyTransport {
+    /// The whole transport (every target block).
+    pub fn load_all(&self) -> Result<MrtTransport, TransportUnavailable> {
+        let all = vec![true; self.headers.iter().map(|h| h.target + 1).max().unwrap_or(0)];
+        self.into_targets(&all)
+    }
+
+    fn unavailable(&self, block: usize, reason: &str) -> TransportUnavailable {
+        let _ = std::fs::remove_file(self.store.path(&self.key));
+        TransportUnavailable {
+            block,
+            reason: reason.to_string(),
+        }
+    }
+}
+
+impl TransportSource for LazyTransport {
+    fn into_targets(&self, targets: &[bool]) -> Result<MrtTransport, TransportUnavailable> {
+        let marked = |b: usize| targets.get(b).copied().unwrap_or(false);
+        // Each marked target's matrices, in header order.
+        let mut by_target: BTreeMap<usize, std::vec::IntoIter<Mat<f64>>> = BTreeMap::new();
+        for h in &self.headers {
+            if !marked(h.target) || by_target.contains_key(&h.target) {
+                continue;
+            }
+            let count = self.headers.iter().filter(|x| x.target == h.target).count();
+            let mats = self
+                .store
+                .get(&target_key(&self.key, h.target), |p| {
+                    decode_matrices(p, count).ok()
+                })
+                .hit()
+                .ok_or_else(|| self.unavailable(h.target, "missing or corrupt"))?;
+            by_target.insert(h.target, mats.into_iter());
+        }
+        let mut next = |h: &Header| {
+            by_target
+                .get_mut(&h.target)
+                .and_then(|m| m.next())
+                .ok_or_else(|| self.unavailable(h.target, "fewer matrices than operators"))
+        };
+        let wanted = self.headers.iter().filter(|h| marked(h.target));
+        Ok(if self.traced {
+            MrtTransport::Traced(
+                wanted
+                    .map(|h| {
+                        Ok(TracedBlock {
+                            target_block: h.target,
+                            source_block: h.source,
+                            matrix: next(h)?,
+                        })
+                    })
+                    .collect::<Result<_, _>>()?,
+            )
+        } else {
+            MrtTransport::Lightfield(
+                wanted
+                    .map(|h| {
+                        Ok(PropBlock {
+                            target_block: h.target,
+                            target_face: h.face.expect("a lightfield header has a face"),
+                            source_block: h.source,
+                            matrix: next(h)?,
+                        })
+                    })
+                    .collect::<Result<_, _>>()?,
+            )
+        })
+    }
 }
 
 /// A directory of cached transports.
@@ -232,13 +380,38 @@ impl TransportCache {
         })
     }
 
-    /// The cached transport, or None (a corrupt entry is deleted).
-    pub fn get(&self, key: &str) -> Option<CachedTransport> {
-        self.store.get(key, |payload| decode(payload).ok()).hit()
+    /// The cached transport, or None (a corrupt main entry is deleted). Only the main entry is
+    /// read: the f64 operators stay on disk until [`LazyTransport`] is asked for them.
+    pub fn get(&self, key: &str) -> Option<CachedHit> {
+        let main = self
+            .store
+            .get(key, |payload| decode_main(payload).ok())
+            .hit()?;
+        Some(CachedHit {
+            compact: main.compact,
+            stats: main.stats,
+            transport: LazyTransport {
+                store: self.store.clone(),
+                key: key.to_string(),
+                traced: main.traced,
+                headers: main.headers,
+            },
+        })
     }
 
+    /// Stores `transport`: each target block's operators, then the main entry (so a main
+    /// entry is never there before its blocks).
     pub fn put(&self, key: &str, transport: &CachedTransport) -> std::io::Result<()> {
-        self.store.put(key, &encode(transport))
+        let hs = headers(&transport.mrt);
+        let ms = matrices(&transport.mrt);
+        let mut by_target: BTreeMap<usize, Writer> = BTreeMap::new();
+        for (h, m) in hs.iter().zip(ms) {
+            write_mat(by_target.entry(h.target).or_insert_with(Writer::new), m);
+        }
+        for (target, w) in by_target {
+            self.store.put(&target_key(key, target), &w.bytes)?;
+        }
+        self.store.put(key, &encode_main(transport))
     }
 }
 
@@ -261,18 +434,48 @@ mod tests {
         }
     }
 
+    fn prop(target: usize, face: usize, source: usize, seed: f64) -> PropBlock {
+        PropBlock {
+            target_block: target,
+            target_face: Face::ALL[face],
+            source_block: source,
+            matrix: mat(3, 2, seed),
+        }
+    }
+
+    /// Every operator's header and matrix bits, in order.
+    fn bits(mrt: &MrtTransport) -> Vec<(Header, Vec<u64>)> {
+        headers(mrt)
+            .into_iter()
+            .zip(matrices(mrt))
+            .map(|(h, m)| {
+                let mut b = vec![m.nrows() as u64, m.ncols() as u64];
+                for i in 0..m.nrows() {
+                    for j in 0..m.ncols() {
+                        b.push(m[(i, j)].to_bits());
+                    }
+                }
+                (h, b)
+            })
+            .collect()
+    }
+
+    /// A hit reads the main entry only; asked for some target blocks it reads theirs and gives
+    /// exactly their operators, in transport order, bit for bit; the whole transport round
+    /// trips, lightfield and traced.
     #[test]
-    fn transport_round_trips_bit_exact_through_the_cache() {
+    fn transport_round_trips_bit_exact_and_is_read_block_by_block() {
         let root = std::env::temp_dir().join(format!("lf-transport-cache-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
         let cache = TransportCache::open(&root).unwrap();
+        // Targets interleaved, as the propagation lists them.
         let lightfield = CachedTransport {
-            mrt: MrtTransport::Lightfield(vec![PropBlock {
-                target_block: 1,
-                target_face: Face::ALL[4],
-                source_block: 0,
-                matrix: mat(3, 2, 0.1),
-            }]),
+            mrt: MrtTransport::Lightfield(vec![
+                prop(1, 4, 0, 0.1),
+                prop(2, 0, 0, 0.2),
+                prop(1, 5, 2, 0.3),
+                prop(2, 1, 1, 0.4),
+            ]),
             compact: None,
             stats: stats(),
         };
@@ -292,16 +495,73 @@ mod tests {
             stats: stats(),
         };
         assert!(cache.get("k").is_none());
-        for t in [lightfield, traced] {
-            cache.put("k", &t).unwrap();
-            let back = cache.get("k").expect("a hit");
-            assert_eq!(encode(&back), encode(&t));
+        for t in [&lightfield, &traced] {
+            cache.put("k", t).unwrap();
+            let hit = cache.get("k").expect("a hit");
+            assert_eq!(hit.stats, t.stats);
+            assert_eq!(
+                hit.compact.as_ref().map(|c| c.len()),
+                t.compact.as_ref().map(|c| c.len())
+            );
+            if let (Some(a), Some(b)) = (&hit.compact, &t.compact) {
+                assert_eq!(a[0].sources, b[0].sources);
+                assert_eq!(a[0].z, b[0].z);
+                assert_eq!(a[0].dropped_energy.to_bits(), b[0].dropped_energy.to_bits());
+            }
+            assert_eq!(bits(&hit.transport.load_all().unwrap()), bits(&t.mrt));
         }
-        assert!(root.join(ENTRY.relative_path("k")).is_file());
-        // A payload that does not decode (trailing bytes) is corrupt: deleted and missed.
-        let mut bytes = encode(&cache.get("k").unwrap());
-        bytes.push(0);
-        cache.store.put("k", &bytes).unwrap();
+
+        // Block by block: target 1 alone, then 2 alone, in the order the transport lists them.
+        cache.put("k", &lightfield).unwrap();
+        let hit = cache.get("k").unwrap();
+        let all = bits(&lightfield.mrt);
+        for target in [1, 2] {
+            let mut marked = vec![false; 3];
+            marked[target] = true;
+            let want: Vec<_> = all
+                .iter()
+                .filter(|(h, _)| h.target == target)
+                .cloned()
+                .collect();
+            assert_eq!(want.len(), 2);
+            assert_eq!(bits(&hit.transport.into_targets(&marked).unwrap()), want);
+        }
+        // Held in memory, the same answer.
+        assert_eq!(
+            bits(&lightfield.mrt.into_targets(&[false, true, false]).unwrap()),
+            bits(&hit.transport.into_targets(&[false, true, false]).unwrap())
+        );
+
+        // A target block's entry lost (evicted): the read fails, naming the block, and the
+        // main entry goes, so the next bake computes the transport again.
+        std::fs::remove_file(root.join(ENTRY.relative_path(&target_key("k", 2)))).unwrap();
+        assert!(hit.transport.into_targets(&[false, true, false]).is_ok());
+        let Err(err) = hit.transport.into_targets(&[false, false, true]) else {
+            panic!("a lost block was read");
+        };
+        assert_eq!(err.block, 2);
+        assert!(err.to_string().contains("block 2"), "{err}");
+        assert!(cache.get("k").is_none());
+
+        // A corrupt target entry (its own checksum) fails the same way.
+        cache.put("k", &lightfield).unwrap();
+        let path = root.join(ENTRY.relative_path(&target_key("k", 1)));
+        let mut bytes = std::fs::read(&path).unwrap();
+        let last = bytes.len() - 1;
+        bytes[last] ^= 1;
+        std::fs::write(&path, &bytes).unwrap();
+        let hit = cache.get("k").unwrap();
+        let Err(err) = hit.transport.load_all() else {
+            panic!("a corrupt block was read");
+        };
+        assert_eq!(err.block, 1);
+        assert!(!path.exists() && cache.get("k").is_none());
+
+        // A main entry that does not decode (trailing bytes) is corrupt: deleted and missed.
+        cache.put("k", &lightfield).unwrap();
+        let mut main = encode_main(&lightfield);
+        main.push(0);
+        cache.store.put("k", &main).unwrap();
         assert!(cache.get("k").is_none());
         assert!(!root.join(ENTRY.relative_path("k")).exists());
         let _ = std::fs::remove_dir_all(&root);

@@ -49,7 +49,7 @@ use crate::bake::drt::rows::{add_row, RowMajor, RowsBySource};
 use crate::bake::mrt::shape::ShapeOperators;
 use crate::bake::scene::geometry::Geometry;
 use crate::bake::tracer::Tracer;
-use crate::bake::transport::build::MrtTransport;
+use crate::bake::transport::source::TransportSource;
 
 /// A delta operator block in f64.
 pub struct DeltaBlock {
@@ -110,10 +110,10 @@ pub struct DrtInputs<'a> {
     pub block_geometry: &'a Geometry,
     /// Per block, its shape's operators (`L_imp` rows are read per hit).
     pub shapes: &'a [&'a ShapeOperators],
-    /// The blocks' MRT transport (what inpainting cancels on buried texels); at least the
+    /// The blocks' MRT transport (what inpainting cancels on buried texels): at least the
     /// operators into the blocks [`crate::bake::drt::inpaint::inpainting_targets`] marks (a
-    /// bake keeps no others).
-    pub mrt: &'a MrtTransport,
+    /// bake keeps no others); only those into blocks holding a buried texel are read.
+    pub mrt: &'a dyn TransportSource,
 }
 
 /// Which object owns each global texel: blocks `0..n_blocks`, then clutter `n_blocks + c`.
@@ -232,8 +232,15 @@ pub fn build_drt(
     let widths: Vec<usize> = clutter.iter().map(|(_, p)| p.basis.basis.ncols()).collect();
 
     let mut blocks = block_texel_rows(inputs, &rays.block, &rows, &burial, &mut stats);
+    // The transport into the blocks holding a buried texel: all inpainting reads.
+    let buried_in: Vec<bool> = g.block_texels[..n_blocks]
+        .iter()
+        .map(|r| blocks.buried[r.clone()].iter().any(|b| *b))
+        .collect();
+    let mrt = inputs.mrt.into_targets(&buried_in)?;
     inpaint(
         inputs,
+        &mrt,
         &widths,
         &mut blocks.per_target,
         &blocks.buried,

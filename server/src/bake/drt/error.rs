@@ -3,6 +3,7 @@
 //! on the other for it.
 
 use crate::bake::math::low_rank::LowRankError;
+use crate::bake::transport::source::TransportUnavailable;
 
 /// Why the DRT operators could not be built.
 #[derive(Debug, thiserror::Error)]
@@ -11,4 +12,6 @@ pub enum DrtError {
     LowRank(#[from] LowRankError),
     #[error("ray cache: {0}")]
     Cache(#[from] std::io::Error),
+    #[error(transparent)]
+    Transport(#[from] TransportUnavailable),
 }

@@ -21,6 +21,7 @@ use crate::bake::drt::lit_source::LitSource;
 use crate::bake::drt::rows::{add_row, RowsBySource};
 use crate::bake::drt::sight::ClutterSight;
 use crate::bake::scene::geometry::Geometry;
+use crate::bake::transport::build::MrtTransport;
 
 /// Per block: whether [`inpaint`] may read the MRT transport into it, decided before any ray
 /// so that a bake can drop the rest of the transport first: whether clutter may be in sight
@@ -41,17 +42,19 @@ pub fn inpainting_targets(
 }
 
 /// Inpaints the buried block texels (`buried`, by global texel) of every target block into
-/// `per_target` (or `gathered`); `clutter_widths` are the DRT clutter objects' basis sizes.
+/// `per_target` (or `gathered`), reading `mrt`, which holds every operator into each block with
+/// a buried texel; `clutter_widths` are the DRT clutter objects' basis sizes.
 /// Counts texels without a valid neighbour in `without_neighbours`.
 pub fn inpaint(
     inputs: &DrtInputs,
+    mrt: &MrtTransport,
     clutter_widths: &[usize],
     per_target: &mut [RowsBySource],
     buried: &[bool],
     gathered: &mut BTreeMap<u32, Vec<(u32, u32)>>,
     without_neighbours: &mut usize,
 ) {
-    let (g, shapes, mrt) = (inputs.geometry, inputs.shapes, inputs.mrt);
+    let (g, shapes) = (inputs.geometry, inputs.shapes);
     let n_blocks = inputs.scene.blocks.len();
     for (target, map) in per_target.iter_mut().enumerate() {
         let range = g.block_texels[target].clone();

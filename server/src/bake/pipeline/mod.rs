@@ -22,7 +22,6 @@ use lightfarm_proto::scene::{Scene, SceneError, Transport};
 
 use crate::bake::cache::factors::FactorCache;
 use crate::bake::cache::shape::ShapeCache;
-use crate::bake::cache::transport::CachedTransport;
 use crate::bake::drt::build::{DrtInputs, DrtStats};
 use crate::bake::drt::compaction::DeltaCompactionStats;
 use crate::bake::drt::inpaint::inpainting_targets;
@@ -91,10 +90,31 @@ pub enum BakeError {
     Transport(String),
     #[error("operator cache: {0}")]
     Cache(#[from] std::io::Error),
+    /// A cached transport's operators could not be read back; its entry is dropped and
+    /// [`bake`] bakes once more, computing the transport.
+    #[error("operator cache: {0}")]
+    CachedTransport(String),
 }
 
-/// Bakes a validated scene. `scene_dir` resolves mesh paths.
+/// Bakes a validated scene. `scene_dir` resolves mesh paths. When a cached transport's
+/// operators turn out unreadable mid-bake (evicted or corrupt; the entry is dropped), it
+/// bakes once more, computing the transport: the same bytes.
 pub fn bake(
+    scene: &Scene,
+    scene_dir: &Path,
+    options: &BakeOptions,
+    progress: &dyn Progress,
+) -> Result<(Bundle, BakeReport), BakeError> {
+    match bake_once(scene, scene_dir, options, progress) {
+        Err(BakeError::CachedTransport(why)) => {
+            tracing::warn!(%why, "cached transport unreadable; baking again without it");
+            bake_once(scene, scene_dir, options, progress)
+        }
+        done => done,
+    }
+}
+
+fn bake_once(
     scene: &Scene,
     scene_dir: &Path,
     options: &BakeOptions,
@@ -133,8 +153,8 @@ pub fn bake(
     let block_operators = plan.block_operators(&shapes);
     let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
     let transport_kind = options.transport.unwrap_or(scene.settings.transport);
-    let CachedTransport {
-        mut mrt,
+    let stages::BlockTransport {
+        mut held,
         compact,
         stats,
     } = stages::block_transport(
@@ -151,7 +171,7 @@ pub fn bake(
     )?;
     report.transport = stats;
     // Only the bundle reads the compaction (the transport dropped the lightfields itself).
-    let transport = to_bundle::transport_ops(compact.as_deref(), &mrt);
+    let transport = to_bundle::transport_ops(compact.as_deref(), &held);
     drop(compact);
     let mut bundle =
         to_bundle::mrt_bundle(scene, &openings, &plan, &shapes, &full_geometry, transport);
@@ -160,15 +180,17 @@ pub fn bake(
 
     // From here on only DRT's inpainting reads the f64 transport, and only into blocks where a
     // texel may be buried (none without clutter).
-    mrt.retain_targets(&inpainting_targets(scene, &openings, &full_geometry));
-    release_freed();
+    if let stages::HeldTransport::Computed(mrt) = &mut held {
+        mrt.retain_targets(&inpainting_targets(scene, &openings, &full_geometry));
+        release_freed();
+    }
     let drt_inputs = DrtInputs {
         scene,
         openings: &openings,
         geometry: &full_geometry,
         block_geometry: &block_geometry,
         shapes: &per_block,
-        mrt: &mrt,
+        mrt: held.source(),
     };
     let drt = stages::clutter_operators(&drt_inputs, cache, progress)?;
     if let Some(ops) = &drt {
@@ -183,7 +205,7 @@ pub fn bake(
         bundle.drt = Some(section);
         announce(&bundle);
     }
-    drop(mrt);
+    drop(held);
     release_freed();
     lap(&mut report, "clutter operators");
 

@@ -14,9 +14,12 @@ use lightfarm_proto::scene::{ProbeVolumeMode, Scene, Transform, Transport};
 
 use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
 use crate::bake::cache::shape::{Lookup, ShapeCache};
-use crate::bake::cache::transport::{transport_key, CachedTransport, TransportCache};
+use crate::bake::cache::transport::{
+    transport_key, CachedTransport, LazyTransport, TransportCache,
+};
 use crate::bake::dnrt::grid::bake_dnrt_grid;
 use crate::bake::drt::build::{build_drt, DrtInputs, DrtOperators};
+use crate::bake::drt::error::DrtError;
 use crate::bake::drt::rays::DrtRayCache;
 use crate::bake::math::sampling::Purpose;
 use crate::bake::mrt::one_bounce::gather_rows;
@@ -28,8 +31,11 @@ use crate::bake::scene::mesh_albedo::SurfaceAlbedo;
 use crate::bake::sh::probe_volume::{build_probe_volume, ProbeVolumeOps};
 use crate::bake::sh::responses::{build_sh_responses, ShResponseOps};
 use crate::bake::tracer::Tracer;
-use crate::bake::transport::build::{lightfield_transport, traced_transport, MrtTransport};
-use crate::bake::transport::compaction::compact_transport;
+use crate::bake::transport::build::{
+    lightfield_transport, traced_transport, MrtTransport, TransportStats,
+};
+use crate::bake::transport::compaction::{compact_transport, CompactTransport};
+use crate::bake::transport::source::TransportSource;
 
 use super::plan::ShapePlan;
 use super::{BakeError, BakeReport};
@@ -114,9 +120,35 @@ impl SplitShapes {
     }
 }
 
+/// The blocks' f64 transport as the bake holds it: computed (in memory), or a cache hit whose
+/// operators stay on disk until DRT's inpainting asks for the few blocks it reads.
+pub enum HeldTransport {
+    Computed(MrtTransport),
+    Cached(LazyTransport),
+}
+
+impl HeldTransport {
+    /// Where DRT's inpainting reads it.
+    pub fn source(&self) -> &dyn TransportSource {
+        match self {
+            HeldTransport::Computed(mrt) => mrt,
+            HeldTransport::Cached(lazy) => lazy,
+        }
+    }
+}
+
+/// What the transport stage hands on.
+pub struct BlockTransport {
+    pub held: HeldTransport,
+    /// Present when the scene ships compact transport.
+    pub compact: Option<Vec<CompactTransport>>,
+    pub stats: TransportStats,
+}
+
 /// The blocks' inter-block transport: from the cache (keyed by the blocks and their shapes'
 /// keys, so clutter and lights never invalidate it) or computed by [`mrt_transport`] and
-/// stored there. Sets `report.transport_from_cache`.
+/// stored there. Sets `report.transport_from_cache`. A hit reads the compaction only (the
+/// bundle's transport); the f64 operators are read whole only for a bundle that ships them.
 #[allow(clippy::too_many_arguments)]
 pub fn block_transport(
     scene: &Scene,
@@ -129,7 +161,7 @@ pub fn block_transport(
     cache: Option<&ShapeCache>,
     progress: &dyn Progress,
     report: &mut BakeReport,
-) -> Result<CachedTransport, BakeError> {
+) -> Result<BlockTransport, BakeError> {
     let transport_cache = match cache {
         Some(c) => Some(TransportCache::open(c.dir())?),
         None => None,
@@ -139,7 +171,21 @@ pub fn block_transport(
     let cached = transport_cache.as_ref().and_then(|c| c.get(&transport_key));
     report.transport_from_cache = cached.is_some();
     match cached {
-        Some(t) => Ok(t),
+        Some(hit) => {
+            let held = match hit.compact {
+                Some(_) => HeldTransport::Cached(hit.transport),
+                None => HeldTransport::Computed(
+                    hit.transport
+                        .load_all()
+                        .map_err(|e| BakeError::CachedTransport(e.to_string()))?,
+                ),
+            };
+            Ok(BlockTransport {
+                held,
+                compact: hit.compact,
+                stats: hit.stats,
+            })
+        }
         None => {
             let computed = mrt_transport(
                 scene,
@@ -154,7 +200,11 @@ pub fn block_transport(
             if let Some(cache) = &transport_cache {
                 cache.put(&transport_key, &computed)?;
             }
-            Ok(computed)
+            Ok(BlockTransport {
+                held: HeldTransport::Computed(computed.mrt),
+                compact: computed.compact,
+                stats: computed.stats,
+            })
         }
     }
 }
@@ -234,8 +284,11 @@ pub fn clutter_operators(
         Some(c) => Some(DrtRayCache::open(c.dir())?),
         None => None,
     };
-    let ops = build_drt(inputs, ray_cache.as_ref(), &|k| progress.advance(k))
-        .map_err(|source| BakeError::Drt(source.to_string()))?;
+    let ops =
+        build_drt(inputs, ray_cache.as_ref(), &|k| progress.advance(k)).map_err(|e| match e {
+            DrtError::Transport(lost) => BakeError::CachedTransport(lost.to_string()),
+            other => BakeError::Drt(other.to_string()),
+        })?;
     Ok(Some(ops))
 }
 

@@ -21,11 +21,12 @@ use crate::bake::transport::build::MrtTransport;
 use crate::bake::transport::compaction::CompactTransport;
 
 use super::plan::ShapePlan;
+use super::stages::HeldTransport;
 use super::BakeError;
 
 /// The bundle's transport section: the compact form when the scene ships it, else the
 /// transport as traced or as lightfields.
-pub fn transport_ops(compact: Option<&[CompactTransport]>, mrt: &MrtTransport) -> TransportOps {
+pub fn transport_ops(compact: Option<&[CompactTransport]>, held: &HeldTransport) -> TransportOps {
     if let Some(compact) = compact {
         TransportOps::Compact(
             compact
@@ -39,6 +40,9 @@ pub fn transport_ops(compact: Option<&[CompactTransport]>, mrt: &MrtTransport) -
                 .collect(),
         )
     } else {
+        let HeldTransport::Computed(mrt) = held else {
+            unreachable!("a transport without compaction is held whole (stages::block_transport)")
+        };
         match mrt {
             MrtTransport::Lightfield(blocks) => TransportOps::Lightfield(
                 blocks

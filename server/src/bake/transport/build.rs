@@ -47,7 +47,7 @@ pub struct TracedBlock {
 }
 
 /// Counters for the bake report.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct TransportStats {
     /// Lightfield: propagation steps taken and cut by the energy criterion.
     pub steps: usize,

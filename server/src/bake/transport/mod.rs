@@ -3,8 +3,11 @@
 //! # Layout
 //! - [`build`]: transport by lightfield composition through the openings, or traced.
 //! - [`compaction`]: per target block, the low-rank form the runtime applies (ours).
+//! - [`source`]: where DRT's inpainting reads the transport into a few blocks (held, or
+//!   read from the cache block by block).
 //!
 //! Its on-disk cache is [`crate::bake::cache::transport`].
 
 pub mod build;
 pub mod compaction;
+pub mod source;
