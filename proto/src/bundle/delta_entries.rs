@@ -10,7 +10,11 @@ use crate::wire::{Reader, Writer};
 use super::matrix_codec::MatrixEncoder;
 use super::{BundleError, DeltaEntry, DeltaSource, Matrix};
 
-pub(super) fn write_entries(w: &mut Writer, entries: &[DeltaEntry], enc: &mut MatrixEncoder) {
+pub(super) fn write_entries<'a>(
+    w: &mut Writer,
+    entries: &'a [DeltaEntry],
+    enc: &mut MatrixEncoder<'a>,
+) {
     w.u32(entries.len() as u32);
     for e in entries {
         w.u32s(&e.rows);

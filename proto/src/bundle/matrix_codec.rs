@@ -2,8 +2,14 @@
 //! [`EncodeOptions`] (the transport section under its own policy) and tallies what it chose into
 //! the [`EncodeReport`]; reading decodes any codec to f32 and refuses values that are not finite.
 //!
-//! Invariant: an 8-bit matrix is written plain or predicted, whichever is smaller, and both decode
-//! to the same values (see [`crate::codec`]); the report counts both under one codec name.
+//! The writer may list every matrix first and encode them on several threads
+//! ([`MatrixEncoder::listing`], [`MatrixEncoder::encode_listed`]), then write the sections again
+//! taking the encodings in order.
+//!
+//! Invariants: an 8-bit matrix is written plain or predicted, whichever is smaller, and both
+//! decode to the same values (see [`crate::codec`]); the report counts both under one codec
+//! name. A matrix's encoding is a pure function of it and its policy, so the bytes and the
+//! report do not depend on the thread count.
 
 use crate::codec::{
     choose_encoding, read_matrix, u8_step_name, write_matrix_smallest, CodecPolicy,
@@ -13,7 +19,7 @@ use crate::wire::{Reader, WireError, Writer};
 use super::{BundleError, EncodeOptions, EncodeReport, Matrix};
 
 impl Matrix {
-    pub(super) fn write(&self, w: &mut Writer, enc: &mut MatrixEncoder) {
+    pub(super) fn write<'a>(&'a self, w: &mut Writer, enc: &mut MatrixEncoder<'a>) {
         enc.write(w, self);
     }
     pub(super) fn read(r: &mut Reader, what: &str) -> Result<Matrix, BundleError> {
@@ -30,47 +36,144 @@ impl Matrix {
     }
 }
 
+/// One matrix as written: its bytes and what the report counts of it.
+struct Encoded {
+    bytes: Vec<u8>,
+    name: &'static str,
+    predicted: bool,
+    values: u64,
+    value_bytes: u64,
+    error: f64,
+}
+
+/// Encodes one matrix under `policy`: a pure function of the matrix and the policy.
+fn encode_matrix(m: &Matrix, policy: CodecPolicy) -> Encoded {
+    let (rows, cols) = (m.rows as usize, m.cols as usize);
+    let (codec, step, error) = choose_encoding(&m.data, rows, cols, policy);
+    // Lossless: an 8-bit matrix's q go plain or as prediction residuals, whichever is
+    // smaller; both decode to the same values.
+    let mut w = Writer::new();
+    let codec = write_matrix_smallest(&mut w, &m.data, rows, cols, codec, step);
+    Encoded {
+        bytes: w.bytes,
+        name: if codec.is_u8() {
+            u8_step_name(step)
+        } else {
+            codec.name()
+        },
+        predicted: codec.is_predicted(),
+        values: (rows * cols) as u64,
+        value_bytes: codec.value_bytes(rows, cols) as u64,
+        error,
+    }
+}
+
+/// How [`MatrixEncoder::write`] works: encoding each matrix as it comes, listing the matrices
+/// (a first pass over the sections, writing nothing that is kept), or writing the encodings a
+/// parallel pass made from that list, in the same order.
+enum Mode<'a> {
+    Direct,
+    Collect(Vec<(&'a Matrix, CodecPolicy)>),
+    Replay(std::vec::IntoIter<Encoded>),
+}
+
 /// Picks each operator matrix's codec by the [`EncodeOptions`] and tallies what it chose.
-pub(super) struct MatrixEncoder {
+///
+/// Invariant: the bytes and the report are the same in every mode: a matrix's encoding is a
+/// pure function of it and its policy, and the report is tallied in write order.
+pub(super) struct MatrixEncoder<'a> {
     /// The policy of the matrices being written now.
     policy: CodecPolicy,
     /// The policy of the transport section's matrices.
     transport_policy: CodecPolicy,
+    mode: Mode<'a>,
     pub(super) report: EncodeReport,
 }
 
-impl MatrixEncoder {
-    pub(super) fn new(options: &EncodeOptions) -> MatrixEncoder {
+impl<'a> MatrixEncoder<'a> {
+    pub(super) fn new(options: &EncodeOptions) -> MatrixEncoder<'a> {
         MatrixEncoder {
             policy: options.codec,
             transport_policy: options.transport_codec.unwrap_or(options.codec),
+            mode: Mode::Direct,
             report: EncodeReport::default(),
         }
     }
 
+    /// An encoder that lists the matrices written through it ([`MatrixEncoder::encode_listed`]).
+    pub(super) fn listing(options: &EncodeOptions) -> MatrixEncoder<'a> {
+        MatrixEncoder {
+            mode: Mode::Collect(Vec::new()),
+            ..MatrixEncoder::new(options)
+        }
+    }
+
+    /// Encodes the listed matrices on `threads` threads (each the same bytes as alone) and
+    /// returns an encoder that writes them, in the listed order, when the same sections are
+    /// written through it.
+    pub(super) fn encode_listed(
+        self,
+        options: &EncodeOptions,
+        threads: usize,
+    ) -> MatrixEncoder<'a> {
+        let Mode::Collect(jobs) = self.mode else {
+            panic!("encode_listed on an encoder that did not list");
+        };
+        let next = std::sync::atomic::AtomicUsize::new(0);
+        let mut done: Vec<(usize, Encoded)> = std::thread::scope(|scope| {
+            let workers: Vec<_> = (0..threads.max(1))
+                .map(|_| {
+                    scope.spawn(|| {
+                        let mut mine = Vec::new();
+                        loop {
+                            let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            let Some(&(m, policy)) = jobs.get(k) else {
+                                break mine;
+                            };
+                            mine.push((k, encode_matrix(m, policy)));
+                        }
+                    })
+                })
+                .collect();
+            workers
+                .into_iter()
+                .flat_map(|w| w.join().expect("a matrix encoder thread panicked"))
+                .collect()
+        });
+        done.sort_unstable_by_key(|(k, _)| *k);
+        MatrixEncoder {
+            mode: Mode::Replay(
+                done.into_iter()
+                    .map(|(_, e)| e)
+                    .collect::<Vec<_>>()
+                    .into_iter(),
+            ),
+            ..MatrixEncoder::new(options)
+        }
+    }
+
     /// Writes the transport section's matrices (inside `write`) under the transport policy.
-    pub(super) fn with_transport_policy(&mut self, write: impl FnOnce(&mut MatrixEncoder)) {
+    pub(super) fn with_transport_policy(&mut self, write: impl FnOnce(&mut MatrixEncoder<'a>)) {
         let operator_policy = std::mem::replace(&mut self.policy, self.transport_policy);
         write(self);
         self.policy = operator_policy;
     }
 
-    fn write(&mut self, w: &mut Writer, m: &Matrix) {
-        let (rows, cols) = (m.rows as usize, m.cols as usize);
-        let (codec, step, error) = choose_encoding(&m.data, rows, cols, self.policy);
-        // Lossless: an 8-bit matrix's q go plain or as prediction residuals, whichever is
-        // smaller; both decode to the same values.
-        let codec = write_matrix_smallest(w, &m.data, rows, cols, codec, step);
-        let name = if codec.is_u8() {
-            u8_step_name(step)
-        } else {
-            codec.name()
+    fn write(&mut self, w: &mut Writer, m: &'a Matrix) {
+        let e = match &mut self.mode {
+            Mode::Direct => encode_matrix(m, self.policy),
+            Mode::Collect(jobs) => {
+                jobs.push((m, self.policy));
+                return;
+            }
+            Mode::Replay(done) => done.next().expect("the sections list the same matrices"),
         };
-        let usage = self.report.codecs.entry(name).or_default();
+        w.bytes.extend_from_slice(&e.bytes);
+        let usage = self.report.codecs.entry(e.name).or_default();
         usage.matrices += 1;
-        usage.predicted += codec.is_predicted() as u64;
-        usage.values += (rows * cols) as u64;
-        usage.bytes += codec.value_bytes(rows, cols) as u64;
-        self.report.max_codec_error = self.report.max_codec_error.max(error);
+        usage.predicted += e.predicted as u64;
+        usage.values += e.values;
+        usage.bytes += e.value_bytes;
+        self.report.max_codec_error = self.report.max_codec_error.max(e.error);
     }
 }

@@ -52,7 +52,7 @@ impl ShResponses {
     }
 }
 
-pub(super) fn write_sh(w: &mut Writer, sh: &ShResponses, enc: &mut MatrixEncoder) {
+pub(super) fn write_sh<'a>(w: &mut Writer, sh: &'a ShResponses, enc: &mut MatrixEncoder<'a>) {
     w.u32(sh.entries.len() as u32);
     for e in &sh.entries {
         w.u32s(&e.texels);

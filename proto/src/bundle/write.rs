@@ -57,9 +57,24 @@ impl Bundle {
         self.encode_with(&EncodeOptions::default()).0
     }
 
-    /// Encodes the bundle with the given codecs and compression.
+    /// Encodes the bundle with the given codecs and compression. The operator matrices are
+    /// encoded on every core (a first pass lists them; each matrix's bytes are its own), then
+    /// written in file order: the same bytes and report as one thread.
     pub fn encode_with(&self, options: &EncodeOptions) -> (Vec<u8>, EncodeReport) {
-        let mut enc = MatrixEncoder::new(options);
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        self.encode_on(options, threads)
+    }
+
+    /// [`Bundle::encode_with`] on `threads` threads; one thread encodes each matrix as it
+    /// writes it (no listing pass). Every thread count gives the same bytes and report.
+    pub fn encode_on(&self, options: &EncodeOptions, threads: usize) -> (Vec<u8>, EncodeReport) {
+        let mut enc = if threads > 1 {
+            let mut listing = MatrixEncoder::listing(options);
+            self.encode_sections(&mut listing);
+            listing.encode_listed(options, threads)
+        } else {
+            MatrixEncoder::new(options)
+        };
         let sections = self.encode_sections(&mut enc);
         // Always the writer's minor version, whatever sections this bundle has: a streamed
         // prefix (MRT sections only) and the whole bundle must share their header bytes.
@@ -82,7 +97,7 @@ impl Bundle {
         self.encode_sections(&mut enc)
     }
 
-    fn encode_sections(&self, enc: &mut MatrixEncoder) -> Vec<(u32, Vec<u8>)> {
+    fn encode_sections<'a>(&'a self, enc: &mut MatrixEncoder<'a>) -> Vec<(u32, Vec<u8>)> {
         let mut sections: Vec<(u32, Vec<u8>)> = Vec::new();
         let mut w = Writer::new();
         self.layout.write(&mut w);

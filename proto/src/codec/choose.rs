@@ -6,7 +6,7 @@
 //! runs and machines), and the error [`choose_encoding`] reports is the one its codec and step
 //! add.
 
-use super::quantize::{codec_error, codec_error_step, U8_STEPS};
+use super::quantize::{codec_error, u8_error, u8_params, U8_STEPS};
 use super::{CodecPolicy, MatrixCodec};
 
 /// The codec `policy` gives a matrix, with the error it adds (full 8-bit grid).
@@ -47,8 +47,10 @@ pub fn choose_encoding(
         CodecPolicy::Fixed(codec) => (codec, codec_error(data, rows, cols, codec)),
         CodecPolicy::Budget(budget) => {
             let u8_codec = MatrixCodec::u8_for(rows, cols);
+            let per_column = u8_codec.per_column();
+            let params = u8_params(data, rows, cols, per_column);
             for step in U8_STEPS {
-                let e = codec_error_step(data, rows, cols, u8_codec, step);
+                let e = u8_error(data, rows, cols, per_column, &params, step);
                 if e <= budget {
                     return (u8_codec, step, e);
                 }

@@ -77,22 +77,50 @@ pub(super) fn predict(line: &[u8], k: usize, width: usize) -> u8 {
         (false, false) => 0,
         (true, false) => line[k - 1],
         (false, true) => line[k - width],
-        (true, true) => {
-            let (a, b, c) = (
-                line[k - 1] as i32,
-                line[k - width] as i32,
-                line[k - width - 1] as i32,
-            );
-            // LOCO-I / JPEG-LS median of (a, b, a + b − c): always within [min, max] of a, b.
-            let p = if c >= a.max(b) {
-                a.min(b)
-            } else if c <= a.min(b) {
-                a.max(b)
-            } else {
-                a + b - c
-            };
-            p as u8
+        (true, true) => median(line[k - 1], line[k - width], line[k - width - 1]),
+    }
+}
+
+/// The LOCO-I / JPEG-LS median of (left, up, left + up − upleft): always within [min, max]
+/// of left and up.
+#[inline]
+fn median(left: u8, up: u8, upleft: u8) -> u8 {
+    let (a, b, c) = (left as i32, up as i32, upleft as i32);
+    let p = if c >= a.max(b) {
+        a.min(b)
+    } else if c <= a.min(b) {
+        a.max(b)
+    } else {
+        a + b - c
+    };
+    p as u8
+}
+
+/// Counts `(q − prediction) mod 256` of every value of one line into `hist`: what
+/// [`predict`] gives, walked image row by image row so that no element needs a division or a
+/// branch on its position.
+pub(super) fn add_residuals(line: &[u8], width: usize, hist: &mut [u64; 256]) {
+    let n = line.len();
+    if n == 0 {
+        return;
+    }
+    // The first value has no neighbour; the rest of the first image row (all of the line for
+    // width 0) predicts from the left.
+    hist[line[0] as usize] += 1;
+    let first_row = if width == 0 { n } else { width.min(n) };
+    for k in 1..first_row {
+        hist[line[k].wrapping_sub(line[k - 1]) as usize] += 1;
+    }
+    let mut start = first_row;
+    while start < n {
+        let end = (start + width).min(n);
+        // A row's first value predicts from above, the others by the median.
+        hist[line[start].wrapping_sub(line[start - width]) as usize] += 1;
+        for k in start + 1..end {
+            let p = median(line[k - 1], line[k - width], line[k - width - 1]);
+            hist[line[k].wrapping_sub(p) as usize] += 1;
         }
+        start = end;
     }
 }
 
@@ -141,9 +169,7 @@ pub fn best_predictor_width(lines: &[u8], n: usize) -> (u16, f64) {
         let mut hist = [0u64; 256];
         if n > 0 {
             for line in lines.chunks_exact(n) {
-                for k in 0..n {
-                    hist[line[k].wrapping_sub(predict(line, k, width as usize)) as usize] += 1;
-                }
+                add_residuals(line, width as usize, &mut hist);
             }
         }
         let bits = entropy_bits(&hist);

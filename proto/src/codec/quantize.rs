@@ -50,7 +50,12 @@ fn quantize_u8(v: f32, offset: f32, scale: f32, step: u8) -> u8 {
 }
 
 /// Per-line (offset, scale) for an 8-bit codec; lines are columns or rows.
-fn u8_params(data: &[f32], rows: usize, cols: usize, per_column: bool) -> Vec<(f32, f32)> {
+pub(super) fn u8_params(
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    per_column: bool,
+) -> Vec<(f32, f32)> {
     let lines = if per_column { cols } else { rows };
     let mut lo = vec![f32::INFINITY; lines];
     let mut hi = vec![f32::NEG_INFINITY; lines];
@@ -131,13 +136,57 @@ pub fn codec_error_step(
     codec: MatrixCodec,
     step: u8,
 ) -> f64 {
-    let back = round_trip_step(data, rows, cols, codec, step);
+    // Each value's round trip as `round_trip_step` makes it, summed in row-major order, without
+    // the round-tripped copy (and, for 8-bit codecs, without a division per value to find its
+    // line).
     let (mut diff, mut norm) = (0.0f64, 0.0f64);
-    for (a, b) in data.iter().zip(&back) {
-        let d = *b as f64 - *a as f64;
+    let mut add = |a: f32, b: f32| {
+        let d = b as f64 - a as f64;
         diff += d * d;
-        norm += (*a as f64) * (*a as f64);
+        norm += (a as f64) * (a as f64);
+    };
+    match codec {
+        MatrixCodec::F32 => data.iter().for_each(|&a| add(a, a)),
+        MatrixCodec::F16 => data
+            .iter()
+            .for_each(|&a| add(a, half::f16::from_f32(a).to_f32())),
+        _ => {
+            let per_column = codec.per_column();
+            let params = u8_params(data, rows, cols, per_column);
+            return u8_error(data, rows, cols, per_column, &params, step);
+        }
     }
+    relative_error(diff, norm)
+}
+
+/// [`codec_error_step`] of an 8-bit codec whose per-line `params` ([`u8_line_params`] of
+/// each line, as [`quantize_matrix`] makes them) are given, so that trying several steps finds
+/// them once.
+pub(super) fn u8_error(
+    data: &[f32],
+    rows: usize,
+    cols: usize,
+    per_column: bool,
+    params: &[(f32, f32)],
+    step: u8,
+) -> f64 {
+    let (mut diff, mut norm) = (0.0f64, 0.0f64);
+    for i in 0..rows {
+        for j in 0..cols {
+            let (offset, scale) = params[if per_column { j } else { i }];
+            let a = data[i * cols + j];
+            let q = quantize_u8(a, offset, scale, step);
+            let d = (offset + scale * q as f32) as f64 - a as f64;
+            diff += d * d;
+            norm += (a as f64) * (a as f64);
+        }
+    }
+    relative_error(diff, norm)
+}
+
+/// `sqrt(diff / norm)`, infinite when the difference is not finite or the matrix is zero and
+/// the difference is not.
+fn relative_error(diff: f64, norm: f64) -> f64 {
     if !diff.is_finite() {
         return f64::INFINITY;
     }

@@ -2,7 +2,7 @@
 //! predicted forms decode to the bits of the plain ones and have the documented bytes, and a
 //! budget picks the smallest codec that fits.
 
-use super::predict::{predict, to_lines};
+use super::predict::{add_residuals, predict, to_lines};
 use super::quantize::quantize_matrix;
 use super::*;
 use crate::wire::{Reader, Writer};
@@ -368,4 +368,72 @@ fn noise_keeps_the_plain_form() {
         write_matrix_smallest(&mut Writer::new(), &[], 0, 8, MatrixCodec::U8Columns, 1),
         MatrixCodec::U8Columns
     );
+}
+
+proptest! {
+    /// The encoder's residual histogram (walked by image rows) counts exactly what
+    /// [`predict`] gives element by element, for every width: 0, 1, inside the line, the
+    /// line's length and beyond.
+    #[test]
+    fn residual_histogram_is_predict_element_by_element(
+        line in proptest::collection::vec(any::<u8>(), 0..200),
+        width in 0usize..40,
+    ) {
+        for w in [width, line.len(), line.len() + 3, u16::MAX as usize] {
+            let mut want = [0u64; 256];
+            for k in 0..line.len() {
+                want[line[k].wrapping_sub(predict(&line, k, w)) as usize] += 1;
+            }
+            let mut got = [0u64; 256];
+            add_residuals(&line, w, &mut got);
+            prop_assert_eq!(got, want, "width {}", w);
+        }
+    }
+}
+
+proptest! {
+    /// The encoder's error (computed value by value) is, to the bit, the relative RMS error of
+    /// the round-tripped matrix, for every codec and 8-bit step.
+    #[test]
+    fn codec_error_is_that_of_the_round_trip_to_the_bit(
+        rows in 1usize..12,
+        cols in 1usize..12,
+        seed in any::<u64>(),
+        spread in 1e-6f32..1e5,
+    ) {
+        let mut x = seed | 1;
+        let data: Vec<f32> = (0..rows * cols)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                ((x >> 40) as f32 / (1u64 << 24) as f32 - 0.3) * spread
+            })
+            .collect();
+        for codec in [
+            MatrixCodec::F32,
+            MatrixCodec::F16,
+            MatrixCodec::U8Columns,
+            MatrixCodec::U8Rows,
+        ] {
+            for step in U8_STEPS {
+                let back = round_trip_step(&data, rows, cols, codec, step);
+                let (mut diff, mut norm) = (0.0f64, 0.0f64);
+                for (a, b) in data.iter().zip(&back) {
+                    let d = *b as f64 - *a as f64;
+                    diff += d * d;
+                    norm += (*a as f64) * (*a as f64);
+                }
+                let want = if !diff.is_finite() {
+                    f64::INFINITY
+                } else if norm == 0.0 {
+                    if diff == 0.0 { 0.0 } else { f64::INFINITY }
+                } else {
+                    (diff / norm).sqrt()
+                };
+                let got = codec_error_step(&data, rows, cols, codec, step);
+                prop_assert_eq!(got.to_bits(), want.to_bits(), "{:?} step {}", codec, step);
+            }
+        }
+    }
 }

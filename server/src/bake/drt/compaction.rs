@@ -171,42 +171,53 @@ pub fn compact_gather(
     stats: &mut DeltaCompactionStats,
 ) -> Result<(Vec<DeltaEntry>, Option<TexelGather>), LowRankError> {
     stats.gather_sparse_before += gather.values.len();
-    let range_of = |col: u32| {
-        ranges
-            .iter()
-            .position(|&(first, count)| col >= first && col - first < count)
+    // Which range each column falls in (the first that holds it), by column: one pass over the
+    // gather then finds every range's rows, where a scan per range was ranges × entries
+    // (1,066 × 5.8 M at 1,000 blocks).
+    let end = ranges
+        .iter()
+        .map(|&(first, count)| first as usize + count as usize)
+        .chain(gather.cols.iter().map(|&c| c as usize + 1))
+        .max()
+        .unwrap_or(0);
+    let mut range_at = vec![u32::MAX; end];
+    for (ri, &(first, count)) in ranges.iter().enumerate().rev() {
+        range_at[first as usize..first as usize + count as usize].fill(ri as u32);
+    }
+    let range_of =
+        |col: u32| Some(range_at[col as usize] as usize).filter(|&r| r != u32::MAX as usize);
+    let row_entries = |i: usize| {
+        let (s, e) = (
+            gather.row_start[i] as usize,
+            gather.row_start[i + 1] as usize,
+        );
+        gather.cols[s..e].iter().zip(&gather.values[s..e])
     };
+    // Per range, the gather rows with a column in it (ascending) and its nonzeros.
+    let mut rows_of: Vec<Vec<(usize, u32)>> = vec![Vec::new(); ranges.len()];
+    let mut nnz_of = vec![0usize; ranges.len()];
+    for (i, &row) in gather.rows.iter().enumerate() {
+        for (&c, _) in row_entries(i) {
+            if let Some(ri) = range_of(c) {
+                nnz_of[ri] += 1;
+                if rows_of[ri].last().is_none_or(|&(last, _)| last != i) {
+                    rows_of[ri].push((i, row));
+                }
+            }
+        }
+    }
     // Which ranges become entries.
     let mut factored_ranges = vec![false; ranges.len()];
     let mut entries = Vec::new();
     for (ri, &(first, count)) in ranges.iter().enumerate() {
-        let mut rows = Vec::new();
-        let mut nnz = 0;
-        for (i, &row) in gather.rows.iter().enumerate() {
-            let (s, e) = (
-                gather.row_start[i] as usize,
-                gather.row_start[i + 1] as usize,
-            );
-            let hits = gather.cols[s..e]
-                .iter()
-                .filter(|&&c| c >= first && c - first < count)
-                .count();
-            if hits > 0 {
-                rows.push((i, row));
-                nnz += hits;
-            }
-        }
+        let (rows, nnz) = (&rows_of[ri], nnz_of[ri]);
         if rows.is_empty() {
             continue;
         }
         let mut dense = Mat::<f64>::zeros(rows.len(), count as usize);
         for (r, &(i, _)) in rows.iter().enumerate() {
-            let (s, e) = (
-                gather.row_start[i] as usize,
-                gather.row_start[i + 1] as usize,
-            );
-            for (&c, &v) in gather.cols[s..e].iter().zip(&gather.values[s..e]) {
-                if c >= first && c - first < count {
+            for (&c, &v) in row_entries(i) {
+                if range_of(c) == Some(ri) {
                     dense[(r, (c - first) as usize)] += v as f64;
                 }
             }
@@ -232,12 +243,8 @@ pub fn compact_gather(
     let mut rest = TexelGather::default();
     rest.row_start.push(0);
     for (i, &row) in gather.rows.iter().enumerate() {
-        let (s, e) = (
-            gather.row_start[i] as usize,
-            gather.row_start[i + 1] as usize,
-        );
         let before = rest.cols.len();
-        for (&c, &v) in gather.cols[s..e].iter().zip(&gather.values[s..e]) {
+        for (&c, &v) in row_entries(i) {
             if range_of(c).is_none_or(|ri| !factored_ranges[ri]) {
                 rest.cols.push(c);
                 rest.values.push(v);

@@ -30,6 +30,7 @@ use crate::bake::scene::geometry::Geometry;
 use crate::bake::tracer::Tracer;
 
 /// One `T_prop` block: reduced incoming lightfield at (target, face) from source's b.
+#[derive(Clone)]
 pub struct PropBlock {
     pub target_block: usize,
     pub target_face: Face,
@@ -39,6 +40,7 @@ pub struct PropBlock {
 }
 
 /// One traced cross-block operator.
+#[derive(Clone)]
 pub struct TracedBlock {
     pub target_block: usize,
     pub source_block: usize,

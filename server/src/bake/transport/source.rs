@@ -8,7 +8,7 @@
 //! target block, in the order the whole transport lists them, so [`MrtTransport::reaches`]
 //! and [`MrtTransport::row`] answer for a marked target exactly as on the whole transport.
 
-use crate::bake::transport::build::{MrtTransport, PropBlock, TracedBlock};
+use crate::bake::transport::build::MrtTransport;
 
 /// The cached transport into a block could not be read (evicted, or corrupt): the cache entry
 /// is dropped, and the bake computes the transport again.
@@ -33,23 +33,14 @@ impl TransportSource for MrtTransport {
                 blocks
                     .iter()
                     .filter(|b| keep(b.target_block))
-                    .map(|b| PropBlock {
-                        target_block: b.target_block,
-                        target_face: b.target_face,
-                        source_block: b.source_block,
-                        matrix: b.matrix.clone(),
-                    })
+                    .cloned()
                     .collect(),
             ),
             MrtTransport::Traced(blocks) => MrtTransport::Traced(
                 blocks
                     .iter()
                     .filter(|b| keep(b.target_block))
-                    .map(|b| TracedBlock {
-                        target_block: b.target_block,
-                        source_block: b.source_block,
-                        matrix: b.matrix.clone(),
-                    })
+                    .cloned()
                     .collect(),
             ),
         })
