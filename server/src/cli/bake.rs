@@ -99,7 +99,11 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
     let bar = Bar::new();
     let (bundle, mut report) = bake(&scene, &dir, &options, &bar)?;
     bar.finish();
+    let started = std::time::Instant::now();
     let (bytes, encoded) = bundle.encode_with(&encode_options(&scene.settings, args.codec));
+    drop(bundle);
+    let encode_seconds = started.elapsed().as_secs_f64();
+    let started = std::time::Instant::now();
     report.bundle_bytes = bytes.len();
     write_atomic(&args.out, &bytes)?;
     if let Some((memo, Some(key))) = &memo {
@@ -108,6 +112,7 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
             tracing::warn!(error = %e, "could not memoise the bundle in the cache");
         }
     }
+    let write_seconds = started.elapsed().as_secs_f64();
     if !args.quiet {
         eprintln!(
             "baked {}: {} blocks, {} texels, {} shapes ({} from cache, {} computed), ranks {}",
@@ -181,7 +186,10 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
             .iter()
             .map(|(n, s)| format!("{n} {s:.3}s"))
             .collect();
-        eprintln!("stages: {}", stages.join(", "));
+        eprintln!(
+            "stages: {}; then encode {encode_seconds:.3}s, write {write_seconds:.3}s",
+            stages.join(", ")
+        );
         let total: f64 = report.stage_seconds.iter().map(|(_, s)| s).sum();
         println!(
             "bundle={} bytes={} bake_seconds={total:.3}",

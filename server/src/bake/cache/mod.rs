@@ -6,7 +6,8 @@
 //!   (`<dir>/<subdir>/<key>.<ext>`), version tag, checksum framing, atomic writes, verification
 //!   (stale: a miss; corrupt: deleted and a miss) and marking use for LRU trimming.
 //! - [`shape`]: shape operators (MRT), keyed by shape and settings (`<dir>/<key>.lfshape`).
-//! - [`transport`]: a level's inter-block transport and its compaction (`transport/`).
+//! - [`transport`]: a level's inter-block transport and its compaction (`transport/`): a main
+//!   entry read on a hit, and each target block's f64 operators read only when asked for.
 //! - [`dnrt`]: DNRT grids of dynamic objects (`dnrt/`).
 //! - [`drt_rays`]: DRT ray-pass units and clutter prior bases (`drt/`), keyed and reused by
 //!   [`crate::bake::drt::rays`].

@@ -80,9 +80,11 @@ pub fn transport_key(scene: &Scene, transport: Transport, shape_keys: &[String])
     h.finalize().to_hex().to_string()
 }
 
+/// A matrix as its dimensions (u32 rows, cols) and its values row by row (f64, bit-exact).
 pub(crate) fn write_mat(w: &mut Writer, m: &Mat<f64>) {
     w.u32(m.nrows() as u32);
     w.u32(m.ncols() as u32);
+    w.bytes.reserve(m.nrows() * m.ncols() * 8);
     for i in 0..m.nrows() {
         for j in 0..m.ncols() {
             w.f64(m[(i, j)]);
@@ -90,19 +92,19 @@ pub(crate) fn write_mat(w: &mut Writer, m: &Mat<f64>) {
     }
 }
 
+/// What [`write_mat`] wrote: the values taken as one slice and placed column by column (the
+/// matrix's own order), without a check per value.
 pub(crate) fn read_mat(r: &mut Reader) -> Result<Mat<f64>, WireError> {
     let rows = r.u32()? as usize;
     let cols = r.u32()? as usize;
-    if rows.saturating_mul(cols).saturating_mul(8) > r.remaining() {
-        return Err(WireError::Invalid("matrix larger than the entry".into()));
-    }
-    let mut m = Mat::zeros(rows, cols);
-    for i in 0..rows {
-        for j in 0..cols {
-            m[(i, j)] = r.f64()?;
-        }
-    }
-    Ok(m)
+    let len = rows
+        .checked_mul(cols)
+        .and_then(|n| n.checked_mul(8))
+        .filter(|&n| n <= r.remaining())
+        .ok_or_else(|| WireError::Invalid("matrix larger than the entry".into()))?;
+    let bytes = r.take(len)?;
+    let value = |k: usize| f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+    Ok(Mat::from_fn(rows, cols, |i, j| value(i * cols + j)))
 }
 
 /// Per transport operator, in transport order: its target block, its target face (lightfield;

@@ -9,8 +9,10 @@
 //! neighbour's gather instead (its light is the gather alone).
 //!
 //! Invariant: neighbours are searched in rings of growing radius on the same face, in a fixed
-//! order, so the result is deterministic. Only blocks [`inpainting_targets`] marks are read
-//! from the transport.
+//! order, so the result is deterministic. A bake keeps the transport into the blocks
+//! [`inpainting_targets`] marks; [`inpaint`] reads it into the blocks holding a buried texel
+//! only (the DRT build asks the transport source for those, so a cached transport is read for
+//! them alone).
 
 use std::collections::BTreeMap;
 
