@@ -5,8 +5,8 @@
 //! Owns the key ([`transport_key`]), the entries' kind ([`ENTRY`]) and the payloads (f64
 //! matrices, bit-exact), in two parts:
 //! - the main entry `<dir>/transport/<key>.lftransport`: every operator's header (target block,
-//!   target face, source block) in transport order, the compaction and the statistics: what a
-//!   hit reads ([`TransportCache::get`]);
+//!   target face, source block) in transport order, the compaction (f32, as the bundle ships
+//!   it) and the statistics: what a hit reads ([`TransportCache::get`]);
 //! - per target block `<key>.t<block>.lftransport`: that block's operators' matrices in header
 //!   order, read only when asked for ([`LazyTransport`], a
 //!   [`crate::bake::transport::source::TransportSource`]): DRT's inpainting needs the blocks
@@ -25,18 +25,20 @@ use std::path::Path;
 
 use faer::Mat;
 
+use lightfarm_proto::bundle::{CompactEntry, Matrix};
+
 use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_proto::wire::{Reader, WireError, Writer};
 use lightfarm_proto::Face;
 
 use crate::bake::cache::entry::{EntryKind, EntryStore};
 use crate::bake::transport::build::{MrtTransport, PropBlock, TracedBlock, TransportStats};
-use crate::bake::transport::compaction::CompactTransport;
 use crate::bake::transport::source::{TransportSource, TransportUnavailable};
 
 /// Bumped whenever the transport computed for the same inputs, or its payload, changes (2: the
-/// shared entry framing; 3: each target block's operators an entry of their own). In every key, and every entry's version tag.
-const CODE_VERSION: &str = "lightfarm-transport-3";
+/// shared entry framing; 3: each target block's operators an entry of their own; 4: the
+/// compaction in f32, as the bundle ships it). In every key, and every entry's version tag.
+const CODE_VERSION: &str = "lightfarm-transport-4";
 
 /// Where transport entries live and their version.
 pub const ENTRY: EntryKind = EntryKind {
@@ -48,8 +50,8 @@ pub const ENTRY: EntryKind = EntryKind {
 /// What the transport stage produces.
 pub struct CachedTransport {
     pub mrt: MrtTransport,
-    /// Present when the scene ships compact transport.
-    pub compact: Option<Vec<CompactTransport>>,
+    /// Present when the scene ships compact transport: as the bundle ships it (f32).
+    pub compact: Option<Vec<CompactEntry>>,
     pub stats: TransportStats,
 }
 
@@ -105,6 +107,22 @@ pub(crate) fn read_mat(r: &mut Reader) -> Result<Mat<f64>, WireError> {
     let bytes = r.take(len)?;
     let value = |k: usize| f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().expect("8 bytes"));
     Ok(Mat::from_fn(rows, cols, |i, j| value(i * cols + j)))
+}
+
+/// An f32 matrix of the compaction (as the bundle ships it): rows, cols, values row-major.
+fn write_matrix(w: &mut Writer, m: &Matrix) {
+    w.u32(m.rows);
+    w.u32(m.cols);
+    w.f32s(&m.data);
+}
+
+fn read_matrix(r: &mut Reader) -> Result<Matrix, WireError> {
+    let (rows, cols) = (r.u32()?, r.u32()?);
+    let data = r.f32s()?;
+    if data.len() as u64 != rows as u64 * cols as u64 {
+        return Err(WireError::Invalid("matrix size".into()));
+    }
+    Ok(Matrix { rows, cols, data })
 }
 
 /// Per transport operator, in transport order: its target block, its target face (lightfield;
@@ -170,11 +188,10 @@ fn encode_main(t: &CachedTransport) -> Vec<u8> {
             w.u8(1);
             w.u32(entries.len() as u32);
             for c in entries {
-                w.u32(c.target_block as u32);
-                w.u32s(&c.sources.iter().map(|s| *s as u32).collect::<Vec<_>>());
-                write_mat(&mut w, &c.y);
-                write_mat(&mut w, &c.z);
-                w.f64(c.dropped_energy);
+                w.u32(c.target_block);
+                w.u32s(&c.sources);
+                write_matrix(&mut w, &c.y);
+                write_matrix(&mut w, &c.z);
             }
         }
     }
@@ -195,7 +212,7 @@ fn encode_main(t: &CachedTransport) -> Vec<u8> {
 struct Main {
     traced: bool,
     headers: Vec<Header>,
-    compact: Option<Vec<CompactTransport>>,
+    compact: Option<Vec<CompactEntry>>,
     stats: TransportStats,
 }
 
@@ -232,12 +249,11 @@ fn decode_main(bytes: &[u8]) -> Result<Main, WireError> {
             let n = r.u32()? as usize;
             let mut entries = Vec::with_capacity(n.min(r.remaining() / 24));
             for _ in 0..n {
-                entries.push(CompactTransport {
-                    target_block: r.u32()? as usize,
-                    sources: r.u32s()?.into_iter().map(|s| s as usize).collect(),
-                    y: read_mat(&mut r)?,
-                    z: read_mat(&mut r)?,
-                    dropped_energy: r.f64()?,
+                entries.push(CompactEntry {
+                    target_block: r.u32()?,
+                    sources: r.u32s()?,
+                    y: read_matrix(&mut r)?,
+                    z: read_matrix(&mut r)?,
                 });
             }
             Some(entries)
@@ -282,7 +298,7 @@ fn decode_matrices(bytes: &[u8], count: usize) -> Result<Vec<Mat<f64>>, WireErro
 /// What a cache hit hands out: the compaction and statistics read, the f64 transport left on
 /// disk until someone asks for the blocks it needs.
 pub struct CachedHit {
-    pub compact: Option<Vec<CompactTransport>>,
+    pub compact: Option<Vec<CompactEntry>>,
     pub stats: TransportStats,
     pub transport: LazyTransport,
 }
@@ -420,6 +436,7 @@ impl TransportCache {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bake::math::matrix::to_matrix;
 
     fn mat(rows: usize, cols: usize, seed: f64) -> Mat<f64> {
         Mat::from_fn(rows, cols, |i, j| (seed + (7 * i + 3 * j) as f64) / 9.0)
@@ -487,12 +504,11 @@ mod tests {
                 source_block: 1,
                 matrix: mat(4, 3, 0.2),
             }]),
-            compact: Some(vec![CompactTransport {
+            compact: Some(vec![CompactEntry {
                 target_block: 0,
                 sources: vec![0, 1],
-                y: mat(4, 2, 0.3),
-                z: mat(2, 5, 0.4),
-                dropped_energy: 1.0 / 3.0,
+                y: to_matrix(&mat(4, 2, 0.3)),
+                z: to_matrix(&mat(2, 5, 0.4)),
             }]),
             stats: stats(),
         };
@@ -501,15 +517,8 @@ mod tests {
             cache.put("k", t).unwrap();
             let hit = cache.get("k").expect("a hit");
             assert_eq!(hit.stats, t.stats);
-            assert_eq!(
-                hit.compact.as_ref().map(|c| c.len()),
-                t.compact.as_ref().map(|c| c.len())
-            );
-            if let (Some(a), Some(b)) = (&hit.compact, &t.compact) {
-                assert_eq!(a[0].sources, b[0].sources);
-                assert_eq!(a[0].z, b[0].z);
-                assert_eq!(a[0].dropped_energy.to_bits(), b[0].dropped_energy.to_bits());
-            }
+            // The compaction as the bundle ships it, bit for bit.
+            assert_eq!(hit.compact, t.compact);
             assert_eq!(bits(&hit.transport.load_all().unwrap()), bits(&t.mrt));
         }
 

@@ -171,8 +171,7 @@ fn bake_once(
     )?;
     report.transport = stats;
     // Only the bundle reads the compaction (the transport dropped the lightfields itself).
-    let transport = to_bundle::transport_ops(compact.as_deref(), &held);
-    drop(compact);
+    let transport = to_bundle::transport_ops(compact, &held);
     let mut bundle =
         to_bundle::mrt_bundle(scene, &openings, &plan, &shapes, &full_geometry, transport);
     announce(&bundle);

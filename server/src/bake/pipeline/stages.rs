@@ -10,6 +10,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
+use lightfarm_proto::bundle::CompactEntry;
 use lightfarm_proto::scene::{ProbeVolumeMode, Scene, Transform, Transport};
 
 use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
@@ -34,7 +35,7 @@ use crate::bake::tracer::Tracer;
 use crate::bake::transport::build::{
     lightfield_transport, traced_transport, MrtTransport, TransportStats,
 };
-use crate::bake::transport::compaction::{compact_transport, CompactTransport};
+use crate::bake::transport::compaction::compact_transport;
 use crate::bake::transport::source::TransportSource;
 
 use super::plan::ShapePlan;
@@ -140,8 +141,8 @@ impl HeldTransport {
 /// What the transport stage hands on.
 pub struct BlockTransport {
     pub held: HeldTransport,
-    /// Present when the scene ships compact transport.
-    pub compact: Option<Vec<CompactTransport>>,
+    /// Present when the scene ships compact transport: as the bundle ships it (f32).
+    pub compact: Option<Vec<CompactEntry>>,
     pub stats: TransportStats,
 }
 
@@ -257,7 +258,7 @@ pub fn mrt_transport(
         let compact = compact_transport(per_block, &mrt, settings.tolerance)
             .map_err(|e| BakeError::Transport(e.to_string()))?;
         stats.compact_ranks = compact.iter().map(|c| c.y.ncols()).collect();
-        Some(compact)
+        Some(super::to_bundle::compact_entries(&compact))
     } else {
         None
     };

@@ -24,21 +24,28 @@ use super::plan::ShapePlan;
 use super::stages::HeldTransport;
 use super::BakeError;
 
+/// The compaction as the bundle ships it: f32 `y` and `z` per target block (what the stage
+/// hands on and the transport cache stores, so a cache hit reads half the bytes of the f64).
+pub fn compact_entries(compact: &[CompactTransport]) -> Vec<bundle::CompactEntry> {
+    compact
+        .iter()
+        .map(|c| bundle::CompactEntry {
+            target_block: c.target_block as u32,
+            sources: c.sources.iter().map(|s| *s as u32).collect(),
+            y: to_matrix(&c.y),
+            z: to_matrix(&c.z),
+        })
+        .collect()
+}
+
 /// The bundle's transport section: the compact form when the scene ships it, else the
 /// transport as traced or as lightfields.
-pub fn transport_ops(compact: Option<&[CompactTransport]>, held: &HeldTransport) -> TransportOps {
+pub fn transport_ops(
+    compact: Option<Vec<bundle::CompactEntry>>,
+    held: &HeldTransport,
+) -> TransportOps {
     if let Some(compact) = compact {
-        TransportOps::Compact(
-            compact
-                .iter()
-                .map(|c| bundle::CompactEntry {
-                    target_block: c.target_block as u32,
-                    sources: c.sources.iter().map(|s| *s as u32).collect(),
-                    y: to_matrix(&c.y),
-                    z: to_matrix(&c.z),
-                })
-                .collect(),
-        )
+        TransportOps::Compact(compact)
     } else {
         let HeldTransport::Computed(mrt) = held else {
             unreachable!("a transport without compaction is held whole (stages::block_transport)")
