@@ -89,13 +89,26 @@ pub fn write_container(
     w.bytes.extend_from_slice(&minor.to_le_bytes());
     let mut toc = Vec::with_capacity(sections.len());
     let mut infos = Vec::with_capacity(sections.len());
-    for (kind, raw) in sections {
-        let offset = w.bytes.len() as u64;
+    // Each section compressed on a thread of its own (each is the bytes it would be alone).
+    let compress = |raw: &Vec<u8>| {
         let level = section_zstd_level(zstd_level, raw.len());
-        let compressed = (level != 0)
+        (level != 0)
             .then(|| zstd::bulk::compress(raw, level).ok())
             .flatten()
-            .filter(|c| c.len() < raw.len());
+            .filter(|c| c.len() < raw.len())
+    };
+    let compressed: Vec<Option<Vec<u8>>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = sections
+            .iter()
+            .map(|(_, raw)| scope.spawn(|| compress(raw)))
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("a section compressor panicked"))
+            .collect()
+    });
+    for ((kind, raw), compressed) in sections.iter().zip(compressed) {
+        let offset = w.bytes.len() as u64;
         let (flags, stored): (u32, &[u8]) = match &compressed {
             Some(c) => (FLAG_ZSTD, c),
             None => (0, raw),

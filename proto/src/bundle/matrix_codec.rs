@@ -12,7 +12,7 @@
 //! report do not depend on the thread count.
 
 use crate::codec::{
-    choose_encoding, read_matrix, u8_step_name, write_matrix_smallest, CodecPolicy,
+    choose_encoding, read_matrix, u8_step_name, write_matrix_smallest, CodecPolicy, MatrixCodec,
 };
 use crate::wire::{Reader, WireError, Writer};
 
@@ -36,34 +36,42 @@ impl Matrix {
     }
 }
 
-/// One matrix as written: its bytes and what the report counts of it.
-struct Encoded {
-    bytes: Vec<u8>,
-    name: &'static str,
-    predicted: bool,
-    values: u64,
-    value_bytes: u64,
-    error: f64,
+/// One matrix as the writer encodes it: its bytes on the wire, the codec and 8-bit step it
+/// chose and the error that adds (what the report counts of it follows from these and the
+/// matrix's size).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MatrixEncoding {
+    pub bytes: Vec<u8>,
+    pub codec: MatrixCodec,
+    pub step: u8,
+    pub error: f64,
+}
+
+/// Encodings a writer made before, handed back so that an unchanged matrix is not encoded
+/// again (a rebake after a clutter edit writes the same transport and shapes).
+///
+/// Invariant the implementation keeps: [`EncodingMemo::get`] returns only an encoding that
+/// [`EncodingMemo::keep`] was given for a matrix with the same size and value bits under the
+/// same policy, by a writer of this same code; the bytes then are what encoding would give.
+pub trait EncodingMemo: Sync {
+    /// The encoding of `m` under `policy` kept before, if any.
+    fn get(&self, m: &Matrix, policy: CodecPolicy) -> Option<MatrixEncoding>;
+    /// Called for every matrix written, in file order, with its encoding.
+    fn keep(&self, m: &Matrix, policy: CodecPolicy, encoding: &MatrixEncoding);
 }
 
 /// Encodes one matrix under `policy`: a pure function of the matrix and the policy.
-fn encode_matrix(m: &Matrix, policy: CodecPolicy) -> Encoded {
+fn encode_matrix(m: &Matrix, policy: CodecPolicy) -> MatrixEncoding {
     let (rows, cols) = (m.rows as usize, m.cols as usize);
     let (codec, step, error) = choose_encoding(&m.data, rows, cols, policy);
     // Lossless: an 8-bit matrix's q go plain or as prediction residuals, whichever is
     // smaller; both decode to the same values.
     let mut w = Writer::new();
     let codec = write_matrix_smallest(&mut w, &m.data, rows, cols, codec, step);
-    Encoded {
+    MatrixEncoding {
         bytes: w.bytes,
-        name: if codec.is_u8() {
-            u8_step_name(step)
-        } else {
-            codec.name()
-        },
-        predicted: codec.is_predicted(),
-        values: (rows * cols) as u64,
-        value_bytes: codec.value_bytes(rows, cols) as u64,
+        codec,
+        step,
         error,
     }
 }
@@ -74,7 +82,7 @@ fn encode_matrix(m: &Matrix, policy: CodecPolicy) -> Encoded {
 enum Mode<'a> {
     Direct,
     Collect(Vec<(&'a Matrix, CodecPolicy)>),
-    Replay(std::vec::IntoIter<Encoded>),
+    Replay(std::vec::IntoIter<MatrixEncoding>),
 }
 
 /// Picks each operator matrix's codec by the [`EncodeOptions`] and tallies what it chose.
@@ -115,12 +123,13 @@ impl<'a> MatrixEncoder<'a> {
         self,
         options: &EncodeOptions,
         threads: usize,
+        memo: Option<&dyn EncodingMemo>,
     ) -> MatrixEncoder<'a> {
         let Mode::Collect(jobs) = self.mode else {
             panic!("encode_listed on an encoder that did not list");
         };
         let next = std::sync::atomic::AtomicUsize::new(0);
-        let mut done: Vec<(usize, Encoded)> = std::thread::scope(|scope| {
+        let mut done: Vec<(usize, MatrixEncoding)> = std::thread::scope(|scope| {
             let workers: Vec<_> = (0..threads.max(1))
                 .map(|_| {
                     scope.spawn(|| {
@@ -130,7 +139,10 @@ impl<'a> MatrixEncoder<'a> {
                             let Some(&(m, policy)) = jobs.get(k) else {
                                 break mine;
                             };
-                            mine.push((k, encode_matrix(m, policy)));
+                            let e = memo
+                                .and_then(|memo| memo.get(m, policy))
+                                .unwrap_or_else(|| encode_matrix(m, policy));
+                            mine.push((k, e));
                         }
                     })
                 })
@@ -141,6 +153,11 @@ impl<'a> MatrixEncoder<'a> {
                 .collect()
         });
         done.sort_unstable_by_key(|(k, _)| *k);
+        if let Some(memo) = memo {
+            for ((m, policy), (_, e)) in jobs.iter().zip(&done) {
+                memo.keep(m, *policy, e);
+            }
+        }
         MatrixEncoder {
             mode: Mode::Replay(
                 done.into_iter()
@@ -169,11 +186,17 @@ impl<'a> MatrixEncoder<'a> {
             Mode::Replay(done) => done.next().expect("the sections list the same matrices"),
         };
         w.bytes.extend_from_slice(&e.bytes);
-        let usage = self.report.codecs.entry(e.name).or_default();
+        let (rows, cols) = (m.rows as usize, m.cols as usize);
+        let name = if e.codec.is_u8() {
+            u8_step_name(e.step)
+        } else {
+            e.codec.name()
+        };
+        let usage = self.report.codecs.entry(name).or_default();
         usage.matrices += 1;
-        usage.predicted += e.predicted as u64;
-        usage.values += e.values;
-        usage.bytes += e.value_bytes;
+        usage.predicted += e.codec.is_predicted() as u64;
+        usage.values += (rows * cols) as u64;
+        usage.bytes += e.codec.value_bytes(rows, cols) as u64;
         self.report.max_codec_error = self.report.max_codec_error.max(e.error);
     }
 }

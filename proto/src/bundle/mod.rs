@@ -57,6 +57,7 @@ mod symmetric_blocks;
 mod validate;
 mod write;
 pub use gather_encoding::gather_counts;
+pub use matrix_codec::{EncodingMemo, MatrixEncoding};
 pub use rooms::{FaceLink, Room, Rooms, SurfacePlace};
 pub use sections::{section, section_name};
 pub use sh_responses::{ShEntry, ShResponses};

@@ -11,7 +11,7 @@ use crate::container::write_container;
 use crate::wire::Writer;
 
 use super::delta_entries::write_entries;
-use super::matrix_codec::MatrixEncoder;
+use super::matrix_codec::{EncodingMemo, MatrixEncoder};
 use super::sections::{section, section_name};
 use super::{gather_encoding, sh_responses, symmetric_blocks};
 use super::{
@@ -68,10 +68,22 @@ impl Bundle {
     /// [`Bundle::encode_with`] on `threads` threads; one thread encodes each matrix as it
     /// writes it (no listing pass). Every thread count gives the same bytes and report.
     pub fn encode_on(&self, options: &EncodeOptions, threads: usize) -> (Vec<u8>, EncodeReport) {
-        let mut enc = if threads > 1 {
+        self.encode_memo(options, threads, None)
+    }
+
+    /// [`Bundle::encode_on`] taking each matrix's encoding from `memo` where it has one, and
+    /// handing it every matrix's encoding in file order ([`EncodingMemo`]): the same bytes and
+    /// report, with the unchanged matrices of a rebake not encoded again.
+    pub fn encode_memo(
+        &self,
+        options: &EncodeOptions,
+        threads: usize,
+        memo: Option<&dyn EncodingMemo>,
+    ) -> (Vec<u8>, EncodeReport) {
+        let mut enc = if threads > 1 || memo.is_some() {
             let mut listing = MatrixEncoder::listing(options);
             self.encode_sections(&mut listing);
-            listing.encode_listed(options, threads)
+            listing.encode_listed(options, threads, memo)
         } else {
             MatrixEncoder::new(options)
         };

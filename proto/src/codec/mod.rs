@@ -64,7 +64,8 @@ pub enum MatrixCodec {
 }
 
 impl MatrixCodec {
-    fn tag(self) -> u8 {
+    /// The codec's tag on the wire (0–5).
+    pub fn tag(self) -> u8 {
         match self {
             MatrixCodec::F32 => 0,
             MatrixCodec::F16 => 1,
@@ -75,7 +76,8 @@ impl MatrixCodec {
         }
     }
 
-    fn from_tag(tag: u8) -> Option<MatrixCodec> {
+    /// The codec of a wire tag; None for an unknown one.
+    pub fn from_tag(tag: u8) -> Option<MatrixCodec> {
         Some(match tag {
             0 => MatrixCodec::F32,
             1 => MatrixCodec::F16,

@@ -2,11 +2,13 @@
 
 use std::path::{Path, PathBuf};
 
+use lightfarm_proto::bundle::EncodingMemo;
 use lightfarm_proto::scene::{BundleCodec, Scene, Transport};
 
 use super::progress_bar::Bar;
 use super::{read_text, write_atomic};
 use crate::bake::cache::bundle_memo::{BundleMemo, MemoOptions};
+use crate::bake::cache::encodings::EncodingCache;
 use crate::bake::cache::shape::ShapeCache;
 use crate::bake::pipeline::encoding::encode_options;
 use crate::bake::{bake, BakeOptions};
@@ -100,8 +102,24 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
     let (bundle, mut report) = bake(&scene, &dir, &options, &bar)?;
     bar.finish();
     let started = std::time::Instant::now();
-    let (bytes, encoded) = bundle.encode_with(&encode_options(&scene.settings, args.codec));
+    // The level's last write's matrix encodings: a rebake writes most matrices unchanged.
+    let encodings = match &args.cache {
+        Some(dir) => EncodingCache::open(dir, &scene.name)?,
+        None => None,
+    };
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let (bytes, encoded) = bundle.encode_memo(
+        &encode_options(&scene.settings, args.codec),
+        threads,
+        encodings.as_ref().map(|e| e as &dyn EncodingMemo),
+    );
     drop(bundle);
+    if let Some(encodings) = &encodings {
+        if let Err(e) = encodings.save() {
+            // Only a later rebake's time depends on it.
+            tracing::warn!(error = %e, "could not keep the bundle's encodings in the cache");
+        }
+    }
     let encode_seconds = started.elapsed().as_secs_f64();
     let started = std::time::Instant::now();
     report.bundle_bytes = bytes.len();

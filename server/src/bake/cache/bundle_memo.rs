@@ -68,12 +68,9 @@ impl BundleMemo {
     /// The key of baking `scene` (its files relative to `scene_dir`) with `options` by this
     /// build; `None` when an input cannot be read.
     pub fn key(scene: &Scene, scene_dir: &Path, options: &MemoOptions) -> Option<MemoKey> {
-        let exe = std::env::current_exe().ok()?.metadata().ok()?;
-        let built = exe.modified().ok()?.duration_since(UNIX_EPOCH).ok()?;
         let mut h = blake3::Hasher::new();
         h.update(CODE_VERSION.as_bytes());
-        h.update(&exe.len().to_le_bytes());
-        h.update(&built.as_nanos().to_le_bytes());
+        h.update(&build_identity()?);
         let json = serde_json::to_vec(scene).ok()?;
         h.update(&(json.len() as u64).to_le_bytes());
         h.update(&json);
@@ -102,6 +99,16 @@ impl BundleMemo {
     pub fn put(&self, key: &MemoKey, bundle: &[u8]) -> std::io::Result<()> {
         self.store.put(&key.0, bundle)
     }
+}
+
+/// The running engine's build: its executable's length and modification time (as `ccache`'s
+/// default compiler check), so any rebuild gives another; None when it cannot be read.
+pub(crate) fn build_identity() -> Option<Vec<u8>> {
+    let exe = std::env::current_exe().ok()?.metadata().ok()?;
+    let built = exe.modified().ok()?.duration_since(UNIX_EPOCH).ok()?;
+    let mut id = exe.len().to_le_bytes().to_vec();
+    id.extend_from_slice(&built.as_nanos().to_le_bytes());
+    Some(id)
 }
 
 /// Every file the scene's meshes read, in scene order: each mesh file, then for glTF its

@@ -12,6 +12,8 @@
 //! - [`drt_rays`]: DRT ray-pass units and clutter prior bases (`drt/`), keyed and reused by
 //!   [`crate::bake::drt::rays`].
 //! - [`factors`]: the DRT compaction's truncated SVDs (`factors/`), keyed by the matrix.
+//! - [`encodings`]: the bundle writer's matrix encodings of a level's last write
+//!   (`encodings/`), handed back for the matrices a rebake writes unchanged.
 //! - [`bundle_memo`]: whole encoded bundles (`bundles/`), keyed by everything a bake reads
 //!   (the engine's build, the scene, the options, the mesh files), so a rebake with nothing
 //!   changed costs a lookup.
@@ -22,6 +24,7 @@
 pub mod bundle_memo;
 pub mod dnrt;
 pub mod drt_rays;
+pub mod encodings;
 pub mod entry;
 pub mod factors;
 pub mod shape;

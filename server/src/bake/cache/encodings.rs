@@ -1,0 +1,208 @@
+//! On-disk memo of the bundle writer's matrix encodings ([`EncodingMemo`]): a rebake after a
+//! clutter edit writes the same transport and shape matrices as the bake before (about 85% of
+//! a 1,000-block level's bundle), and choosing their codecs and predictors is most of the
+//! writer's time, so the encodings of the level's last write are kept and handed back.
+//!
+//! One entry per engine build and scene name ([`ENTRY`]: `<dir>/encodings/<key>.lfenc`): the
+//! encodings of the last bundle written, each under the blake3 of the build, the codec policy,
+//! the matrix's size and its value bits. The payload: a count, then per matrix its key (32
+//! bytes), codec tag, 8-bit step, error (f64) and bytes (u64 length, then the bytes).
+//! Framing, verification and atomic writes are [`crate::bake::cache::entry`]'s: a stale or
+//! corrupt entry is an empty memo.
+//!
+//! Invariant: an encoding is handed back only for a matrix of the same size and value bits
+//! under the same policy, kept by this same build ([`super::bundle_memo::build_identity`]),
+//! whose writer is a pure function of those: the bundle is the same bytes with or without it.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::Mutex;
+
+use lightfarm_proto::bundle::{EncodingMemo, Matrix, MatrixEncoding};
+use lightfarm_proto::codec::{CodecPolicy, MatrixCodec};
+use lightfarm_proto::wire::{Reader, WireError, Writer};
+
+use crate::bake::cache::bundle_memo::build_identity;
+use crate::bake::cache::entry::{EntryKind, EntryStore};
+
+/// Bumped whenever the key's contents or the payload change.
+const CODE_VERSION: &str = "lightfarm-encodings-1";
+
+/// Where encoding memos live and their version.
+pub const ENTRY: EntryKind = EntryKind {
+    subdir: "encodings",
+    extension: "lfenc",
+    version: CODE_VERSION,
+};
+
+/// A level's matrix encodings: those its last write kept, and those this write keeps.
+pub struct EncodingCache {
+    store: EntryStore,
+    key: String,
+    build: Vec<u8>,
+    earlier: HashMap<[u8; 32], MatrixEncoding>,
+    kept: Mutex<Vec<([u8; 32], MatrixEncoding)>>,
+}
+
+impl EncodingCache {
+    /// The memo of `scene_name` by this build in `dir`; None when the build cannot be told.
+    pub fn open(dir: &Path, scene_name: &str) -> std::io::Result<Option<EncodingCache>> {
+        let Some(build) = build_identity() else {
+            return Ok(None);
+        };
+        let store = EntryStore::open(dir, ENTRY)?;
+        let mut h = blake3::Hasher::new();
+        h.update(CODE_VERSION.as_bytes());
+        h.update(&build);
+        h.update(scene_name.as_bytes());
+        let key = h.finalize().to_hex().to_string();
+        let earlier = store
+            .get(&key, |payload| decode(payload).ok())
+            .hit()
+            .unwrap_or_default();
+        Ok(Some(EncodingCache {
+            store,
+            key,
+            build,
+            earlier,
+            kept: Mutex::new(Vec::new()),
+        }))
+    }
+
+    /// How many encodings the last write kept.
+    pub fn earlier(&self) -> usize {
+        self.earlier.len()
+    }
+
+    /// Stores what this write kept (replacing the last write's).
+    pub fn save(&self) -> std::io::Result<()> {
+        let kept = self.kept.lock().expect("the memo's lock");
+        self.store.put(&self.key, &encode(&kept))
+    }
+
+    fn matrix_key(&self, m: &Matrix, policy: CodecPolicy) -> [u8; 32] {
+        let mut h = blake3::Hasher::new();
+        h.update(&self.build);
+        h.update(format!("{policy:?}").as_bytes());
+        h.update(&m.rows.to_le_bytes());
+        h.update(&m.cols.to_le_bytes());
+        let bits: Vec<u8> = m.data.iter().flat_map(|x| x.to_le_bytes()).collect();
+        h.update(&bits);
+        *h.finalize().as_bytes()
+    }
+}
+
+impl EncodingMemo for EncodingCache {
+    fn get(&self, m: &Matrix, policy: CodecPolicy) -> Option<MatrixEncoding> {
+        if self.earlier.is_empty() {
+            return None;
+        }
+        self.earlier.get(&self.matrix_key(m, policy)).cloned()
+    }
+
+    fn keep(&self, m: &Matrix, policy: CodecPolicy, encoding: &MatrixEncoding) {
+        let key = self.matrix_key(m, policy);
+        self.kept
+            .lock()
+            .expect("the memo's lock")
+            .push((key, encoding.clone()));
+    }
+}
+
+fn encode(kept: &[([u8; 32], MatrixEncoding)]) -> Vec<u8> {
+    let mut w = Writer::new();
+    w.u32(kept.len() as u32);
+    for (key, e) in kept {
+        w.bytes.extend_from_slice(key);
+        w.u8(e.codec.tag());
+        w.u8(e.step);
+        w.f64(e.error);
+        w.u64(e.bytes.len() as u64);
+        w.bytes.extend_from_slice(&e.bytes);
+    }
+    w.bytes
+}
+
+fn decode(payload: &[u8]) -> Result<HashMap<[u8; 32], MatrixEncoding>, WireError> {
+    let mut r = Reader::new(payload);
+    let n = r.u32()? as usize;
+    let mut out = HashMap::with_capacity(n.min(r.remaining() / 50));
+    for _ in 0..n {
+        let key: [u8; 32] = r.take(32)?.try_into().expect("32 bytes");
+        let codec =
+            MatrixCodec::from_tag(r.u8()?).ok_or_else(|| WireError::Invalid("codec tag".into()))?;
+        let step = r.u8()?;
+        let error = r.f64()?;
+        let len = usize::try_from(r.u64()?)
+            .ok()
+            .filter(|&len| len <= r.remaining())
+            .ok_or_else(|| WireError::Invalid("encoding longer than the entry".into()))?;
+        let bytes = r.take(len)?.to_vec();
+        out.insert(
+            key,
+            MatrixEncoding {
+                bytes,
+                codec,
+                step,
+                error,
+            },
+        );
+    }
+    if r.remaining() != 0 {
+        return Err(WireError::Invalid("trailing bytes".into()));
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lightfarm_proto::bundle::EncodeOptions;
+    use lightfarm_proto::testing::{drt_bundle, Lcg};
+
+    /// A level's second write takes its matrices from the memo the first one saved and gives
+    /// the same bytes; a corrupt memo is an empty one (the same bytes again, encoded).
+    #[test]
+    fn a_saved_memo_writes_the_same_bytes_and_a_corrupt_one_is_empty() {
+        let dir = std::env::temp_dir().join(format!("lf-encodings-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let bundle = drt_bundle(&mut Lcg(5), true, true, false);
+        let options = EncodeOptions {
+            codec: CodecPolicy::Budget(0.02),
+            transport_codec: Some(CodecPolicy::Budget(0.002)),
+            zstd_level: 3,
+        };
+        let (want, _) = bundle.encode_on(&options, 1);
+        let first = EncodingCache::open(&dir, "level").unwrap().unwrap();
+        assert_eq!(first.earlier(), 0);
+        let (bytes, _) = bundle.encode_memo(&options, 2, Some(&first));
+        assert!(bytes == want);
+        first.save().unwrap();
+        let kept = first.kept.lock().unwrap().len();
+        assert!(kept > 10);
+
+        let second = EncodingCache::open(&dir, "level").unwrap().unwrap();
+        assert_eq!(second.earlier(), kept);
+        let (bytes, _) = bundle.encode_memo(&options, 2, Some(&second));
+        assert!(bytes == want);
+        // Another level's memo is its own.
+        assert_eq!(
+            EncodingCache::open(&dir, "other")
+                .unwrap()
+                .unwrap()
+                .earlier(),
+            0
+        );
+
+        let path = second.store.path(&second.key);
+        let mut raw = std::fs::read(&path).unwrap();
+        let mid = raw.len() / 2;
+        raw[mid] ^= 0x20;
+        std::fs::write(&path, &raw).unwrap();
+        let third = EncodingCache::open(&dir, "level").unwrap().unwrap();
+        assert_eq!(third.earlier(), 0);
+        let (bytes, _) = bundle.encode_memo(&options, 2, Some(&third));
+        assert!(bytes == want);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
