@@ -69,7 +69,13 @@ struct Memo {
 }
 
 impl EncodingMemo for Memo {
-    fn get(&self, m: &Matrix, policy: CodecPolicy) -> Option<MatrixEncoding> {
+    fn encoding(
+        &self,
+        _index: usize,
+        m: &Matrix,
+        policy: CodecPolicy,
+        encode: &dyn Fn() -> MatrixEncoding,
+    ) -> MatrixEncoding {
         let key = (
             m.rows,
             m.cols,
@@ -80,16 +86,9 @@ impl EncodingMemo for Memo {
         if found.is_some() {
             self.hits.fetch_add(1, Ordering::Relaxed);
         }
-        found
-    }
-    fn keep(&self, m: &Matrix, policy: CodecPolicy, encoding: &MatrixEncoding) {
-        let key = (
-            m.rows,
-            m.cols,
-            m.data.iter().map(|x| x.to_bits()).collect(),
-            format!("{policy:?}"),
-        );
-        self.kept.lock().unwrap().insert(key, encoding.clone());
+        let e = found.unwrap_or_else(encode);
+        self.kept.lock().unwrap().insert(key, e.clone());
+        e
     }
 }
 

@@ -38,10 +38,10 @@ impl Matrix {
 
 /// One matrix as the writer encodes it: its bytes on the wire, the codec and 8-bit step it
 /// chose and the error that adds (what the report counts of it follows from these and the
-/// matrix's size).
+/// matrix's size). The bytes are shared, so a memo keeps an encoding without copying it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MatrixEncoding {
-    pub bytes: Vec<u8>,
+    pub bytes: std::sync::Arc<Vec<u8>>,
     pub codec: MatrixCodec,
     pub step: u8,
     pub error: f64,
@@ -50,14 +50,20 @@ pub struct MatrixEncoding {
 /// Encodings a writer made before, handed back so that an unchanged matrix is not encoded
 /// again (a rebake after a clutter edit writes the same transport and shapes).
 ///
-/// Invariant the implementation keeps: [`EncodingMemo::get`] returns only an encoding that
-/// [`EncodingMemo::keep`] was given for a matrix with the same size and value bits under the
-/// same policy, by a writer of this same code; the bytes then are what encoding would give.
+/// Invariant the implementation keeps: it hands back an earlier encoding only for a matrix
+/// with the same size and value bits under the same policy, made by a writer of this same
+/// code; the bytes then are what `encode` would give.
 pub trait EncodingMemo: Sync {
-    /// The encoding of `m` under `policy` kept before, if any.
-    fn get(&self, m: &Matrix, policy: CodecPolicy) -> Option<MatrixEncoding>;
-    /// Called for every matrix written, in file order, with its encoding.
-    fn keep(&self, m: &Matrix, policy: CodecPolicy, encoding: &MatrixEncoding);
+    /// The encoding of `m`, the `index`-th matrix of this write (file order), under `policy`:
+    /// one kept from an earlier write, or `encode()`'s; either way kept for the next write.
+    /// Called from the writer's threads, each matrix once.
+    fn encoding(
+        &self,
+        index: usize,
+        m: &Matrix,
+        policy: CodecPolicy,
+        encode: &dyn Fn() -> MatrixEncoding,
+    ) -> MatrixEncoding;
 }
 
 /// Encodes one matrix under `policy`: a pure function of the matrix and the policy.
@@ -69,7 +75,7 @@ fn encode_matrix(m: &Matrix, policy: CodecPolicy) -> MatrixEncoding {
     let mut w = Writer::new();
     let codec = write_matrix_smallest(&mut w, &m.data, rows, cols, codec, step);
     MatrixEncoding {
-        bytes: w.bytes,
+        bytes: std::sync::Arc::new(w.bytes),
         codec,
         step,
         error,
@@ -139,9 +145,11 @@ impl<'a> MatrixEncoder<'a> {
                             let Some(&(m, policy)) = jobs.get(k) else {
                                 break mine;
                             };
-                            let e = memo
-                                .and_then(|memo| memo.get(m, policy))
-                                .unwrap_or_else(|| encode_matrix(m, policy));
+                            let encode = || encode_matrix(m, policy);
+                            let e = match memo {
+                                Some(memo) => memo.encoding(k, m, policy, &encode),
+                                None => encode(),
+                            };
                             mine.push((k, e));
                         }
                     })
@@ -153,11 +161,6 @@ impl<'a> MatrixEncoder<'a> {
                 .collect()
         });
         done.sort_unstable_by_key(|(k, _)| *k);
-        if let Some(memo) = memo {
-            for ((m, policy), (_, e)) in jobs.iter().zip(&done) {
-                memo.keep(m, *policy, e);
-            }
-        }
         MatrixEncoder {
             mode: Mode::Replay(
                 done.into_iter()

@@ -41,7 +41,8 @@ pub struct EncodingCache {
     key: String,
     build: Vec<u8>,
     earlier: HashMap<[u8; 32], MatrixEncoding>,
-    kept: Mutex<Vec<([u8; 32], MatrixEncoding)>>,
+    /// This write's encodings with their index in it (file order) and key.
+    kept: Mutex<Vec<(usize, [u8; 32], MatrixEncoding)>>,
 }
 
 impl EncodingCache {
@@ -76,7 +77,9 @@ impl EncodingCache {
 
     /// Stores what this write kept (replacing the last write's).
     pub fn save(&self) -> std::io::Result<()> {
-        let kept = self.kept.lock().expect("the memo's lock");
+        let mut kept = self.kept.lock().expect("the memo's lock");
+        // File order, whichever thread kept each: the same entry bytes for the same write.
+        kept.sort_unstable_by_key(|(index, _, _)| *index);
         self.store.put(&self.key, &encode(&kept))
     }
 
@@ -93,26 +96,27 @@ impl EncodingCache {
 }
 
 impl EncodingMemo for EncodingCache {
-    fn get(&self, m: &Matrix, policy: CodecPolicy) -> Option<MatrixEncoding> {
-        if self.earlier.is_empty() {
-            return None;
-        }
-        self.earlier.get(&self.matrix_key(m, policy)).cloned()
-    }
-
-    fn keep(&self, m: &Matrix, policy: CodecPolicy, encoding: &MatrixEncoding) {
+    fn encoding(
+        &self,
+        index: usize,
+        m: &Matrix,
+        policy: CodecPolicy,
+        encode: &dyn Fn() -> MatrixEncoding,
+    ) -> MatrixEncoding {
         let key = self.matrix_key(m, policy);
+        let e = self.earlier.get(&key).cloned().unwrap_or_else(encode);
         self.kept
             .lock()
             .expect("the memo's lock")
-            .push((key, encoding.clone()));
+            .push((index, key, e.clone()));
+        e
     }
 }
 
-fn encode(kept: &[([u8; 32], MatrixEncoding)]) -> Vec<u8> {
+fn encode(kept: &[(usize, [u8; 32], MatrixEncoding)]) -> Vec<u8> {
     let mut w = Writer::new();
     w.u32(kept.len() as u32);
-    for (key, e) in kept {
+    for (_, key, e) in kept {
         w.bytes.extend_from_slice(key);
         w.u8(e.codec.tag());
         w.u8(e.step);
@@ -137,7 +141,7 @@ fn decode(payload: &[u8]) -> Result<HashMap<[u8; 32], MatrixEncoding>, WireError
             .ok()
             .filter(|&len| len <= r.remaining())
             .ok_or_else(|| WireError::Invalid("encoding longer than the entry".into()))?;
-        let bytes = r.take(len)?.to_vec();
+        let bytes = std::sync::Arc::new(r.take(len)?.to_vec());
         out.insert(
             key,
             MatrixEncoding {

@@ -332,21 +332,22 @@ impl LazyTransport {
 impl TransportSource for LazyTransport {
     fn into_targets(&self, targets: &[bool]) -> Result<MrtTransport, TransportUnavailable> {
         let marked = |b: usize| targets.get(b).copied().unwrap_or(false);
-        // Each marked target's matrices, in header order.
+        // How many operators each marked target has (one pass over the headers), then its
+        // matrices, in header order.
+        let mut counts: BTreeMap<usize, usize> = BTreeMap::new();
+        for h in self.headers.iter().filter(|h| marked(h.target)) {
+            *counts.entry(h.target).or_default() += 1;
+        }
         let mut by_target: BTreeMap<usize, std::vec::IntoIter<Mat<f64>>> = BTreeMap::new();
-        for h in &self.headers {
-            if !marked(h.target) || by_target.contains_key(&h.target) {
-                continue;
-            }
-            let count = self.headers.iter().filter(|x| x.target == h.target).count();
+        for (&target, &count) in &counts {
             let mats = self
                 .store
-                .get(&target_key(&self.key, h.target), |p| {
+                .get(&target_key(&self.key, target), |p| {
                     decode_matrices(p, count).ok()
                 })
                 .hit()
-                .ok_or_else(|| self.unavailable(h.target, "missing or corrupt"))?;
-            by_target.insert(h.target, mats.into_iter());
+                .ok_or_else(|| self.unavailable(target, "missing or corrupt"))?;
+            by_target.insert(target, mats.into_iter());
         }
         let mut next = |h: &Header| {
             by_target
