@@ -48,7 +48,8 @@ pub struct MatrixEncoding {
 }
 
 /// Encodings a writer made before, handed back so that an unchanged matrix is not encoded
-/// again (a rebake after a clutter edit writes the same transport and shapes).
+/// again, nor an unchanged section compressed again (a rebake after a clutter edit writes the
+/// same transport and shapes).
 ///
 /// Invariant the implementation keeps: it hands back an earlier encoding only for a matrix
 /// with the same size and value bits under the same policy, made by a writer of this same
@@ -64,6 +65,22 @@ pub trait EncodingMemo: Sync {
         policy: CodecPolicy,
         encode: &dyn Fn() -> MatrixEncoding,
     ) -> MatrixEncoding;
+
+    /// The stored payload of the section of `kind` whose raw payload is `raw`, at zstd `level`
+    /// ([`crate::container::compress_section`]'s, which `compress` computes): one kept from an
+    /// earlier write of the same bytes at the same level, or `compress()`'s; either way kept
+    /// for the next write. Called from the writer's threads, each section once. Without an
+    /// override, `compress()`.
+    fn section(
+        &self,
+        kind: u32,
+        raw: &[u8],
+        level: i32,
+        compress: &dyn Fn() -> Option<Vec<u8>>,
+    ) -> Option<Vec<u8>> {
+        let _ = (kind, raw, level);
+        compress()
+    }
 }
 
 /// Encodes one matrix under `policy`: a pure function of the matrix and the policy.

@@ -1,5 +1,6 @@
 //! Writing a bundle: [`Bundle::encode`] and [`Bundle::encode_with`] (every section's payload in
-//! file order, framed by [`write_container`]) and [`Bundle::raw_sections`] (the payloads alone).
+//! file order, framed by [`crate::container::write_container`]) and [`Bundle::raw_sections`]
+//! (the payloads alone).
 //!
 //! Invariant: the header always carries the writer's version ([`BUNDLE_MAJOR`].[`BUNDLE_MINOR`]),
 //! whatever sections a bundle has, so a streamed prefix and the whole bundle share their header
@@ -7,7 +8,7 @@
 //! and DRT as kind 13 (its replaced-texel list may be empty). The older kinds 3, 6 and 11 are
 //! still read ([`super::read`], [`super::legacy_1x`]) and never written.
 
-use crate::container::write_container;
+use crate::container::{compress_section, write_container_with};
 use crate::wire::Writer;
 
 use super::delta_entries::write_entries;
@@ -91,7 +92,20 @@ impl Bundle {
         // Always the writer's minor version, whatever sections this bundle has: a streamed
         // prefix (MRT sections only) and the whole bundle must share their header bytes.
         let minor = BUNDLE_MINOR;
-        let (bytes, infos) = write_container(BUNDLE_MAJOR, minor, &sections, options.zstd_level);
+        let compress = |kind: u32, raw: &[u8], level: i32| {
+            let fresh = || compress_section(raw, level);
+            match memo {
+                Some(memo) => memo.section(kind, raw, level, &fresh),
+                None => fresh(),
+            }
+        };
+        let (bytes, infos) = write_container_with(
+            BUNDLE_MAJOR,
+            minor,
+            &sections,
+            options.zstd_level,
+            &compress,
+        );
         let mut report = enc.report;
         report.sections = infos
             .into_iter()
@@ -102,7 +116,7 @@ impl Bundle {
     }
 
     /// The uncompressed f32 payload of every section, in file order (what
-    /// [`write_container`] frames; for tools and tests that edit sections).
+    /// [`crate::container::write_container`] frames; for tools and tests that edit sections).
     pub fn raw_sections(&self) -> Vec<(u32, Vec<u8>)> {
         // The default options store every matrix as f32.
         let mut enc = MatrixEncoder::new(&EncodeOptions::default());

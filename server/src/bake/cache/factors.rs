@@ -52,11 +52,18 @@ impl FactorCache {
         })
     }
 
-    /// The key of factoring `m` at `tolerance`.
-    pub fn key(m: &Mat<f64>, tolerance: f64) -> String {
+    /// The key of factoring `m` at `tolerance` into factors of at most `max_values` values
+    /// (`usize::MAX`: no bound beyond the compaction's own).
+    pub fn key(m: &Mat<f64>, tolerance: f64, max_values: usize) -> String {
         let mut h = blake3::Hasher::new();
         h.update(CODE_VERSION.as_bytes());
         h.update(&tolerance.to_bits().to_le_bytes());
+        // A bound on the factors' size changes the outcome; entries without one keep the
+        // keys they always had.
+        if max_values != usize::MAX {
+            h.update(b"max_values");
+            h.update(&(max_values as u64).to_le_bytes());
+        }
         h.update(&(m.nrows() as u64).to_le_bytes());
         h.update(&(m.ncols() as u64).to_le_bytes());
         let mut column = Vec::with_capacity(m.nrows() * 8);
@@ -110,7 +117,7 @@ mod tests {
         let _ = std::fs::remove_dir_all(&root);
         let cache = FactorCache::open(&root).unwrap();
         let m = Mat::from_fn(70, 60, |i, j| ((i * 7 + j * 3) as f64).sin() * 1e-3);
-        let k = FactorCache::key(&m, 1e-3);
+        let k = FactorCache::key(&m, 1e-3, usize::MAX);
         assert_eq!(cache.get(&k), None);
         let factors = Some((
             Mat::from_fn(70, 2, |i, j| (i + j) as f64 / 3.0),
@@ -120,13 +127,19 @@ mod tests {
         ));
         cache.put(&k, &factors).unwrap();
         assert_eq!(cache.get(&k), Some(factors));
-        let dense = FactorCache::key(&m, 2e-3);
+        let dense = FactorCache::key(&m, 2e-3, usize::MAX);
         cache.put(&dense, &None).unwrap();
         assert_eq!(cache.get(&dense), Some(None));
         // One bit of one value, or the tolerance, is another key.
         let mut m2 = m.clone();
         m2[(69, 59)] = f64::from_bits(m2[(69, 59)].to_bits() ^ 1);
-        assert_ne!(FactorCache::key(&m2, 1e-3), k);
+        assert_ne!(FactorCache::key(&m2, 1e-3, usize::MAX), k);
+        // So is a bound on the factors' size.
+        assert_ne!(FactorCache::key(&m, 1e-3, 5000), k);
+        assert_ne!(
+            FactorCache::key(&m, 1e-3, 5000),
+            FactorCache::key(&m, 1e-3, 5001)
+        );
         assert_ne!(dense, k);
         let _ = std::fs::remove_dir_all(&root);
     }

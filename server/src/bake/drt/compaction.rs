@@ -18,15 +18,21 @@
 //! Frobenius norm. A factorisation is kept only when `k (rows + cols)` is at most
 //! [`KEEP_FRACTION`] of the dense size: small entries stay exact.
 //!
-//! Invariant: deterministic (sequential SVDs in a fixed order); rows stay ascending; entries of
-//! every source come out in the order they went in.
+//! Most candidates are refused, the exact gather's ranges above all (ray-hit fractions are
+//! noise-like, of high rank): a candidate's singular values alone are computed first
+//! ([`energy_rank`]), and the vectors only when that rank could be kept.
+//!
+//! Invariant: deterministic — each SVD runs sequentially and the candidates factored side by
+//! side (rayon) are taken in their fixed order; rows stay ascending; entries of every source
+//! come out in the order they went in.
 
 use faer::Mat;
+use rayon::prelude::*;
 
 use lightfarm_proto::bundle::{DeltaEntry, DeltaSource, TexelGather};
 
 use crate::bake::cache::factors::{FactorCache, Factors, MIN_VALUES};
-use crate::bake::math::low_rank::{truncated_svd, LowRankError};
+use crate::bake::math::low_rank::{energy_rank, truncated_svd, LowRankError};
 use crate::bake::math::matrix::to_matrix;
 
 /// A factorisation is kept when its values are at most this fraction of the dense entry's.
@@ -49,21 +55,37 @@ pub struct DeltaCompactionStats {
     pub ranks: Vec<usize>,
 }
 
-/// The factors `(left, mix)` of `m` when they are smaller than [`KEEP_FRACTION`] of it; from
+impl DeltaCompactionStats {
+    /// Adds `other`'s counts, and its ranks after this one's.
+    pub fn merge(&mut self, other: DeltaCompactionStats) {
+        self.factored += other.factored;
+        self.dense += other.dense;
+        self.values_before += other.values_before;
+        self.values_after += other.values_after;
+        self.gather_sparse_before += other.gather_sparse_before;
+        self.gather_factor_values += other.gather_factor_values;
+        self.gather_sparse_left += other.gather_sparse_left;
+        self.ranks.extend(other.ranks);
+    }
+}
+
+/// The factors `(left, mix)` of `m` when they are smaller than [`KEEP_FRACTION`] of it and hold
+/// at most `max_values` values; from
 /// `cache` when it holds this matrix's outcome (the same bits), stored there otherwise.
 fn factor(
     m: &Mat<f64>,
     tolerance: f64,
+    max_values: usize,
     cache: Option<&FactorCache>,
 ) -> Result<Factors, LowRankError> {
     let Some(cache) = cache.filter(|_| m.nrows() * m.ncols() >= MIN_VALUES) else {
-        return factor_now(m, tolerance);
+        return factor_now(m, tolerance, max_values);
     };
-    let key = FactorCache::key(m, tolerance);
+    let key = FactorCache::key(m, tolerance, max_values);
     if let Some(hit) = cache.get(&key) {
         return Ok(hit);
     }
-    let factors = factor_now(m, tolerance)?;
+    let factors = factor_now(m, tolerance, max_values)?;
     if let Err(e) = cache.put(&key, &factors) {
         // Only a later rebake's time depends on it.
         tracing::warn!(error = %e, "could not store a DRT factorisation in the cache");
@@ -71,14 +93,29 @@ fn factor(
     Ok(factors)
 }
 
-fn factor_now(m: &Mat<f64>, tolerance: f64) -> Result<Factors, LowRankError> {
+/// Ranks a factorisation may have above the singular-value-only estimate and still be
+/// computed ([`factor_now`]): the estimate and the decomposition's own rank can differ by one
+/// where a singular value lies within rounding of the energy threshold.
+const PRESCREEN_MARGIN: usize = 2;
+
+fn factor_now(m: &Mat<f64>, tolerance: f64, max_values: usize) -> Result<Factors, LowRankError> {
     let (rows, cols) = (m.nrows(), m.ncols());
     if rows.min(cols) <= 2 {
         return Ok(None);
     }
+    let too_big = |k: usize| {
+        (k * (rows + cols)) as f64 > KEEP_FRACTION * (rows * cols) as f64
+            || k * (rows + cols) > max_values
+    };
+    // Most candidates are refused (the exact gather's ray-hit fractions are noise-like, of
+    // high rank): the singular values alone tell that, without forming the vectors.
+    let estimate = energy_rank(m.as_ref(), tolerance)?;
+    if too_big(estimate.saturating_sub(PRESCREEN_MARGIN)) {
+        return Ok(None);
+    }
     let svd = truncated_svd(m.as_ref(), tolerance)?;
     let k = svd.s.len();
-    if (k * (rows + cols)) as f64 > KEEP_FRACTION * (rows * cols) as f64 {
+    if too_big(k) {
         return Ok(None);
     }
     let left = Mat::from_fn(rows, k, |i, j| svd.u[(i, j)] * svd.s[j]);
@@ -96,7 +133,7 @@ pub fn compact_entry(
     stats: &mut DeltaCompactionStats,
 ) -> Result<DeltaEntry, LowRankError> {
     stats.values_before += m.nrows() * m.ncols();
-    Ok(match factor(m, tolerance, cache)? {
+    Ok(match factor(m, tolerance, usize::MAX, cache)? {
         Some((left, mix)) => {
             stats.factored += 1;
             stats.ranks.push(mix.nrows());
@@ -206,34 +243,41 @@ pub fn compact_gather(
             }
         }
     }
-    // Which ranges become entries.
-    let mut factored_ranges = vec![false; ranges.len()];
-    let mut entries = Vec::new();
-    for (ri, &(first, count)) in ranges.iter().enumerate() {
-        let (rows, nnz) = (&rows_of[ri], nnz_of[ri]);
-        if rows.is_empty() {
-            continue;
-        }
-        let mut dense = Mat::<f64>::zeros(rows.len(), count as usize);
-        for (r, &(i, _)) in rows.iter().enumerate() {
-            for (&c, &v) in row_entries(i) {
-                if range_of(c) == Some(ri) {
-                    dense[(r, (c - first) as usize)] += v as f64;
+    // Which ranges become entries: each range's dense block is built and factored on a worker
+    // of its own (a worker holds one block at a time), the outcomes taken in range order. A
+    // range is kept when its factors hold at most twice its sparse entries.
+    let outcomes: Vec<Factors> = (0..ranges.len())
+        .into_par_iter()
+        .map(|ri| {
+            let (first, count) = ranges[ri];
+            let rows = &rows_of[ri];
+            if rows.is_empty() {
+                return Ok(None);
+            }
+            let mut dense = Mat::<f64>::zeros(rows.len(), count as usize);
+            for (r, &(i, _)) in rows.iter().enumerate() {
+                for (&c, &v) in row_entries(i) {
+                    if range_of(c) == Some(ri) {
+                        dense[(r, (c - first) as usize)] += v as f64;
+                    }
                 }
             }
-        }
-        let Some((left, mix)) = factor(&dense, tolerance, cache)? else {
+            factor(&dense, tolerance, 2 * nnz_of[ri], cache)
+        })
+        .collect::<Result<_, LowRankError>>()?;
+    let mut factored_ranges = vec![false; ranges.len()];
+    let mut entries = Vec::new();
+    for (ri, outcome) in outcomes.into_iter().enumerate() {
+        let Some((left, mix)) = outcome else {
             continue;
         };
+        let (first, count) = ranges[ri];
         let values = left.nrows() * left.ncols() + mix.nrows() * mix.ncols();
-        if values > 2 * nnz {
-            continue;
-        }
         factored_ranges[ri] = true;
         stats.gather_factor_values += values;
         stats.ranks.push(mix.nrows());
         entries.push(DeltaEntry {
-            rows: rows.iter().map(|&(_, row)| row).collect(),
+            rows: rows_of[ri].iter().map(|&(_, row)| row).collect(),
             source: DeltaSource::Direct { first, count },
             matrix: to_matrix(&left),
             mix: Some(to_matrix(&mix)),

@@ -7,6 +7,7 @@
 
 use lightfarm_proto::bundle::{self, Bundle, Layout, SparseRows, SurfaceInfo, TransportOps};
 use lightfarm_proto::scene::{Opening, Scene, Settings};
+use rayon::prelude::*;
 
 use crate::bake::cache::factors::FactorCache;
 use crate::bake::drt::build::{DeltaBlock, DrtOperators};
@@ -166,12 +167,15 @@ pub fn drt_section(
     }
     let low_rank = |e: LowRankError| BakeError::Drt(format!("delta compaction: {e}"));
     let mut stats = DeltaCompactionStats::default();
-    let mut entries = Vec::with_capacity(ops.entries.len());
     let mut buried = ops.buried.clone();
     buried.sort_unstable();
-    for e in &ops.entries {
-        entries.extend(
-            compact_entry_keeping(
+    // Every entry on a worker of its own; entries and statistics taken in the entries' order.
+    let compacted: Vec<(Vec<bundle::DeltaEntry>, DeltaCompactionStats)> = ops
+        .entries
+        .par_iter()
+        .map(|e| {
+            let mut stats = DeltaCompactionStats::default();
+            let out = compact_entry_keeping(
                 &e.rows,
                 e.source,
                 &e.matrix,
@@ -179,9 +183,15 @@ pub fn drt_section(
                 settings.tolerance,
                 factors,
                 &mut stats,
-            )
-            .map_err(low_rank)?,
-        );
+            )?;
+            Ok((out, stats))
+        })
+        .collect::<Result<_, LowRankError>>()
+        .map_err(low_rank)?;
+    let mut entries = Vec::with_capacity(ops.entries.len());
+    for (out, s) in compacted {
+        entries.extend(out);
+        stats.merge(s);
     }
     let mut direct_gather = None;
     if let Some(g) = &ops.direct_gather {
