@@ -263,6 +263,39 @@ fn upload_bake_watch_and_fetch() {
         .map(|t| serde_json::from_str(&t).unwrap())
         .unwrap();
     assert!(doc["paths"]["/v1/bakes"].is_object());
+
+    // The service kept the level's encodings in its operator cache. A bake of the scene with a
+    // box moved reads them (the unchanged shapes and transport are neither encoded nor
+    // compressed again) and still stores the CLI's bytes.
+    let memo_entries = std::fs::read_dir(data.join("operators").join("encodings"))
+        .map(|d| d.count())
+        .unwrap_or(0);
+    assert!(memo_entries >= 2, "{memo_entries} encoding memo entries");
+    let mut moved = scene.clone();
+    moved["clutter"][0]["box"]["min"][0] = json!(3.3);
+    moved["clutter"][0]["box"]["max"][0] = json!(4.95);
+    let mut moved_service = moved.clone();
+    moved_service["clutter"][2]["mesh"] = json!(asset.hash);
+    let created = client.create_scene(&moved_service.to_string()).unwrap();
+    let submitted = client.submit_bake(&created.id, fast_settings()).unwrap();
+    let status = wait(&client, &submitted.id);
+    assert_eq!(status.state, JobState::Succeeded, "{status:?}");
+    let moved_fetched = fetcher
+        .fetch(&client.bundle_url(status.bundle.as_ref().unwrap()))
+        .unwrap();
+    let moved_scene = Scene::from_json(&moved.to_string()).unwrap();
+    let (moved_local, _) = bake(
+        &moved_scene,
+        &local_dir,
+        &BakeOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
+    let (moved_bytes, _) = moved_local.encode_with(&encode_options(&moved_scene.settings, None));
+    assert!(
+        moved_bytes == moved_fetched.bytes && moved_bytes != local_bytes,
+        "the rebake through the memo differs from the CLI bake"
+    );
     drop(server);
     let _ = std::fs::remove_dir_all(&data);
 }

@@ -7,6 +7,11 @@
 //! bytes (the engine's `sections_ready` invariant and deterministic encoding), so a client can
 //! start on MRT before DRT and DNRT arrive.
 //!
+//! Both encodings read the level's encoding memo in the operator cache
+//! ([`crate::bake::cache::encodings`], as `lightfarm bake --cache` does), and the final one keeps
+//! its own there: a rebake after a clutter edit neither re-encodes nor recompresses the
+//! unchanged transport and shapes, in the partial bundles or the final one.
+//!
 //! Invariants: runs on a runner thread inside the worker pool (never on the async runtime); the
 //! bundle bytes are exactly those `lightfarm bake` writes for the same scene and settings; the
 //! scratch directory is removed whatever the outcome (also when the bake unwinds on cancel).
@@ -15,7 +20,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-use lightfarm_proto::bundle::{Bundle, EncodeOptions};
+use lightfarm_proto::bundle::{Bundle, EncodeOptions, EncodingMemo};
 use lightfarm_proto::container::sections_end;
 use lightfarm_proto::scene::Scene;
 
@@ -24,6 +29,7 @@ use super::jobs::{BakeExecutor, BakeOutput};
 use super::operator_cache;
 use super::scene_inputs::{apply_overrides, asset_hash};
 use super::store::{BlobKind, BlobStore};
+use crate::bake::cache::encodings::EncodingCache;
 use crate::bake::cache::shape::ShapeCache;
 use crate::bake::pipeline::encoding::encode_options;
 use crate::bake::progress::Progress;
@@ -62,6 +68,8 @@ impl PipelineExecutor {
 struct StreamingProgress<'a> {
     job: &'a JobProgress,
     options: EncodeOptions,
+    /// The level's encoding memo, which the final bundle's encoding then reads too.
+    memo: Option<&'a EncodingCache>,
 }
 
 impl Progress for StreamingProgress<'_> {
@@ -78,7 +86,14 @@ impl Progress for StreamingProgress<'_> {
     }
 
     fn sections_ready(&self, bundle: &Bundle) {
-        let (bytes, report) = bundle.encode_with(&self.options);
+        if let Some(memo) = self.memo {
+            memo.begin_write();
+        }
+        let (bytes, report) = bundle.encode_memo(
+            &self.options,
+            encode_threads(),
+            self.memo.map(|m| m as &dyn EncodingMemo),
+        );
         let Some(end) = sections_end(&bytes) else {
             return;
         };
@@ -118,9 +133,11 @@ impl BakeExecutor for PipelineExecutor {
             cache: Some(cache),
             ..BakeOptions::default()
         };
+        let memo = open_memo(&self.operator_cache, &scene);
         let streaming = StreamingProgress {
             job: progress,
             options: encode_options(&scene.settings, None),
+            memo: memo.as_ref(),
         };
         let (bundle, report) =
             bake(&scene, &dir.0, &options, &streaming).map_err(|e| e.to_string())?;
@@ -143,7 +160,7 @@ impl BakeExecutor for PipelineExecutor {
             );
         }
         Ok(BakeOutput {
-            bundle: encode_bundle(&scene, &bundle),
+            bundle: encode_bundle(&scene, &bundle, memo.as_ref()),
             stage_seconds: report.stage_seconds,
             shape_keys: bundle.shapes.iter().map(|s| s.key.clone()).collect(),
             shapes_from_cache: report.shapes_from_cache as u64,
@@ -191,7 +208,39 @@ pub fn prepare_scene(
 }
 
 /// The bundle's bytes as the service stores them: encoded with the scene's codec settings,
-/// exactly as `lightfarm bake` writes them.
-pub fn encode_bundle(scene: &Scene, bundle: &lightfarm_proto::bundle::Bundle) -> Vec<u8> {
-    bundle.encode_with(&encode_options(&scene.settings, None)).0
+/// exactly as `lightfarm bake` writes them. Through the level's encoding memo when given
+/// ([`open_memo`]), which then keeps this write's encodings for the next bake.
+pub fn encode_bundle(
+    scene: &Scene,
+    bundle: &lightfarm_proto::bundle::Bundle,
+    memo: Option<&EncodingCache>,
+) -> Vec<u8> {
+    if let Some(memo) = memo {
+        memo.begin_write();
+    }
+    let (bytes, _) = bundle.encode_memo(
+        &encode_options(&scene.settings, None),
+        encode_threads(),
+        memo.map(|m| m as &dyn EncodingMemo),
+    );
+    if let Some(memo) = memo {
+        if let Err(e) = memo.save() {
+            // Only a later bake's time depends on it.
+            tracing::warn!(error = %e, "could not keep the bundle's encodings in the cache");
+        }
+    }
+    bytes
+}
+
+/// The level's encoding memo in the operator cache `dir`; None (encode without one) when it
+/// cannot be opened or the build cannot be told.
+pub fn open_memo(dir: &Path, scene: &Scene) -> Option<EncodingCache> {
+    EncodingCache::open(dir, &scene.name)
+        .map_err(|e| tracing::warn!(error = %e, "encoding memo unavailable"))
+        .ok()
+        .flatten()
+}
+
+fn encode_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
 }

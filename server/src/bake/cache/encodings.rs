@@ -16,6 +16,10 @@
 //! blake3 of the raw payload, the zstd level, then the stored payload (a flag: compressed or
 //! stored raw; u64 length; bytes). Only sections this write compressed afresh are rewritten.
 //!
+//! One memo may serve several writes ([`EncodingCache::begin_write`]): the service encodes each
+//! partial bundle it streams and then the whole one, and each write takes what the earlier ones
+//! encoded or compressed; [`EncodingCache::save`] stores the latest write's.
+//!
 //! Invariant: an encoding is handed back only for a matrix of the same size and value bits
 //! under the same policy, and a compressed section only for the same raw bytes (blake3) at the
 //! same level, kept by this same build ([`super::bundle_memo::build_identity`]), whose writer
@@ -42,15 +46,21 @@ pub const ENTRY: EntryKind = EntryKind {
     version: CODE_VERSION,
 };
 
-/// A level's matrix encodings: those its last write kept, and those this write keeps.
+/// A level's matrix encodings: those its last write kept, those this memo's writes made (a
+/// service bake encodes partial bundles before the final one), and those the current write
+/// keeps.
 pub struct EncodingCache {
     store: EntryStore,
     key: String,
     build: Vec<u8>,
     earlier: HashMap<[u8; 32], MatrixEncoding>,
-    /// This write's encodings with their index in it (file order) and key.
+    /// Every encoding this memo's writes made or took, by key.
+    session: Mutex<HashMap<[u8; 32], MatrixEncoding>>,
+    /// The current write's encodings with their index in it (file order) and key.
     kept: Mutex<Vec<(usize, [u8; 32], MatrixEncoding)>>,
-    /// Sections this write compressed afresh: kind and what their entry holds.
+    /// Sections this memo's writes compressed, by kind (the latest of each).
+    session_sections: Mutex<HashMap<u32, StoredSection>>,
+    /// The current write's sections not read from their entry: to store.
     fresh_sections: Mutex<Vec<(u32, StoredSection)>>,
 }
 
@@ -84,9 +94,19 @@ impl EncodingCache {
             key,
             build,
             earlier,
+            session: Mutex::new(HashMap::new()),
             kept: Mutex::new(Vec::new()),
+            session_sections: Mutex::new(HashMap::new()),
             fresh_sections: Mutex::new(Vec::new()),
         }))
+    }
+
+    /// Starts another write through this memo: what [`EncodingCache::save`] stores is the
+    /// latest write's, while every encoding the earlier ones made is still handed back (the
+    /// service encodes each partial bundle it streams, then the whole one).
+    pub fn begin_write(&self) {
+        self.kept.lock().expect("the memo's lock").clear();
+        self.fresh_sections.lock().expect("the memo's lock").clear();
     }
 
     /// How many encodings the last write kept.
@@ -142,7 +162,23 @@ impl EncodingMemo for EncodingCache {
         encode: &dyn Fn() -> MatrixEncoding,
     ) -> MatrixEncoding {
         let key = self.matrix_key(m, policy);
-        let e = self.earlier.get(&key).cloned().unwrap_or_else(encode);
+        let made = || {
+            let session = self
+                .session
+                .lock()
+                .expect("the memo's lock")
+                .get(&key)
+                .cloned();
+            session.unwrap_or_else(|| {
+                let e = encode();
+                self.session
+                    .lock()
+                    .expect("the memo's lock")
+                    .insert(key, e.clone());
+                e
+            })
+        };
+        let e = self.earlier.get(&key).cloned().unwrap_or_else(made);
         self.kept
             .lock()
             .expect("the memo's lock")
@@ -168,15 +204,29 @@ impl EncodingMemo for EncodingCache {
         if let Some(e) = earlier {
             return e.stored;
         }
-        let stored = compress();
-        self.fresh_sections.lock().expect("the memo's lock").push((
-            kind,
-            StoredSection {
-                raw_hash,
-                level,
-                stored: stored.clone(),
-            },
-        ));
+        // Compressed by an earlier write of this memo (a partial bundle), or now; either way
+        // stored with this write.
+        let session = self
+            .session_sections
+            .lock()
+            .expect("the memo's lock")
+            .get(&kind)
+            .filter(|e| e.raw_hash == raw_hash && e.level == level)
+            .cloned();
+        let section = session.unwrap_or_else(|| StoredSection {
+            raw_hash,
+            level,
+            stored: compress(),
+        });
+        self.session_sections
+            .lock()
+            .expect("the memo's lock")
+            .insert(kind, section.clone());
+        let stored = section.stored.clone();
+        self.fresh_sections
+            .lock()
+            .expect("the memo's lock")
+            .push((kind, section));
         stored
     }
 }
@@ -363,6 +413,47 @@ mod tests {
         let fourth = EncodingCache::open(&dir, "level").unwrap().unwrap();
         assert!(other.encode_memo(&options, 2, Some(&fourth)).0 == other_want);
         assert!(fresh(&fourth) >= 1);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// One memo serving the partial bundle a service streams and then the whole one: the
+    /// whole write takes the partial's encodings (the same shared bytes, not encoded again),
+    /// both give the plain writer's bytes, and the saved memo is the whole write's.
+    #[test]
+    fn one_memo_serves_a_partial_write_then_the_whole() {
+        let dir = std::env::temp_dir().join(format!("lf-session-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let options = EncodeOptions {
+            codec: CodecPolicy::Budget(0.02),
+            transport_codec: Some(CodecPolicy::Budget(0.002)),
+            zstd_level: 3,
+        };
+        let whole = drt_bundle(&mut Lcg(9), true, true, false);
+        let mut partial = whole.clone();
+        partial.drt = None;
+        let memo = EncodingCache::open(&dir, "level").unwrap().unwrap();
+        memo.begin_write();
+        assert!(
+            partial.encode_memo(&options, 2, Some(&memo)).0 == partial.encode_on(&options, 1).0
+        );
+        let from_partial: HashMap<[u8; 32], MatrixEncoding> = memo.session.lock().unwrap().clone();
+        assert!(!from_partial.is_empty());
+        memo.begin_write();
+        assert!(whole.encode_memo(&options, 2, Some(&memo)).0 == whole.encode_on(&options, 1).0);
+        let kept = memo.kept.lock().unwrap().clone();
+        assert!(kept.len() > from_partial.len());
+        let mut shared = 0;
+        for (_, key, e) in &kept {
+            if let Some(p) = from_partial.get(key) {
+                assert!(std::sync::Arc::ptr_eq(&p.bytes, &e.bytes), "encoded again");
+                shared += 1;
+            }
+        }
+        assert!(shared >= from_partial.len());
+        memo.save().unwrap();
+        let keys: std::collections::HashSet<_> = kept.iter().map(|(_, k, _)| *k).collect();
+        let reopened = EncodingCache::open(&dir, "level").unwrap().unwrap();
+        assert_eq!(reopened.earlier(), keys.len());
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

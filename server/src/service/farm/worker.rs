@@ -40,7 +40,7 @@ use super::{FarmError, COORDINATOR_CONSUMER, UNIT_CONSUMER, UNIT_SUBJECT};
 use crate::bake::cache::shape::ShapeCache;
 use crate::bake::units::{plan, unit_inputs};
 use crate::bake::{bake, BakeOptions};
-use crate::service::executor::encode_bundle;
+use crate::service::executor::{encode_bundle, open_memo};
 use crate::service::jobs::unix_now;
 use crate::service::store::BlobKind;
 
@@ -535,6 +535,7 @@ fn assemble_blocking(
         };
         let (bundle, _) = bake(&scene, scene_dir, &options, &hook).map_err(|e| e.to_string())?;
         let keys = bundle.shapes.iter().map(|s| s.key.clone()).collect();
-        Ok((encode_bundle(&scene, &bundle), keys))
+        let memo = open_memo(&ctx.cache_dir, &scene);
+        Ok((encode_bundle(&scene, &bundle, memo.as_ref()), keys))
     })
 }
