@@ -3,18 +3,21 @@
 //! a 1,000-block level's bundle), and choosing their codecs and predictors is most of the
 //! writer's time, so the encodings of the level's last write are kept and handed back.
 //!
-//! One entry per engine build and scene name ([`ENTRY`]: `<dir>/encodings/<key>.lfenc`): the
-//! encodings of the last bundle written, each under the blake3 of the build, the codec policy,
-//! the matrix's size and its value bits. The payload: a count, then per matrix its key (32
-//! bytes), codec tag, 8-bit step, error (f64) and bytes (u64 length, then the bytes).
+//! One entry per scene name ([`ENTRY`]: `<dir>/encodings/<key>.lfenc`): the engine build that
+//! wrote it, then the encodings of the last bundle written, each under the blake3 of the build,
+//! the codec policy, the matrix's size and its value bits. The payload: the build (u32 length,
+//! bytes), a count, then per matrix its key (32 bytes), codec tag, 8-bit step, error (f64) and
+//! bytes (u64 length, then the bytes). Another build's memo is an empty one, which the next
+//! save replaces: a level keeps one memo however often the engine is rebuilt.
 //! Framing, verification and atomic writes are [`crate::bake::cache::entry`]'s: a stale or
 //! corrupt entry is an empty memo.
 //!
 //! The same memo keeps the level's compressed sections ([`EncodingMemo::section`]): zstd at the
 //! bundle's level takes 1.5 s of a 1,000-block rebake on the 100 MB transport section alone,
 //! which a clutter edit leaves unchanged. One entry per section kind (`<key>-s<kind>`): the
-//! blake3 of the raw payload, the zstd level, then the stored payload (a flag: compressed or
-//! stored raw; u64 length; bytes). Only sections this write compressed afresh are rewritten.
+//! build, the blake3 of the raw payload, the zstd level, then the stored payload (a flag:
+//! compressed or stored raw; u64 length; bytes). Only sections this write compressed afresh
+//! are rewritten.
 //!
 //! One memo may serve several writes ([`EncodingCache::begin_write`]): the service encodes each
 //! partial bundle it streams and then the whole one, and each write takes what the earlier ones
@@ -37,7 +40,7 @@ use crate::bake::cache::bundle_memo::build_identity;
 use crate::bake::cache::entry::{EntryKind, EntryStore};
 
 /// Bumped whenever the key's contents or the payload change.
-const CODE_VERSION: &str = "lightfarm-encodings-2";
+const CODE_VERSION: &str = "lightfarm-encodings-3";
 
 /// Where encoding memos live and their version.
 pub const ENTRY: EntryKind = EntryKind {
@@ -76,20 +79,27 @@ struct StoredSection {
 impl EncodingCache {
     /// The memo of `scene_name` by this build in `dir`; None when the build cannot be told.
     pub fn open(dir: &Path, scene_name: &str) -> std::io::Result<Option<EncodingCache>> {
-        let Some(build) = build_identity() else {
-            return Ok(None);
-        };
+        match build_identity() {
+            Some(build) => EncodingCache::open_as(dir, scene_name, build).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// [`EncodingCache::open`] as engine build `build`. A memo another build saved is empty
+    /// here, and this one's save replaces it: one memo per level, whatever was built before.
+    fn open_as(dir: &Path, scene_name: &str, build: Vec<u8>) -> std::io::Result<EncodingCache> {
         let store = EntryStore::open(dir, ENTRY)?;
         let mut h = blake3::Hasher::new();
         h.update(CODE_VERSION.as_bytes());
-        h.update(&build);
         h.update(scene_name.as_bytes());
         let key = h.finalize().to_hex().to_string();
         let earlier = store
             .get(&key, |payload| decode(payload).ok())
             .hit()
+            .filter(|(by, _)| *by == build)
+            .map(|(_, encodings)| encodings)
             .unwrap_or_default();
-        Ok(Some(EncodingCache {
+        Ok(EncodingCache {
             store,
             key,
             build,
@@ -98,7 +108,7 @@ impl EncodingCache {
             kept: Mutex::new(Vec::new()),
             session_sections: Mutex::new(HashMap::new()),
             fresh_sections: Mutex::new(Vec::new()),
-        }))
+        })
     }
 
     /// Starts another write through this memo: what [`EncodingCache::save`] stores is the
@@ -120,11 +130,13 @@ impl EncodingCache {
         let mut kept = self.kept.lock().expect("the memo's lock");
         // File order, whichever thread kept each: the same entry bytes for the same write.
         kept.sort_unstable_by_key(|(index, _, _)| *index);
-        self.store.put(&self.key, &encode(&kept))?;
+        self.store.put(&self.key, &encode(&self.build, &kept))?;
         let fresh = self.fresh_sections.lock().expect("the memo's lock");
         for (kind, section) in fresh.iter() {
-            self.store
-                .put(&self.section_key(*kind), &encode_section(section))?;
+            self.store.put(
+                &self.section_key(*kind),
+                &encode_section(&self.build, section),
+            )?;
         }
         Ok(())
     }
@@ -200,7 +212,8 @@ impl EncodingMemo for EncodingCache {
                 decode_section(payload).ok()
             })
             .hit()
-            .filter(|e| e.raw_hash == raw_hash && e.level == level);
+            .filter(|(by, e)| *by == self.build && e.raw_hash == raw_hash && e.level == level)
+            .map(|(_, e)| e);
         if let Some(e) = earlier {
             return e.stored;
         }
@@ -231,8 +244,9 @@ impl EncodingMemo for EncodingCache {
     }
 }
 
-fn encode_section(s: &StoredSection) -> Vec<u8> {
+fn encode_section(build: &[u8], s: &StoredSection) -> Vec<u8> {
     let mut w = Writer::new();
+    write_build(&mut w, build);
     w.bytes.extend_from_slice(&s.raw_hash);
     w.u32(s.level as u32);
     match &s.stored {
@@ -246,8 +260,10 @@ fn encode_section(s: &StoredSection) -> Vec<u8> {
     w.bytes
 }
 
-fn decode_section(payload: &[u8]) -> Result<StoredSection, WireError> {
+/// The build that saved a section entry, and the section.
+fn decode_section(payload: &[u8]) -> Result<(Vec<u8>, StoredSection), WireError> {
     let mut r = Reader::new(payload);
+    let build = read_build(&mut r)?;
     let raw_hash: [u8; 32] = r.take(32)?.try_into().expect("32 bytes");
     let level = r.u32()? as i32;
     let stored = match r.u8()? {
@@ -264,15 +280,30 @@ fn decode_section(payload: &[u8]) -> Result<StoredSection, WireError> {
     if r.remaining() != 0 {
         return Err(WireError::Invalid("trailing bytes".into()));
     }
-    Ok(StoredSection {
-        raw_hash,
-        level,
-        stored,
-    })
+    Ok((
+        build,
+        StoredSection {
+            raw_hash,
+            level,
+            stored,
+        },
+    ))
 }
 
-fn encode(kept: &[(usize, [u8; 32], MatrixEncoding)]) -> Vec<u8> {
+/// The build that saved an entry, first in every payload.
+fn write_build(w: &mut Writer, build: &[u8]) {
+    w.u32(build.len() as u32);
+    w.bytes.extend_from_slice(build);
+}
+
+fn read_build(r: &mut Reader) -> Result<Vec<u8>, WireError> {
+    let len = r.u32()? as usize;
+    Ok(r.take(len)?.to_vec())
+}
+
+fn encode(build: &[u8], kept: &[(usize, [u8; 32], MatrixEncoding)]) -> Vec<u8> {
     let mut w = Writer::new();
+    write_build(&mut w, build);
     w.u32(kept.len() as u32);
     for (_, key, e) in kept {
         w.bytes.extend_from_slice(key);
@@ -285,8 +316,12 @@ fn encode(kept: &[(usize, [u8; 32], MatrixEncoding)]) -> Vec<u8> {
     w.bytes
 }
 
-fn decode(payload: &[u8]) -> Result<HashMap<[u8; 32], MatrixEncoding>, WireError> {
+type Encodings = HashMap<[u8; 32], MatrixEncoding>;
+
+/// The build that saved a memo, and its encodings.
+fn decode(payload: &[u8]) -> Result<(Vec<u8>, Encodings), WireError> {
     let mut r = Reader::new(payload);
+    let build = read_build(&mut r)?;
     let n = r.u32()? as usize;
     let mut out = HashMap::with_capacity(n.min(r.remaining() / 50));
     for _ in 0..n {
@@ -313,7 +348,7 @@ fn decode(payload: &[u8]) -> Result<HashMap<[u8; 32], MatrixEncoding>, WireError
     if r.remaining() != 0 {
         return Err(WireError::Invalid("trailing bytes".into()));
     }
-    Ok(out)
+    Ok((build, out))
 }
 
 #[cfg(test)]
@@ -454,6 +489,38 @@ mod tests {
         let keys: std::collections::HashSet<_> = kept.iter().map(|(_, k, _)| *k).collect();
         let reopened = EncodingCache::open(&dir, "level").unwrap().unwrap();
         assert_eq!(reopened.earlier(), keys.len());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A memo another engine build saved is empty to this one (its encodings and sections may
+    /// not be this build's bytes), and this build's save replaces it: one memo per level.
+    #[test]
+    fn another_builds_memo_is_empty_and_replaced() {
+        let dir = std::env::temp_dir().join(format!("lf-builds-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let options = EncodeOptions {
+            codec: CodecPolicy::Budget(0.02),
+            transport_codec: Some(CodecPolicy::Budget(0.002)),
+            zstd_level: 3,
+        };
+        let bundle = drt_bundle(&mut Lcg(11), true, true, false);
+        let (want, _) = bundle.encode_on(&options, 1);
+        let files = || std::fs::read_dir(dir.join("encodings")).unwrap().count();
+        let a = EncodingCache::open_as(&dir, "level", b"build a".to_vec()).unwrap();
+        assert!(bundle.encode_memo(&options, 2, Some(&a)).0 == want);
+        a.save().unwrap();
+        let saved = files();
+        let a_again = EncodingCache::open_as(&dir, "level", b"build a".to_vec()).unwrap();
+        assert!(a_again.earlier() > 0);
+        let b = EncodingCache::open_as(&dir, "level", b"build b".to_vec()).unwrap();
+        assert_eq!(b.earlier(), 0);
+        assert!(bundle.encode_memo(&options, 2, Some(&b)).0 == want);
+        let sections = b.fresh_sections.lock().unwrap().len();
+        assert!(sections >= 4, "another build's sections were taken");
+        b.save().unwrap();
+        assert_eq!(files(), saved);
+        let a_later = EncodingCache::open_as(&dir, "level", b"build a".to_vec()).unwrap();
+        assert_eq!(a_later.earlier(), 0);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
