@@ -67,6 +67,65 @@ fn second_bake_reuses_every_shape_and_corrupt_entries_are_recomputed() {
     let _ = std::fs::remove_dir_all(&cache_dir);
 }
 
+/// A shape's lightfields are an entry of their own, read only when the transport is computed:
+/// a rebake whose transport is cached bakes no shape without them; a transport computed later
+/// reads them, or bakes again the shapes whose lightfield entry is gone or corrupt. Every bake
+/// is the same bytes.
+#[test]
+fn lightfields_are_read_only_for_a_transport_that_is_computed() {
+    let scene = small_corridor();
+    let dir = scene_dir("corridor");
+    let cache_dir = std::env::temp_dir().join(format!("lf-lightfields-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&cache_dir);
+    let options = BakeOptions {
+        cache: Some(ShapeCache::open(&cache_dir).unwrap()),
+        full: false,
+        transport: None,
+    };
+    let with_ext = |ext: &str| -> Vec<std::path::PathBuf> {
+        std::fs::read_dir(&cache_dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == ext))
+            .collect()
+    };
+    let (first, r1) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+    let shapes = r1.unique_shapes;
+    assert_eq!(r1.shapes_computed, shapes);
+    assert_eq!(with_ext("lflight").len(), shapes);
+    let fresh = first.encode();
+
+    // Transport cached: the lightfields are not needed.
+    for p in with_ext("lflight") {
+        std::fs::remove_file(p).unwrap();
+    }
+    let (second, r2) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+    assert!(r2.transport_from_cache);
+    assert_eq!((r2.shapes_from_cache, r2.shapes_computed), (shapes, 0));
+    assert!(second.encode() == fresh);
+
+    // Transport computed, no lightfield entry: every shape baked again (and stored whole).
+    let transport_dir = cache_dir.join("transport");
+    std::fs::remove_dir_all(&transport_dir).unwrap();
+    let (third, r3) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+    assert!(!r3.transport_from_cache);
+    assert_eq!(r3.shapes_computed, shapes);
+    assert_eq!(with_ext("lflight").len(), shapes);
+    assert!(third.encode() == fresh);
+
+    // Transport computed, the lightfields read; one corrupt entry is baked again.
+    std::fs::remove_dir_all(&transport_dir).unwrap();
+    let entry = with_ext("lflight").into_iter().next().unwrap();
+    let mut bytes = std::fs::read(&entry).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x40;
+    std::fs::write(&entry, &bytes).unwrap();
+    let (fourth, r4) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+    assert_eq!((r4.corrupt_cache_entries, r4.shapes_computed), (1, 1));
+    assert!(fourth.encode() == fresh);
+    let _ = std::fs::remove_dir_all(&cache_dir);
+}
+
 /// Incremental rebake: after one pillar moves, the DRT ray passes trace only the texels that
 /// could see it (old or new place) and reuse the rest from the cache, the compaction reuses the
 /// factorisations of what did not change, and the bundle is byte-identical to a bake without

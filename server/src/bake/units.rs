@@ -100,8 +100,12 @@ fn unknown(unit: &BakeUnit) -> BakeError {
     BakeError::Drt(format!("unit {} is not part of this scene", unit.name()))
 }
 
-fn shape_file(key: &str) -> PathBuf {
-    crate::bake::cache::shape::ENTRY.relative_path(key)
+/// A shape's two cache files: its operators and its lightfields.
+fn shape_files(key: &str) -> [PathBuf; 2] {
+    [
+        crate::bake::cache::shape::ENTRY.relative_path(key),
+        crate::bake::cache::shape::LIGHTFIELD_ENTRY.relative_path(key),
+    ]
 }
 
 /// Cache files a unit reads if present: its own earlier result (reused, or refreshed
@@ -114,12 +118,11 @@ pub fn unit_inputs(
     let shapes = shape_plan(scene);
     Ok(match unit {
         BakeUnit::Shape { index } => {
-            vec![shape_file(
-                shapes.unique.get(*index).ok_or_else(|| unknown(unit))?,
-            )]
+            shape_files(shapes.unique.get(*index).ok_or_else(|| unknown(unit))?).to_vec()
         }
         BakeUnit::Transport => {
-            let mut files: Vec<PathBuf> = shapes.unique.iter().map(|k| shape_file(k)).collect();
+            let mut files: Vec<PathBuf> =
+                shapes.unique.iter().flat_map(|k| shape_files(k)).collect();
             files.push(transport_file(scene, &shapes));
             files
         }
@@ -143,9 +146,7 @@ fn outputs(scene: &Scene, scene_dir: &Path, unit: &BakeUnit) -> Result<Vec<PathB
     let shapes = shape_plan(scene);
     Ok(match unit {
         BakeUnit::Shape { index } => {
-            vec![shape_file(
-                shapes.unique.get(*index).ok_or_else(|| unknown(unit))?,
-            )]
+            shape_files(shapes.unique.get(*index).ok_or_else(|| unknown(unit))?).to_vec()
         }
         BakeUnit::Transport => vec![transport_file(scene, &shapes)],
         BakeUnit::DrtBlock { block } => {
@@ -234,7 +235,11 @@ pub fn run_unit(
                         }
                     }
                 }
-                let unique = SplitShapes::new(unique);
+                let mut unique = SplitShapes::new(unique);
+                let lightfields = std::mem::take(&mut unique.lightfields)
+                    .into_iter()
+                    .map(|l| l.expect("a whole cached shape has its lightfields"))
+                    .collect();
                 let block_operators = shapes.block_operators(&unique.operators);
                 let per_block: Vec<&ShapeOperators> =
                     block_operators.iter().map(|s| s.as_ref()).collect();
@@ -243,7 +248,7 @@ pub fn run_unit(
                     &shapes,
                     &Geometry::blocks_only(scene),
                     &per_block,
-                    unique.lightfields,
+                    lightfields,
                     &scene.openings()?,
                     scene.settings.transport,
                     progress,

@@ -5,7 +5,7 @@
 //! - [`entry`]: the one entry format and store every cache uses — naming
 //!   (`<dir>/<subdir>/<key>.<ext>`), version tag, checksum framing, atomic writes, verification
 //!   (stale: a miss; corrupt: deleted and a miss) and marking use for LRU trimming.
-//! - [`shape`]: shape operators (MRT), keyed by shape and settings (`<dir>/<key>.lfshape`).
+//! - [`shape`]: shape operators (MRT), keyed by shape and settings (`<dir>/<key>.lfshape`, and the openings' lightfields beside them in `<key>.lflight`).
 //! - [`transport`]: a level's inter-block transport and its compaction (`transport/`): a main
 //!   entry read on a hit, and each target block's f64 operators read only when asked for.
 //! - [`dnrt`]: DNRT grids of dynamic objects (`dnrt/`).

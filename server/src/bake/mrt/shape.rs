@@ -629,10 +629,9 @@ fn read_mat(r: &mut Reader) -> Result<Mat<f64>, WireError> {
 }
 
 impl ShapeOperators {
-    /// Serialises for the operator cache.
-    ///
-    /// Panics on a shape without its lightfields (an instance, or one a bake has taken them
-    /// from): only shapes as baked are cached.
+    /// Serialises the operators for the operator cache, without the openings' lightfields
+    /// (those are [`ShapeOperators::encode_lightfields`]'s: only a transport that is computed
+    /// reads them, and they are two thirds of the bytes).
     pub fn encode(&self) -> Vec<u8> {
         let mut w = Writer::new();
         w.str(SHAPE_CODE_VERSION);
@@ -642,14 +641,8 @@ impl ShapeOperators {
         write_mat(&mut w, &self.l_imp);
         w.u32(self.openings.len() as u32);
         for o in &self.openings {
-            let lightfield = o
-                .lightfield
-                .as_ref()
-                .expect("only shapes as baked, with their lightfields, are cached");
             w.u8(o.face.index() as u8);
-            write_mat(&mut w, &lightfield.out_imp);
             write_mat(&mut w, &o.u_r);
-            write_mat(&mut w, &lightfield.w);
             w.u32(o.pass_from.len() as u32);
             for (face, triplets) in &o.pass_from {
                 w.u8(face.index() as u8);
@@ -668,7 +661,29 @@ impl ShapeOperators {
         w.bytes
     }
 
-    /// Reads what [`ShapeOperators::encode`] wrote.
+    /// Serialises the openings' lightfields (`OutImp`, `W`) for the operator cache.
+    ///
+    /// Panics on a shape without its lightfields (an instance, or one a bake has taken them
+    /// from): only shapes as baked are cached.
+    pub fn encode_lightfields(&self) -> Vec<u8> {
+        let mut w = Writer::new();
+        w.str(SHAPE_CODE_VERSION);
+        w.str(&self.key);
+        w.u32(self.openings.len() as u32);
+        for o in &self.openings {
+            let lightfield = o
+                .lightfield
+                .as_ref()
+                .expect("only shapes as baked, with their lightfields, are cached");
+            w.u8(o.face.index() as u8);
+            write_mat(&mut w, &lightfield.out_imp);
+            write_mat(&mut w, &lightfield.w);
+        }
+        w.bytes
+    }
+
+    /// Reads what [`ShapeOperators::encode`] wrote: the operators, every opening's
+    /// lightfield `None`.
     pub fn decode(bytes: &[u8]) -> Result<ShapeOperators, WireError> {
         let mut r = Reader::new(bytes);
         if r.str()? != SHAPE_CODE_VERSION {
@@ -682,18 +697,10 @@ impl ShapeOperators {
         if n_open > 6 {
             return Err(WireError::Invalid("too many openings".into()));
         }
-        let face_of = |i: u8| {
-            Face::ALL
-                .get(i as usize)
-                .copied()
-                .ok_or_else(|| WireError::Invalid("face".into()))
-        };
         let mut openings = Vec::new();
         for _ in 0..n_open {
             let face = face_of(r.u8()?)?;
-            let out_imp = read_mat(&mut r)?;
             let u_r = read_mat(&mut r)?;
-            let w = read_mat(&mut r)?;
             let n_pass = r.u32()?;
             if n_pass > 6 {
                 return Err(WireError::Invalid("too many passes".into()));
@@ -715,7 +722,7 @@ impl ShapeOperators {
                 face,
                 u_r,
                 pass_from,
-                lightfield: Some(OpeningLightfield { out_imp, w }),
+                lightfield: None,
             });
         }
         let stats = ShapeStats {
@@ -724,6 +731,9 @@ impl ShapeOperators {
             dropped_energy: r.f64()?,
             seconds: r.f64()?,
         };
+        if r.remaining() != 0 {
+            return Err(WireError::Invalid("trailing bytes".into()));
+        }
         Ok(ShapeOperators {
             key,
             u_b,
@@ -733,4 +743,54 @@ impl ShapeOperators {
             stats,
         })
     }
+
+    /// Reads what [`ShapeOperators::encode_lightfields`] wrote, for the shape `self` (its key
+    /// and openings, in order): the lightfields, to give back with
+    /// [`ShapeOperators::with_lightfields`].
+    pub fn decode_lightfields(&self, bytes: &[u8]) -> Result<ShapeLightfields, WireError> {
+        let mut r = Reader::new(bytes);
+        if r.str()? != SHAPE_CODE_VERSION {
+            return Err(WireError::Invalid("other code version".into()));
+        }
+        if r.str()? != self.key {
+            return Err(WireError::Invalid("another shape's lightfields".into()));
+        }
+        if r.u32()? as usize != self.openings.len() {
+            return Err(WireError::Invalid("opening count".into()));
+        }
+        let mut lightfields = Vec::with_capacity(self.openings.len());
+        for o in &self.openings {
+            if face_of(r.u8()?)? != o.face {
+                return Err(WireError::Invalid("opening face".into()));
+            }
+            let out_imp = read_mat(&mut r)?;
+            let w = read_mat(&mut r)?;
+            if out_imp.ncols() != self.rank() || w.nrows() != o.u_r.ncols() {
+                return Err(WireError::Invalid("lightfield size".into()));
+            }
+            lightfields.push((o.face, OpeningLightfield { out_imp, w }));
+        }
+        if r.remaining() != 0 {
+            return Err(WireError::Invalid("trailing bytes".into()));
+        }
+        Ok(lightfields)
+    }
+
+    /// The shape with `lightfields` (as [`ShapeOperators::take_lightfields`] or
+    /// [`ShapeOperators::decode_lightfields`] give them) put back on its openings.
+    pub fn with_lightfields(mut self, lightfields: ShapeLightfields) -> ShapeOperators {
+        for (face, lightfield) in lightfields {
+            if let Some(o) = self.openings.iter_mut().find(|o| o.face == face) {
+                o.lightfield = Some(lightfield);
+            }
+        }
+        self
+    }
+}
+
+fn face_of(i: u8) -> Result<Face, WireError> {
+    Face::ALL
+        .get(i as usize)
+        .copied()
+        .ok_or_else(|| WireError::Invalid("face".into()))
 }

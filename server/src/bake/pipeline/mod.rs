@@ -161,6 +161,7 @@ fn bake_once(
         scene,
         &plan,
         &block_geometry,
+        &shapes,
         &per_block,
         lightfields,
         &openings,

@@ -14,6 +14,7 @@ use lightfarm_proto::bundle::CompactEntry;
 use lightfarm_proto::scene::{ProbeVolumeMode, Scene, Transform, Transport};
 
 use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
+use crate::bake::cache::entry::Lookup as EntryLookup;
 use crate::bake::cache::shape::{Lookup, ShapeCache};
 use crate::bake::cache::transport::{
     transport_key, CachedTransport, LazyTransport, TransportCache,
@@ -44,7 +45,8 @@ use super::{BakeError, BakeReport};
 /// Every unique shape's operators (index = the plan's unique shape), from the cache or baked
 /// and stored there; counts hits, corrupt entries and computed shapes in `report`. The
 /// openings' lightfields come apart from the operators ([`SplitShapes`]) so that they can be
-/// dropped once the transport is built.
+/// dropped once the transport is built; a cached shape's are not read here at all
+/// ([`load_lightfields`] reads them when the transport is computed).
 pub fn shape_operators(
     plan: &ShapePlan,
     cache: Option<&ShapeCache>,
@@ -60,7 +62,7 @@ pub fn shape_operators(
     let mut to_compute: Vec<usize> = Vec::new();
     let mut slots: Vec<Option<ShapeOperators>> = vec![None; unique.len()];
     for (i, key) in unique.iter().enumerate() {
-        match cache.map(|c| c.get(key)) {
+        match cache.map(|c| c.get_operators(key)) {
             Some(Lookup::Hit(ops)) => {
                 report.shapes_from_cache += 1;
                 slots[i] = Some(*ops);
@@ -97,20 +99,24 @@ pub fn shape_operators(
 
 /// The unique shapes as a bake holds them: the operators every stage reads, shared by the
 /// blocks, and apart from them the openings' lightfields (`OutImp`, `W`), which only the
-/// transport's propagation reads: two thirds of the bytes, dropped once the transport is built.
+/// transport's propagation reads: two thirds of the bytes, dropped once the transport is built,
+/// and not read from the cache unless it is built (`None`: in the cache, not read).
 pub struct SplitShapes {
     pub operators: Vec<Arc<ShapeOperators>>,
-    pub lightfields: Vec<ShapeLightfields>,
+    pub lightfields: Vec<Option<ShapeLightfields>>,
 }
 
 impl SplitShapes {
-    /// Takes the lightfields out of `shapes` (as baked or cached).
+    /// Takes the lightfields out of `shapes` (as baked, or operators alone from the cache):
+    /// `Some` for a shape whose every opening has its lightfield, `None` otherwise.
     pub fn new(shapes: Vec<ShapeOperators>) -> SplitShapes {
         let mut lightfields = Vec::with_capacity(shapes.len());
         let operators = shapes
             .into_iter()
             .map(|mut s| {
-                lightfields.push(s.take_lightfields());
+                let whole = s.openings.iter().all(|o| o.lightfield.is_some());
+                let taken = s.take_lightfields();
+                lightfields.push(whole.then_some(taken));
                 Arc::new(s)
             })
             .collect();
@@ -119,6 +125,43 @@ impl SplitShapes {
             lightfields,
         }
     }
+}
+
+/// Every unique shape's lightfields for computing the transport: those the bake holds, the
+/// others read from the cache, or — where their entry is gone (trimmed) or corrupt — the shape
+/// baked again (its operators are the same bits: a bake is deterministic) and stored whole.
+pub fn load_lightfields(
+    plan: &ShapePlan,
+    operators: &[Arc<ShapeOperators>],
+    lightfields: Vec<Option<ShapeLightfields>>,
+    cache: Option<&ShapeCache>,
+    progress: &dyn Progress,
+    report: &mut BakeReport,
+) -> Result<Vec<ShapeLightfields>, BakeError> {
+    let mut out = Vec::with_capacity(lightfields.len());
+    for (i, held) in lightfields.into_iter().enumerate() {
+        if let Some(held) = held {
+            out.push(held);
+            continue;
+        }
+        match cache.map(|c| c.get_lightfields(&operators[i])) {
+            Some(EntryLookup::Hit(read)) => {
+                out.push(read);
+                continue;
+            }
+            Some(EntryLookup::Corrupt) => report.corrupt_cache_entries += 1,
+            _ => {}
+        }
+        let spec = &plan.unique_specs[i];
+        progress.stage("shape operators", spec.n_texels() as u64);
+        let mut ops = bake_shape(spec, &|n| progress.advance(n))?;
+        if let Some(cache) = cache {
+            cache.put(&ops)?;
+        }
+        report.shapes_computed += 1;
+        out.push(ops.take_lightfields());
+    }
+    Ok(out)
 }
 
 /// The blocks' f64 transport as the bake holds it: computed (in memory), or a cache hit whose
@@ -155,8 +198,9 @@ pub fn block_transport(
     scene: &Scene,
     plan: &ShapePlan,
     block_geometry: &Geometry,
+    unique: &[Arc<ShapeOperators>],
     per_block: &[&ShapeOperators],
-    lightfields: Vec<ShapeLightfields>,
+    lightfields: Vec<Option<ShapeLightfields>>,
     openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
     transport_kind: Transport,
     cache: Option<&ShapeCache>,
@@ -188,6 +232,7 @@ pub fn block_transport(
             })
         }
         None => {
+            let lightfields = load_lightfields(plan, unique, lightfields, cache, progress, report)?;
             let computed = mrt_transport(
                 scene,
                 plan,

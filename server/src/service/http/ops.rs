@@ -144,7 +144,11 @@ pub async fn list_shapes(
             let Some(key) = name.strip_suffix(".lfshape") else {
                 continue;
             };
-            let bytes = entry.metadata().map(|m| m.len()).unwrap_or(0);
+            // The operators and, beside them, the openings' lightfields.
+            let bytes = entry.metadata().map(|m| m.len()).unwrap_or(0)
+                + std::fs::metadata(dir.join(format!("{key}.lflight")))
+                    .map(|m| m.len())
+                    .unwrap_or(0);
             entries.push(ShapeEntry {
                 key: key.to_string(),
                 bytes,
