@@ -121,6 +121,10 @@ pub fn write_container(
     })
 }
 
+/// How [`write_container_with`] gets a section's stored payload: `(kind, raw, level)` →
+/// what [`compress_section`]`(raw, level)` gives.
+pub type CompressSection<'a> = dyn Fn(u32, &[u8], i32) -> Option<Vec<u8>> + Sync + 'a;
+
 /// [`write_container`] taking each section's stored payload from `compress(kind, raw, level)`,
 /// which must give what [`compress_section`]`(raw, level)` gives (e.g. kept from an earlier
 /// write of the same bytes). Sections are compressed side by side, one thread each.
@@ -129,7 +133,7 @@ pub fn write_container_with(
     minor: u16,
     sections: &[(u32, Vec<u8>)],
     zstd_level: i32,
-    compress: &(dyn Fn(u32, &[u8], i32) -> Option<Vec<u8>> + Sync),
+    compress: &CompressSection<'_>,
 ) -> (Vec<u8>, Vec<SectionInfo>) {
     let mut w = Writer::new();
     w.bytes.extend_from_slice(MAGIC);

@@ -11,6 +11,19 @@ fn small_corridor() -> lightfarm_proto::scene::Scene {
     load_scene("corridor", 4, 128).0
 }
 
+/// Bake options over an empty operator cache of the test's own (`name` and this process),
+/// with the transport `transport`; and that cache's directory.
+fn cached(name: &str, transport: Option<Transport>) -> (std::path::PathBuf, BakeOptions) {
+    let cache_dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&cache_dir);
+    let options = BakeOptions {
+        cache: Some(ShapeCache::open(&cache_dir).unwrap()),
+        full: false,
+        transport,
+    };
+    (cache_dir, options)
+}
+
 #[test]
 fn bake_is_identical_at_one_and_two_threads() {
     let scene = small_corridor();
@@ -34,13 +47,7 @@ fn bake_is_identical_at_one_and_two_threads() {
 fn second_bake_reuses_every_shape_and_corrupt_entries_are_recomputed() {
     let scene = small_corridor();
     let dir = scene_dir("corridor");
-    let cache_dir = std::env::temp_dir().join(format!("lf-cache-test-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&cache_dir);
-    let options = BakeOptions {
-        cache: Some(ShapeCache::open(&cache_dir).unwrap()),
-        full: false,
-        transport: None,
-    };
+    let (cache_dir, options) = cached("lf-cache-test", None);
     let (first, r1) = bake(&scene, &dir, &options, &NoProgress).unwrap();
     assert_eq!(r1.shapes_computed, r1.unique_shapes);
     let (second, r2) = bake(&scene, &dir, &options, &NoProgress).unwrap();
@@ -75,13 +82,7 @@ fn second_bake_reuses_every_shape_and_corrupt_entries_are_recomputed() {
 fn lightfields_are_read_only_for_a_transport_that_is_computed() {
     let scene = small_corridor();
     let dir = scene_dir("corridor");
-    let cache_dir = std::env::temp_dir().join(format!("lf-lightfields-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&cache_dir);
-    let options = BakeOptions {
-        cache: Some(ShapeCache::open(&cache_dir).unwrap()),
-        full: false,
-        transport: None,
-    };
+    let (cache_dir, options) = cached("lf-lightfields", None);
     let with_ext = |ext: &str| -> Vec<std::path::PathBuf> {
         std::fs::read_dir(&cache_dir)
             .unwrap()
@@ -135,13 +136,7 @@ fn lightfields_are_read_only_for_a_transport_that_is_computed() {
 fn moving_one_pillar_retraces_its_neighbourhood_only_and_matches_a_fresh_bake() {
     let (scene, _) = load_scene("maze", 4, 64);
     let dir = scene_dir("maze");
-    let cache_dir = std::env::temp_dir().join(format!("lf-drt-cache-test-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&cache_dir);
-    let options = BakeOptions {
-        cache: Some(ShapeCache::open(&cache_dir).unwrap()),
-        full: false,
-        transport: Some(Transport::Lightfield),
-    };
+    let (cache_dir, options) = cached("lf-drt-cache-test", Some(Transport::Lightfield));
     let (_, first) = bake(&scene, &dir, &options, &NoProgress).unwrap();
     let d1 = first.drt.unwrap();
     assert_eq!(d1.reused_texels, 0);
@@ -250,13 +245,7 @@ fn moving_one_pillar_retraces_its_neighbourhood_only_and_matches_a_fresh_bake() 
 fn moving_clutter_next_to_a_mesh_matches_a_fresh_bake() {
     let (scene, _) = load_scene("cornell_mesh", 4, 64);
     let dir = scene_dir("cornell_mesh");
-    let cache_dir = std::env::temp_dir().join(format!("lf-mesh-cache-test-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&cache_dir);
-    let options = BakeOptions {
-        cache: Some(ShapeCache::open(&cache_dir).unwrap()),
-        full: false,
-        transport: Some(Transport::Lightfield),
-    };
+    let (cache_dir, options) = cached("lf-mesh-cache-test", Some(Transport::Lightfield));
     let (_, first) = bake(&scene, &dir, &options, &NoProgress).unwrap();
     let total = first.drt.unwrap().traced_texels;
     let mut moved = scene.clone();

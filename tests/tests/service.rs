@@ -112,6 +112,14 @@ fn fast_settings() -> serde_json::Value {
     json!({"texels_per_face": 6, "rays_per_texel": 64})
 }
 
+/// The bundle `lightfarm bake` writes for `scene` (JSON, meshes in `dir`): baked in this
+/// process and encoded with the scene's codec settings.
+fn cli_bytes(scene: &serde_json::Value, dir: &Path) -> Vec<u8> {
+    let scene = Scene::from_json(&scene.to_string()).unwrap();
+    let (bundle, _) = bake(&scene, dir, &BakeOptions::default(), &NoProgress).unwrap();
+    bundle.encode_with(&encode_options(&scene.settings, None)).0
+}
+
 /// Waits for a final state.
 fn wait(client: &ServiceClient, id: &str) -> lightfarm_proto::api::BakeStatus {
     client.wait(id, Duration::from_secs(300)).unwrap()
@@ -189,15 +197,7 @@ fn upload_bake_watch_and_fetch() {
     scene["clutter"][2]["mesh"] = json!(format!("{}.obj", asset.hash));
     scene["settings"]["texels_per_face"] = json!(6);
     scene["settings"]["rays_per_texel"] = json!(64);
-    let local_scene = Scene::from_json(&scene.to_string()).unwrap();
-    let (local, _) = bake(
-        &local_scene,
-        &local_dir,
-        &BakeOptions::default(),
-        &NoProgress,
-    )
-    .unwrap();
-    let (local_bytes, _) = local.encode_with(&encode_options(&local_scene.settings, None));
+    let local_bytes = cli_bytes(&scene, &local_dir);
     assert!(
         local_bytes == fetched.bytes,
         "service bundle differs from the CLI bake"
@@ -283,15 +283,7 @@ fn upload_bake_watch_and_fetch() {
     let moved_fetched = fetcher
         .fetch(&client.bundle_url(status.bundle.as_ref().unwrap()))
         .unwrap();
-    let moved_scene = Scene::from_json(&moved.to_string()).unwrap();
-    let (moved_local, _) = bake(
-        &moved_scene,
-        &local_dir,
-        &BakeOptions::default(),
-        &NoProgress,
-    )
-    .unwrap();
-    let (moved_bytes, _) = moved_local.encode_with(&encode_options(&moved_scene.settings, None));
+    let moved_bytes = cli_bytes(&moved, &local_dir);
     assert!(
         moved_bytes == moved_fetched.bytes && moved_bytes != local_bytes,
         "the rebake through the memo differs from the CLI bake"

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-use lightfarm_proto::bundle::{Bundle, EncodeOptions, EncodingMemo};
+use lightfarm_proto::bundle::{Bundle, EncodeOptions, EncodeReport, EncodingMemo};
 use lightfarm_proto::container::sections_end;
 use lightfarm_proto::scene::Scene;
 
@@ -86,14 +86,7 @@ impl Progress for StreamingProgress<'_> {
     }
 
     fn sections_ready(&self, bundle: &Bundle) {
-        if let Some(memo) = self.memo {
-            memo.begin_write();
-        }
-        let (bytes, report) = bundle.encode_memo(
-            &self.options,
-            encode_threads(),
-            self.memo.map(|m| m as &dyn EncodingMemo),
-        );
+        let (bytes, report) = encode_through(bundle, &self.options, self.memo);
         let Some(end) = sections_end(&bytes) else {
             return;
         };
@@ -210,19 +203,8 @@ pub fn prepare_scene(
 /// The bundle's bytes as the service stores them: encoded with the scene's codec settings,
 /// exactly as `lightfarm bake` writes them. Through the level's encoding memo when given
 /// ([`open_memo`]), which then keeps this write's encodings for the next bake.
-pub fn encode_bundle(
-    scene: &Scene,
-    bundle: &lightfarm_proto::bundle::Bundle,
-    memo: Option<&EncodingCache>,
-) -> Vec<u8> {
-    if let Some(memo) = memo {
-        memo.begin_write();
-    }
-    let (bytes, _) = bundle.encode_memo(
-        &encode_options(&scene.settings, None),
-        encode_threads(),
-        memo.map(|m| m as &dyn EncodingMemo),
-    );
+pub fn encode_bundle(scene: &Scene, bundle: &Bundle, memo: Option<&EncodingCache>) -> Vec<u8> {
+    let (bytes, _) = encode_through(bundle, &encode_options(&scene.settings, None), memo);
     if let Some(memo) = memo {
         if let Err(e) = memo.save() {
             // Only a later bake's time depends on it.
@@ -241,6 +223,15 @@ pub fn open_memo(dir: &Path, scene: &Scene) -> Option<EncodingCache> {
         .flatten()
 }
 
-fn encode_threads() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
+/// One write of `bundle` on every core, through `memo` when given (a write of its own).
+fn encode_through(
+    bundle: &Bundle,
+    options: &EncodeOptions,
+    memo: Option<&EncodingCache>,
+) -> (Vec<u8>, EncodeReport) {
+    if let Some(memo) = memo {
+        memo.begin_write();
+    }
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    bundle.encode_memo(options, threads, memo.map(|m| m as &dyn EncodingMemo))
 }

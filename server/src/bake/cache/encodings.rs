@@ -30,7 +30,7 @@
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use lightfarm_proto::bundle::{EncodingMemo, Matrix, MatrixEncoding};
 use lightfarm_proto::codec::{CodecPolicy, MatrixCodec};
@@ -68,12 +68,12 @@ pub struct EncodingCache {
 }
 
 /// A section's memo entry: the blake3 of its raw payload, the zstd level and the stored payload
-/// (None: stored raw).
+/// (None: stored raw), shared between the memo's session, this write's entries and the caller.
 #[derive(Clone, Debug, PartialEq)]
 struct StoredSection {
     raw_hash: [u8; 32],
     level: i32,
-    stored: Option<Vec<u8>>,
+    stored: Option<Arc<Vec<u8>>>,
 }
 
 impl EncodingCache {
@@ -215,7 +215,7 @@ impl EncodingMemo for EncodingCache {
             .filter(|(by, e)| *by == self.build && e.raw_hash == raw_hash && e.level == level)
             .map(|(_, e)| e);
         if let Some(e) = earlier {
-            return e.stored;
+            return e.stored.map(Arc::unwrap_or_clone);
         }
         // Compressed by an earlier write of this memo (a partial bundle), or now; either way
         // stored with this write.
@@ -229,13 +229,13 @@ impl EncodingMemo for EncodingCache {
         let section = session.unwrap_or_else(|| StoredSection {
             raw_hash,
             level,
-            stored: compress(),
+            stored: compress().map(Arc::new),
         });
         self.session_sections
             .lock()
             .expect("the memo's lock")
             .insert(kind, section.clone());
-        let stored = section.stored.clone();
+        let stored = section.stored.as_deref().cloned();
         self.fresh_sections
             .lock()
             .expect("the memo's lock")
@@ -273,7 +273,7 @@ fn decode_section(payload: &[u8]) -> Result<(Vec<u8>, StoredSection), WireError>
                 .ok()
                 .filter(|&len| len == r.remaining())
                 .ok_or_else(|| WireError::Invalid("section length".into()))?;
-            Some(r.take(len)?.to_vec())
+            Some(Arc::new(r.take(len)?.to_vec()))
         }
         _ => return Err(WireError::Invalid("section flag".into())),
     };
@@ -357,18 +357,29 @@ mod tests {
     use lightfarm_proto::bundle::EncodeOptions;
     use lightfarm_proto::testing::{drt_bundle, Lcg};
 
+    /// The encode options every test here writes with (8-bit codecs in play, fast zstd).
+    fn options() -> EncodeOptions {
+        EncodeOptions {
+            codec: CodecPolicy::Budget(0.02),
+            transport_codec: Some(CodecPolicy::Budget(0.002)),
+            zstd_level: 3,
+        }
+    }
+
+    /// An empty directory of the test's own (`name` and this process).
+    fn fresh_dir(name: &str) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
     /// A level's second write takes its matrices from the memo the first one saved and gives
     /// the same bytes; a corrupt memo is an empty one (the same bytes again, encoded).
     #[test]
     fn a_saved_memo_writes_the_same_bytes_and_a_corrupt_one_is_empty() {
-        let dir = std::env::temp_dir().join(format!("lf-encodings-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        let dir = fresh_dir("lf-encodings");
         let bundle = drt_bundle(&mut Lcg(5), true, true, false);
-        let options = EncodeOptions {
-            codec: CodecPolicy::Budget(0.02),
-            transport_codec: Some(CodecPolicy::Budget(0.002)),
-            zstd_level: 3,
-        };
+        let options = options();
         let (want, _) = bundle.encode_on(&options, 1);
         let first = EncodingCache::open(&dir, "level").unwrap().unwrap();
         assert_eq!(first.earlier(), 0);
@@ -408,13 +419,8 @@ mod tests {
     /// corrupt, and the bundle is the same bytes every time.
     #[test]
     fn unchanged_sections_are_not_compressed_again() {
-        let dir = std::env::temp_dir().join(format!("lf-sections-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let options = EncodeOptions {
-            codec: CodecPolicy::Budget(0.02),
-            transport_codec: Some(CodecPolicy::Budget(0.002)),
-            zstd_level: 3,
-        };
+        let dir = fresh_dir("lf-sections");
+        let options = options();
         let bundle = drt_bundle(&mut Lcg(7), true, true, false);
         let (want, _) = bundle.encode_on(&options, 1);
         let fresh = |memo: &EncodingCache| memo.fresh_sections.lock().unwrap().len();
@@ -456,13 +462,8 @@ mod tests {
     /// both give the plain writer's bytes, and the saved memo is the whole write's.
     #[test]
     fn one_memo_serves_a_partial_write_then_the_whole() {
-        let dir = std::env::temp_dir().join(format!("lf-session-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let options = EncodeOptions {
-            codec: CodecPolicy::Budget(0.02),
-            transport_codec: Some(CodecPolicy::Budget(0.002)),
-            zstd_level: 3,
-        };
+        let dir = fresh_dir("lf-session");
+        let options = options();
         let whole = drt_bundle(&mut Lcg(9), true, true, false);
         let mut partial = whole.clone();
         partial.drt = None;
@@ -496,13 +497,8 @@ mod tests {
     /// not be this build's bytes), and this build's save replaces it: one memo per level.
     #[test]
     fn another_builds_memo_is_empty_and_replaced() {
-        let dir = std::env::temp_dir().join(format!("lf-builds-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let options = EncodeOptions {
-            codec: CodecPolicy::Budget(0.02),
-            transport_codec: Some(CodecPolicy::Budget(0.002)),
-            zstd_level: 3,
-        };
+        let dir = fresh_dir("lf-builds");
+        let options = options();
         let bundle = drt_bundle(&mut Lcg(11), true, true, false);
         let (want, _) = bundle.encode_on(&options, 1);
         let files = || std::fs::read_dir(dir.join("encodings")).unwrap().count();

@@ -425,7 +425,7 @@ impl TransportCache {
         let ms = matrices(&transport.mrt);
         let mut by_target: BTreeMap<usize, Writer> = BTreeMap::new();
         for (h, m) in hs.iter().zip(ms) {
-            write_mat(by_target.entry(h.target).or_insert_with(Writer::new), m);
+            write_mat(by_target.entry(h.target).or_default(), m);
         }
         for (target, w) in by_target {
             self.store.put(&target_key(key, target), &w.bytes)?;

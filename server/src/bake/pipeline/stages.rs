@@ -25,7 +25,7 @@ use crate::bake::drt::error::DrtError;
 use crate::bake::drt::rays::DrtRayCache;
 use crate::bake::math::sampling::Purpose;
 use crate::bake::mrt::one_bounce::gather_rows;
-use crate::bake::mrt::shape::{bake_shape, ShapeLightfields, ShapeOperators};
+use crate::bake::mrt::shape::{bake_shape, ShapeLightfields, ShapeOperators, ShapeSpec};
 use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
 use crate::bake::scene::mesh::load_mesh;
@@ -80,12 +80,7 @@ pub fn shape_operators(
         .sum();
     progress.stage("shape operators", texels_to_do);
     for i in to_compute {
-        let ops = bake_shape(&unique_specs[i], &|n| progress.advance(n))?;
-        if let Some(cache) = cache {
-            cache.put(&ops)?;
-        }
-        report.shapes_computed += 1;
-        slots[i] = Some(ops);
+        slots[i] = Some(bake_and_store(&unique_specs[i], cache, progress, report)?);
     }
     let shapes = SplitShapes::new(
         slots
@@ -154,14 +149,26 @@ pub fn load_lightfields(
         }
         let spec = &plan.unique_specs[i];
         progress.stage("shape operators", spec.n_texels() as u64);
-        let mut ops = bake_shape(spec, &|n| progress.advance(n))?;
-        if let Some(cache) = cache {
-            cache.put(&ops)?;
-        }
-        report.shapes_computed += 1;
+        let mut ops = bake_and_store(spec, cache, progress, report)?;
         out.push(ops.take_lightfields());
     }
     Ok(out)
+}
+
+/// Bakes one shape (advancing `progress` by its texels), stores it whole in `cache` and counts
+/// it in `report`.
+fn bake_and_store(
+    spec: &ShapeSpec,
+    cache: Option<&ShapeCache>,
+    progress: &dyn Progress,
+    report: &mut BakeReport,
+) -> Result<ShapeOperators, BakeError> {
+    let ops = bake_shape(spec, &|n| progress.advance(n))?;
+    if let Some(cache) = cache {
+        cache.put(&ops)?;
+    }
+    report.shapes_computed += 1;
+    Ok(ops)
 }
 
 /// The blocks' f64 transport as the bake holds it: computed (in memory), or a cache hit whose

@@ -225,19 +225,26 @@ pub enum MrtTransport {
 }
 
 impl MrtTransport {
-    /// Keeps only the operators into target blocks `keep` marks (what a later reader needs);
-    /// returns how many were dropped.
-    pub fn retain_targets(&mut self, keep: &[bool]) -> usize {
-        fn retain<T>(blocks: &mut Vec<T>, keep: impl Fn(&T) -> bool) -> usize {
-            let before = blocks.len();
-            blocks.retain(keep);
-            blocks.shrink_to_fit();
-            before - blocks.len()
+    /// The operators into the target blocks `keep` marks (indexed by block; a block past its
+    /// end is not marked), in transport order.
+    pub fn for_targets(&self, keep: &[bool]) -> MrtTransport {
+        fn pick<T: Clone>(blocks: &[T], keep: impl Fn(&T) -> bool) -> Vec<T> {
+            blocks.iter().filter(|b| keep(b)).cloned().collect()
         }
+        let marked = |b: usize| keep.get(b).copied().unwrap_or(false);
         match self {
-            MrtTransport::Lightfield(blocks) => retain(blocks, |b| keep[b.target_block]),
-            MrtTransport::Traced(blocks) => retain(blocks, |b| keep[b.target_block]),
+            MrtTransport::Lightfield(blocks) => {
+                MrtTransport::Lightfield(pick(blocks, |b| marked(b.target_block)))
+            }
+            MrtTransport::Traced(blocks) => {
+                MrtTransport::Traced(pick(blocks, |b| marked(b.target_block)))
+            }
         }
+    }
+
+    /// Keeps only the operators into target blocks `keep` marks (what a later reader needs).
+    pub fn retain_targets(&mut self, keep: &[bool]) {
+        *self = self.for_targets(keep);
     }
 
     /// Whether source block `source`'s light reaches target block `target` (its own block, or

@@ -27,22 +27,6 @@ pub trait TransportSource: Sync {
 
 impl TransportSource for MrtTransport {
     fn into_targets(&self, targets: &[bool]) -> Result<MrtTransport, TransportUnavailable> {
-        let keep = |b: usize| targets.get(b).copied().unwrap_or(false);
-        Ok(match self {
-            MrtTransport::Lightfield(blocks) => MrtTransport::Lightfield(
-                blocks
-                    .iter()
-                    .filter(|b| keep(b.target_block))
-                    .cloned()
-                    .collect(),
-            ),
-            MrtTransport::Traced(blocks) => MrtTransport::Traced(
-                blocks
-                    .iter()
-                    .filter(|b| keep(b.target_block))
-                    .cloned()
-                    .collect(),
-            ),
-        })
+        Ok(self.for_targets(targets))
     }
 }
