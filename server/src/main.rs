@@ -306,6 +306,10 @@ enum Command {
         /// Threads for unit work (0: one per core).
         #[arg(long, default_value_t = 0)]
         threads: usize,
+        /// Byte budget of the local operator cache, trimmed least-recently-used after each unit
+        /// and bake (the service's own default: 10 GiB).
+        #[arg(long, default_value_t = lightfarm_server::service::config::DEFAULT_OPERATOR_CACHE_BYTES)]
+        cache_bytes: u64,
     },
 }
 
@@ -448,10 +452,12 @@ fn main() -> anyhow::Result<()> {
             farm,
             cache,
             threads,
+            cache_bytes,
         } => cli::worker::run(cli::worker::WorkerArgs {
             farm,
             cache,
             threads,
+            cache_bytes,
         }),
         Command::Bench {
             quick,

@@ -4,7 +4,7 @@
 //!
 //! Arguments: `--addr HOST:PORT --data DIR [--config FILE] [--farm URL]`, as `lightfarm serve`.
 //! It prints `lightfarm: listening on http://ADDR` on stdout once the socket is bound.
-//! `worker --farm URL --cache DIR [--threads N]` runs `lightfarm worker` instead (the farm
+//! `worker --farm URL --cache DIR [--threads N] [--cache-bytes B]` runs `lightfarm worker` instead (the farm
 //! tests, `tests/farm.rs`), which prints `lightfarm worker NAME: ready` once it pulls work.
 
 use lightfarm_server::cli::serve::{run, ServeArgs};
@@ -18,6 +18,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             farm: String::new(),
             cache: "lightfarm-worker".into(),
             threads: 0,
+            cache_bytes: lightfarm_server::service::config::DEFAULT_OPERATOR_CACHE_BYTES,
         };
         while let Some(flag) = it.next() {
             let value = it.next().ok_or_else(|| format!("{flag} needs a value"))?;
@@ -25,6 +26,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 "--farm" => args.farm = value,
                 "--cache" => args.cache = value.into(),
                 "--threads" => args.threads = value.parse()?,
+                "--cache-bytes" => args.cache_bytes = value.parse()?,
                 other => return Err(format!("unknown argument {other}").into()),
             }
         }

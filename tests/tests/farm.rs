@@ -9,6 +9,11 @@
 //! restarted mid-bake; the bundle is byte-identical to the embedded bake. Then a second bake is
 //! cancelled on replica B and the workers stop its units.
 //!
+//! `farm_worker_keeps_its_operator_cache_within_budget`: a worker with a tiny `--cache-bytes`
+//! trims its local operator cache after each unit and bake (so later units and the assembler
+//! fetch earlier units' files again), ends within the budget, and still bakes the embedded
+//! bundle byte for byte.
+//!
 //! `farm_keeps_teams_apart_and_bounds_its_queue`: with team tokens and no workers, another
 //! team's bake and scene are 404 and submissions beyond `queue_capacity` are 429.
 //!
@@ -125,9 +130,20 @@ struct Line {
 }
 
 fn start_worker(farm: &str, cache: &Path, index: usize, lines: mpsc::Sender<Line>) -> Process {
+    start_worker_with(farm, cache, index, lines, &[])
+}
+
+fn start_worker_with(
+    farm: &str,
+    cache: &Path,
+    index: usize,
+    lines: mpsc::Sender<Line>,
+    extra: &[&str],
+) -> Process {
     let mut child = Command::new(TEST_SERVER)
         .args(["worker", "--farm", farm, "--threads", "1", "--cache"])
         .arg(cache)
+        .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
@@ -425,6 +441,92 @@ fn farm_keeps_teams_apart_and_bounds_its_queue() {
     let cancelled = red.cancel_bake(&accepted[1]).unwrap();
     assert_eq!(cancelled.state, JobState::Cancelled);
 
+    drop(replica);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// Bytes of the cache files under `dir` (one level of subdirectories, as the trim counts them;
+/// writes in flight, named `.…`, left out).
+fn cache_bytes(dir: &Path) -> u64 {
+    let mut total = 0;
+    let mut dirs = vec![(dir.to_path_buf(), 0)];
+    while let Some((d, depth)) = dirs.pop() {
+        let Ok(read) = std::fs::read_dir(&d) else {
+            continue;
+        };
+        for entry in read.flatten() {
+            let meta = entry.metadata().unwrap();
+            if meta.is_dir() {
+                if depth == 0 {
+                    dirs.push((entry.path(), depth + 1));
+                }
+            } else if !entry.file_name().to_string_lossy().starts_with('.') {
+                total += meta.len();
+            }
+        }
+    }
+    total
+}
+
+#[test]
+fn farm_worker_keeps_its_operator_cache_within_budget() {
+    let Some(nats) = nats_server() else {
+        eprintln!("SKIPPED: the nats-server binary is not installed (apt-get install nats-server)");
+        return;
+    };
+    let root = std::env::temp_dir().join(format!("lightfarm-farm-trim-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    let (_nats, url) = start_nats(&nats, &root.join("nats"));
+    let replica = Replica::start(&url, &root.join("a"));
+    let (line_sender, lines) = mpsc::channel();
+    let budget: u64 = 100_000;
+    let worker_dir = root.join("worker");
+    let _worker = start_worker_with(
+        &url,
+        &worker_dir,
+        0,
+        line_sender,
+        &["--cache-bytes", &budget.to_string()],
+    );
+    wait_line(&lines, |l| l.text.contains(": ready"));
+
+    let scene_text = std::fs::read_to_string(scene_dir("maze").join("scene.json")).unwrap();
+    let scene = replica.client().create_scene(&scene_text).unwrap();
+    // Every unit trims the cache after it, so later units and the assembler find earlier
+    // units' files gone and fetch them again from the farm's store.
+    let submitted = replica
+        .client()
+        .submit_bake(&scene.id, maze_settings(64))
+        .unwrap();
+    let done = replica.client().wait(&submitted.id, PATIENCE).unwrap();
+    assert_eq!(done.state, JobState::Succeeded, "{:?}", done.error);
+    let fetched = replica
+        .client()
+        .fetcher(root.join("client-cache"))
+        .fetch(&replica.client().bundle_url(&done.bundle.unwrap()))
+        .unwrap();
+    assert!(
+        fetched.bytes == embedded_bundle(64),
+        "the trimmed worker's bundle differs from the embedded bake"
+    );
+    let trimmed = wait_line(&lines, |l| l.text.contains(": trimmed operator cache: "));
+    eprintln!("{}", trimmed.text);
+    assert!(
+        trimmed.text.contains(&format!("(budget {budget})")),
+        "{}",
+        trimmed.text
+    );
+    // The coordinator trims after the bake; its line comes after the job's success.
+    let deadline = Instant::now() + PATIENCE;
+    while cache_bytes(&worker_dir.join("operators")) > budget {
+        assert!(
+            Instant::now() < deadline,
+            "the worker's operator cache stayed at {} bytes, budget {budget}",
+            cache_bytes(&worker_dir.join("operators"))
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
     drop(replica);
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -10,6 +10,7 @@ pub struct WorkerArgs {
     pub farm: String,
     pub cache: PathBuf,
     pub threads: usize,
+    pub cache_bytes: u64,
 }
 
 /// Works until killed.
@@ -23,6 +24,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
             farm: args.farm,
             cache: args.cache,
             threads: args.threads,
+            cache_bytes: args.cache_bytes,
         }))?;
     Ok(())
 }

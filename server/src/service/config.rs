@@ -62,6 +62,9 @@ pub struct Limits {
     pub operator_cache_bytes: u64,
 }
 
+/// Default byte budget of an operator cache: the service's and a farm worker's.
+pub const DEFAULT_OPERATOR_CACHE_BYTES: u64 = 10 << 30;
+
 impl Default for Limits {
     fn default() -> Limits {
         Limits {
@@ -74,7 +77,7 @@ impl Default for Limits {
             worker_threads: 0,
             request_timeout_seconds: 30,
             store_budget_bytes: 20 << 30,
-            operator_cache_bytes: 10 << 30,
+            operator_cache_bytes: DEFAULT_OPERATOR_CACHE_BYTES,
         }
     }
 }

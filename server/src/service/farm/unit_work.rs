@@ -13,6 +13,8 @@
 //!   either recorded (and skipped when delivered again) or delivered again and rerun.
 //! - A rerun writes identical bytes (units are deterministic), so a redelivery is harmless.
 //! - A unit of a job that is final, or of an earlier attempt, is dropped without running.
+//! - The worker's operator cache stays within its byte budget: it is trimmed
+//!   least-recently-used after every unit and bake ([`WorkerContext::trim_cache`]).
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -32,6 +34,7 @@ use crate::bake::units::{run_unit, unit_inputs, BakeUnit};
 use crate::service::executor::{prepare_scene, ScratchDir};
 use crate::service::job_progress::Cancelled;
 use crate::service::jobs::JobRecord;
+use crate::service::operator_cache;
 use lightfarm_proto::scene::Scene;
 
 /// Cancel flags per (job, attempt), set by the worker's cancel subscription.
@@ -87,9 +90,31 @@ pub struct WorkerContext {
     /// This worker's name in logs and completion records.
     pub name: String,
     pub counter: AtomicU64,
+    /// Byte budget of `cache_dir`, trimmed least-recently-used after each unit and bake.
+    pub cache_bytes: u64,
 }
 
 impl WorkerContext {
+    /// The job's scene and assets in a fresh scratch directory (removed when the guard drops).
+    /// Trims the local operator cache to its budget ([`operator_cache::trim`]) and says so when
+    /// it removed anything. Safe at any time: a unit's outputs are uploaded before it is
+    /// recorded, an assembler downloads what it reads again, and an entry gone mid-bake is a
+    /// cache miss (recomputed), never an error.
+    pub async fn trim_cache(&self) {
+        let (dir, budget) = (self.cache_dir.clone(), self.cache_bytes);
+        let Ok(report) =
+            tokio::task::spawn_blocking(move || operator_cache::trim(&dir, budget)).await
+        else {
+            return;
+        };
+        if report.removed_files > 0 {
+            println!(
+                "lightfarm worker {}: trimmed operator cache: removed {} files ({} bytes), {} bytes kept (budget {budget})",
+                self.name, report.removed_files, report.removed_bytes, report.bytes
+            );
+        }
+    }
+
     /// The job's scene and assets in a fresh scratch directory (removed when the guard drops).
     pub fn prepare(&self, record: &JobRecord) -> Result<(Scene, ScratchDir), String> {
         let dir = self.scratch.join(format!(
@@ -280,4 +305,5 @@ pub async fn handle_unit(ctx: Arc<WorkerContext>, message: jetstream::Message) {
     if let Err(e) = message.double_ack().await {
         tracing::warn!("ack of unit {}: {e}", unit.unit);
     }
+    ctx.trim_cache().await;
 }

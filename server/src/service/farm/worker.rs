@@ -58,6 +58,9 @@ pub struct WorkerOptions {
     pub cache: PathBuf,
     /// Threads of the unit lane's rayon pool (0: one per core).
     pub threads: usize,
+    /// Byte budget of the local operator cache (`<cache>/operators`), trimmed
+    /// least-recently-used after each unit and each bake this worker coordinates.
+    pub cache_bytes: u64,
 }
 
 /// Connects and works until the process is stopped.
@@ -88,6 +91,7 @@ pub async fn run(options: WorkerOptions) -> Result<(), FarmError> {
         cancels: Default::default(),
         name: name.clone(),
         counter: AtomicU64::new(0),
+        cache_bytes: options.cache_bytes,
     });
 
     let mut cancels = farm
@@ -285,6 +289,7 @@ async fn coordinate(ctx: Arc<WorkerContext>, message: jetstream::Message) {
         farm.publish_event(&id, &job.record.state_event()).await;
     }
     let _ = message.double_ack().await;
+    ctx.trim_cache().await;
 }
 
 /// What a finished bake produced.
