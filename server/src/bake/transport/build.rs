@@ -18,6 +18,7 @@
 use std::collections::{BTreeMap, VecDeque};
 
 use faer::Mat;
+use rayon::prelude::*;
 
 use lightfarm_proto::scene::Opening;
 use lightfarm_proto::Face;
@@ -80,64 +81,22 @@ pub fn lightfield_transport(
     openings: &[[Option<Opening>; 6]],
     tolerance: f64,
 ) -> (Vec<PropBlock>, TransportStats) {
+    let hop_limit = 4 * shapes.len() + 4;
+    // Sources propagate independently and every entry's key holds its source, so the sources
+    // run in parallel and their entries are merged without sums across sources: the same bits
+    // at any thread count.
+    let per_source: Vec<(BTreeMap<(usize, usize), Mat<f64>>, TransportStats)> = (0..shapes.len())
+        .into_par_iter()
+        .map(|source| propagate_source(source, shapes, lightfields, openings, tolerance, hop_limit))
+        .collect();
     let mut stats = TransportStats::default();
     let mut acc: BTreeMap<(usize, usize, usize), Mat<f64>> = BTreeMap::new();
-    let hop_limit = 4 * shapes.len() + 4;
-    for (source, ops) in shapes.iter().enumerate() {
-        let mut queue: VecDeque<(usize, Face, Mat<f64>, usize)> = VecDeque::new();
-        let mut sent = 0.0;
-        for opening in &ops.openings {
-            if let Some(Opening::Neighbour { block, face }) = openings[source][opening.face.index()]
-            {
-                let out_imp = lightfields[source]
-                    .out_imp(opening.face)
-                    .expect("a block's lightfield has its openings")
-                    .into_owned();
-                sent += energy(&out_imp);
-                queue.push_back((block, face, out_imp, 1));
-            }
-        }
-        while let Some((target, face, x, hops)) = queue.pop_front() {
-            stats.steps += 1;
-            stats.max_hops = stats.max_hops.max(hops);
-            let target_ops = shapes[target];
-            let Some(w) = lightfields[target].w(face) else {
-                continue;
-            };
-            let reduced = w.as_ref() * &x;
-            acc.entry((target, face.index(), source))
-                .and_modify(|m| *m += &reduced)
-                .or_insert(reduced);
-            for next in &target_ops.openings {
-                if next.face == face {
-                    continue;
-                }
-                let Some(Opening::Neighbour {
-                    block: next_block,
-                    face: next_face,
-                }) = openings[target][next.face.index()]
-                else {
-                    continue;
-                };
-                let Some((_, triplets)) = next.pass_from.iter().find(|(from, _)| *from == face)
-                else {
-                    continue;
-                };
-                let lf = lightfields[target]
-                    .len(next.face)
-                    .expect("a block's lightfield has its openings");
-                let mut carried = Mat::<f64>::zeros(lf, x.ncols());
-                for &(row, col, v) in triplets {
-                    for j in 0..x.ncols() {
-                        carried[(row as usize, j)] += v * x[(col as usize, j)];
-                    }
-                }
-                if energy(&carried) >= tolerance * sent && hops < hop_limit {
-                    queue.push_back((next_block, next_face, carried, hops + 1));
-                } else {
-                    stats.cut += 1;
-                }
-            }
+    for (source, (entries, source_stats)) in per_source.into_iter().enumerate() {
+        stats.steps += source_stats.steps;
+        stats.cut += source_stats.cut;
+        stats.max_hops = stats.max_hops.max(source_stats.max_hops);
+        for ((target, face), matrix) in entries {
+            acc.insert((target, face, source), matrix);
         }
     }
     let blocks = acc
@@ -150,6 +109,76 @@ pub fn lightfield_transport(
         })
         .collect();
     (blocks, stats)
+}
+
+/// One source block's propagation: its implicit lights leave through each opening and are
+/// carried on until the energy criterion cuts them. Entries keyed (target, face), summed in
+/// queue order; `steps`, `cut` and `max_hops` counted for this source alone.
+fn propagate_source(
+    source: usize,
+    shapes: &[&ShapeOperators],
+    lightfields: &[InstanceLightfield],
+    openings: &[[Option<Opening>; 6]],
+    tolerance: f64,
+    hop_limit: usize,
+) -> (BTreeMap<(usize, usize), Mat<f64>>, TransportStats) {
+    let mut stats = TransportStats::default();
+    let mut acc: BTreeMap<(usize, usize), Mat<f64>> = BTreeMap::new();
+    let ops = shapes[source];
+    let mut queue: VecDeque<(usize, Face, Mat<f64>, usize)> = VecDeque::new();
+    let mut sent = 0.0;
+    for opening in &ops.openings {
+        if let Some(Opening::Neighbour { block, face }) = openings[source][opening.face.index()] {
+            let out_imp = lightfields[source]
+                .out_imp(opening.face)
+                .expect("a block's lightfield has its openings")
+                .into_owned();
+            sent += energy(&out_imp);
+            queue.push_back((block, face, out_imp, 1));
+        }
+    }
+    while let Some((target, face, x, hops)) = queue.pop_front() {
+        stats.steps += 1;
+        stats.max_hops = stats.max_hops.max(hops);
+        let target_ops = shapes[target];
+        let Some(w) = lightfields[target].w(face) else {
+            continue;
+        };
+        let reduced = w.as_ref() * &x;
+        acc.entry((target, face.index()))
+            .and_modify(|m| *m += &reduced)
+            .or_insert(reduced);
+        for next in &target_ops.openings {
+            if next.face == face {
+                continue;
+            }
+            let Some(Opening::Neighbour {
+                block: next_block,
+                face: next_face,
+            }) = openings[target][next.face.index()]
+            else {
+                continue;
+            };
+            let Some((_, triplets)) = next.pass_from.iter().find(|(from, _)| *from == face) else {
+                continue;
+            };
+            let lf = lightfields[target]
+                .len(next.face)
+                .expect("a block's lightfield has its openings");
+            let mut carried = Mat::<f64>::zeros(lf, x.ncols());
+            for &(row, col, v) in triplets {
+                for j in 0..x.ncols() {
+                    carried[(row as usize, j)] += v * x[(col as usize, j)];
+                }
+            }
+            if energy(&carried) >= tolerance * sent && hops < hop_limit {
+                queue.push_back((next_block, next_face, carried, hops + 1));
+            } else {
+                stats.cut += 1;
+            }
+        }
+    }
+    (acc, stats)
 }
 
 /// Traces cross-block operators through the blocks-only geometry `g` (whose block texel ranges
