@@ -271,9 +271,15 @@ impl MrtTransport {
         }
     }
 
-    /// Keeps only the operators into target blocks `keep` marks (what a later reader needs).
+    /// Keeps only the operators into target blocks `keep` marks (what a later reader needs),
+    /// in place: the others are dropped without copying the kept ones, so the bake's peak is
+    /// not the transport plus a copy of what it keeps.
     pub fn retain_targets(&mut self, keep: &[bool]) {
-        *self = self.for_targets(keep);
+        let marked = |b: usize| keep.get(b).copied().unwrap_or(false);
+        match self {
+            MrtTransport::Lightfield(blocks) => blocks.retain(|b| marked(b.target_block)),
+            MrtTransport::Traced(blocks) => blocks.retain(|b| marked(b.target_block)),
+        }
     }
 
     /// Whether source block `source`'s light reaches target block `target` (its own block, or
