@@ -122,6 +122,24 @@ impl Replica {
     }
 }
 
+/// A fresh directory `<tmp>/<name>-<pid>` and a JetStream server under it (the server stops
+/// when the returned process drops), with its URL; None, after saying so, when `nats-server` is
+/// not installed (`.ci/run` installs it, so CI always runs the farm tests).
+fn farm(name: &str) -> Option<(PathBuf, Process, String)> {
+    let Some(nats) = nats_server() else {
+        eprintln!(
+            "SKIPPED: the nats-server binary is not installed (apt-get install nats-server; \
+             .ci/run installs it)"
+        );
+        return None;
+    };
+    let root = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    let (process, url) = start_nats(&nats, &root.join("nats"));
+    Some((root, process, url))
+}
+
 /// What a worker printed, with the worker's index.
 struct Line {
     worker: usize,
@@ -200,17 +218,9 @@ fn embedded_bundle(rays: u32) -> Vec<u8> {
 
 #[test]
 fn farm_survives_a_dead_worker_and_a_restarted_replica() {
-    let Some(nats) = nats_server() else {
-        eprintln!(
-            "SKIPPED: the nats-server binary is not installed (apt-get install nats-server; \
-             .ci/run installs it)"
-        );
+    let Some((root, _nats, url)) = farm("lightfarm-farm") else {
         return;
     };
-    let root = std::env::temp_dir().join(format!("lightfarm-farm-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
-    std::fs::create_dir_all(&root).unwrap();
-    let (_nats, url) = start_nats(&nats, &root.join("nats"));
 
     let replica_a = Replica::start(&url, &root.join("a"));
     let replica_b = Replica::start(&url, &root.join("b"));
@@ -348,14 +358,9 @@ fn farm_survives_a_dead_worker_and_a_restarted_replica() {
 
 #[test]
 fn farm_keeps_teams_apart_and_bounds_its_queue() {
-    let Some(nats) = nats_server() else {
-        eprintln!("SKIPPED: the nats-server binary is not installed (apt-get install nats-server)");
+    let Some((root, _nats, url)) = farm("lightfarm-farm-teams") else {
         return;
     };
-    let root = std::env::temp_dir().join(format!("lightfarm-farm-teams-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
-    std::fs::create_dir_all(&root).unwrap();
-    let (_nats, url) = start_nats(&nats, &root.join("nats"));
     let config = root.join("farm.toml");
     std::fs::write(
         &config,
@@ -470,14 +475,9 @@ fn cache_bytes(dir: &Path) -> u64 {
 
 #[test]
 fn farm_worker_keeps_its_operator_cache_within_budget() {
-    let Some(nats) = nats_server() else {
-        eprintln!("SKIPPED: the nats-server binary is not installed (apt-get install nats-server)");
+    let Some((root, _nats, url)) = farm("lightfarm-farm-trim") else {
         return;
     };
-    let root = std::env::temp_dir().join(format!("lightfarm-farm-trim-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
-    std::fs::create_dir_all(&root).unwrap();
-    let (_nats, url) = start_nats(&nats, &root.join("nats"));
     let replica = Replica::start(&url, &root.join("a"));
     let (line_sender, lines) = mpsc::channel();
     let budget: u64 = 100_000;

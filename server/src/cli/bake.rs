@@ -2,7 +2,6 @@
 
 use std::path::{Path, PathBuf};
 
-use lightfarm_proto::bundle::EncodingMemo;
 use lightfarm_proto::scene::{BundleCodec, Scene, Transport};
 
 use super::progress_bar::Bar;
@@ -10,7 +9,7 @@ use super::{read_text, write_atomic};
 use crate::bake::cache::bundle_memo::{BundleMemo, MemoOptions};
 use crate::bake::cache::encodings::EncodingCache;
 use crate::bake::cache::shape::ShapeCache;
-use crate::bake::pipeline::encoding::encode_options;
+use crate::bake::pipeline::encoding::{encode_and_keep, encode_options};
 use crate::bake::{bake, BakeOptions};
 
 /// Arguments of `bake`.
@@ -107,19 +106,12 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
         Some(dir) => EncodingCache::open(dir, &scene.name)?,
         None => None,
     };
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let (bytes, encoded) = bundle.encode_memo(
+    let (bytes, encoded) = encode_and_keep(
+        &bundle,
         &encode_options(&scene.settings, args.codec),
-        threads,
-        encodings.as_ref().map(|e| e as &dyn EncodingMemo),
+        encodings.as_ref(),
     );
     drop(bundle);
-    if let Some(encodings) = &encodings {
-        if let Err(e) = encodings.save() {
-            // Only a later rebake's time depends on it.
-            tracing::warn!(error = %e, "could not keep the bundle's encodings in the cache");
-        }
-    }
     let encode_seconds = started.elapsed().as_secs_f64();
     let started = std::time::Instant::now();
     report.bundle_bytes = bytes.len();

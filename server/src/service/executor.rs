@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-use lightfarm_proto::bundle::{Bundle, EncodeOptions, EncodeReport, EncodingMemo};
+use lightfarm_proto::bundle::{Bundle, EncodeOptions};
 use lightfarm_proto::container::sections_end;
 use lightfarm_proto::scene::Scene;
 
@@ -31,7 +31,7 @@ use super::scene_inputs::{apply_overrides, asset_hash};
 use super::store::{BlobKind, BlobStore};
 use crate::bake::cache::encodings::EncodingCache;
 use crate::bake::cache::shape::ShapeCache;
-use crate::bake::pipeline::encoding::encode_options;
+use crate::bake::pipeline::encoding::{encode_and_keep, encode_options, encode_through};
 use crate::bake::progress::Progress;
 use crate::bake::{bake, BakeOptions};
 
@@ -204,14 +204,7 @@ pub fn prepare_scene(
 /// exactly as `lightfarm bake` writes them. Through the level's encoding memo when given
 /// ([`open_memo`]), which then keeps this write's encodings for the next bake.
 pub fn encode_bundle(scene: &Scene, bundle: &Bundle, memo: Option<&EncodingCache>) -> Vec<u8> {
-    let (bytes, _) = encode_through(bundle, &encode_options(&scene.settings, None), memo);
-    if let Some(memo) = memo {
-        if let Err(e) = memo.save() {
-            // Only a later bake's time depends on it.
-            tracing::warn!(error = %e, "could not keep the bundle's encodings in the cache");
-        }
-    }
-    bytes
+    encode_and_keep(bundle, &encode_options(&scene.settings, None), memo).0
 }
 
 /// The level's encoding memo in the operator cache `dir`; None (encode without one) when it
@@ -221,17 +214,4 @@ pub fn open_memo(dir: &Path, scene: &Scene) -> Option<EncodingCache> {
         .map_err(|e| tracing::warn!(error = %e, "encoding memo unavailable"))
         .ok()
         .flatten()
-}
-
-/// One write of `bundle` on every core, through `memo` when given (a write of its own).
-fn encode_through(
-    bundle: &Bundle,
-    options: &EncodeOptions,
-    memo: Option<&EncodingCache>,
-) -> (Vec<u8>, EncodeReport) {
-    if let Some(memo) = memo {
-        memo.begin_write();
-    }
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    bundle.encode_memo(options, threads, memo.map(|m| m as &dyn EncodingMemo))
 }

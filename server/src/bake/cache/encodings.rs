@@ -16,8 +16,9 @@
 //! bundle's level takes 1.5 s of a 1,000-block rebake on the 100 MB transport section alone,
 //! which a clutter edit leaves unchanged. One entry per section kind (`<key>-s<kind>`): the
 //! build, the blake3 of the raw payload, the zstd level, then the stored payload (a flag:
-//! compressed or stored raw; u64 length; bytes). Only sections this write compressed afresh
-//! are rewritten.
+//! compressed or stored raw; u64 length; bytes). A section is looked up in this memo's earlier
+//! writes first, then in its entry, and compressed only when neither holds it; only sections
+//! their entry does not hold yet are rewritten.
 //!
 //! One memo may serve several writes ([`EncodingCache::begin_write`]): the service encodes each
 //! partial bundle it streams and then the whole one, and each write takes what the earlier ones
@@ -61,8 +62,9 @@ pub struct EncodingCache {
     session: Mutex<HashMap<[u8; 32], MatrixEncoding>>,
     /// The current write's encodings with their index in it (file order) and key.
     kept: Mutex<Vec<(usize, [u8; 32], MatrixEncoding)>>,
-    /// Sections this memo's writes compressed, by kind (the latest of each).
-    session_sections: Mutex<HashMap<u32, StoredSection>>,
+    /// Sections this memo's writes compressed or read, by kind (the latest of each), and
+    /// whether the section's entry already holds it.
+    session_sections: Mutex<HashMap<u32, (StoredSection, bool)>>,
     /// The current write's sections not read from their entry: to store.
     fresh_sections: Mutex<Vec<(u32, StoredSection)>>,
 }
@@ -132,11 +134,15 @@ impl EncodingCache {
         kept.sort_unstable_by_key(|(index, _, _)| *index);
         self.store.put(&self.key, &encode(&self.build, &kept))?;
         let fresh = self.fresh_sections.lock().expect("the memo's lock");
+        let mut session = self.session_sections.lock().expect("the memo's lock");
         for (kind, section) in fresh.iter() {
             self.store.put(
                 &self.section_key(*kind),
                 &encode_section(&self.build, section),
             )?;
+            if let Some((held, in_entry)) = session.get_mut(kind) {
+                *in_entry |= held == section;
+            }
         }
         Ok(())
     }
@@ -206,40 +212,49 @@ impl EncodingMemo for EncodingCache {
         compress: &dyn Fn() -> Option<Vec<u8>>,
     ) -> Option<Vec<u8>> {
         let raw_hash = *blake3::hash(raw).as_bytes();
-        let earlier = self
-            .store
-            .get(&self.section_key(kind), |payload| {
-                decode_section(payload).ok()
-            })
-            .hit()
-            .filter(|(by, e)| *by == self.build && e.raw_hash == raw_hash && e.level == level)
-            .map(|(_, e)| e);
-        if let Some(e) = earlier {
-            return e.stored.map(Arc::unwrap_or_clone);
-        }
-        // Compressed by an earlier write of this memo (a partial bundle), or now; either way
-        // stored with this write.
+        let same = |e: &StoredSection| e.raw_hash == raw_hash && e.level == level;
+        // This memo's earlier writes first (in memory: a service's partial bundle, then the
+        // whole), then the section's entry, then compressed now.
         let session = self
             .session_sections
             .lock()
             .expect("the memo's lock")
             .get(&kind)
-            .filter(|e| e.raw_hash == raw_hash && e.level == level)
+            .filter(|(e, _)| same(e))
             .cloned();
-        let section = session.unwrap_or_else(|| StoredSection {
-            raw_hash,
-            level,
-            stored: compress().map(Arc::new),
+        let (section, in_entry) = session.unwrap_or_else(|| {
+            let earlier = self
+                .store
+                .get(&self.section_key(kind), |payload| {
+                    decode_section(payload).ok()
+                })
+                .hit()
+                .filter(|(by, e)| *by == self.build && same(e))
+                .map(|(_, e)| e);
+            match earlier {
+                Some(e) => (e, true),
+                None => (
+                    StoredSection {
+                        raw_hash,
+                        level,
+                        stored: compress().map(Arc::new),
+                    },
+                    false,
+                ),
+            }
         });
         self.session_sections
             .lock()
             .expect("the memo's lock")
-            .insert(kind, section.clone());
+            .insert(kind, (section.clone(), in_entry));
         let stored = section.stored.as_deref().cloned();
-        self.fresh_sections
-            .lock()
-            .expect("the memo's lock")
-            .push((kind, section));
+        if !in_entry {
+            // Stored with this write.
+            self.fresh_sections
+                .lock()
+                .expect("the memo's lock")
+                .push((kind, section));
+        }
         stored
     }
 }
@@ -367,6 +382,13 @@ mod tests {
     }
 
     /// An empty directory of the test's own (`name` and this process).
+    /// Corrupts the file at `path`: byte `at` xor `mask`.
+    fn flip_byte(path: &std::path::Path, at: usize, mask: u8) {
+        let mut raw = std::fs::read(path).unwrap();
+        raw[at] ^= mask;
+        std::fs::write(path, &raw).unwrap();
+    }
+
     fn fresh_dir(name: &str) -> std::path::PathBuf {
         let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
@@ -403,10 +425,11 @@ mod tests {
         );
 
         let path = second.store.path(&second.key);
-        let mut raw = std::fs::read(&path).unwrap();
-        let mid = raw.len() / 2;
-        raw[mid] ^= 0x20;
-        std::fs::write(&path, &raw).unwrap();
+        flip_byte(
+            &path,
+            std::fs::metadata(&path).unwrap().len() as usize / 2,
+            0x20,
+        );
         let third = EncodingCache::open(&dir, "level").unwrap().unwrap();
         assert_eq!(third.earlier(), 0);
         let (bytes, _) = bundle.encode_memo(&options, 2, Some(&third));
@@ -439,10 +462,11 @@ mod tests {
         let path = second
             .store
             .path(&second.section_key(lightfarm_proto::bundle::section::LAYOUT));
-        let mut raw = std::fs::read(&path).unwrap();
-        let last = raw.len() - 1;
-        raw[last] ^= 0x01;
-        std::fs::write(&path, &raw).unwrap();
+        flip_byte(
+            &path,
+            std::fs::metadata(&path).unwrap().len() as usize - 1,
+            0x01,
+        );
         let third = EncodingCache::open(&dir, "level").unwrap().unwrap();
         assert!(bundle.encode_memo(&options, 2, Some(&third)).0 == want);
         assert_eq!(fresh(&third), 1);
@@ -474,6 +498,8 @@ mod tests {
         );
         let from_partial: HashMap<[u8; 32], MatrixEncoding> = memo.session.lock().unwrap().clone();
         assert!(!from_partial.is_empty());
+        let sections_from_partial = memo.session_sections.lock().unwrap().clone();
+        assert!(!sections_from_partial.is_empty());
         memo.begin_write();
         assert!(whole.encode_memo(&options, 2, Some(&memo)).0 == whole.encode_on(&options, 1).0);
         let kept = memo.kept.lock().unwrap().clone();
@@ -486,10 +512,40 @@ mod tests {
             }
         }
         assert!(shared >= from_partial.len());
+        // The partial's unchanged sections are the same shared bytes, not compressed again,
+        // and stored with the whole write (the partial's write was never saved).
+        let sections = memo.session_sections.lock().unwrap().clone();
+        let mut shared_sections = 0;
+        for (kind, (p, _)) in &sections_from_partial {
+            let (w, in_entry) = &sections[kind];
+            assert!(!in_entry);
+            if w.raw_hash == p.raw_hash {
+                if let (Some(a), Some(b)) = (&p.stored, &w.stored) {
+                    assert!(
+                        std::sync::Arc::ptr_eq(a, b),
+                        "section {kind} compressed again"
+                    );
+                }
+                shared_sections += 1;
+            }
+        }
+        assert!(shared_sections >= 1);
+        assert_eq!(memo.fresh_sections.lock().unwrap().len(), sections.len());
         memo.save().unwrap();
+        assert!(memo
+            .session_sections
+            .lock()
+            .unwrap()
+            .values()
+            .all(|(_, in_entry)| *in_entry));
         let keys: std::collections::HashSet<_> = kept.iter().map(|(_, k, _)| *k).collect();
         let reopened = EncodingCache::open(&dir, "level").unwrap().unwrap();
         assert_eq!(reopened.earlier(), keys.len());
+        // Every section of the whole write is in its entry: another write compresses none.
+        assert!(
+            whole.encode_memo(&options, 2, Some(&reopened)).0 == whole.encode_on(&options, 1).0
+        );
+        assert_eq!(reopened.fresh_sections.lock().unwrap().len(), 0);
         let _ = std::fs::remove_dir_all(&dir);
     }
 

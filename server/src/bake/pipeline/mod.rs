@@ -6,7 +6,8 @@
 //! - [`plan`]: which canonical shape each block applies ([`plan::ShapePlan`]).
 //! - [`stages`]: each stage of the bake, cached where its inputs allow.
 //! - [`to_bundle`]: the stages' results as the bundle's sections.
-//! - [`encoding`]: the codecs the bundle is stored with.
+//! - [`encoding`]: the codecs the bundle is stored with, and one write of it through the
+//!   level's encoding memo.
 //!
 //! [`bake`] here strings the stages together, times them ([`BakeReport::stage_seconds`]) and
 //! announces each section as it becomes final ([`Progress::sections_ready`]).

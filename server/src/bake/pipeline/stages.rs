@@ -133,26 +133,38 @@ pub fn load_lightfields(
     progress: &dyn Progress,
     report: &mut BakeReport,
 ) -> Result<Vec<ShapeLightfields>, BakeError> {
-    let mut out = Vec::with_capacity(lightfields.len());
+    let mut out: Vec<Option<ShapeLightfields>> = Vec::with_capacity(lightfields.len());
     for (i, held) in lightfields.into_iter().enumerate() {
-        if let Some(held) = held {
-            out.push(held);
-            continue;
-        }
-        match cache.map(|c| c.get_lightfields(&operators[i])) {
-            Some(EntryLookup::Hit(read)) => {
-                out.push(read);
-                continue;
-            }
-            Some(EntryLookup::Corrupt) => report.corrupt_cache_entries += 1,
-            _ => {}
-        }
-        let spec = &plan.unique_specs[i];
-        progress.stage("shape operators", spec.n_texels() as u64);
-        let mut ops = bake_and_store(spec, cache, progress, report)?;
-        out.push(ops.take_lightfields());
+        let found = match held {
+            Some(held) => Some(held),
+            None => match cache.map(|c| c.get_lightfields(&operators[i])) {
+                Some(EntryLookup::Hit(read)) => Some(read),
+                Some(EntryLookup::Corrupt) => {
+                    report.corrupt_cache_entries += 1;
+                    None
+                }
+                _ => None,
+            },
+        };
+        out.push(found);
     }
-    Ok(out)
+    // The shapes whose lightfields are gone, baked again under one stage.
+    let missing: Vec<usize> = (0..out.len()).filter(|&i| out[i].is_none()).collect();
+    if !missing.is_empty() {
+        let texels = missing
+            .iter()
+            .map(|&i| plan.unique_specs[i].n_texels() as u64)
+            .sum();
+        progress.stage("shape operators", texels);
+        for &i in &missing {
+            let mut ops = bake_and_store(&plan.unique_specs[i], cache, progress, report)?;
+            out[i] = Some(ops.take_lightfields());
+        }
+    }
+    Ok(out
+        .into_iter()
+        .map(|l| l.expect("every missing shape was baked again"))
+        .collect())
 }
 
 /// Bakes one shape (advancing `progress` by its texels), stores it whole in `cache` and counts

@@ -15,6 +15,7 @@ use lightfarm_proto::api::{ApiError, ShapeEntry};
 use super::auth::Caller;
 use super::error::{blocking, ApiFailure};
 use super::AppState;
+use crate::bake::cache::shape::{ENTRY as SHAPE_ENTRY, LIGHTFIELD_ENTRY};
 
 /// Liveness.
 #[utoipa::path(get, path = "/healthz", tag = "ops", responses((status = 200, description = "ok")))]
@@ -141,12 +142,15 @@ pub async fn list_shapes(
         };
         for entry in listing.flatten() {
             let name = entry.file_name().to_string_lossy().to_string();
-            let Some(key) = name.strip_suffix(".lfshape") else {
+            let Some(key) = name
+                .strip_suffix(SHAPE_ENTRY.extension)
+                .and_then(|n| n.strip_suffix('.'))
+            else {
                 continue;
             };
             // The operators and, beside them, the openings' lightfields.
             let bytes = entry.metadata().map(|m| m.len()).unwrap_or(0)
-                + std::fs::metadata(dir.join(format!("{key}.lflight")))
+                + std::fs::metadata(dir.join(LIGHTFIELD_ENTRY.relative_path(key)))
                     .map(|m| m.len())
                     .unwrap_or(0);
             entries.push(ShapeEntry {
