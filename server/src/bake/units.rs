@@ -240,20 +240,19 @@ pub fn run_unit(
                     .into_iter()
                     .map(|l| l.expect("a whole cached shape has its lightfields"))
                     .collect();
-                let block_operators = shapes.block_operators(&unique.operators);
-                let per_block: Vec<&ShapeOperators> =
-                    block_operators.iter().map(|s| s.as_ref()).collect();
-                let computed = mrt_transport(
+                // Stored target by target; nothing is kept (the unit's output is the entry).
+                mrt_transport(
                     scene,
                     &shapes,
                     &Geometry::blocks_only(scene),
-                    &per_block,
+                    &unique.operators,
                     lightfields,
                     &scene.openings()?,
                     scene.settings.transport,
+                    &[],
+                    Some((&transport_cache, key.as_str())),
                     progress,
                 )?;
-                transport_cache.put(&key, &computed)?;
             }
         }
         BakeUnit::DrtBlock { block } => {

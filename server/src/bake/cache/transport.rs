@@ -169,20 +169,21 @@ fn target_key(key: &str, target: usize) -> String {
 }
 
 /// The main entry: the kind, every operator's header, the compaction and the statistics.
-fn encode_main(t: &CachedTransport) -> Vec<u8> {
+fn encode_main(
+    traced: bool,
+    hs: &[Header],
+    compact: Option<&[CompactEntry]>,
+    stats: &TransportStats,
+) -> Vec<u8> {
     let mut w = Writer::new();
-    w.u8(match t.mrt {
-        MrtTransport::Lightfield(_) => 0,
-        MrtTransport::Traced(_) => 1,
-    });
-    let hs = headers(&t.mrt);
+    w.u8(u8::from(traced));
     w.u32(hs.len() as u32);
-    for h in &hs {
+    for h in hs {
         w.u32(h.target as u32);
         w.u8(h.face.map_or(u8::MAX, |f| f.index() as u8));
         w.u32(h.source as u32);
     }
-    match &t.compact {
+    match compact {
         None => w.u8(0),
         Some(entries) => {
             w.u8(1);
@@ -195,7 +196,7 @@ fn encode_main(t: &CachedTransport) -> Vec<u8> {
             }
         }
     }
-    let s = &t.stats;
+    let s = stats;
     for x in [s.steps, s.cut, s.max_hops, s.pairs_kept, s.pairs_dropped] {
         w.u64(x as u64);
     }
@@ -421,16 +422,66 @@ impl TransportCache {
     /// Stores `transport`: each target block's operators, then the main entry (so a main
     /// entry is never there before its blocks).
     pub fn put(&self, key: &str, transport: &CachedTransport) -> std::io::Result<()> {
-        let hs = headers(&transport.mrt);
-        let ms = matrices(&transport.mrt);
-        let mut by_target: BTreeMap<usize, Writer> = BTreeMap::new();
-        for (h, m) in hs.iter().zip(ms) {
-            write_mat(by_target.entry(h.target).or_default(), m);
+        let writer = self.writer(key, &transport.mrt);
+        let mut by_target: BTreeMap<usize, Vec<&Mat<f64>>> = BTreeMap::new();
+        for (h, m) in writer.headers.iter().zip(matrices(&transport.mrt)) {
+            by_target.entry(h.target).or_default().push(m);
         }
-        for (target, w) in by_target {
-            self.store.put(&target_key(key, target), &w.bytes)?;
+        for (target, ms) in by_target {
+            writer.put_matrices(target, ms)?;
         }
-        self.store.put(key, &encode_main(transport))
+        writer.finish(transport.compact.as_deref(), &transport.stats)
+    }
+
+    /// A writer of the transport `mrt` (whose operators' headers it notes) under `key`, target
+    /// block by target block ([`TransportWriter`]).
+    pub fn writer(&self, key: &str, mrt: &MrtTransport) -> TransportWriter {
+        TransportWriter {
+            store: self.store.clone(),
+            key: key.to_string(),
+            traced: matches!(mrt, MrtTransport::Traced(_)),
+            headers: headers(mrt),
+        }
+    }
+}
+
+/// Stores a transport while the bake lets go of it: each target block's operators as they
+/// come ([`TransportWriter::target`]), then the main entry ([`TransportWriter::finish`]), which
+/// lists every operator noted when the writer was made. Until `finish` the transport is not
+/// in the cache (a bake that stops half way leaves block entries no main entry points to, which
+/// the trim removes like any other).
+pub struct TransportWriter {
+    store: EntryStore,
+    key: String,
+    traced: bool,
+    headers: Vec<Header>,
+}
+
+impl TransportWriter {
+    /// Stores the operators into `target` (`part`: the transport into that block alone, in
+    /// transport order).
+    pub fn target(&self, target: usize, part: &MrtTransport) -> std::io::Result<()> {
+        self.put_matrices(target, matrices(part))
+    }
+
+    fn put_matrices(&self, target: usize, ms: Vec<&Mat<f64>>) -> std::io::Result<()> {
+        let mut w = Writer::new();
+        for m in ms {
+            write_mat(&mut w, m);
+        }
+        self.store.put(&target_key(&self.key, target), &w.bytes)
+    }
+
+    /// Stores the main entry: the operators' headers, the compaction and the statistics.
+    pub fn finish(
+        self,
+        compact: Option<&[CompactEntry]>,
+        stats: &TransportStats,
+    ) -> std::io::Result<()> {
+        self.store.put(
+            &self.key,
+            &encode_main(self.traced, &self.headers, compact, stats),
+        )
     }
 }
 
@@ -571,7 +622,12 @@ mod tests {
 
         // A main entry that does not decode (trailing bytes) is corrupt: deleted and missed.
         cache.put("k", &lightfield).unwrap();
-        let mut main = encode_main(&lightfield);
+        let mut main = encode_main(
+            false,
+            &headers(&lightfield.mrt),
+            lightfield.compact.as_deref(),
+            &lightfield.stats,
+        );
         main.push(0);
         cache.store.put("k", &main).unwrap();
         assert!(cache.get("k").is_none());

@@ -12,8 +12,9 @@
 //! ships the canonical `U_b`, `T_d→b` once with the block's symmetry and the client permutes at
 //! load (`lightfarm_proto::bundle::BlockSymmetry`).
 //!
-//! An instance stores `U_b`, `L_imp`, `T_d→b`, `U_r` and `Pass` ([`instance_operators`]);
-//! `W` and `OutImp`, which only the transport's propagation reads and which are most of a
+//! An instance stores `U_b`, `L_imp`, `T_d→b`, `U_r` and `Pass` ([`instance_operators`]); the
+//! propagation, which runs before any stage needs the rest, reads its `Pass` alone
+//! ([`instance_passes`]). `W` and `OutImp`, which only the transport's propagation reads and which are most of a
 //! shape's bytes, are renumbered on use ([`InstanceLightfield`]), so a level's memory holds
 //! them once per canonical shape rather than once per (shape, symmetry).
 //!
@@ -31,7 +32,7 @@ use lightfarm_proto::box_symmetry::BoxSymmetry;
 use lightfarm_proto::Face;
 
 use crate::bake::mrt::shape::{
-    OpeningLightfield, OpeningOperators, ShapeLightfields, ShapeOperators, ShapeSpec,
+    OpeningLightfield, OpeningOperators, ShapeLightfields, ShapeOperators, ShapeSpec, Triplets,
 };
 
 /// Per lightfield index of the block's opening `face`, the index on the canonical opening
@@ -58,6 +59,73 @@ fn inverse_permutation(p: &[u32]) -> Vec<u32> {
     inv
 }
 
+/// One opening of a block as the lightfield propagation reads it: its face and its `Pass`
+/// operators, in the block's frame.
+pub struct OpeningPasses {
+    pub face: Face,
+    /// Incoming lightfield at `from` → outgoing lightfield here (LF × LF), as
+    /// [`OpeningOperators::pass_from`].
+    pub pass_from: Vec<(Face, Triplets)>,
+}
+
+/// The openings (ascending by face) of the block with spec `block`, which `g` takes onto
+/// `canonical`'s shape, with their `Pass` operators renumbered: what [`instance_operators`]
+/// holds, made without its texel-sized matrices (the propagation reads nothing else).
+pub fn instance_passes(
+    canonical: &ShapeOperators,
+    block: &ShapeSpec,
+    g: BoxSymmetry,
+) -> Vec<OpeningPasses> {
+    let (cells, dirs) = (block.lightfield_cells, block.lightfield_directions);
+    let inverse = g.inverse();
+    // Per block opening: its face and π⁻¹.
+    let inverses: Vec<(Face, Vec<u32>)> = block
+        .open
+        .iter()
+        .map(|f| {
+            let pi = lightfield_permutation(g, *f, cells, dirs);
+            (*f, inverse_permutation(&pi))
+        })
+        .collect();
+    let inverse_at = |f: Face| {
+        &inverses
+            .iter()
+            .find(|(b, _)| *b == f)
+            .expect("every canonical opening is a block opening")
+            .1
+    };
+    let mut openings: Vec<OpeningPasses> = block
+        .open
+        .iter()
+        .map(|f| {
+            let o = canonical
+                .opening(g.map_face(*f))
+                .expect("the canonical shape has the block's openings");
+            let inv_here = inverse_at(*f);
+            let pass_from = o
+                .pass_from
+                .iter()
+                .map(|(from_c, triplets)| {
+                    let from_b = inverse.map_face(*from_c);
+                    let inv_from = inverse_at(from_b);
+                    let mut mapped: Triplets = triplets
+                        .iter()
+                        .map(|&(r, c, v)| (inv_here[r as usize], inv_from[c as usize], v))
+                        .collect();
+                    mapped.sort_by_key(|&(r, c, _)| (r, c));
+                    (from_b, mapped)
+                })
+                .collect();
+            OpeningPasses {
+                face: *f,
+                pass_from,
+            }
+        })
+        .collect();
+    openings.sort_by_key(|o| o.face);
+    openings
+}
+
 /// The operators of the block with spec `block`, which `g` takes onto `canonical`'s shape.
 pub fn instance_operators(
     canonical: &ShapeOperators,
@@ -67,56 +135,20 @@ pub fn instance_operators(
     let sigma = g.texel_permutation(&block.closed(), block.texels_per_face);
     let rows_of =
         |m: &Mat<f64>| Mat::from_fn(m.nrows(), m.ncols(), |x, k| m[(sigma[x] as usize, k)]);
-    let (cells, dirs) = (block.lightfield_cells, block.lightfield_directions);
-    let inverse = g.inverse();
-    // Per block opening: its face, π and π⁻¹.
-    let permutations: Vec<(Face, Vec<u32>, Vec<u32>)> = block
-        .open
-        .iter()
-        .map(|f| {
-            let pi = lightfield_permutation(g, *f, cells, dirs);
-            let inv = inverse_permutation(&pi);
-            (*f, pi, inv)
-        })
-        .collect();
-    let of_block_face = |f: Face| {
-        permutations
-            .iter()
-            .find(|(b, _, _)| *b == f)
-            .expect("every canonical opening is a block opening")
-    };
-    let mut openings: Vec<OpeningOperators> = block
-        .open
-        .iter()
-        .map(|f| {
-            let image = g.map_face(*f);
-            let o = canonical
-                .opening(image)
+    let openings = instance_passes(canonical, block, g)
+        .into_iter()
+        .map(|o| {
+            let c = canonical
+                .opening(g.map_face(o.face))
                 .expect("the canonical shape has the block's openings");
-            let (_, _, inv_here) = of_block_face(*f);
-            let pass_from = o
-                .pass_from
-                .iter()
-                .map(|(from_c, triplets)| {
-                    let from_b = inverse.map_face(*from_c);
-                    let (_, _, inv_from) = of_block_face(from_b);
-                    let mut mapped: Vec<(u32, u32, f64)> = triplets
-                        .iter()
-                        .map(|&(r, c, v)| (inv_here[r as usize], inv_from[c as usize], v))
-                        .collect();
-                    mapped.sort_by_key(|&(r, c, _)| (r, c));
-                    (from_b, mapped)
-                })
-                .collect();
             OpeningOperators {
-                face: *f,
-                u_r: rows_of(&o.u_r),
-                pass_from,
+                face: o.face,
+                u_r: rows_of(&c.u_r),
+                pass_from: o.pass_from,
                 lightfield: None,
             }
         })
         .collect();
-    openings.sort_by_key(|o| o.face);
     let t = &canonical.t_db;
     ShapeOperators {
         key: g.instance_key(&canonical.key),

@@ -97,6 +97,12 @@ pub enum BakeError {
     CachedTransport(String),
 }
 
+impl From<crate::bake::math::low_rank::LowRankError> for BakeError {
+    fn from(e: crate::bake::math::low_rank::LowRankError) -> BakeError {
+        BakeError::Transport(e.to_string())
+    }
+}
+
 /// Bakes a validated scene. `scene_dir` resolves mesh paths. When a cached transport's
 /// operators turn out unreadable mid-bake (evicted or corrupt; the entry is dropped), it
 /// bakes once more, computing the transport: the same bytes.
@@ -151,27 +157,31 @@ fn bake_once(
     } = stages::shape_operators(&plan, cache, progress, &mut report)?;
     lap(&mut report, "shape operators");
 
-    let block_operators = plan.block_operators(&shapes);
-    let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
     let transport_kind = options.transport.unwrap_or(scene.settings.transport);
+    // After the transport only DRT's inpainting reads the f64 transport, and only into blocks
+    // where a texel may be buried (none without clutter): the transport stage keeps those.
+    let inpainted = inpainting_targets(scene, &openings, &full_geometry);
     let stages::BlockTransport {
         mut held,
         compact,
         stats,
+        block_operators,
     } = stages::block_transport(
         scene,
         &plan,
         &block_geometry,
         &shapes,
-        &per_block,
         lightfields,
         &openings,
         transport_kind,
+        &inpainted,
         cache,
         progress,
         &mut report,
     )?;
     report.transport = stats;
+    let block_operators = block_operators.unwrap_or_else(|| plan.block_operators(&shapes));
+    let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
     // Only the bundle reads the compaction (the transport dropped the lightfields itself).
     let transport = to_bundle::transport_ops(compact, &held);
     let mut bundle =
@@ -179,10 +189,10 @@ fn bake_once(
     announce(&bundle);
     lap(&mut report, "transport");
 
-    // From here on only DRT's inpainting reads the f64 transport, and only into blocks where a
-    // texel may be buried (none without clutter).
+    // A transport shipped uncompacted was held whole for the bundle; from here on only the
+    // inpainted blocks' part is read.
     if let stages::HeldTransport::Computed(mrt) = &mut held {
-        mrt.retain_targets(&inpainting_targets(scene, &openings, &full_geometry));
+        mrt.retain_targets(&inpainted);
         release_freed();
     }
     let drt_inputs = DrtInputs {

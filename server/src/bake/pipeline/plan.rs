@@ -14,7 +14,14 @@ use lightfarm_proto::box_symmetry::BoxSymmetry;
 use lightfarm_proto::scene::Scene;
 
 use crate::bake::mrt::shape::{ShapeLightfields, ShapeOperators, ShapeSpec};
-use crate::bake::mrt::shape_symmetry::{instance_operators, InstanceLightfield};
+use crate::bake::mrt::shape_symmetry::{
+    instance_operators, instance_passes, InstanceLightfield, OpeningPasses,
+};
+use crate::bake::transport::build::BlockPasses;
+
+/// The `Pass` operators of the (shape, symmetry) instances a level uses (what
+/// [`ShapePlan::block_passes`] borrows for blocks that are not in their shape's orientation).
+pub type InstancePasses = HashMap<(usize, BoxSymmetry), Vec<OpeningPasses>>;
 
 /// The scene's blocks' shape operators, deduplicated by content key up to box symmetry: blocks
 /// that are rotations or mirror images of one another share one canonical shape
@@ -56,6 +63,49 @@ impl ShapePlan {
                     &self.specs[b],
                     self.symmetry[b],
                 )
+            })
+            .collect()
+    }
+
+    /// The `Pass` operators of every (shape, symmetry) instance the blocks use (see
+    /// [`ShapePlan::block_passes`]).
+    pub fn instance_passes(&self, unique: &[Arc<ShapeOperators>]) -> InstancePasses {
+        let mut instances = InstancePasses::new();
+        for b in 0..self.specs.len() {
+            let (shape, g) = (self.shape_index[b], self.symmetry[b]);
+            if !g.is_identity() {
+                instances
+                    .entry((shape, g))
+                    .or_insert_with(|| instance_passes(&unique[shape], &self.specs[b], g));
+            }
+        }
+        instances
+    }
+
+    /// Per block, its openings and their `Pass` operators as its operators
+    /// ([`ShapePlan::block_operators`]) would hold them, the same values in the same order:
+    /// the shape's own for an identity block, else its instance's from `instances`. The
+    /// propagation reads these, so it runs before the texel-sized instance operators exist.
+    pub fn block_passes<'a>(
+        &self,
+        unique: &'a [Arc<ShapeOperators>],
+        instances: &'a InstancePasses,
+    ) -> BlockPasses<'a> {
+        (0..self.specs.len())
+            .map(|b| {
+                let (shape, g) = (self.shape_index[b], self.symmetry[b]);
+                if g.is_identity() {
+                    unique[shape]
+                        .openings
+                        .iter()
+                        .map(|o| (o.face, o.pass_from.as_slice()))
+                        .collect()
+                } else {
+                    instances[&(shape, g)]
+                        .iter()
+                        .map(|o| (o.face, o.pass_from.as_slice()))
+                        .collect()
+                }
             })
             .collect()
     }

@@ -16,9 +16,7 @@ use lightfarm_proto::scene::{ProbeVolumeMode, Scene, Transform, Transport};
 use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
 use crate::bake::cache::entry::Lookup as EntryLookup;
 use crate::bake::cache::shape::{Lookup, ShapeCache};
-use crate::bake::cache::transport::{
-    transport_key, CachedTransport, LazyTransport, TransportCache,
-};
+use crate::bake::cache::transport::{transport_key, LazyTransport, TransportCache};
 use crate::bake::dnrt::grid::bake_dnrt_grid;
 use crate::bake::drt::build::{build_drt, DrtInputs, DrtOperators};
 use crate::bake::drt::error::DrtError;
@@ -36,7 +34,7 @@ use crate::bake::tracer::Tracer;
 use crate::bake::transport::build::{
     lightfield_transport, traced_transport, MrtTransport, TransportStats,
 };
-use crate::bake::transport::compaction::compact_transport;
+use crate::bake::transport::compaction::compact_consuming;
 use crate::bake::transport::source::TransportSource;
 
 use super::plan::ShapePlan;
@@ -206,22 +204,28 @@ pub struct BlockTransport {
     /// Present when the scene ships compact transport: as the bundle ships it (f32).
     pub compact: Option<Vec<CompactEntry>>,
     pub stats: TransportStats,
+    /// Per block, the operators it applies, when computing the transport made them (after the
+    /// propagation, so that they and the lightfields are never held at once); None on a cache
+    /// hit.
+    pub block_operators: Option<Vec<Arc<ShapeOperators>>>,
 }
 
 /// The blocks' inter-block transport: from the cache (keyed by the blocks and their shapes'
 /// keys, so clutter and lights never invalidate it) or computed by [`mrt_transport`] and
 /// stored there. Sets `report.transport_from_cache`. A hit reads the compaction only (the
 /// bundle's transport); the f64 operators are read whole only for a bundle that ships them.
+/// Computed, the f64 transport is held into the blocks `keep` marks only (all of it for a
+/// bundle that ships it uncompacted).
 #[allow(clippy::too_many_arguments)]
 pub fn block_transport(
     scene: &Scene,
     plan: &ShapePlan,
     block_geometry: &Geometry,
     unique: &[Arc<ShapeOperators>],
-    per_block: &[&ShapeOperators],
     lightfields: Vec<Option<ShapeLightfields>>,
     openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
     transport_kind: Transport,
+    keep: &[bool],
     cache: Option<&ShapeCache>,
     progress: &dyn Progress,
     report: &mut BakeReport,
@@ -248,6 +252,7 @@ pub fn block_transport(
                 held,
                 compact: hit.compact,
                 stats: hit.stats,
+                block_operators: None,
             })
         }
         None => {
@@ -256,80 +261,137 @@ pub fn block_transport(
                 scene,
                 plan,
                 block_geometry,
-                per_block,
+                unique,
                 lightfields,
                 openings,
                 transport_kind,
+                keep,
+                transport_cache
+                    .as_ref()
+                    .map(|c| (c, transport_key.as_str())),
                 progress,
             )?;
-            if let Some(cache) = &transport_cache {
-                cache.put(&transport_key, &computed)?;
-            }
             Ok(BlockTransport {
-                held: HeldTransport::Computed(computed.mrt),
+                held: HeldTransport::Computed(computed.kept),
                 compact: computed.compact,
                 stats: computed.stats,
+                block_operators: Some(computed.block_operators),
             })
         }
     }
 }
 
+/// The transport as [`mrt_transport`] computed it.
+pub struct ComputedTransport {
+    /// The f64 transport into the blocks `keep` marked (all of it when the scene ships it
+    /// uncompacted), in transport order.
+    pub kept: MrtTransport,
+    /// Present when the scene ships compact transport: as the bundle ships it (f32).
+    pub compact: Option<Vec<CompactEntry>>,
+    pub stats: TransportStats,
+    /// Per block, the operators it applies ([`ShapePlan::block_operators`]).
+    pub block_operators: Vec<Arc<ShapeOperators>>,
+}
+
 /// The MRT inter-block transport of the blocks alone (and its compaction when the scene ships
-/// compact transport). The unique shapes' `lightfields` are read by the lightfield propagation
-/// only, through each block's symmetry in `plan`, and dropped before the compaction.
+/// compact transport), stored under `store` (a cache and key) when given.
+///
+/// Memory, in order (what bounds a large level's bake): the lightfield propagation reads the
+/// unique shapes' `lightfields` and each block's `Pass` operators alone; the lightfields are
+/// dropped, then the per-block operators are made; the compaction then consumes the f64
+/// transport target by target, storing each target's operators and keeping those `keep`
+/// marks, so the whole f64 transport and its compaction are never held together.
 #[allow(clippy::too_many_arguments)]
 pub fn mrt_transport(
     scene: &Scene,
     plan: &ShapePlan,
     block_geometry: &Geometry,
-    per_block: &[&ShapeOperators],
+    unique: &[Arc<ShapeOperators>],
     lightfields: Vec<ShapeLightfields>,
     openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
     transport_kind: Transport,
+    keep: &[bool],
+    store: Option<(&TransportCache, &str)>,
     progress: &dyn Progress,
-) -> Result<CachedTransport, BakeError> {
+) -> Result<ComputedTransport, BakeError> {
     let settings = &scene.settings;
-    let (mrt, mut stats) = match transport_kind {
+    let (mrt, mut stats, block_operators) = match transport_kind {
         Transport::Lightfield => {
             progress.stage("lightfield transport", 1);
+            let instances = plan.instance_passes(unique);
             let (blocks, stats) = lightfield_transport(
-                per_block,
+                &plan.block_passes(unique, &instances),
                 &plan.block_lightfields(&lightfields),
                 openings,
                 settings.tolerance,
             );
+            drop(instances);
+            drop(lightfields);
+            crate::bake::memory::release_freed();
             progress.advance(1);
-            (MrtTransport::Lightfield(blocks), stats)
+            let block_operators = plan.block_operators(unique);
+            (MrtTransport::Lightfield(blocks), stats, block_operators)
         }
         Transport::Traced => {
+            drop(lightfields);
+            let block_operators = plan.block_operators(unique);
+            let per_block: Vec<&ShapeOperators> =
+                block_operators.iter().map(|s| s.as_ref()).collect();
             progress.stage("traced transport", block_geometry.texels.len() as u64);
             let tracer = Tracer::new(block_geometry.primitives.clone(), block_geometry.scale());
             let (blocks, stats) = traced_transport(
                 block_geometry,
                 &tracer,
-                per_block,
+                &per_block,
                 settings.rays_per_texel,
                 settings.seed,
                 settings.tolerance,
                 &|n| progress.advance(n),
             );
-            (MrtTransport::Traced(blocks), stats)
+            (MrtTransport::Traced(blocks), stats, block_operators)
         }
     };
-    drop(lightfields);
-    crate::bake::memory::release_freed();
+    let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
+    let writer = store.map(|(cache, key)| cache.writer(key, &mrt));
+    let traced = matches!(mrt, MrtTransport::Traced(_));
+    let mut kept = Vec::new();
     let compact = if settings.compact_transport {
-        let compact = compact_transport(per_block, &mrt, settings.tolerance)
-            .map_err(|e| BakeError::Transport(e.to_string()))?;
-        stats.compact_ranks = compact.iter().map(|c| c.y.ncols()).collect();
-        Some(super::to_bundle::compact_entries(&compact))
+        let marked = |b: usize| keep.get(b).copied().unwrap_or(false);
+        let compact = compact_consuming(
+            &per_block,
+            mrt,
+            settings.tolerance,
+            |c| super::to_bundle::compact_entry(&c),
+            |target, part| -> Result<(), BakeError> {
+                if let Some(w) = &writer {
+                    w.target(target, &part)?;
+                }
+                if marked(target) {
+                    kept.push(part);
+                }
+                Ok(())
+            },
+        )?;
+        stats.compact_ranks = compact.iter().map(|c| c.y.cols as usize).collect();
+        Some(compact)
     } else {
+        // The bundle ships the f64 transport itself: all of it stays.
+        for (target, part) in mrt.split_by_target() {
+            if let Some(w) = &writer {
+                w.target(target, &part)?;
+            }
+            kept.push(part);
+        }
         None
     };
-    Ok(CachedTransport {
-        mrt,
+    if let Some(w) = writer {
+        w.finish(compact.as_deref(), &stats)?;
+    }
+    Ok(ComputedTransport {
+        kept: MrtTransport::from_parts(traced, kept),
         compact,
         stats,
+        block_operators,
     })
 }
 

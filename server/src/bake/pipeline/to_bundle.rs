@@ -25,18 +25,15 @@ use super::plan::ShapePlan;
 use super::stages::HeldTransport;
 use super::BakeError;
 
-/// The compaction as the bundle ships it: f32 `y` and `z` per target block (what the stage
+/// One target block's compaction as the bundle ships it: f32 `y` and `z` (what the stage
 /// hands on and the transport cache stores, so a cache hit reads half the bytes of the f64).
-pub fn compact_entries(compact: &[CompactTransport]) -> Vec<bundle::CompactEntry> {
-    compact
-        .iter()
-        .map(|c| bundle::CompactEntry {
-            target_block: c.target_block as u32,
-            sources: c.sources.iter().map(|s| *s as u32).collect(),
-            y: to_matrix(&c.y),
-            z: to_matrix(&c.z),
-        })
-        .collect()
+pub fn compact_entry(c: &CompactTransport) -> bundle::CompactEntry {
+    bundle::CompactEntry {
+        target_block: c.target_block as u32,
+        sources: c.sources.iter().map(|s| *s as u32).collect(),
+        y: to_matrix(&c.y),
+        z: to_matrix(&c.z),
+    }
 }
 
 /// The bundle's transport section: the compact form when the scene ships it, else the

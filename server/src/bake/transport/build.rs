@@ -26,9 +26,15 @@ use lightfarm_proto::Face;
 use crate::bake::math::sampling::Purpose;
 use crate::bake::mrt::one_bounce::gather_rows;
 use crate::bake::mrt::shape::ShapeOperators;
+use crate::bake::mrt::shape::Triplets;
 use crate::bake::mrt::shape_symmetry::InstanceLightfield;
 use crate::bake::scene::geometry::Geometry;
 use crate::bake::tracer::Tracer;
+
+/// Per block, its openings as the propagation reads them: each face with its `Pass` operators
+/// (incoming lightfield at a face → outgoing here), in the order the block's operators list
+/// its openings (the queue's order, so the sums' order).
+pub type BlockPasses<'a> = Vec<Vec<(Face, &'a [(Face, Triplets)])>>;
 
 /// One `T_prop` block: reduced incoming lightfield at (target, face) from source's b.
 #[derive(Clone)]
@@ -73,21 +79,22 @@ fn energy(m: &Mat<f64>) -> f64 {
     e
 }
 
-/// Composes lightfield transport over the connectivity graph. Per block, `shapes` gives its
-/// openings and `Pass` operators and `lightfields` their `OutImp` and `W`.
+/// Composes lightfield transport over the connectivity graph. Per block, `passes` gives its
+/// openings (in its operators' order) with their `Pass` operators, and `lightfields` their
+/// `OutImp` and `W`.
 pub fn lightfield_transport(
-    shapes: &[&ShapeOperators],
+    passes: &BlockPasses,
     lightfields: &[InstanceLightfield],
     openings: &[[Option<Opening>; 6]],
     tolerance: f64,
 ) -> (Vec<PropBlock>, TransportStats) {
-    let hop_limit = 4 * shapes.len() + 4;
+    let hop_limit = 4 * passes.len() + 4;
     // Sources propagate independently and every entry's key holds its source, so the sources
     // run in parallel and their entries are merged without sums across sources: the same bits
     // at any thread count.
-    let per_source: Vec<(BTreeMap<(usize, usize), Mat<f64>>, TransportStats)> = (0..shapes.len())
+    let per_source: Vec<(BTreeMap<(usize, usize), Mat<f64>>, TransportStats)> = (0..passes.len())
         .into_par_iter()
-        .map(|source| propagate_source(source, shapes, lightfields, openings, tolerance, hop_limit))
+        .map(|source| propagate_source(source, passes, lightfields, openings, tolerance, hop_limit))
         .collect();
     let mut stats = TransportStats::default();
     let mut acc: BTreeMap<(usize, usize, usize), Mat<f64>> = BTreeMap::new();
@@ -116,7 +123,7 @@ pub fn lightfield_transport(
 /// queue order; `steps`, `cut` and `max_hops` counted for this source alone.
 fn propagate_source(
     source: usize,
-    shapes: &[&ShapeOperators],
+    passes: &BlockPasses,
     lightfields: &[InstanceLightfield],
     openings: &[[Option<Opening>; 6]],
     tolerance: f64,
@@ -124,13 +131,12 @@ fn propagate_source(
 ) -> (BTreeMap<(usize, usize), Mat<f64>>, TransportStats) {
     let mut stats = TransportStats::default();
     let mut acc: BTreeMap<(usize, usize), Mat<f64>> = BTreeMap::new();
-    let ops = shapes[source];
     let mut queue: VecDeque<(usize, Face, Mat<f64>, usize)> = VecDeque::new();
     let mut sent = 0.0;
-    for opening in &ops.openings {
-        if let Some(Opening::Neighbour { block, face }) = openings[source][opening.face.index()] {
+    for &(out_face, _) in &passes[source] {
+        if let Some(Opening::Neighbour { block, face }) = openings[source][out_face.index()] {
             let out_imp = lightfields[source]
-                .out_imp(opening.face)
+                .out_imp(out_face)
                 .expect("a block's lightfield has its openings")
                 .into_owned();
             sent += energy(&out_imp);
@@ -140,7 +146,6 @@ fn propagate_source(
     while let Some((target, face, x, hops)) = queue.pop_front() {
         stats.steps += 1;
         stats.max_hops = stats.max_hops.max(hops);
-        let target_ops = shapes[target];
         let Some(w) = lightfields[target].w(face) else {
             continue;
         };
@@ -148,22 +153,22 @@ fn propagate_source(
         acc.entry((target, face.index()))
             .and_modify(|m| *m += &reduced)
             .or_insert(reduced);
-        for next in &target_ops.openings {
-            if next.face == face {
+        for &(next, pass_from) in &passes[target] {
+            if next == face {
                 continue;
             }
             let Some(Opening::Neighbour {
                 block: next_block,
                 face: next_face,
-            }) = openings[target][next.face.index()]
+            }) = openings[target][next.index()]
             else {
                 continue;
             };
-            let Some((_, triplets)) = next.pass_from.iter().find(|(from, _)| *from == face) else {
+            let Some((_, triplets)) = pass_from.iter().find(|(from, _)| *from == face) else {
                 continue;
             };
             let lf = lightfields[target]
-                .len(next.face)
+                .len(next)
                 .expect("a block's lightfield has its openings");
             let mut carried = Mat::<f64>::zeros(lf, x.ncols());
             for &(row, col, v) in triplets {
@@ -280,6 +285,46 @@ impl MrtTransport {
             MrtTransport::Lightfield(blocks) => blocks.retain(|b| marked(b.target_block)),
             MrtTransport::Traced(blocks) => blocks.retain(|b| marked(b.target_block)),
         }
+    }
+
+    /// The operators split by target block, ascending, each part in transport order (moved,
+    /// not copied). Transport order is ascending by target, so [`MrtTransport::from_parts`]
+    /// of the parts in this order gives the transport back.
+    pub fn split_by_target(self) -> Vec<(usize, MrtTransport)> {
+        fn split<T>(blocks: Vec<T>, target: impl Fn(&T) -> usize) -> BTreeMap<usize, Vec<T>> {
+            let mut parts: BTreeMap<usize, Vec<T>> = BTreeMap::new();
+            for b in blocks {
+                parts.entry(target(&b)).or_default().push(b);
+            }
+            parts
+        }
+        match self {
+            MrtTransport::Lightfield(blocks) => split(blocks, |b| b.target_block)
+                .into_iter()
+                .map(|(t, part)| (t, MrtTransport::Lightfield(part)))
+                .collect(),
+            MrtTransport::Traced(blocks) => split(blocks, |b| b.target_block)
+                .into_iter()
+                .map(|(t, part)| (t, MrtTransport::Traced(part)))
+                .collect(),
+        }
+    }
+
+    /// The transport made of `parts` (of one kind, `traced` or not), concatenated in order.
+    pub fn from_parts(traced: bool, parts: Vec<MrtTransport>) -> MrtTransport {
+        let mut whole = if traced {
+            MrtTransport::Traced(Vec::new())
+        } else {
+            MrtTransport::Lightfield(Vec::new())
+        };
+        for part in parts {
+            match (&mut whole, part) {
+                (MrtTransport::Lightfield(all), MrtTransport::Lightfield(p)) => all.extend(p),
+                (MrtTransport::Traced(all), MrtTransport::Traced(p)) => all.extend(p),
+                _ => unreachable!("a transport's parts are of its kind"),
+            }
+        }
+        whole
     }
 
     /// Whether source block `source`'s light reaches target block `target` (its own block, or

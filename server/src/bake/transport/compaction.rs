@@ -15,7 +15,8 @@
 //! listed in ascending block order; `Z_B`'s columns follow them, r_A columns each.
 //!
 //! Invariant: deterministic (sequential SVDs inside, blocks in parallel), so results are
-//! bit-identical at any thread count.
+//! bit-identical at any thread count; a block's compaction reads the transport into it alone,
+//! so compacting target by target ([`compact_consuming`]) gives the bits of compacting all at once.
 
 use faer::Mat;
 use rayon::prelude::*;
@@ -37,17 +38,40 @@ pub struct CompactTransport {
     pub dropped_energy: f64,
 }
 
-/// Compacts `mrt` per target block; blocks nothing reaches get no entry.
-pub fn compact_transport(
+/// Targets compacted together by [`compact_consuming`] before their operators are handed on:
+/// enough to keep both cores busy, few enough that the f64 transport leaves memory steadily.
+const GROUP: usize = 16;
+
+/// Compacts `mrt` per target block (blocks nothing reaches get no entry), consuming it:
+/// targets are compacted in groups of [`GROUP`] (in parallel within a group) and, after each group, `done(target, part)` takes
+/// each of its targets' operators (`part`: the transport into that target alone, in transport
+/// order; targets ascending, every target with operators once) to store, keep or drop. So the
+/// f64 transport can leave memory while its compaction is made, and the bake never holds both
+/// whole. Each compaction is converted by `finish` (e.g. to the f32 the bundle ships) as soon
+/// as it is made.
+pub fn compact_consuming<C: Send, E: From<LowRankError>>(
     shapes: &[&ShapeOperators],
-    mrt: &MrtTransport,
+    mrt: MrtTransport,
     tolerance: f64,
-) -> Result<Vec<CompactTransport>, LowRankError> {
-    (0..shapes.len())
-        .into_par_iter()
-        .map(|target| compact_block(shapes, mrt, target, tolerance))
-        .collect::<Result<Vec<_>, _>>()
-        .map(|blocks| blocks.into_iter().flatten().collect())
+    finish: impl Fn(CompactTransport) -> C + Sync,
+    mut done: impl FnMut(usize, MrtTransport) -> Result<(), E>,
+) -> Result<Vec<C>, E> {
+    let mut parts = mrt.split_by_target().into_iter().peekable();
+    let mut out = Vec::new();
+    while parts.peek().is_some() {
+        let group: Vec<(usize, MrtTransport)> = parts.by_ref().take(GROUP).collect();
+        let compacted = group
+            .par_iter()
+            .map(|(target, part)| {
+                compact_block(shapes, part, *target, tolerance).map(|c| c.map(&finish))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        out.extend(compacted.into_iter().flatten());
+        for (target, part) in group {
+            done(target, part)?;
+        }
+    }
+    Ok(out)
 }
 
 /// `G_BA` for every source A that reaches B, ascending in A.
