@@ -240,7 +240,7 @@ pub fn run_unit(
                     .into_iter()
                     .map(|l| l.expect("a whole cached shape has its lightfields"))
                     .collect();
-                // Stored target by target; nothing is kept (the unit's output is the entry).
+                // Stored target by target (the unit's output is the entry).
                 mrt_transport(
                     scene,
                     &shapes,
@@ -249,8 +249,7 @@ pub fn run_unit(
                     lightfields,
                     &scene.openings()?,
                     scene.settings.transport,
-                    &[],
-                    Some((&transport_cache, key.as_str())),
+                    (&transport_cache, key.as_str()),
                     progress,
                 )?;
             }

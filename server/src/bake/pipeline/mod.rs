@@ -158,9 +158,6 @@ fn bake_once(
     lap(&mut report, "shape operators");
 
     let transport_kind = options.transport.unwrap_or(scene.settings.transport);
-    // After the transport only DRT's inpainting reads the f64 transport, and only into blocks
-    // where a texel may be buried (none without clutter): the transport stage keeps those.
-    let inpainted = inpainting_targets(scene, &openings, &full_geometry);
     let stages::BlockTransport {
         mut held,
         compact,
@@ -174,7 +171,6 @@ fn bake_once(
         lightfields,
         &openings,
         transport_kind,
-        &inpainted,
         cache,
         progress,
         &mut report,
@@ -189,12 +185,13 @@ fn bake_once(
     announce(&bundle);
     lap(&mut report, "transport");
 
-    // A transport shipped uncompacted was held whole for the bundle; from here on only the
-    // inpainted blocks' part is read.
+    // A transport shipped uncompacted was held whole for the bundle; from here on only DRT's
+    // inpainting reads it, and only into blocks where a texel may be buried (none without
+    // clutter). Otherwise it is on disk, read block by block.
     if let stages::HeldTransport::Computed(mrt) = &mut held {
-        mrt.retain_targets(&inpainted);
-        release_freed();
+        mrt.retain_targets(&inpainting_targets(scene, &openings, &full_geometry));
     }
+    release_freed();
     let drt_inputs = DrtInputs {
         scene,
         openings: &openings,

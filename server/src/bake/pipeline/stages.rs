@@ -181,11 +181,17 @@ fn bake_and_store(
     Ok(ops)
 }
 
-/// The blocks' f64 transport as the bake holds it: computed (in memory), or a cache hit whose
-/// operators stay on disk until DRT's inpainting asks for the few blocks it reads.
+/// The blocks' f64 transport as the bake holds it: in memory (a transport the bundle ships
+/// uncompacted), or on disk until DRT's inpainting asks for the few blocks it reads — in the
+/// cache (a hit, or just computed and stored there), or, for a bake without a cache, in a
+/// scratch directory removed with it.
 pub enum HeldTransport {
     Computed(MrtTransport),
     Cached(LazyTransport),
+    Scratch {
+        lazy: LazyTransport,
+        _dir: tempfile::TempDir,
+    },
 }
 
 impl HeldTransport {
@@ -193,7 +199,7 @@ impl HeldTransport {
     pub fn source(&self) -> &dyn TransportSource {
         match self {
             HeldTransport::Computed(mrt) => mrt,
-            HeldTransport::Cached(lazy) => lazy,
+            HeldTransport::Cached(lazy) | HeldTransport::Scratch { lazy, .. } => lazy,
         }
     }
 }
@@ -214,8 +220,9 @@ pub struct BlockTransport {
 /// keys, so clutter and lights never invalidate it) or computed by [`mrt_transport`] and
 /// stored there. Sets `report.transport_from_cache`. A hit reads the compaction only (the
 /// bundle's transport); the f64 operators are read whole only for a bundle that ships them.
-/// Computed, the f64 transport is held into the blocks `keep` marks only (all of it for a
-/// bundle that ships it uncompacted).
+/// Computed, the f64 transport goes to the cache (without one, to a scratch directory) as the
+/// compaction is made and is held in memory only when the bundle ships it uncompacted: the
+/// bake's memory never holds a large level's f64 transport beside its DRT stage.
 #[allow(clippy::too_many_arguments)]
 pub fn block_transport(
     scene: &Scene,
@@ -225,7 +232,6 @@ pub fn block_transport(
     lightfields: Vec<Option<ShapeLightfields>>,
     openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
     transport_kind: Transport,
-    keep: &[bool],
     cache: Option<&ShapeCache>,
     progress: &dyn Progress,
     report: &mut BakeReport,
@@ -238,54 +244,72 @@ pub fn block_transport(
     let transport_key = transport_key(scene, transport_kind, &block_shape_keys);
     let cached = transport_cache.as_ref().and_then(|c| c.get(&transport_key));
     report.transport_from_cache = cached.is_some();
-    match cached {
-        Some(hit) => {
-            let held = match hit.compact {
-                Some(_) => HeldTransport::Cached(hit.transport),
-                None => HeldTransport::Computed(
-                    hit.transport
-                        .load_all()
-                        .map_err(|e| BakeError::CachedTransport(e.to_string()))?,
-                ),
-            };
-            Ok(BlockTransport {
-                held,
-                compact: hit.compact,
-                stats: hit.stats,
-                block_operators: None,
-            })
-        }
-        None => {
-            let lightfields = load_lightfields(plan, unique, lightfields, cache, progress, report)?;
-            let computed = mrt_transport(
-                scene,
-                plan,
-                block_geometry,
-                unique,
-                lightfields,
-                openings,
-                transport_kind,
-                keep,
-                transport_cache
-                    .as_ref()
-                    .map(|c| (c, transport_key.as_str())),
-                progress,
-            )?;
-            Ok(BlockTransport {
-                held: HeldTransport::Computed(computed.kept),
-                compact: computed.compact,
-                stats: computed.stats,
-                block_operators: Some(computed.block_operators),
-            })
-        }
+    if let Some(hit) = cached {
+        let held = match hit.compact {
+            Some(_) => HeldTransport::Cached(hit.transport),
+            None => HeldTransport::Computed(
+                hit.transport
+                    .load_all()
+                    .map_err(|e| BakeError::CachedTransport(e.to_string()))?,
+            ),
+        };
+        return Ok(BlockTransport {
+            held,
+            compact: hit.compact,
+            stats: hit.stats,
+            block_operators: None,
+        });
     }
+    let lightfields = load_lightfields(plan, unique, lightfields, cache, progress, report)?;
+    let (store, scratch) = match transport_cache {
+        Some(c) => (c, None),
+        None => {
+            let dir = tempfile::Builder::new()
+                .prefix("lightfarm-transport-")
+                .tempdir()?;
+            (TransportCache::open(dir.path())?, Some(dir))
+        }
+    };
+    let computed = mrt_transport(
+        scene,
+        plan,
+        block_geometry,
+        unique,
+        lightfields,
+        openings,
+        transport_kind,
+        (&store, &transport_key),
+        progress,
+    )?;
+    let held = match computed.whole {
+        Some(mrt) => HeldTransport::Computed(mrt),
+        None => {
+            let lazy = store
+                .get(&transport_key)
+                .ok_or_else(|| {
+                    BakeError::CachedTransport("the transport just stored is gone".into())
+                })?
+                .transport;
+            match scratch {
+                Some(dir) => HeldTransport::Scratch { lazy, _dir: dir },
+                None => HeldTransport::Cached(lazy),
+            }
+        }
+    };
+    Ok(BlockTransport {
+        held,
+        compact: computed.compact,
+        stats: computed.stats,
+        block_operators: Some(computed.block_operators),
+    })
 }
 
 /// The transport as [`mrt_transport`] computed it.
 pub struct ComputedTransport {
-    /// The f64 transport into the blocks `keep` marked (all of it when the scene ships it
-    /// uncompacted), in transport order.
-    pub kept: MrtTransport,
+    /// The whole f64 transport, in transport order, when the scene ships it uncompacted (the
+    /// bundle is made of it); None when it ships the compaction (the f64 transport is then in
+    /// the store alone).
+    pub whole: Option<MrtTransport>,
     /// Present when the scene ships compact transport: as the bundle ships it (f32).
     pub compact: Option<Vec<CompactEntry>>,
     pub stats: TransportStats,
@@ -294,13 +318,13 @@ pub struct ComputedTransport {
 }
 
 /// The MRT inter-block transport of the blocks alone (and its compaction when the scene ships
-/// compact transport), stored under `store` (a cache and key) when given.
+/// compact transport), stored in `store` (a transport cache and the key).
 ///
 /// Memory, in order (what bounds a large level's bake): the lightfield propagation reads the
 /// unique shapes' `lightfields` and each block's `Pass` operators alone; the lightfields are
 /// dropped, then the per-block operators are made; the compaction then consumes the f64
-/// transport target by target, storing each target's operators and keeping those `keep`
-/// marks, so the whole f64 transport and its compaction are never held together.
+/// transport target by target, storing each target's operators as it goes, so the whole f64
+/// transport and its compaction are never held together.
 #[allow(clippy::too_many_arguments)]
 pub fn mrt_transport(
     scene: &Scene,
@@ -310,8 +334,7 @@ pub fn mrt_transport(
     lightfields: Vec<ShapeLightfields>,
     openings: &[[Option<lightfarm_proto::scene::Opening>; 6]],
     transport_kind: Transport,
-    keep: &[bool],
-    store: Option<(&TransportCache, &str)>,
+    store: (&TransportCache, &str),
     progress: &dyn Progress,
 ) -> Result<ComputedTransport, BakeError> {
     let settings = &scene.settings;
@@ -352,43 +375,30 @@ pub fn mrt_transport(
         }
     };
     let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
-    let writer = store.map(|(cache, key)| cache.writer(key, &mrt));
-    let traced = matches!(mrt, MrtTransport::Traced(_));
-    let mut kept = Vec::new();
-    let compact = if settings.compact_transport {
-        let marked = |b: usize| keep.get(b).copied().unwrap_or(false);
+    let writer = store.0.writer(store.1, &mrt);
+    let (whole, compact) = if settings.compact_transport {
         let compact = compact_consuming(
             &per_block,
             mrt,
             settings.tolerance,
             |c| super::to_bundle::compact_entry(&c),
-            |target, part| -> Result<(), BakeError> {
-                if let Some(w) = &writer {
-                    w.target(target, &part)?;
-                }
-                if marked(target) {
-                    kept.push(part);
-                }
-                Ok(())
-            },
+            |target, part| -> Result<(), BakeError> { Ok(writer.target(target, &part)?) },
         )?;
         stats.compact_ranks = compact.iter().map(|c| c.y.cols as usize).collect();
-        Some(compact)
+        (None, Some(compact))
     } else {
         // The bundle ships the f64 transport itself: all of it stays.
+        let traced = matches!(mrt, MrtTransport::Traced(_));
+        let mut parts = Vec::new();
         for (target, part) in mrt.split_by_target() {
-            if let Some(w) = &writer {
-                w.target(target, &part)?;
-            }
-            kept.push(part);
+            writer.target(target, &part)?;
+            parts.push(part);
         }
-        None
+        (Some(MrtTransport::from_parts(traced, parts)), None)
     };
-    if let Some(w) = writer {
-        w.finish(compact.as_deref(), &stats)?;
-    }
+    writer.finish(compact.as_deref(), &stats)?;
     Ok(ComputedTransport {
-        kept: MrtTransport::from_parts(traced, kept),
+        whole,
         compact,
         stats,
         block_operators,

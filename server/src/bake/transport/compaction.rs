@@ -70,6 +70,9 @@ pub fn compact_consuming<C: Send, E: From<LowRankError>>(
         for (target, part) in group {
             done(target, part)?;
         }
+        // The group's f64 operators are free now; hand their pages back before the next group
+        // allocates its compactions elsewhere in the heap.
+        crate::bake::memory::release_freed();
     }
     Ok(out)
 }
