@@ -37,8 +37,9 @@ use crate::bake::transport::source::{TransportSource, TransportUnavailable};
 
 /// Bumped whenever the transport computed for the same inputs, or its payload, changes (2: the
 /// shared entry framing; 3: each target block's operators an entry of their own; 4: the
-/// compaction in f32, as the bundle ships it). In every key, and every entry's version tag.
-const CODE_VERSION: &str = "lightfarm-transport-4";
+/// compaction in f32, as the bundle ships it; 5: the lightfield `T_prop` in f32, as the bake holds
+/// it). In every key, and every entry's version tag.
+const CODE_VERSION: &str = "lightfarm-transport-5";
 
 /// Where transport entries live and their version.
 pub const ENTRY: EntryKind = EntryKind {
@@ -82,30 +83,58 @@ pub fn transport_key(scene: &Scene, transport: Transport, shape_keys: &[String])
     h.finalize().to_hex().to_string()
 }
 
-/// A matrix as its dimensions (u32 rows, cols) and its values row by row (f64, bit-exact).
-pub(crate) fn write_mat(w: &mut Writer, m: &Mat<f64>) {
+/// A value a cached matrix holds: f64, or f32 where the bake holds it so (the lightfield
+/// `T_prop`), stored bit-exact little-endian.
+pub(crate) trait CachedValue: Copy + 'static {
+    const BYTES: usize;
+    fn write(self, w: &mut Writer);
+    fn from_le(bytes: &[u8]) -> Self;
+}
+
+impl CachedValue for f64 {
+    const BYTES: usize = 8;
+    fn write(self, w: &mut Writer) {
+        w.f64(self);
+    }
+    fn from_le(bytes: &[u8]) -> f64 {
+        f64::from_le_bytes(bytes.try_into().expect("8 bytes"))
+    }
+}
+
+impl CachedValue for f32 {
+    const BYTES: usize = 4;
+    fn write(self, w: &mut Writer) {
+        w.f32(self);
+    }
+    fn from_le(bytes: &[u8]) -> f32 {
+        f32::from_le_bytes(bytes.try_into().expect("4 bytes"))
+    }
+}
+
+/// A matrix as its dimensions (u32 rows, cols) and its values row by row (bit-exact).
+pub(crate) fn write_mat<T: CachedValue>(w: &mut Writer, m: &Mat<T>) {
     w.u32(m.nrows() as u32);
     w.u32(m.ncols() as u32);
-    w.bytes.reserve(m.nrows() * m.ncols() * 8);
+    w.bytes.reserve(m.nrows() * m.ncols() * T::BYTES);
     for i in 0..m.nrows() {
         for j in 0..m.ncols() {
-            w.f64(m[(i, j)]);
+            m[(i, j)].write(w);
         }
     }
 }
 
 /// What [`write_mat`] wrote: the values taken as one slice and placed column by column (the
 /// matrix's own order), without a check per value.
-pub(crate) fn read_mat(r: &mut Reader) -> Result<Mat<f64>, WireError> {
+pub(crate) fn read_mat<T: CachedValue>(r: &mut Reader) -> Result<Mat<T>, WireError> {
     let rows = r.u32()? as usize;
     let cols = r.u32()? as usize;
     let len = rows
         .checked_mul(cols)
-        .and_then(|n| n.checked_mul(8))
+        .and_then(|n| n.checked_mul(T::BYTES))
         .filter(|&n| n <= r.remaining())
         .ok_or_else(|| WireError::Invalid("matrix larger than the entry".into()))?;
     let bytes = r.take(len)?;
-    let value = |k: usize| f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+    let value = |k: usize| T::from_le(&bytes[T::BYTES * k..T::BYTES * (k + 1)]);
     Ok(Mat::from_fn(rows, cols, |i, j| value(i * cols + j)))
 }
 
@@ -156,10 +185,20 @@ fn headers(mrt: &MrtTransport) -> Vec<Header> {
     }
 }
 
-fn matrices(mrt: &MrtTransport) -> Vec<&Mat<f64>> {
+/// Every operator's matrix, in transport order, written as [`write_mat`] writes it (the
+/// lightfield's `T_prop` in f32, traced operators in f64): one target's entry is the writes of
+/// its operators back to back.
+fn write_matrices(w: &mut Writer, mrt: &MrtTransport, target: Option<usize>) {
+    let wanted = |t: usize| target.is_none_or(|x| x == t);
     match mrt {
-        MrtTransport::Lightfield(blocks) => blocks.iter().map(|b| &b.matrix).collect(),
-        MrtTransport::Traced(blocks) => blocks.iter().map(|b| &b.matrix).collect(),
+        MrtTransport::Lightfield(blocks) => blocks
+            .iter()
+            .filter(|b| wanted(b.target_block))
+            .for_each(|b| write_mat(w, &b.matrix)),
+        MrtTransport::Traced(blocks) => blocks
+            .iter()
+            .filter(|b| wanted(b.target_block))
+            .for_each(|b| write_mat(w, &b.matrix)),
     }
 }
 
@@ -285,7 +324,7 @@ fn decode_main(bytes: &[u8]) -> Result<Main, WireError> {
 }
 
 /// `count` matrices, back to back (one target block's entry).
-fn decode_matrices(bytes: &[u8], count: usize) -> Result<Vec<Mat<f64>>, WireError> {
+fn decode_matrices<T: CachedValue>(bytes: &[u8], count: usize) -> Result<Vec<Mat<T>>, WireError> {
     let mut r = Reader::new(bytes);
     let out = (0..count)
         .map(|_| read_mat(&mut r))
@@ -333,33 +372,12 @@ impl LazyTransport {
 impl TransportSource for LazyTransport {
     fn into_targets(&self, targets: &[bool]) -> Result<MrtTransport, TransportUnavailable> {
         let marked = |b: usize| targets.get(b).copied().unwrap_or(false);
-        // How many operators each marked target has (one pass over the headers), then its
-        // matrices, in header order.
-        let mut counts: BTreeMap<usize, usize> = BTreeMap::new();
-        for h in self.headers.iter().filter(|h| marked(h.target)) {
-            *counts.entry(h.target).or_default() += 1;
-        }
-        let mut by_target: BTreeMap<usize, std::vec::IntoIter<Mat<f64>>> = BTreeMap::new();
-        for (&target, &count) in &counts {
-            let mats = self
-                .store
-                .get(&target_key(&self.key, target), |p| {
-                    decode_matrices(p, count).ok()
-                })
-                .hit()
-                .ok_or_else(|| self.unavailable(target, "missing or corrupt"))?;
-            by_target.insert(target, mats.into_iter());
-        }
-        let mut next = |h: &Header| {
-            by_target
-                .get_mut(&h.target)
-                .and_then(|m| m.next())
-                .ok_or_else(|| self.unavailable(h.target, "fewer matrices than operators"))
-        };
-        let wanted = self.headers.iter().filter(|h| marked(h.target));
+        let wanted: Vec<&Header> = self.headers.iter().filter(|h| marked(h.target)).collect();
         Ok(if self.traced {
+            let mut next = self.reader::<f64>(&wanted)?;
             MrtTransport::Traced(
                 wanted
+                    .iter()
                     .map(|h| {
                         Ok(TracedBlock {
                             target_block: h.target,
@@ -370,8 +388,10 @@ impl TransportSource for LazyTransport {
                     .collect::<Result<_, _>>()?,
             )
         } else {
+            let mut next = self.reader::<f32>(&wanted)?;
             MrtTransport::Lightfield(
                 wanted
+                    .iter()
                     .map(|h| {
                         Ok(PropBlock {
                             target_block: h.target,
@@ -382,6 +402,42 @@ impl TransportSource for LazyTransport {
                     })
                     .collect::<Result<_, _>>()?,
             )
+        })
+    }
+}
+
+impl LazyTransport {
+    /// Reads the entries of the targets of `wanted` (headers in transport order) and hands
+    /// out their matrices one header at a time, in that order.
+    #[allow(clippy::type_complexity)]
+    fn reader<T: CachedValue>(
+        &self,
+        wanted: &[&Header],
+    ) -> Result<
+        impl FnMut(&Header) -> Result<Mat<T>, TransportUnavailable> + '_,
+        TransportUnavailable,
+    > {
+        // How many operators each target has, then its matrices, in header order.
+        let mut counts: BTreeMap<usize, usize> = BTreeMap::new();
+        for h in wanted {
+            *counts.entry(h.target).or_default() += 1;
+        }
+        let mut by_target: BTreeMap<usize, std::vec::IntoIter<Mat<T>>> = BTreeMap::new();
+        for (&target, &count) in &counts {
+            let mats = self
+                .store
+                .get(&target_key(&self.key, target), |p| {
+                    decode_matrices::<T>(p, count).ok()
+                })
+                .hit()
+                .ok_or_else(|| self.unavailable(target, "missing or corrupt"))?;
+            by_target.insert(target, mats.into_iter());
+        }
+        Ok(move |h: &Header| {
+            by_target
+                .get_mut(&h.target)
+                .and_then(|m| m.next())
+                .ok_or_else(|| self.unavailable(h.target, "fewer matrices than operators"))
         })
     }
 }
@@ -423,12 +479,10 @@ impl TransportCache {
     /// entry is never there before its blocks).
     pub fn put(&self, key: &str, transport: &CachedTransport) -> std::io::Result<()> {
         let writer = self.writer(key, &transport.mrt);
-        let mut by_target: BTreeMap<usize, Vec<&Mat<f64>>> = BTreeMap::new();
-        for (h, m) in writer.headers.iter().zip(matrices(&transport.mrt)) {
-            by_target.entry(h.target).or_default().push(m);
-        }
-        for (target, ms) in by_target {
-            writer.put_matrices(target, ms)?;
+        let targets: std::collections::BTreeSet<usize> =
+            writer.headers.iter().map(|h| h.target).collect();
+        for target in targets {
+            writer.put_target(target, &transport.mrt, Some(target))?;
         }
         writer.finish(transport.compact.as_deref(), &transport.stats)
     }
@@ -461,14 +515,18 @@ impl TransportWriter {
     /// Stores the operators into `target` (`part`: the transport into that block alone, in
     /// transport order).
     pub fn target(&self, target: usize, part: &MrtTransport) -> std::io::Result<()> {
-        self.put_matrices(target, matrices(part))
+        self.put_target(target, part, None)
     }
 
-    fn put_matrices(&self, target: usize, ms: Vec<&Mat<f64>>) -> std::io::Result<()> {
+    /// Stores the operators of `mrt` into `target` (those `only` names, or all of them).
+    fn put_target(
+        &self,
+        target: usize,
+        mrt: &MrtTransport,
+        only: Option<usize>,
+    ) -> std::io::Result<()> {
         let mut w = Writer::new();
-        for m in ms {
-            write_mat(&mut w, m);
-        }
+        write_matrices(&mut w, mrt, only);
         self.store.put(&target_key(&self.key, target), &w.bytes)
     }
 
@@ -506,29 +564,36 @@ mod tests {
     }
 
     fn prop(target: usize, face: usize, source: usize, seed: f64) -> PropBlock {
+        let m = mat(3, 2, seed);
         PropBlock {
             target_block: target,
             target_face: Face::ALL[face],
             source_block: source,
-            matrix: mat(3, 2, seed),
+            matrix: Mat::from_fn(3, 2, |i, j| m[(i, j)] as f32),
         }
     }
 
     /// Every operator's header and matrix bits, in order.
     fn bits(mrt: &MrtTransport) -> Vec<(Header, Vec<u64>)> {
-        headers(mrt)
-            .into_iter()
-            .zip(matrices(mrt))
-            .map(|(h, m)| {
-                let mut b = vec![m.nrows() as u64, m.ncols() as u64];
-                for i in 0..m.nrows() {
-                    for j in 0..m.ncols() {
-                        b.push(m[(i, j)].to_bits());
-                    }
+        fn of<T: Copy>(m: &Mat<T>, to_bits: impl Fn(T) -> u64) -> Vec<u64> {
+            let mut b = vec![m.nrows() as u64, m.ncols() as u64];
+            for i in 0..m.nrows() {
+                for j in 0..m.ncols() {
+                    b.push(to_bits(m[(i, j)]));
                 }
-                (h, b)
-            })
-            .collect()
+            }
+            b
+        }
+        let matrices: Vec<Vec<u64>> = match mrt {
+            MrtTransport::Lightfield(blocks) => blocks
+                .iter()
+                .map(|b| of(&b.matrix, |x| u64::from(x.to_bits())))
+                .collect(),
+            MrtTransport::Traced(blocks) => {
+                blocks.iter().map(|b| of(&b.matrix, f64::to_bits)).collect()
+            }
+        };
+        headers(mrt).into_iter().zip(matrices).collect()
     }
 
     /// A hit reads the main entry only; asked for some target blocks it reads theirs and gives

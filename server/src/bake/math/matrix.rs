@@ -5,12 +5,15 @@
 use faer::Mat;
 use lightfarm_proto::bundle::Matrix;
 
-/// A bake matrix (f64) as a bundle matrix (f32, row-major).
-pub fn to_matrix(m: &Mat<f64>) -> Matrix {
+/// A bake matrix (f64, or f32 where the bake holds it so) as a bundle matrix (f32, row-major).
+pub fn to_matrix<T: Copy>(m: &Mat<T>) -> Matrix
+where
+    f64: From<T>,
+{
     let mut data = Vec::with_capacity(m.nrows() * m.ncols());
     for i in 0..m.nrows() {
         for j in 0..m.ncols() {
-            data.push(m[(i, j)] as f32);
+            data.push(f64::from(m[(i, j)]) as f32);
         }
     }
     Matrix {

@@ -112,13 +112,17 @@ pub fn bake(
     options: &BakeOptions,
     progress: &dyn Progress,
 ) -> Result<(Bundle, BakeReport), BakeError> {
-    match bake_once(scene, scene_dir, options, progress) {
+    let baked = match bake_once(scene, scene_dir, options, progress) {
         Err(BakeError::CachedTransport(why)) => {
             tracing::warn!(%why, "cached transport unreadable; baking again without it");
             bake_once(scene, scene_dir, options, progress)
         }
         done => done,
-    }
+    };
+    // The stages' operators are gone; what the caller does next (encode the bundle) grows
+    // into pages the operating system can count as free.
+    release_freed();
+    baked
 }
 
 fn bake_once(
@@ -200,8 +204,8 @@ fn bake_once(
         shapes: &per_block,
         mrt: held.source(),
     };
-    let drt = stages::clutter_operators(&drt_inputs, cache, progress)?;
-    if let Some(ops) = &drt {
+    let mut drt = stages::clutter_operators(&drt_inputs, cache, progress)?;
+    if let Some(ops) = &mut drt {
         report.drt = Some(ops.stats.clone());
         let factors = match cache {
             Some(c) => Some(FactorCache::open(c.dir())?),

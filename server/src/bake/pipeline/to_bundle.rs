@@ -135,10 +135,11 @@ pub fn mrt_bundle(
 
 /// The bundle's DRT section from the DRT operators: delta entries and the exact gather in
 /// low-rank form when `compact_deltas` (see [`crate::bake::drt::compaction`]), their
-/// factorisations read from and stored in `factors` when given.
+/// factorisations read from and stored in `factors` when given. Takes `ops`' delta entries
+/// (nothing after the section reads them) and frees them as their compactions are made.
 pub fn drt_section(
     bundle: &Bundle,
-    ops: &DrtOperators,
+    ops: &mut DrtOperators,
     settings: &Settings,
     factors: Option<&FactorCache>,
 ) -> Result<(bundle::DrtOps, Option<DeltaCompactionStats>), BakeError> {
@@ -154,7 +155,10 @@ pub fn drt_section(
     if !settings.compact_deltas {
         let drt = bundle::DrtOps {
             clutter,
-            entries: ops.entries.iter().map(to_entry).collect(),
+            entries: std::mem::take(&mut ops.entries)
+                .iter()
+                .map(to_entry)
+                .collect(),
             buried: ops.buried.clone(),
             // In the form the bundle stores it (rows by column), so it decodes as it is here.
             direct_gather: ops.direct_gather.as_ref().map(|g| g.sorted()),
@@ -166,29 +170,37 @@ pub fn drt_section(
     let mut stats = DeltaCompactionStats::default();
     let mut buried = ops.buried.clone();
     buried.sort_unstable();
-    // Every entry on a worker of its own; entries and statistics taken in the entries' order.
-    let compacted: Vec<(Vec<bundle::DeltaEntry>, DeltaCompactionStats)> = ops
-        .entries
-        .par_iter()
-        .map(|e| {
-            let mut stats = DeltaCompactionStats::default();
-            let out = compact_entry_keeping(
-                &e.rows,
-                e.source,
-                &e.matrix,
-                &buried,
-                settings.tolerance,
-                factors,
-                &mut stats,
-            )?;
-            Ok((out, stats))
-        })
-        .collect::<Result<_, LowRankError>>()
-        .map_err(low_rank)?;
+    // The f64 entries are consumed a group at a time (every entry of a group on a worker of
+    // its own), each group's pages handed back before the next: the bake never holds all of
+    // them beside all of their compactions. Entries and statistics are taken in the entries'
+    // order, as from one parallel pass.
     let mut entries = Vec::with_capacity(ops.entries.len());
-    for (out, s) in compacted {
-        entries.extend(out);
-        stats.merge(s);
+    let mut pending = std::mem::take(&mut ops.entries).into_iter().peekable();
+    while pending.peek().is_some() {
+        let group: Vec<DeltaBlock> = pending.by_ref().take(DELTA_GROUP).collect();
+        let compacted: Vec<(Vec<bundle::DeltaEntry>, DeltaCompactionStats)> = group
+            .par_iter()
+            .map(|e| {
+                let mut stats = DeltaCompactionStats::default();
+                let out = compact_entry_keeping(
+                    &e.rows,
+                    e.source,
+                    &e.matrix,
+                    &buried,
+                    settings.tolerance,
+                    factors,
+                    &mut stats,
+                )?;
+                Ok((out, stats))
+            })
+            .collect::<Result<_, LowRankError>>()
+            .map_err(low_rank)?;
+        drop(group);
+        crate::bake::memory::release_freed();
+        for (out, s) in compacted {
+            entries.extend(out);
+            stats.merge(s);
+        }
     }
     let mut direct_gather = None;
     if let Some(g) = &ops.direct_gather {
@@ -213,6 +225,10 @@ pub fn drt_section(
     };
     Ok((drt, Some(stats)))
 }
+
+/// Delta entries compacted together by [`drt_section`] before their f64 matrices are freed:
+/// enough to keep both cores busy through entries of very different sizes.
+const DELTA_GROUP: usize = 64;
 
 fn to_entry(e: &DeltaBlock) -> bundle::DeltaEntry {
     bundle::DeltaEntry {

@@ -23,7 +23,7 @@ use rayon::prelude::*;
 
 use crate::bake::math::low_rank::{truncated_svd, LowRankError};
 use crate::bake::mrt::shape::ShapeOperators;
-use crate::bake::transport::build::MrtTransport;
+use crate::bake::transport::build::{widen, MrtTransport};
 
 /// The compacted transport into one block.
 pub struct CompactTransport {
@@ -91,7 +91,7 @@ fn incoming(
                 let Some(opening) = shapes[target].opening(e.target_face) else {
                     continue;
                 };
-                let contribution = &opening.u_r * &e.matrix;
+                let contribution = &opening.u_r * widen(&e.matrix);
                 let r = shapes[e.source_block].rank();
                 let g = by_source
                     .entry(e.source_block)
