@@ -105,6 +105,7 @@ impl ShapeCache {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bake::math::matrix::narrow;
     use crate::bake::mrt::shape::{OpeningLightfield, OpeningOperators, ShapeStats};
     use faer::Mat;
     use lightfarm_proto::Face;
@@ -122,8 +123,8 @@ mod tests {
             u_r: mat(10, 2, seed),
             pass_from: vec![(Face::ALL[0], vec![(0, 1, 0.5), (3, 2, 0.25)])],
             lightfield: Some(OpeningLightfield {
-                out_imp: mat(4, 3, seed + 1.0),
-                w: mat(2, 4, seed + 2.0),
+                out_imp: narrow(&mat(4, 3, seed + 1.0)),
+                w: narrow(&mat(2, 4, seed + 2.0)),
             }),
         };
         ShapeOperators {

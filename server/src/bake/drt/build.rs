@@ -232,21 +232,14 @@ pub fn build_drt(
     let widths: Vec<usize> = clutter.iter().map(|(_, p)| p.basis.basis.ncols()).collect();
 
     let mut blocks = block_texel_rows(inputs, &rays.block, &rows, &burial, &mut stats);
-    // The transport into the blocks holding a buried texel: all inpainting reads.
-    let buried_in: Vec<bool> = g.block_texels[..n_blocks]
-        .iter()
-        .map(|r| blocks.buried[r.clone()].iter().any(|b| *b))
-        .collect();
-    let mrt = inputs.mrt.into_targets(&buried_in)?;
     inpaint(
         inputs,
-        &mrt,
         &widths,
         &mut blocks.per_target,
         &blocks.buried,
         &mut blocks.gathered,
         &mut stats.inpainted_without_neighbours,
-    );
+    )?;
     let clutter_rows = clutter_texel_rows(inputs, &rays.clutter, &rows, &burial, &mut stats);
 
     // Block texel rows first (they precede clutter texels, so rows stay ascending).

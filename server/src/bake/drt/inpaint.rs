@@ -11,8 +11,8 @@
 //! Invariant: neighbours are searched in rings of growing radius on the same face, in a fixed
 //! order, so the result is deterministic. A bake keeps the transport into the blocks
 //! [`inpainting_targets`] marks; [`inpaint`] reads it into the blocks holding a buried texel
-//! only (the DRT build asks the transport source for those, so a cached transport is read for
-//! them alone).
+//! only, one block at a time (so a cached transport is read for them alone, and never all at
+//! once).
 
 use std::collections::BTreeMap;
 
@@ -23,7 +23,7 @@ use crate::bake::drt::lit_source::LitSource;
 use crate::bake::drt::rows::{add_row, RowsBySource};
 use crate::bake::drt::sight::ClutterSight;
 use crate::bake::scene::geometry::Geometry;
-use crate::bake::transport::build::MrtTransport;
+use crate::bake::transport::source::TransportUnavailable;
 
 /// Per block: whether [`inpaint`] may read the MRT transport into it, decided before any ray
 /// so that a bake can drop the rest of the transport first: whether clutter may be in sight
@@ -44,20 +44,21 @@ pub fn inpainting_targets(
 }
 
 /// Inpaints the buried block texels (`buried`, by global texel) of every target block into
-/// `per_target` (or `gathered`), reading `mrt`, which holds every operator into each block with
-/// a buried texel; `clutter_widths` are the DRT clutter objects' basis sizes.
+/// `per_target` (or `gathered`), reading the MRT transport into each block with a buried texel
+/// from `inputs.mrt`, one block at a time (a large level's would not fit beside the DRT
+/// operators being built); `clutter_widths` are the DRT clutter objects' basis sizes.
 /// Counts texels without a valid neighbour in `without_neighbours`.
 pub fn inpaint(
     inputs: &DrtInputs,
-    mrt: &MrtTransport,
     clutter_widths: &[usize],
     per_target: &mut [RowsBySource],
     buried: &[bool],
     gathered: &mut BTreeMap<u32, Vec<(u32, u32)>>,
     without_neighbours: &mut usize,
-) {
+) -> Result<(), TransportUnavailable> {
     let (g, shapes) = (inputs.geometry, inputs.shapes);
     let n_blocks = inputs.scene.blocks.len();
+    let mut only = vec![false; n_blocks];
     for (target, map) in per_target.iter_mut().enumerate() {
         let range = g.block_texels[target].clone();
         // Only blocks with a buried texel have anything to inpaint (the source search below
@@ -65,6 +66,10 @@ pub fn inpaint(
         if !buried[range.clone()].iter().any(|b| *b) {
             continue;
         }
+        // The transport into this block alone.
+        only[target] = true;
+        let mrt = inputs.mrt.into_targets(&only)?;
+        only[target] = false;
         // Every source whose MRT transport reaches the target, not only those with delta rows:
         // a buried texel must cancel light arriving from neighbouring blocks too (a room
         // wholly inside a clutter box still receives MRT light through its openings).
@@ -157,4 +162,5 @@ pub fn inpaint(
             }
         }
     }
+    Ok(())
 }

@@ -1,9 +1,20 @@
 //! The bake's matrices (faer `Mat<f64>`, where precision decides) as the bundle's (f32,
 //! row-major, where bandwidth decides): the one conversion every stage that ships an operator
-//! uses.
+//! uses; and the f32 ↔ f64 conversions of what the bake holds in f32 because a large level's
+//! memory decides (the lightfield operators and `T_prop`), computed with in f64.
 
 use faer::Mat;
 use lightfarm_proto::bundle::Matrix;
+
+/// `m` in f64 (exact), for the products that read a matrix held in f32.
+pub fn widen(m: &Mat<f32>) -> Mat<f64> {
+    Mat::from_fn(m.nrows(), m.ncols(), |i, j| f64::from(m[(i, j)]))
+}
+
+/// `m` rounded to f32, to be held where memory decides.
+pub fn narrow(m: &Mat<f64>) -> Mat<f32> {
+    Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32)
+}
 
 /// A bake matrix (f64, or f32 where the bake holds it so) as a bundle matrix (f32, row-major).
 pub fn to_matrix<T: Copy>(m: &Mat<T>) -> Matrix

@@ -27,6 +27,7 @@ use lightfarm_proto::wire::{Reader, WireError, Writer};
 use lightfarm_proto::Face;
 
 use crate::bake::math::low_rank::{truncated_svd, LowRankError};
+use crate::bake::math::matrix::{narrow, widen};
 use crate::bake::math::sampling::{
     sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose,
 };
@@ -313,13 +314,17 @@ pub struct OpeningOperators {
     pub lightfield: Option<OpeningLightfield>,
 }
 
-/// The lightfield side of one opening.
+/// The lightfield side of one opening, held in f32 (computed in f64, and widened again for
+/// the propagation's products): two thirds of a shape's bytes, and at 1,000 blocks the
+/// largest thing a bake holds while it propagates; f32's rounding (6e-8 relative) is far below
+/// the shape's truncation (`tolerance` of the energy). The shape cache stores them in f64
+/// (the f32 values exactly), so a cached shape reads back the same bits.
 #[derive(Clone, Debug)]
 pub struct OpeningLightfield {
     /// LF × r: outgoing lightfield from the shape's implicit lights.
-    pub out_imp: Mat<f64>,
+    pub out_imp: Mat<f32>,
     /// q × LF: incoming lightfield → the q coefficients `U_r` expands.
-    pub w: Mat<f64>,
+    pub w: Mat<f32>,
 }
 
 /// A shape's openings' lightfields, by face (what [`ShapeOperators::take_lightfields`] takes).
@@ -588,7 +593,10 @@ pub fn bake_shape(
             face: *face,
             u_r,
             pass_from: passes[k].clone(),
-            lightfield: Some(OpeningLightfield { out_imp, w }),
+            lightfield: Some(OpeningLightfield {
+                out_imp: narrow(&out_imp),
+                w: narrow(&w),
+            }),
         });
     }
     Ok(ShapeOperators {
@@ -676,8 +684,8 @@ impl ShapeOperators {
                 .as_ref()
                 .expect("only shapes as baked, with their lightfields, are cached");
             w.u8(o.face.index() as u8);
-            write_mat(&mut w, &lightfield.out_imp);
-            write_mat(&mut w, &lightfield.w);
+            write_mat(&mut w, &widen(&lightfield.out_imp));
+            write_mat(&mut w, &widen(&lightfield.w));
         }
         w.bytes
     }
@@ -768,7 +776,15 @@ impl ShapeOperators {
             if out_imp.ncols() != self.rank() || w.nrows() != o.u_r.ncols() {
                 return Err(WireError::Invalid("lightfield size".into()));
             }
-            lightfields.push((o.face, OpeningLightfield { out_imp, w }));
+            // An entry written before the lightfields were held in f32 reads back as a fresh
+            // bake holds them.
+            lightfields.push((
+                o.face,
+                OpeningLightfield {
+                    out_imp: narrow(&out_imp),
+                    w: narrow(&w),
+                },
+            ));
         }
         if r.remaining() != 0 {
             return Err(WireError::Invalid("trailing bytes".into()));

@@ -24,7 +24,7 @@
 //! rays below). Invariant: called only with `g` from `ShapeSpec::canonical` of the block's spec,
 //! so every block opening has a canonical opening and every block texel a canonical texel.
 
-use std::borrow::Cow;
+use crate::bake::math::matrix::widen;
 
 use faer::Mat;
 
@@ -202,25 +202,29 @@ impl<'a> InstanceLightfield<'a> {
             .map(|(_, l, pi)| (*l, pi.as_deref()))
     }
 
-    /// `OutImp_f` (LF × r) of the block's opening `face`, if it has one.
-    pub fn out_imp(&self, face: Face) -> Option<Cow<'a, Mat<f64>>> {
-        self.of(face).map(|(l, pi)| match pi {
-            None => Cow::Borrowed(&l.out_imp),
-            Some(pi) => Cow::Owned(Mat::from_fn(
-                l.out_imp.nrows(),
-                l.out_imp.ncols(),
-                |i, k| l.out_imp[(pi[i] as usize, k)],
-            )),
+    /// `OutImp_f` (LF × r) of the block's opening `face` in f64, if it has one.
+    pub fn out_imp(&self, face: Face) -> Option<Mat<f64>> {
+        self.of(face).map(|(l, pi)| {
+            let m = &l.out_imp;
+            match pi {
+                None => widen(m),
+                Some(pi) => Mat::from_fn(m.nrows(), m.ncols(), |i, k| {
+                    f64::from(m[(pi[i] as usize, k)])
+                }),
+            }
         })
     }
 
-    /// `W_f` (q × LF) of the block's opening `face`, if it has one.
-    pub fn w(&self, face: Face) -> Option<Cow<'a, Mat<f64>>> {
-        self.of(face).map(|(l, pi)| match pi {
-            None => Cow::Borrowed(&l.w),
-            Some(pi) => Cow::Owned(Mat::from_fn(l.w.nrows(), l.w.ncols(), |j, i| {
-                l.w[(j, pi[i] as usize)]
-            })),
+    /// `W_f` (q × LF) of the block's opening `face` in f64, if it has one.
+    pub fn w(&self, face: Face) -> Option<Mat<f64>> {
+        self.of(face).map(|(l, pi)| {
+            let m = &l.w;
+            match pi {
+                None => widen(m),
+                Some(pi) => Mat::from_fn(m.nrows(), m.ncols(), |j, i| {
+                    f64::from(m[(j, pi[i] as usize)])
+                }),
+            }
         })
     }
 
@@ -365,10 +369,10 @@ mod tests {
             // A permutation: the same values, summed in another order.
             let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs();
             let out_imp = inst_lightfield.out_imp(*face).unwrap();
-            assert!(same(out_imp.norm_l2(), oc.out_imp.norm_l2()));
+            assert!(same(out_imp.norm_l2(), widen(&oc.out_imp).norm_l2()));
             assert!(same(
                 inst_lightfield.w(*face).unwrap().norm_l2(),
-                oc.w.norm_l2()
+                widen(&oc.w).norm_l2()
             ));
             assert_eq!(inst_lightfield.len(*face), Some(oc.out_imp.nrows()));
         }

@@ -23,6 +23,7 @@ use rayon::prelude::*;
 use lightfarm_proto::scene::Opening;
 use lightfarm_proto::Face;
 
+use crate::bake::math::matrix::narrow;
 use crate::bake::math::sampling::Purpose;
 use crate::bake::mrt::one_bounce::gather_rows;
 use crate::bake::mrt::shape::ShapeOperators;
@@ -47,11 +48,6 @@ pub struct PropBlock {
     /// rounding (6e-8 relative) is far below the compaction's truncation (`tolerance` of the
     /// energy) and the bundle's f16/8-bit codes.
     pub matrix: Mat<f32>,
-}
-
-/// `m` in f64, for the products that read a `T_prop` block.
-pub fn widen(m: &Mat<f32>) -> Mat<f64> {
-    Mat::from_fn(m.nrows(), m.ncols(), |i, j| f64::from(m[(i, j)]))
 }
 
 /// One traced cross-block operator.
@@ -146,8 +142,7 @@ fn propagate_source(
         if let Some(Opening::Neighbour { block, face }) = openings[source][out_face.index()] {
             let out_imp = lightfields[source]
                 .out_imp(out_face)
-                .expect("a block's lightfield has its openings")
-                .into_owned();
+                .expect("a block's lightfield has its openings");
             sent += energy(&out_imp);
             queue.push_back((block, face, out_imp, 1));
         }
@@ -192,15 +187,7 @@ fn propagate_source(
             }
         }
     }
-    let acc = acc
-        .into_iter()
-        .map(|(key, m)| {
-            (
-                key,
-                Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32),
-            )
-        })
-        .collect();
+    let acc = acc.into_iter().map(|(key, m)| (key, narrow(&m))).collect();
     (acc, stats)
 }
 

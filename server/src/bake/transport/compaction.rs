@@ -22,8 +22,9 @@ use faer::Mat;
 use rayon::prelude::*;
 
 use crate::bake::math::low_rank::{truncated_svd, LowRankError};
+use crate::bake::math::matrix::widen;
 use crate::bake::mrt::shape::ShapeOperators;
-use crate::bake::transport::build::{widen, MrtTransport};
+use crate::bake::transport::build::MrtTransport;
 
 /// The compacted transport into one block.
 pub struct CompactTransport {
