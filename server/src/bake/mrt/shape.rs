@@ -304,7 +304,8 @@ pub struct OpeningOperators {
     pub face: Face,
     /// texels × q.
     pub u_r: Mat<f64>,
-    /// Incoming lightfield at `from` → outgoing lightfield here (LF × LF).
+    /// Incoming lightfield at `from` → outgoing lightfield here (LF × LF); empty on a symmetry
+    /// instance (the propagation reads `shape_symmetry::instance_passes`).
     pub pass_from: Vec<(Face, Triplets)>,
     /// `OutImp` and `W`, which only the lightfield propagation reads: present on a shape as
     /// baked or cached, never on a symmetry instance (made on use from the canonical shape's:
@@ -345,7 +346,8 @@ pub struct ShapeOperators {
     pub key: String,
     /// texels × r.
     pub u_b: Mat<f64>,
-    /// r × texels.
+    /// r × texels; empty (0 × 0) on a symmetry instance, whose `T_d→b` no stage reads
+    /// (`shape_symmetry::instance_operators`).
     pub t_db: Mat<f64>,
     /// texels × r.
     pub l_imp: Mat<f64>,

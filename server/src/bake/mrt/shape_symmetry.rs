@@ -12,9 +12,10 @@
 //! ships the canonical `U_b`, `T_d→b` once with the block's symmetry and the client permutes at
 //! load (`lightfarm_proto::bundle::BlockSymmetry`).
 //!
-//! An instance stores `U_b`, `L_imp`, `T_d→b`, `U_r` and `Pass` ([`instance_operators`]); the
-//! propagation, which runs before any stage needs the rest, reads its `Pass` alone
-//! ([`instance_passes`]). `W` and `OutImp`, which only the transport's propagation reads and which are most of a
+//! An instance stores what the stages after the propagation read per block: `U_b`, `L_imp`
+//! and `U_r` ([`instance_operators`]). The propagation, which runs before the instances are
+//! made, reads its `Pass` alone ([`instance_passes`]); the bundle ships the canonical `T_d→b`
+//! and `Pass`, which no stage reads per block. `W` and `OutImp`, which only the transport's propagation reads and which are most of a
 //! shape's bytes, are renumbered on use ([`InstanceLightfield`]), so a level's memory holds
 //! them once per canonical shape rather than once per (shape, symmetry).
 //!
@@ -69,8 +70,8 @@ pub struct OpeningPasses {
 }
 
 /// The openings (ascending by face) of the block with spec `block`, which `g` takes onto
-/// `canonical`'s shape, with their `Pass` operators renumbered: what [`instance_operators`]
-/// holds, made without its texel-sized matrices (the propagation reads nothing else).
+/// `canonical`'s shape, with their `Pass` operators renumbered (the propagation reads nothing
+/// else of a block), in the order [`instance_operators`] lists the openings.
 pub fn instance_passes(
     canonical: &ShapeOperators,
     block: &ShapeSpec,
@@ -126,7 +127,11 @@ pub fn instance_passes(
     openings
 }
 
-/// The operators of the block with spec `block`, which `g` takes onto `canonical`'s shape.
+/// The operators of the block with spec `block`, which `g` takes onto `canonical`'s shape, as
+/// the stages after the propagation read them: `U_b`, `L_imp` and each opening's `U_r`
+/// renumbered. Its `T_d→b` is empty (0 × 0) and its openings carry no `Pass`: no stage reads
+/// them per block (the bundle ships the canonical shape's, the propagation reads
+/// [`instance_passes`]), and at 1,000 blocks they were half of the instances' bytes.
 pub fn instance_operators(
     canonical: &ShapeOperators,
     block: &ShapeSpec,
@@ -135,25 +140,26 @@ pub fn instance_operators(
     let sigma = g.texel_permutation(&block.closed(), block.texels_per_face);
     let rows_of =
         |m: &Mat<f64>| Mat::from_fn(m.nrows(), m.ncols(), |x, k| m[(sigma[x] as usize, k)]);
-    let openings = instance_passes(canonical, block, g)
+    let mut faces = block.open.clone();
+    faces.sort();
+    let openings = faces
         .into_iter()
-        .map(|o| {
+        .map(|face| {
             let c = canonical
-                .opening(g.map_face(o.face))
+                .opening(g.map_face(face))
                 .expect("the canonical shape has the block's openings");
             OpeningOperators {
-                face: o.face,
+                face,
                 u_r: rows_of(&c.u_r),
-                pass_from: o.pass_from,
+                pass_from: Vec::new(),
                 lightfield: None,
             }
         })
         .collect();
-    let t = &canonical.t_db;
     ShapeOperators {
         key: g.instance_key(&canonical.key),
         u_b: rows_of(&canonical.u_b),
-        t_db: Mat::from_fn(t.nrows(), t.ncols(), |k, x| t[(k, sigma[x] as usize)]),
+        t_db: Mat::new(),
         l_imp: rows_of(&canonical.l_imp),
         openings,
         stats: canonical.stats.clone(),
