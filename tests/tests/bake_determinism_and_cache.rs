@@ -74,6 +74,37 @@ fn second_bake_reuses_every_shape_and_corrupt_entries_are_recomputed() {
     let _ = std::fs::remove_dir_all(&cache_dir);
 }
 
+/// The transport stage never holds a level's f64 transport: it goes to the cache as the
+/// compaction is made, or, without a cache, to a scratch directory, from which DRT's inpainting
+/// reads the blocks it needs one at a time. The maze (clutter, buried texels, symmetric
+/// blocks) comes out the same bytes without a cache, through a cold cache and through a warm
+/// one, and its inpainting did run.
+#[test]
+fn a_bake_without_a_cache_gives_the_bytes_of_a_bake_through_one() {
+    let (scene, _) = load_scene("maze", 8, 32);
+    let dir = scene_dir("maze");
+    let plain = BakeOptions {
+        cache: None,
+        full: false,
+        transport: None,
+    };
+    let (without, report) = bake(&scene, &dir, &plain, &NoProgress).unwrap();
+    let drt = report.drt.expect("the maze has clutter");
+    assert!(
+        drt.buried_scene_texels > 0,
+        "nothing was inpainted: {drt:?}"
+    );
+    let (cache_dir, options) = cached("lf-scratch-test", None);
+    let (cold, r1) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+    assert!(!r1.transport_from_cache);
+    let (warm, r2) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+    assert!(r2.transport_from_cache);
+    let bytes = without.encode();
+    assert!(bytes == cold.encode(), "a cold cache changed the bundle");
+    assert!(bytes == warm.encode(), "a warm cache changed the bundle");
+    let _ = std::fs::remove_dir_all(&cache_dir);
+}
+
 /// A shape's lightfields are an entry of their own, read only when the transport is computed:
 /// a rebake whose transport is cached bakes no shape without them; a transport computed later
 /// reads them, or bakes again the shapes whose lightfield entry is gone or corrupt. Every bake

@@ -2,23 +2,26 @@
 //! depends on: the blocks (boxes, open faces, shape keys) and the transport settings. MRT
 //! transport ignores clutter, so moving, adding or removing clutter reuses it whole.
 //!
-//! Owns the key ([`transport_key`]), the entries' kind ([`ENTRY`]) and the payloads (f64
-//! matrices, bit-exact), in two parts:
+//! Owns the key ([`transport_key`]), the entries' kind ([`ENTRY`]) and the payloads (matrices
+//! bit-exact: the lightfield `T_prop` in f32 as the bake holds it, traced operators in f64), in
+//! two parts:
 //! - the main entry `<dir>/transport/<key>.lftransport`: every operator's header (target block,
 //!   target face, source block) in transport order, the compaction (f32, as the bundle ships
 //!   it) and the statistics: what a hit reads ([`TransportCache::get`]);
 //! - per target block `<key>.t<block>.lftransport`: that block's operators' matrices in header
 //!   order, read only when asked for ([`LazyTransport`], a
 //!   [`crate::bake::transport::source::TransportSource`]): DRT's inpainting needs the blocks
-//!   holding a buried texel, a handful, where the whole is 1.86 GB at 1,000 blocks.
+//!   holding a buried texel, one at a time, where the whole is 0.8 GB at 1,000 blocks. A bake
+//!   writes them as its compaction consumes the transport ([`TransportWriter`]), so it never
+//!   holds the whole.
 //!
 //! Framing, atomic writes, verification and marking use are [`crate::bake::cache::entry`]'s: a
 //! stale entry is a miss, a corrupt one (or one that does not decode) is deleted and missed; a
 //! target block's entry that cannot be read when asked for also deletes the main entry, so the
 //! next bake computes the transport (and [`crate::bake::bake`] bakes once more at once).
 //!
-//! Invariant: a hit returns exactly what the computation would (the same f64 bits), so a bake
-//! is the same bytes with or without the cache.
+//! Invariant: a hit returns exactly what the computation would (the same bits), so a bake is
+//! the same bytes with or without the cache.
 
 use std::collections::BTreeMap;
 use std::path::Path;
