@@ -51,14 +51,6 @@ pub const ENTRY: EntryKind = EntryKind {
     version: CODE_VERSION,
 };
 
-/// What the transport stage produces.
-pub struct CachedTransport {
-    pub mrt: MrtTransport,
-    /// Present when the scene ships compact transport: as the bundle ships it (f32).
-    pub compact: Option<Vec<CompactEntry>>,
-    pub stats: TransportStats,
-}
-
 /// The content key of a level's transport: blocks, their shape keys, the transport settings.
 pub fn transport_key(scene: &Scene, transport: Transport, shape_keys: &[String]) -> String {
     let s = &scene.settings;
@@ -167,6 +159,14 @@ struct Header {
     source: usize,
 }
 
+/// How many operators `mrt` holds.
+fn headers_len(mrt: &MrtTransport) -> usize {
+    match mrt {
+        MrtTransport::Lightfield(blocks) => blocks.len(),
+        MrtTransport::Traced(blocks) => blocks.len(),
+    }
+}
+
 fn headers(mrt: &MrtTransport) -> Vec<Header> {
     match mrt {
         MrtTransport::Lightfield(blocks) => blocks
@@ -188,20 +188,15 @@ fn headers(mrt: &MrtTransport) -> Vec<Header> {
     }
 }
 
-/// Every operator's matrix, in transport order, written as [`write_mat`] writes it (the
-/// lightfield's `T_prop` in f32, traced operators in f64): one target's entry is the writes of
-/// its operators back to back.
-fn write_matrices(w: &mut Writer, mrt: &MrtTransport, target: Option<usize>) {
-    let wanted = |t: usize| target.is_none_or(|x| x == t);
-    match mrt {
-        MrtTransport::Lightfield(blocks) => blocks
-            .iter()
-            .filter(|b| wanted(b.target_block))
-            .for_each(|b| write_mat(w, &b.matrix)),
-        MrtTransport::Traced(blocks) => blocks
-            .iter()
-            .filter(|b| wanted(b.target_block))
-            .for_each(|b| write_mat(w, &b.matrix)),
+/// The matrices of `mrt`'s operators `indices` (positions in transport order), written as
+/// [`write_mat`] writes them (the lightfield's `T_prop` in f32, traced operators in f64): one
+/// target's entry is the writes of its operators back to back.
+fn write_matrices(w: &mut Writer, mrt: &MrtTransport, indices: impl Iterator<Item = usize>) {
+    for i in indices {
+        match mrt {
+            MrtTransport::Lightfield(blocks) => write_mat(w, &blocks[i].matrix),
+            MrtTransport::Traced(blocks) => write_mat(w, &blocks[i].matrix),
+        }
     }
 }
 
@@ -478,18 +473,6 @@ impl TransportCache {
         })
     }
 
-    /// Stores `transport`: each target block's operators, then the main entry (so a main
-    /// entry is never there before its blocks).
-    pub fn put(&self, key: &str, transport: &CachedTransport) -> std::io::Result<()> {
-        let writer = self.writer(key, &transport.mrt);
-        let targets: std::collections::BTreeSet<usize> =
-            writer.headers.iter().map(|h| h.target).collect();
-        for target in targets {
-            writer.put_target(target, &transport.mrt, Some(target))?;
-        }
-        writer.finish(transport.compact.as_deref(), &transport.stats)
-    }
-
     /// A writer of the transport `mrt` (whose operators' headers it notes) under `key`, target
     /// block by target block ([`TransportWriter`]).
     pub fn writer(&self, key: &str, mrt: &MrtTransport) -> TransportWriter {
@@ -518,37 +501,75 @@ impl TransportWriter {
     /// Stores the operators into `target` (`part`: the transport into that block alone, in
     /// transport order).
     pub fn target(&self, target: usize, part: &MrtTransport) -> std::io::Result<()> {
-        self.put_target(target, part, None)
+        self.put_operators(target, part, 0..headers_len(part))
     }
 
-    /// Stores the operators of `mrt` into `target` (those `only` names, or all of them).
-    fn put_target(
+    /// Stores every target's operators of `mrt`, the transport the writer was made from
+    /// (grouped by target in one pass over its headers).
+    pub fn all(&self, mrt: &MrtTransport) -> std::io::Result<()> {
+        let mut by_target: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+        for (i, h) in self.headers.iter().enumerate() {
+            by_target.entry(h.target).or_default().push(i);
+        }
+        for (target, indices) in by_target {
+            self.put_operators(target, mrt, indices.into_iter())?;
+        }
+        Ok(())
+    }
+
+    /// Stores the operators `indices` of `mrt` as target `target`'s entry.
+    fn put_operators(
         &self,
         target: usize,
         mrt: &MrtTransport,
-        only: Option<usize>,
+        indices: impl Iterator<Item = usize>,
     ) -> std::io::Result<()> {
         let mut w = Writer::new();
-        write_matrices(&mut w, mrt, only);
+        write_matrices(&mut w, mrt, indices);
         self.store.put(&target_key(&self.key, target), &w.bytes)
     }
 
-    /// Stores the main entry: the operators' headers, the compaction and the statistics.
+    /// Stores the main entry (the operators' headers, the compaction and the statistics) and
+    /// hands back the stored transport as a hit would read it, without reading it back.
     pub fn finish(
         self,
         compact: Option<&[CompactEntry]>,
         stats: &TransportStats,
-    ) -> std::io::Result<()> {
+    ) -> std::io::Result<LazyTransport> {
         self.store.put(
             &self.key,
             &encode_main(self.traced, &self.headers, compact, stats),
-        )
+        )?;
+        Ok(LazyTransport {
+            store: self.store,
+            key: self.key,
+            traced: self.traced,
+            headers: self.headers,
+        })
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A transport as a bake stores it: the operators, the compaction, the statistics.
+    struct CachedTransport {
+        mrt: MrtTransport,
+        compact: Option<Vec<CompactEntry>>,
+        stats: TransportStats,
+    }
+
+    impl TransportCache {
+        /// Stores `transport` whole: each target block's operators, then the main entry.
+        fn put(&self, key: &str, transport: &CachedTransport) -> std::io::Result<()> {
+            let writer = self.writer(key, &transport.mrt);
+            writer.all(&transport.mrt)?;
+            writer
+                .finish(transport.compact.as_deref(), &transport.stats)
+                .map(|_| ())
+        }
+    }
     use crate::bake::math::matrix::to_matrix;
 
     fn mat(rows: usize, cols: usize, seed: f64) -> Mat<f64> {

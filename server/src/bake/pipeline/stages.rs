@@ -283,18 +283,13 @@ pub fn block_transport(
     )?;
     let held = match computed.whole {
         Some(mrt) => HeldTransport::Computed(mrt),
-        None => {
-            let lazy = store
-                .get(&transport_key)
-                .ok_or_else(|| {
-                    BakeError::CachedTransport("the transport just stored is gone".into())
-                })?
-                .transport;
-            match scratch {
-                Some(dir) => HeldTransport::Scratch { lazy, _dir: dir },
-                None => HeldTransport::Cached(lazy),
-            }
-        }
+        None => match scratch {
+            Some(dir) => HeldTransport::Scratch {
+                lazy: computed.stored,
+                _dir: dir,
+            },
+            None => HeldTransport::Cached(computed.stored),
+        },
     };
     Ok(BlockTransport {
         held,
@@ -310,6 +305,8 @@ pub struct ComputedTransport {
     /// bundle is made of it); None when it ships the compaction (the f64 transport is then in
     /// the store alone).
     pub whole: Option<MrtTransport>,
+    /// The transport as stored, read block by block.
+    pub stored: LazyTransport,
     /// Present when the scene ships compact transport: as the bundle ships it (f32).
     pub compact: Option<Vec<CompactEntry>>,
     pub stats: TransportStats,
@@ -387,18 +384,14 @@ pub fn mrt_transport(
         stats.compact_ranks = compact.iter().map(|c| c.y.cols as usize).collect();
         (None, Some(compact))
     } else {
-        // The bundle ships the f64 transport itself: all of it stays.
-        let traced = matches!(mrt, MrtTransport::Traced(_));
-        let mut parts = Vec::new();
-        for (target, part) in mrt.split_by_target() {
-            writer.target(target, &part)?;
-            parts.push(part);
-        }
-        (Some(MrtTransport::from_parts(traced, parts)), None)
+        // The bundle ships the transport itself: all of it stays.
+        writer.all(&mrt)?;
+        (Some(mrt), None)
     };
-    writer.finish(compact.as_deref(), &stats)?;
+    let stored = writer.finish(compact.as_deref(), &stats)?;
     Ok(ComputedTransport {
         whole,
+        stored,
         compact,
         stats,
         block_operators,

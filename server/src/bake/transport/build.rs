@@ -293,8 +293,7 @@ impl MrtTransport {
     }
 
     /// The operators split by target block, ascending, each part in transport order (moved,
-    /// not copied). Transport order is ascending by target, so [`MrtTransport::from_parts`]
-    /// of the parts in this order gives the transport back.
+    /// not copied).
     pub fn split_by_target(self) -> Vec<(usize, MrtTransport)> {
         fn split<T>(blocks: Vec<T>, target: impl Fn(&T) -> usize) -> BTreeMap<usize, Vec<T>> {
             let mut parts: BTreeMap<usize, Vec<T>> = BTreeMap::new();
@@ -313,23 +312,6 @@ impl MrtTransport {
                 .map(|(t, part)| (t, MrtTransport::Traced(part)))
                 .collect(),
         }
-    }
-
-    /// The transport made of `parts` (of one kind, `traced` or not), concatenated in order.
-    pub fn from_parts(traced: bool, parts: Vec<MrtTransport>) -> MrtTransport {
-        let mut whole = if traced {
-            MrtTransport::Traced(Vec::new())
-        } else {
-            MrtTransport::Lightfield(Vec::new())
-        };
-        for part in parts {
-            match (&mut whole, part) {
-                (MrtTransport::Lightfield(all), MrtTransport::Lightfield(p)) => all.extend(p),
-                (MrtTransport::Traced(all), MrtTransport::Traced(p)) => all.extend(p),
-                _ => unreachable!("a transport's parts are of its kind"),
-            }
-        }
-        whole
     }
 
     /// Whether source block `source`'s light reaches target block `target` (its own block, or

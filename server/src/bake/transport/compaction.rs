@@ -40,16 +40,16 @@ pub struct CompactTransport {
 }
 
 /// Targets compacted together by [`compact_consuming`] before their operators are handed on:
-/// enough to keep both cores busy, few enough that the f64 transport leaves memory steadily.
+/// enough to keep both cores busy, few enough that the transport leaves memory steadily.
 const GROUP: usize = 16;
 
 /// Compacts `mrt` per target block (blocks nothing reaches get no entry), consuming it:
-/// targets are compacted in groups of [`GROUP`] (in parallel within a group) and, after each group, `done(target, part)` takes
-/// each of its targets' operators (`part`: the transport into that target alone, in transport
-/// order; targets ascending, every target with operators once) to store, keep or drop. So the
-/// f64 transport can leave memory while its compaction is made, and the bake never holds both
-/// whole. Each compaction is converted by `finish` (e.g. to the f32 the bundle ships) as soon
-/// as it is made.
+/// targets are compacted in groups of [`GROUP`] (in parallel within a group) and, after each
+/// group, `done(target, part)` takes each of its targets' operators (`part`: the transport into
+/// that target alone, in transport order; targets ascending, every target with operators once)
+/// to store, keep or drop. So the transport can leave memory while its compaction is made,
+/// and the bake never holds both whole. Each compaction is converted by `finish` (e.g. to the
+/// f32 the bundle ships) as soon as it is made.
 pub fn compact_consuming<C: Send, E: From<LowRankError>>(
     shapes: &[&ShapeOperators],
     mrt: MrtTransport,
@@ -71,7 +71,7 @@ pub fn compact_consuming<C: Send, E: From<LowRankError>>(
         for (target, part) in group {
             done(target, part)?;
         }
-        // The group's f64 operators are free now; hand their pages back before the next group
+        // The group's operators are free now; hand their pages back before the next group
         // allocates its compactions elsewhere in the heap.
         crate::bake::memory::release_freed();
     }
