@@ -1,9 +1,20 @@
 //! Ray casting against a [`Geometry`](crate::bake::scene::geometry::Geometry)'s primitives through an `obvhs` compressed wide BVH.
 //!
-//! Intersections are computed in f64 inside the traversal callback (obvhs traverses in f32);
-//! rectangles are closed at their edges so a closed box is watertight. Where two coincident
-//! rectangles are hit at the same distance (back-to-back walls of neighbouring blocks), the one
-//! whose lit side faces the ray wins.
+//! The exact answer is f64's: rectangles are closed at their edges so a closed box is
+//! watertight, and where two coincident rectangles are hit at the same distance (back-to-back
+//! walls of neighbouring blocks) the one whose lit side faces the ray wins. Most rays never need
+//! it, so each is traced twice at most:
+//! 1. **f32 first** (`Fast`, in BVH slot order): each primitive the traversal reaches is tested
+//!    in f32 and comes out a sure miss, a sure hit, or unsure. "Sure" means by a margin about a
+//!    hundred times f32's rounding bound (relative to the scene's scale, growing as the ray
+//!    grazes the primitive); unsure is a hit or miss within the margin of a rectangle's edge or
+//!    a triangle's, of `epsilon`, of `tmax`, or of another candidate's distance (a near tie:
+//!    coincident walls, corners), or a primitive the ray nearly parallels.
+//! 2. **f64 where it decides:** a ray with any unsure test is traced again with the f64 test in
+//!    the traversal (the tracer's original path, unchanged); any other ray's winner is its
+//!    closest sure hit, whose distance is then computed in f64. Both give the same hit, bit for
+//!    bit: a sure test agrees with f64's, and without near ties the closest sure hit is f64's
+//!    closest. `occluded` stops at the first sure hit and asks f64 only about unsure ones.
 //!
 //! Invariant: `closest` only reports hits with `t > epsilon`, where epsilon is relative to the
 //! scene's scale, so rays leaving a surface never hit that surface again.
@@ -43,13 +54,50 @@ impl Boundable for Bounded {
     }
 }
 
+/// A primitive's f32 copy for the first test, stored in BVH slot order (the order
+/// `CwBvh::primitive_indices` lists) so a leaf reads neighbouring memory and no `Primitive`.
+#[derive(Clone, Copy, Debug)]
+enum Fast {
+    /// The plane's axis and coordinate, and the extent along the two tangents.
+    Rect {
+        axis: u8,
+        coord: f32,
+        min: [f32; 2],
+        max: [f32; 2],
+    },
+    /// Vertex 0, the two edges from it (computed in f64, then rounded) and their lengths.
+    Triangle {
+        v0: Vec3A,
+        e1: Vec3A,
+        e2: Vec3A,
+        len1: f32,
+        len2: f32,
+    },
+}
+
+/// What the f32 test says about one primitive.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Verdict {
+    Miss,
+    /// A hit at this f32 distance, with this margin on it.
+    Hit(f32, f32),
+    Unsure,
+}
+
+/// The margin of the f32 test, relative to its rounding bound (~1e-7 of the scene's scale).
+const F32_MARGIN: f32 = 2e-6;
+
 /// A BVH over primitives.
 pub struct Tracer {
     bvh: Option<CwBvh>,
+    /// Per BVH slot: the f32 copy of the primitive `bvh.primitive_indices[slot]` names.
+    fast: Vec<Fast>,
     primitives: Vec<Primitive>,
     /// Smallest accepted hit distance.
     pub epsilon: f64,
     edge_epsilon: f64,
+    /// The scene's scale (f32), which the f32 test's margins follow.
+    scale: f32,
 }
 
 fn v3(p: [f64; 3]) -> Vec3A {
@@ -122,15 +170,124 @@ impl Tracer {
         } else {
             Some(build_cwbvh(
                 &bounded,
-                BvhBuildParams::medium_build(),
+                BvhBuildParams::very_slow_build(),
                 &mut Duration::default(),
             ))
         };
+        let fast = bvh.as_ref().map_or(Vec::new(), |bvh| {
+            let f = |x: f64| x as f32;
+            let v3d = |p: DVec3| Vec3A::new(p.x as f32, p.y as f32, p.z as f32);
+            bvh.primitive_indices
+                .iter()
+                .map(|&i| match &primitives[i as usize] {
+                    Primitive::Rect {
+                        axis,
+                        coord,
+                        min,
+                        max,
+                        ..
+                    } => Fast::Rect {
+                        axis: *axis as u8,
+                        coord: f(*coord),
+                        min: min.map(f),
+                        max: max.map(f),
+                    },
+                    Primitive::Triangle { v, .. } => {
+                        let [v0, v1, v2] = v.map(DVec3::from);
+                        Fast::Triangle {
+                            v0: v3d(v0),
+                            e1: v3d(v1 - v0),
+                            e2: v3d(v2 - v0),
+                            len1: (v1 - v0).length() as f32,
+                            len2: (v2 - v0).length() as f32,
+                        }
+                    }
+                })
+                .collect()
+        });
         Tracer {
             bvh,
+            fast,
             primitives,
             epsilon,
             edge_epsilon: 1e-9 * scale.max(1e-3),
+            scale: scale.max(1e-3) as f32,
+        }
+    }
+
+    /// The f32 test of BVH slot `slot` against the ray `o + t·d` (as f32) for
+    /// `epsilon < t < far`; see the module doc. The margins: on a distance, `F32_MARGIN` of the
+    /// scale divided by how squarely the ray meets the primitive, plus the same fraction of the
+    /// distance; on a position (a rectangle) or a barycentric coordinate (a triangle), the
+    /// distance's margin carried over plus that of the point itself. A hit's distance is
+    /// returned with its margin; the caller judges it against `far` and other hits.
+    #[inline(always)]
+    fn classify(&self, slot: usize, o: Vec3A, d: Vec3A, epsilon: f32, far: f32) -> Verdict {
+        let s = self.scale;
+        match self.fast[slot] {
+            Fast::Rect {
+                axis,
+                coord,
+                min,
+                max,
+            } => {
+                let a = axis as usize;
+                let da = d[a];
+                let t = (coord - o[a]) / da;
+                let mt = F32_MARGIN * (s / da.abs() + t.abs());
+                if da == 0.0 || t < epsilon - mt || t > far + mt {
+                    return Verdict::Miss;
+                }
+                let (u, v) = tangents(a);
+                let pu = o[u] + t * d[u];
+                let pv = o[v] + t * d[v];
+                let m = F32_MARGIN * s + mt;
+                if pu < min[0] - m || pu > max[0] + m || pv < min[1] - m || pv > max[1] + m {
+                    return Verdict::Miss;
+                }
+                let inside =
+                    pu > min[0] + m && pu < max[0] - m && pv > min[1] + m && pv < max[1] - m;
+                if !inside || t <= epsilon + mt || da.abs() < 1e-3 {
+                    return Verdict::Unsure;
+                }
+                Verdict::Hit(t, mt)
+            }
+            Fast::Triangle {
+                v0,
+                e1,
+                e2,
+                len1,
+                len2,
+            } => {
+                let p = d.cross(e2);
+                let det = e1.dot(p);
+                let inv = 1.0 / det;
+                let sv = o - v0;
+                let a = sv.dot(p) * inv;
+                let q = sv.cross(e1);
+                let b = d.dot(q) * inv;
+                let t = e2.dot(q) * inv;
+                // |sv| ≤ ~2 scale inside the scene; the rounding of sv, p and q is a few f32
+                // steps of scale·|e|, divided by |det| in the barycentrics and the distance.
+                let bound = 3.0 * s * len1.max(len2) * inv.abs();
+                let m = F32_MARGIN * (bound + 1.0);
+                let mt = F32_MARGIN * (bound * len2 + t.abs() + s);
+                let parallel = !(det.abs() > 1e-3 * len1 * len2);
+                if !parallel
+                    && (t < epsilon - mt
+                        || t > far + mt
+                        || a < -m
+                        || a > 1.0 + m
+                        || b < -m
+                        || a + b > 1.0 + 2.0 * m)
+                {
+                    return Verdict::Miss;
+                }
+                if parallel || a < m || b < m || a + b > 1.0 - 2.0 * m || t <= epsilon + mt {
+                    return Verdict::Unsure;
+                }
+                Verdict::Hit(t, mt)
+            }
         }
     }
 
@@ -223,33 +380,136 @@ impl Tracer {
     ) -> Option<Hit> {
         let bvh = self.bvh.as_ref()?;
         let ray = Ray::new(v3(o), v3(d), 0.0, tmax as f32 * (1.0 + 1e-6) + 1e-6);
+        // 1. f32: the closest sure hit, unless a test was unsure.
+        let (of, df) = (v3(o), v3(d));
+        let (epsilon, limit) = (self.epsilon as f32, tmax as f32);
         let tie = self.epsilon * 1e-2;
-        let mut hit = RayHit::none();
-        let found = bvh.ray_traverse(ray, &mut hit, |_ray, id| {
-            let index = bvh.primitive_indices[id];
-            let prim = &self.primitives[index as usize];
-            match self.intersect(prim, o, d, tmax) {
-                Some(t) => {
-                    // Back-facing coincident rectangles lose ties.
-                    let back = match prim {
-                        Primitive::Rect {
-                            axis,
-                            surface: Some(s),
-                            ..
-                        } => d[*axis] * lit_normal_sign(*s) > 0.0,
-                        _ => false,
-                    };
-                    (t + if back { tie } else { 0.0 }) as f32
+        // What f64's traversal would compare for `slot`: its exact distance, a back-facing
+        // coincident rectangle's plus `tie`, as f32 (None: f64 finds no hit).
+        let exact_value = |slot: usize| {
+            let prim = &self.primitives[bvh.primitive_indices[slot] as usize];
+            let t = self.intersect(prim, o, d, tmax)?;
+            let back = match prim {
+                Primitive::Rect {
+                    axis,
+                    surface: Some(s),
+                    ..
+                } => d[*axis] * lit_normal_sign(*s) > 0.0,
+                _ => false,
+            };
+            Some((t + if back { tie } else { 0.0 }) as f32)
+        };
+        let mut unsure = false;
+        // The closest sure hit so far: its slot, f32 distance and margin, and its exact value
+        // once a near tie asked for it.
+        let mut best: Option<(usize, f32, f32, Option<f32>)> = None;
+        let mut fast_hit = RayHit::none();
+        bvh.ray_traverse(ray, &mut fast_hit, |_ray, id| {
+            if unsure {
+                return f32::INFINITY;
+            }
+            // Beyond the closest sure hit by more than both margins: a sure miss.
+            let far = best.map_or(limit, |(_, t, m, _)| t + m);
+            match self.classify(id, of, df, epsilon, far) {
+                Verdict::Miss => f32::INFINITY,
+                Verdict::Unsure => {
+                    unsure = true;
+                    f32::INFINITY
                 }
-                None => f32::INFINITY,
+                Verdict::Hit(t, m) if (t - limit).abs() <= m => {
+                    unsure = true; // at `tmax`: f64 decides
+                    f32::INFINITY
+                }
+                Verdict::Hit(t, m) => match best {
+                    // A near tie (coincident walls): compared as f64's traversal does, the
+                    // lower primitive index winning equal values.
+                    Some((slot, bt, bm, value)) if (t - bt).abs() <= m + bm => {
+                        let (Some(old), Some(new)) =
+                            (value.or_else(|| exact_value(slot)), exact_value(id))
+                        else {
+                            unsure = true;
+                            return f32::INFINITY;
+                        };
+                        let lower = bvh.primitive_indices[id] < bvh.primitive_indices[slot];
+                        best = Some(if new < old || (new == old && lower) {
+                            (id, t, m, Some(new))
+                        } else {
+                            (slot, bt, bm, Some(old))
+                        });
+                        t
+                    }
+                    Some((_, bt, _, _)) if t > bt => f32::INFINITY,
+                    _ => {
+                        best = Some((id, t, m, None));
+                        t
+                    }
+                },
             }
         });
-        if !found {
-            return None;
+        if !unsure {
+            let (slot, _, _, _) = best?;
+            let index = bvh.primitive_indices[slot];
+            if let Some(t) = self.intersect(&self.primitives[index as usize], o, d, tmax) {
+                return Some(self.hit(index, o, d, t, lit_normal_sign));
+            }
+            // f64 disagrees with a sure hit (never expected): the f64 path decides.
         }
-        let index = bvh.primitive_indices[hit.primitive_id as usize];
+        // 2. f64 in the traversal: the exact answer.
+        self.closest_exact(bvh, ray, o, d, tmax, lit_normal_sign)
+    }
+
+    /// [`Tracer::closest`] with the f64 test on every primitive the traversal reaches.
+    fn closest_exact(
+        &self,
+        bvh: &CwBvh,
+        ray: Ray,
+        o: [f64; 3],
+        d: [f64; 3],
+        tmax: f64,
+        lit_normal_sign: &dyn Fn(u32) -> f64,
+    ) -> Option<Hit> {
+        let tie = self.epsilon * 1e-2;
+        // The closest so far: its value and primitive (the lower index wins equal values, so
+        // the answer does not depend on the order the traversal visits leaves in).
+        let mut best: Option<(f32, u32)> = None;
+        let mut hit = RayHit::none();
+        bvh.ray_traverse(ray, &mut hit, |_ray, id| {
+            let index = bvh.primitive_indices[id];
+            let prim = &self.primitives[index as usize];
+            let Some(t) = self.intersect(prim, o, d, tmax) else {
+                return f32::INFINITY;
+            };
+            // Back-facing coincident rectangles lose ties.
+            let back = match prim {
+                Primitive::Rect {
+                    axis,
+                    surface: Some(s),
+                    ..
+                } => d[*axis] * lit_normal_sign(*s) > 0.0,
+                _ => false,
+            };
+            let value = (t + if back { tie } else { 0.0 }) as f32;
+            if best.is_none_or(|b| (value, index) < b) {
+                best = Some((value, index));
+            }
+            value
+        });
+        let (_, index) = best?;
         let prim = &self.primitives[index as usize];
         let t = self.intersect(prim, o, d, tmax * (1.0 + 1e-9) + self.epsilon)?;
+        Some(self.hit(index, o, d, t, lit_normal_sign))
+    }
+
+    /// The hit on primitive `index` at distance `t`.
+    fn hit(
+        &self,
+        index: u32,
+        o: [f64; 3],
+        d: [f64; 3],
+        t: f64,
+        lit_normal_sign: &dyn Fn(u32) -> f64,
+    ) -> Hit {
+        let prim = &self.primitives[index as usize];
         let point = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
         let normal = Self::normal_facing(prim, d);
         let front = match prim {
@@ -260,13 +520,13 @@ impl Tracer {
             } => d[*axis] * lit_normal_sign(*s) < 0.0,
             _ => false,
         };
-        Some(Hit {
+        Hit {
             t,
             primitive: index,
             point,
             front,
             normal,
-        })
+        }
     }
 
     /// True when anything lies strictly between `from` and `to` (both ends excluded by epsilon).
@@ -282,7 +542,14 @@ impl Tracer {
         let d = (delta / len).to_array();
         let tmax = len - self.epsilon;
         let ray = Ray::new(v3(from), v3(d), 0.0, tmax as f32);
+        let (of, df) = (v3(from), v3(d));
+        let (epsilon, limit) = (self.epsilon as f32, tmax as f32);
         !bvh.ray_traverse_miss(ray, |_ray, id| {
+            match self.classify(id, of, df, epsilon, limit) {
+                Verdict::Miss => return f32::INFINITY,
+                Verdict::Hit(t, m) if t < limit - m => return t,
+                _ => {}
+            }
             let prim = &self.primitives[bvh.primitive_indices[id] as usize];
             match self.intersect(prim, from, d, tmax) {
                 Some(t) => t as f32,
@@ -344,6 +611,92 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The f32 path gives f64's hit, bit for bit, on the cases it must hand over or resolve:
+    /// two blocks sharing a wall (coincident rectangles, lit sides opposite), one open to the
+    /// outside (rays that miss), rectangles meeting at the boxes' edges, triangles (a small clutter mesh, one lying
+    /// in a wall's plane), grazing rays, rays ending just at a wall (`tmax`) and shadow rays.
+    #[test]
+    fn the_f32_path_gives_the_f64_hit_bit_for_bit() {
+        let mut g = Geometry::default();
+        let a = Aabb {
+            min: [0.0, 0.0, 0.0],
+            max: [4.0, 3.0, 5.0],
+        };
+        let b = Aabb {
+            min: [4.0, 0.0, 0.0],
+            max: [9.0, 3.0, 5.0],
+        };
+        let b_closed: Vec<Face> = Face::ALL
+            .iter()
+            .copied()
+            .filter(|f| *f != Face::PosX)
+            .collect();
+        g.add_block(0, "a", &a, &Face::ALL, |_| [0.5; 3], 4);
+        g.add_block(1, "b", &b, &b_closed, |_| [0.6; 3], 4);
+        g.add_triangles(
+            &[
+                [[1.0, 0.5, 1.0], [2.0, 0.5, 1.0], [1.5, 1.5, 3.0]],
+                [[1.0, 1.5, 1.0], [2.0, 0.5, 1.0], [1.5, 1.5, 3.0]],
+                // In the plane z = 5 (a wall of both blocks).
+                [[6.0, 1.0, 5.0], [7.0, 1.0, 5.0], [6.5, 2.0, 5.0]],
+            ],
+            [0.5; 3],
+        );
+        let tracer = Tracer::new(g.primitives.clone(), g.scale());
+        let signs: Vec<f64> = g.surfaces.iter().map(|s| s.normal_sign).collect();
+        let sign = |s: u32| signs[s as usize];
+        let bvh = tracer.bvh.as_ref().unwrap();
+        let (mut rays, mut hits) = (0, 0);
+        for (k, texel) in g.texels.iter().enumerate() {
+            for i in 0..48u32 {
+                let mut d = to_world(
+                    sample_cosine_hemisphere(sobol_2d(k as u64, i)),
+                    texel.normal,
+                );
+                if i % 8 == 7 {
+                    // Grazing: nearly in the texel's plane.
+                    let n = texel.normal;
+                    let dot = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
+                    d = [0, 1, 2].map(|c| d[c] - n[c] * (dot - 1e-5));
+                    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                    d = d.map(|x| x / len);
+                }
+                let o = texel.position;
+                let ray = Ray::new(v3(o), v3(d), 0.0, f32::INFINITY);
+                let exact = tracer.closest_exact(bvh, ray, o, d, f64::INFINITY, &sign);
+                let fast = tracer.closest(o, d, f64::INFINITY, &sign);
+                assert_eq!(fast, exact, "texel {k} ray {i}");
+                rays += 1;
+                let Some(h) = exact else { continue };
+                hits += 1;
+                // A ray ending at its hit, just before it and just after it.
+                for tmax in [h.t, h.t * (1.0 - 1e-7), h.t * (1.0 + 1e-7), 0.5 * h.t] {
+                    let ray = Ray::new(v3(o), v3(d), 0.0, tmax as f32 * (1.0 + 1e-6) + 1e-6);
+                    let exact = tracer.closest_exact(bvh, ray, o, d, tmax, &sign);
+                    assert_eq!(
+                        tracer.closest(o, d, tmax, &sign),
+                        exact,
+                        "texel {k} ray {i}"
+                    );
+                }
+                // Shadow rays to the hit and to points beside it.
+                for to in [h.point, [h.point[0], h.point[1] + 0.3, h.point[2]]] {
+                    let delta = DVec3::from(to) - DVec3::from(o);
+                    let len = delta.length();
+                    let dd = (delta / len).to_array();
+                    let tmax = len - tracer.epsilon;
+                    let exact = len > 2.0 * tracer.epsilon
+                        && tracer
+                            .primitives
+                            .iter()
+                            .any(|p| tracer.intersect(p, o, dd, tmax).is_some());
+                    assert_eq!(tracer.occluded(o, to), exact, "texel {k} ray {i}");
+                }
+            }
+        }
+        assert!(hits > rays * 9 / 10, "{hits} of {rays}");
     }
 
     #[test]

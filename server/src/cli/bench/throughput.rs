@@ -1,5 +1,5 @@
-//! Ray throughput of our tracer (`bake::tracer::Tracer`, obvhs CWBVH with exact f64 tests)
-//! against Embree (`embreex`, through `scripts/embree_throughput.py`) on the same triangles
+//! Ray throughput of our tracer (`bake::tracer::Tracer`: obvhs CWBVH, f32 tests, f64 where it
+//! decides) against Embree (`embreex`, through `scripts/embree_throughput.py`) on the same triangles
 //! and the same rays.
 //!
 //! The scene's primitives are written as a triangle soup (each rectangle as two triangles) and
