@@ -10,7 +10,9 @@
 //! Both encodings read the level's encoding memo in the operator cache
 //! ([`crate::bake::cache::encodings`], as `lightfarm bake --cache` does), and the final one keeps
 //! its own there: a rebake after a clutter edit neither re-encodes nor recompresses the
-//! unchanged transport and shapes, in the partial bundles or the final one.
+//! unchanged transport and shapes, in the partial bundles or the final one. Between writes the
+//! memo's session waits on disk (`hold_on_disk`), and the published prefix is held at its own
+//! length, so the stages after the MRT part do not carry the partial write in memory.
 //!
 //! Invariants: runs on a runner thread inside the worker pool (never on the async runtime); the
 //! bundle bytes are exactly those `lightfarm bake` writes for the same scene and settings; the
@@ -92,8 +94,16 @@ impl Progress for StreamingProgress<'_> {
         };
         let mut bytes = bytes;
         bytes.truncate(end);
+        // Held until the job ends: not the whole write's capacity (twice the prefix at 1,000
+        // blocks).
+        bytes.shrink_to_fit();
         let names = report.sections.iter().map(|(n, _)| n.to_string()).collect();
         self.job.publish_prefix(bytes, names);
+        // The rest of the bake runs without this write's encodings; the next write reads them
+        // back.
+        if let Some(memo) = self.memo {
+            memo.hold_on_disk();
+        }
     }
 }
 

@@ -215,7 +215,16 @@ fn bake_once(
             to_bundle::drt_section(&bundle, ops, &scene.settings, factors.as_ref())?;
         report.delta_compaction = stats;
         bundle.drt = Some(section);
-        announce(&bundle);
+        // Announced only when more stages follow: otherwise the whole bundle is written next,
+        // and a partial write here would run while the DRT stage's operators are still held
+        // (the service's peak at 1,000 blocks).
+        let more_follow = stages::probe_volume_wanted(scene)
+            || !scene.dynamic.is_empty()
+            || scene.settings.sh_responses
+            || options.full;
+        if more_follow {
+            announce(&bundle);
+        }
     }
     drop(held);
     release_freed();

@@ -437,6 +437,15 @@ fn clutter_of<'a>(
     }
 }
 
+/// Whether [`probe_volume`] builds one for `scene`.
+pub fn probe_volume_wanted(scene: &Scene) -> bool {
+    match scene.settings.probe_volume {
+        ProbeVolumeMode::Auto => !scene.dynamic.is_empty(),
+        ProbeVolumeMode::Always => !(scene.clutter.is_empty() && scene.dynamic.is_empty()),
+        ProbeVolumeMode::Never => false,
+    }
+}
+
 /// `U_dyn`, the probe volume, when something will read it (`settings.probe_volume`: by default
 /// when the scene has dynamic objects).
 pub fn probe_volume(
@@ -445,12 +454,7 @@ pub fn probe_volume(
     per_block: &[&ShapeOperators],
     drt: Option<&DrtOperators>,
 ) -> Option<ProbeVolumeOps> {
-    let wanted = match scene.settings.probe_volume {
-        ProbeVolumeMode::Auto => !scene.dynamic.is_empty(),
-        ProbeVolumeMode::Always => !(scene.clutter.is_empty() && scene.dynamic.is_empty()),
-        ProbeVolumeMode::Never => false,
-    };
-    if !wanted {
+    if !probe_volume_wanted(scene) {
         return None;
     }
     let (clutter, projection_of) = clutter_of(scene, drt);
