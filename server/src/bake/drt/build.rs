@@ -108,8 +108,11 @@ pub struct DrtInputs<'a> {
     pub geometry: &'a Geometry,
     /// The blocks-only geometry, with the same block texel indices.
     pub block_geometry: &'a Geometry,
-    /// Per block, its shape's operators (`L_imp` rows are read per hit).
+    /// Per block, its shape's operators: their ranks for every block, `U_b` and the openings'
+    /// `U_r` for the blocks inpainting reads (a bake may have emptied the others').
     pub shapes: &'a [&'a ShapeOperators],
+    /// Per block, its `L_imp` row-major ([`l_imp_rows`]): what a hit on a block texel reads.
+    pub l_imp_rows: &'a [Arc<RowMajor>],
     /// The blocks' MRT transport (what inpainting cancels on buried texels): at least the
     /// operators into the blocks [`crate::bake::drt::inpaint::inpainting_targets`] marks (a
     /// bake keeps no others); only those into blocks holding a buried texel are read.
@@ -221,7 +224,7 @@ pub fn build_drt(
     stats.culled_texels = rays.culled_texels;
 
     let rows = SourceRows {
-        l_imp: l_imp_rows(inputs.shapes),
+        l_imp: inputs.l_imp_rows.to_vec(),
         basis: clutter
             .iter()
             .map(|(_, p)| RowMajor::of(&p.basis.basis))
@@ -330,7 +333,7 @@ fn clutter_projections(
 
 /// Row-major copies of every block's `L_imp`, one per distinct shape (blocks sharing a shape
 /// share the copy).
-fn l_imp_rows(shapes: &[&ShapeOperators]) -> Vec<Arc<RowMajor>> {
+pub fn l_imp_rows(shapes: &[&ShapeOperators]) -> Vec<Arc<RowMajor>> {
     let mut by_shape: Vec<(*const ShapeOperators, Arc<RowMajor>)> = Vec::new();
     shapes
         .iter()

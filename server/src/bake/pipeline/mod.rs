@@ -23,7 +23,7 @@ use lightfarm_proto::scene::{Scene, SceneError, Transport};
 
 use crate::bake::cache::factors::FactorCache;
 use crate::bake::cache::shape::ShapeCache;
-use crate::bake::drt::build::{DrtInputs, DrtStats};
+use crate::bake::drt::build::{l_imp_rows, DrtInputs, DrtStats};
 use crate::bake::drt::compaction::DeltaCompactionStats;
 use crate::bake::drt::inpaint::inpainting_targets;
 use crate::bake::memory::release_freed;
@@ -180,7 +180,16 @@ fn bake_once(
         &mut report,
     )?;
     report.transport = stats;
-    let block_operators = block_operators.unwrap_or_else(|| plan.block_operators(&shapes));
+    let mut block_operators = block_operators.unwrap_or_else(|| plan.block_operators(&shapes));
+    // DRT reads a block's L_imp a row per hit: row-major, one copy per distinct operator.
+    let l_imp_rows = if scene.clutter.is_empty() {
+        Vec::new()
+    } else {
+        let refs: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
+        l_imp_rows(&refs)
+    };
+    let inpainted = inpainting_targets(scene, &openings, &full_geometry);
+    stages::strip_instances(scene, &inpainted, &mut block_operators);
     let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
     // Only the bundle reads the compaction (the transport dropped the lightfields itself).
     let transport = to_bundle::transport_ops(compact, &held);
@@ -193,7 +202,7 @@ fn bake_once(
     // inpainting reads it, and only into blocks where a texel may be buried (none without
     // clutter). Otherwise it is on disk, read block by block.
     if let stages::HeldTransport::Computed(mrt) = &mut held {
-        mrt.retain_targets(&inpainting_targets(scene, &openings, &full_geometry));
+        mrt.retain_targets(&inpainted);
     }
     release_freed();
     let drt_inputs = DrtInputs {
@@ -202,6 +211,7 @@ fn bake_once(
         geometry: &full_geometry,
         block_geometry: &block_geometry,
         shapes: &per_block,
+        l_imp_rows: &l_imp_rows,
         mrt: held.source(),
     };
     let mut drt = stages::clutter_operators(&drt_inputs, cache, progress)?;
