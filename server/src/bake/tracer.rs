@@ -383,21 +383,8 @@ impl Tracer {
         // 1. f32: the closest sure hit, unless a test was unsure.
         let (of, df) = (v3(o), v3(d));
         let (epsilon, limit) = (self.epsilon as f32, tmax as f32);
-        let tie = self.epsilon * 1e-2;
-        // What f64's traversal would compare for `slot`: its exact distance, a back-facing
-        // coincident rectangle's plus `tie`, as f32 (None: f64 finds no hit).
         let exact_value = |slot: usize| {
-            let prim = &self.primitives[bvh.primitive_indices[slot] as usize];
-            let t = self.intersect(prim, o, d, tmax)?;
-            let back = match prim {
-                Primitive::Rect {
-                    axis,
-                    surface: Some(s),
-                    ..
-                } => d[*axis] * lit_normal_sign(*s) > 0.0,
-                _ => false,
-            };
-            Some((t + if back { tie } else { 0.0 }) as f32)
+            self.exact_value(bvh.primitive_indices[slot], o, d, tmax, lit_normal_sign)
         };
         let mut unsure = false;
         // The closest sure hit so far: its slot, f32 distance and margin, and its exact value
@@ -468,27 +455,15 @@ impl Tracer {
         tmax: f64,
         lit_normal_sign: &dyn Fn(u32) -> f64,
     ) -> Option<Hit> {
-        let tie = self.epsilon * 1e-2;
         // The closest so far: its value and primitive (the lower index wins equal values, so
         // the answer does not depend on the order the traversal visits leaves in).
         let mut best: Option<(f32, u32)> = None;
         let mut hit = RayHit::none();
         bvh.ray_traverse(ray, &mut hit, |_ray, id| {
             let index = bvh.primitive_indices[id];
-            let prim = &self.primitives[index as usize];
-            let Some(t) = self.intersect(prim, o, d, tmax) else {
+            let Some(value) = self.exact_value(index, o, d, tmax, lit_normal_sign) else {
                 return f32::INFINITY;
             };
-            // Back-facing coincident rectangles lose ties.
-            let back = match prim {
-                Primitive::Rect {
-                    axis,
-                    surface: Some(s),
-                    ..
-                } => d[*axis] * lit_normal_sign(*s) > 0.0,
-                _ => false,
-            };
-            let value = (t + if back { tie } else { 0.0 }) as f32;
             if best.is_none_or(|b| (value, index) < b) {
                 best = Some((value, index));
             }
@@ -498,6 +473,37 @@ impl Tracer {
         let prim = &self.primitives[index as usize];
         let t = self.intersect(prim, o, d, tmax * (1.0 + 1e-9) + self.epsilon)?;
         Some(self.hit(index, o, d, t, lit_normal_sign))
+    }
+
+    /// What the f64 traversal compares for primitive `index`: its exact distance, plus
+    /// `epsilon / 100` for a rectangle seen from behind its lit side (so of two coincident
+    /// walls the one facing the ray wins), as f32; None when f64 finds no hit before `tmax`.
+    fn exact_value(
+        &self,
+        index: u32,
+        o: [f64; 3],
+        d: [f64; 3],
+        tmax: f64,
+        lit_normal_sign: &dyn Fn(u32) -> f64,
+    ) -> Option<f32> {
+        let prim = &self.primitives[index as usize];
+        let t = self.intersect(prim, o, d, tmax)?;
+        let tie = self.epsilon * 1e-2;
+        let back = Self::facing(prim, d, lit_normal_sign).is_some_and(|f| f > 0.0);
+        Some((t + if back { tie } else { 0.0 }) as f32)
+    }
+
+    /// For a rectangle with a lit surface, the ray direction along its lit normal: negative
+    /// when the ray arrives on the lit side, positive from behind.
+    fn facing(prim: &Primitive, d: [f64; 3], lit_normal_sign: &dyn Fn(u32) -> f64) -> Option<f64> {
+        match prim {
+            Primitive::Rect {
+                axis,
+                surface: Some(s),
+                ..
+            } => Some(d[*axis] * lit_normal_sign(*s)),
+            _ => None,
+        }
     }
 
     /// The hit on primitive `index` at distance `t`.
@@ -512,14 +518,7 @@ impl Tracer {
         let prim = &self.primitives[index as usize];
         let point = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
         let normal = Self::normal_facing(prim, d);
-        let front = match prim {
-            Primitive::Rect {
-                axis,
-                surface: Some(s),
-                ..
-            } => d[*axis] * lit_normal_sign(*s) < 0.0,
-            _ => false,
-        };
+        let front = Self::facing(prim, d, lit_normal_sign).is_some_and(|f| f < 0.0);
         Hit {
             t,
             primitive: index,
