@@ -2,19 +2,22 @@
 //!
 //! The exact answer is f64's: rectangles are closed at their edges so a closed box is
 //! watertight, and where two coincident rectangles are hit at the same distance (back-to-back
-//! walls of neighbouring blocks) the one whose lit side faces the ray wins. Most rays never need
-//! it, so each is traced twice at most:
+//! walls of neighbouring blocks) the one whose lit side faces the ray wins; of hits of exactly
+//! equal value the lower primitive index wins, so the answer does not depend on the BVH or the
+//! order its leaves are visited in. Most rays never need f64 in the traversal, so each is
+//! traced twice at most:
 //! 1. **f32 first** (`Fast`, in BVH slot order): each primitive the traversal reaches is tested
 //!    in f32 and comes out a sure miss, a sure hit, or unsure. "Sure" means by a margin about a
 //!    hundred times f32's rounding bound (relative to the scene's scale, growing as the ray
 //!    grazes the primitive); unsure is a hit or miss within the margin of a rectangle's edge or
-//!    a triangle's, of `epsilon`, of `tmax`, or of another candidate's distance (a near tie:
-//!    coincident walls, corners), or a primitive the ray nearly parallels.
+//!    a triangle's, of `epsilon` or of `tmax`, or a primitive the ray nearly parallels. Two sure
+//!    hits within each other's margins (coincident walls, corners) are compared by their exact
+//!    f64 values, as the f64 path compares them.
 //! 2. **f64 where it decides:** a ray with any unsure test is traced again with the f64 test in
-//!    the traversal (the tracer's original path, unchanged); any other ray's winner is its
-//!    closest sure hit, whose distance is then computed in f64. Both give the same hit, bit for
-//!    bit: a sure test agrees with f64's, and without near ties the closest sure hit is f64's
-//!    closest. `occluded` stops at the first sure hit and asks f64 only about unsure ones.
+//!    the traversal; any other ray's winner is its closest sure hit, whose distance is then
+//!    computed in f64. Both give the same hit, bit for bit: a sure test agrees with f64's, and
+//!    the closest sure hit (ties compared exactly) is f64's closest. `occluded` stops at the
+//!    first sure hit and asks f64 only about unsure ones.
 //!
 //! Invariant: `closest` only reports hits with `t > epsilon`, where epsilon is relative to the
 //! scene's scale, so rays leaving a surface never hit that surface again.
