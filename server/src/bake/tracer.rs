@@ -179,7 +179,7 @@ impl Tracer {
         };
         let fast = bvh.as_ref().map_or(Vec::new(), |bvh| {
             let f = |x: f64| x as f32;
-            let v3d = |p: DVec3| Vec3A::new(p.x as f32, p.y as f32, p.z as f32);
+            let v3d = |p: DVec3| v3(p.to_array());
             bvh.primitive_indices
                 .iter()
                 .map(|&i| match &primitives[i as usize] {
@@ -384,7 +384,7 @@ impl Tracer {
         let bvh = self.bvh.as_ref()?;
         let ray = Ray::new(v3(o), v3(d), 0.0, tmax as f32 * (1.0 + 1e-6) + 1e-6);
         // 1. f32: the closest sure hit, unless a test was unsure.
-        let (of, df) = (v3(o), v3(d));
+        let (of, df) = (ray.origin, ray.direction);
         let (epsilon, limit) = (self.epsilon as f32, tmax as f32);
         let exact_value = |slot: usize| {
             self.exact_value(bvh.primitive_indices[slot], o, d, tmax, lit_normal_sign)
@@ -544,7 +544,7 @@ impl Tracer {
         let d = (delta / len).to_array();
         let tmax = len - self.epsilon;
         let ray = Ray::new(v3(from), v3(d), 0.0, tmax as f32);
-        let (of, df) = (v3(from), v3(d));
+        let (of, df) = (ray.origin, ray.direction);
         let (epsilon, limit) = (self.epsilon as f32, tmax as f32);
         !bvh.ray_traverse_miss(ray, |_ray, id| {
             match self.classify(id, of, df, epsilon, limit) {

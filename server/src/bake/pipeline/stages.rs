@@ -24,9 +24,7 @@ use crate::bake::drt::error::DrtError;
 use crate::bake::drt::rays::DrtRayCache;
 use crate::bake::math::sampling::Purpose;
 use crate::bake::mrt::one_bounce::gather_rows;
-use crate::bake::mrt::shape::{
-    bake_shape, OpeningOperators, ShapeLightfields, ShapeOperators, ShapeSpec,
-};
+use crate::bake::mrt::shape::{bake_shape, ShapeLightfields, ShapeOperators, ShapeSpec};
 use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
 use crate::bake::scene::mesh::load_mesh;
@@ -455,50 +453,50 @@ pub fn strip_instances(
 ) {
     let l_imp_read_later = probe_volume_wanted(scene) || scene.settings.sh_responses;
     // The blocks sharing each operator, in first-use order.
-    let mut groups: Vec<(*const ShapeOperators, Vec<usize>)> = Vec::new();
+    let mut groups: Vec<Vec<usize>> = Vec::new();
     let mut group_of = std::collections::HashMap::new();
     for (b, ops) in block_operators.iter().enumerate() {
-        let ptr = Arc::as_ptr(ops);
-        let g = *group_of.entry(ptr).or_insert_with(|| {
-            groups.push((ptr, Vec::new()));
+        let g = *group_of.entry(Arc::as_ptr(ops)).or_insert_with(|| {
+            groups.push(Vec::new());
             groups.len() - 1
         });
-        groups[g].1.push(b);
+        groups[g].push(b);
     }
-    let empty = |m: &Mat<f64>| Mat::<f64>::zeros(0, m.ncols());
-    for (_, blocks) in groups {
-        let ops = &block_operators[blocks[0]];
-        if Arc::strong_count(ops) != blocks.len() {
+    let placeholder = Arc::new(ShapeOperators {
+        key: String::new(),
+        u_b: Mat::new(),
+        t_db: Mat::new(),
+        l_imp: Mat::new(),
+        openings: Vec::new(),
+        stats: Default::default(),
+    });
+    let empty = |m: &mut Mat<f64>| *m = Mat::zeros(0, m.ncols());
+    for blocks in groups {
+        if Arc::strong_count(&block_operators[blocks[0]]) != blocks.len() {
             continue; // held elsewhere too
         }
-        let keep_u = blocks.iter().any(|&b| inpainted[b]);
-        let stripped = Arc::new(ShapeOperators {
-            key: ops.key.clone(),
-            u_b: if keep_u {
-                ops.u_b.clone()
-            } else {
-                empty(&ops.u_b)
-            },
-            t_db: ops.t_db.clone(),
-            l_imp: if l_imp_read_later {
-                ops.l_imp.clone()
-            } else {
-                empty(&ops.l_imp)
-            },
-            openings: ops
-                .openings
-                .iter()
-                .map(|o| OpeningOperators {
-                    face: o.face,
-                    u_r: if keep_u { o.u_r.clone() } else { empty(&o.u_r) },
-                    pass_from: o.pass_from.clone(),
-                    lightfield: o.lightfield.clone(),
-                })
-                .collect(),
-            stats: ops.stats.clone(),
-        });
+        // Every reference is the group's: take them all, then own the operators.
+        let mut taken: Vec<_> = blocks
+            .iter()
+            .map(|&b| std::mem::replace(&mut block_operators[b], placeholder.clone()))
+            .collect();
+        let first = taken.swap_remove(0);
+        drop(taken);
+        let Ok(mut ops) = Arc::try_unwrap(first) else {
+            unreachable!("the group held every reference");
+        };
+        if !blocks.iter().any(|&b| inpainted[b]) {
+            empty(&mut ops.u_b);
+            for o in &mut ops.openings {
+                empty(&mut o.u_r);
+            }
+        }
+        if !l_imp_read_later {
+            empty(&mut ops.l_imp);
+        }
+        let ops = Arc::new(ops);
         for b in blocks {
-            block_operators[b] = stripped.clone();
+            block_operators[b] = ops.clone();
         }
     }
 }
@@ -663,7 +661,7 @@ pub fn dense_operator(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bake::mrt::shape::ShapeStats;
+    use crate::bake::mrt::shape::{OpeningOperators, ShapeStats};
     use lightfarm_proto::Face;
 
     fn mat(rows: usize, cols: usize) -> Mat<f64> {
