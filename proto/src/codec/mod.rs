@@ -7,7 +7,9 @@
 //!   bytes q, value = offset + scale·q; [`MatrixCodec::U8Rows`]: the same with one pair per row.
 //!   The encoder puts the pairs on the shorter side, which for our operators is the side of the
 //!   modes (U_b is texels × r: per column; T_d→b is r × texels: per row), so every mode has its
-//!   own range.
+//!   own range; under a budget, on the longer side when only that fits it and is smaller than
+//!   f16 (the compact transport's `Z`, whose columns belong to source blocks of very different
+//!   strength).
 //! - [`MatrixCodec::U8ColumnsPredicted`] (tag 4) and [`MatrixCodec::U8RowsPredicted`] (tag 5):
 //!   the values of tags 2 and 3, stored as `width u16`, the same pairs, then the q of each line
 //!   (tag 4: column by column; tag 5: row by row) as prediction residuals
@@ -137,6 +139,16 @@ impl MatrixCodec {
             self,
             MatrixCodec::U8Columns | MatrixCodec::U8ColumnsPredicted
         )
+    }
+
+    /// The plain 8-bit codec with its pairs on the other side of an 8-bit codec's (rows ↔
+    /// columns).
+    fn other_side(self) -> MatrixCodec {
+        if self.per_column() {
+            MatrixCodec::U8Rows
+        } else {
+            MatrixCodec::U8Columns
+        }
     }
 
     /// The 8-bit codec with its (offset, scale) pairs on the shorter side of a rows × cols

@@ -74,6 +74,43 @@ fn budget_picks_the_smallest_codec_that_fits() {
 }
 
 #[test]
+fn a_wide_matrix_of_uneven_columns_takes_8_bits_with_a_pair_per_column() {
+    // Like the compact transport's Z (k × Σ r_A): each row runs across source blocks of very
+    // different strength, here one strong column and 299 weak ones.
+    let (rows, cols) = (16, 300);
+    let m: Vec<f32> = (0..rows * cols)
+        .map(|k| {
+            let (i, j) = (k / cols, k % cols);
+            let amplitude = if j == 0 { 1.0 } else { 1e-3 };
+            amplitude * ((i as f32 * 0.9 + j as f32 * 0.37).sin() + 0.1)
+        })
+        .collect();
+    let budget = 0.02;
+    let by_rows = codec_error(&m, rows, cols, MatrixCodec::U8Rows);
+    let by_columns = codec_error(&m, rows, cols, MatrixCodec::U8Columns);
+    assert!(
+        by_rows > budget,
+        "pairs per row fit ({by_rows}); the case is not uneven"
+    );
+    assert!(by_columns < budget / 4.0, "pairs per column: {by_columns}");
+    assert!(
+        MatrixCodec::U8Columns.value_bytes(rows, cols) < MatrixCodec::F16.value_bytes(rows, cols)
+    );
+    let (codec, step, error) = choose_encoding(&m, rows, cols, CodecPolicy::Budget(budget));
+    assert_eq!(codec, MatrixCodec::U8Columns);
+    assert!(error <= budget);
+    assert_eq!(error, codec_error_step(&m, rows, cols, codec, step));
+    // The wire round trip gives back what the error was measured on.
+    let mut w = Writer::default();
+    write_matrix_smallest(&mut w, &m, rows, cols, codec, step);
+    let (_, _, back, _) = decode(&w.bytes);
+    assert_eq!(
+        bits(&back),
+        bits(&round_trip_step(&m, rows, cols, codec, step))
+    );
+}
+
+#[test]
 fn f16_overflow_is_an_infinite_error_so_the_budget_refuses_it() {
     let m = vec![1.0e6f32, 2.0, 3.0, 4.0];
     assert!(codec_error(&m, 2, 2, MatrixCodec::F16).is_infinite());

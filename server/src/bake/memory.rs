@@ -7,6 +7,12 @@
 //! the free pages (`malloc_trim`), so the next stage grows into memory the operating system can
 //! count as free. Elsewhere (other C libraries, other systems) it does nothing.
 //!
+//! A long-running process whose bakes run on many threads (the service: HTTP workers, the
+//! blocking pool, the bake's own threads) also pays for glibc's per-thread arenas: each thread
+//! that allocates may get an arena of its own (up to 8 per core), and memory freed in one is not
+//! reused by another. [`limit_arenas`] caps them (measured on the 1,000-block level through
+//! `lightfarm serve`: 2.32 GB peak with the default, 2.08 GB with two arenas).
+//!
 //! Invariant: only returns memory that is already free; it never changes a result.
 
 /// Returns the allocator's free pages to the operating system (glibc on Linux; a no-op elsewhere).
@@ -17,4 +23,24 @@ pub fn release_freed() {
     unsafe {
         libc::malloc_trim(0);
     }
+}
+
+/// Caps glibc's malloc arenas at `arenas` (at least 1) for the rest of the process; call it
+/// before the threads that bake start (glibc on Linux; a no-op elsewhere).
+pub fn limit_arenas(arenas: usize) {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets an allocator parameter; it takes no pointers.
+    unsafe {
+        libc::mallopt(
+            libc::M_ARENA_MAX,
+            arenas.clamp(1, i32::MAX as usize) as libc::c_int,
+        );
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    let _ = arenas;
+}
+
+/// The arena cap a baking process uses: one per core the process may run on.
+pub fn arenas_for_this_machine() -> usize {
+    std::thread::available_parallelism().map_or(2, |n| n.get())
 }

@@ -34,6 +34,9 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     if let Some(farm) = args.farm {
         config.farm = Some(farm);
     }
+    // Before any thread starts: bakes run on the blocking pool and rayon, and per-thread
+    // arenas would keep each one's freed memory apart (see `bake::memory`).
+    crate::bake::memory::limit_arenas(crate::bake::memory::arenas_for_this_machine());
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .worker_threads(2)
