@@ -10,7 +10,8 @@
 //!   level's encoding memo.
 //!
 //! [`bake`] here strings the stages together, times them ([`BakeReport::stage_seconds`]) and
-//! announces each section as it becomes final ([`Progress::sections_ready`]).
+//! announces each section as it becomes final ([`Progress::sections_ready`]) while a later stage
+//! still runs ([`stages::stage_follows`]; after the last one the whole bundle is written).
 //!
 //! Invariant: the bundle is a pure function of the scene (and its meshes); the cache only saves
 //! time. Operators are stored albedo-free; albedo enters through the layout.
@@ -32,6 +33,7 @@ use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
 use crate::bake::sh::responses::ShResponseStats;
 use crate::bake::transport::build::TransportStats;
+use stages::{stage_follows, LateStage};
 
 pub mod encoding;
 pub mod plan;
@@ -225,14 +227,7 @@ fn bake_once(
             to_bundle::drt_section(&bundle, ops, &scene.settings, factors.as_ref())?;
         report.delta_compaction = stats;
         bundle.drt = Some(section);
-        // Announced only when more stages follow: otherwise the whole bundle is written next,
-        // and a partial write here would run while the DRT stage's operators are still held
-        // (the service's peak at 1,000 blocks).
-        let more_follow = stages::probe_volume_wanted(scene)
-            || !scene.dynamic.is_empty()
-            || scene.settings.sh_responses
-            || options.full;
-        if more_follow {
+        if stage_follows(scene, options.full, LateStage::ClutterOperators) {
             announce(&bundle);
         }
     }
@@ -243,12 +238,14 @@ fn bake_once(
     if let Some(volume) = stages::probe_volume(scene, &full_geometry, &per_block, drt.as_ref()) {
         report.probes = volume.n_probes;
         bundle.probes = Some(to_bundle::probe_section(volume));
-        announce(&bundle);
+        if stage_follows(scene, options.full, LateStage::ProbeVolume) {
+            announce(&bundle);
+        }
     }
     lap(&mut report, "probe volume");
 
     bundle.dnrt = stages::dnrt_grids(scene, scene_dir, cache, &mut report)?;
-    if bundle.dnrt.is_some() && options.full {
+    if bundle.dnrt.is_some() && stage_follows(scene, options.full, LateStage::DnrtGrids) {
         announce(&bundle);
     }
     lap(&mut report, "dnrt grids");
@@ -258,7 +255,7 @@ fn bake_once(
     {
         report.sh = Some(ops.stats.clone());
         bundle.sh = Some(to_bundle::sh_section(&ops));
-        if options.full {
+        if stage_follows(scene, options.full, LateStage::ShResponses) {
             announce(&bundle);
         }
         lap(&mut report, "sh responses");

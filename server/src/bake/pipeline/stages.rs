@@ -501,6 +501,32 @@ pub fn strip_instances(
     }
 }
 
+/// The stages that may run after the transport, in bake order (see [`stage_follows`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum LateStage {
+    ClutterOperators,
+    ProbeVolume,
+    DnrtGrids,
+    ShResponses,
+    DenseOperator,
+}
+
+/// Whether a stage after `after` runs for `scene` (`full`: the dense operator is asked for).
+/// A partial bundle is announced only then: otherwise the whole one is written next, and a
+/// partial write would run while the last stage's operators are still held (the service's
+/// peak at 1,000 blocks). Each stage's own condition is the one its function above or below
+/// tests, so a stage added to the bake is added here.
+pub fn stage_follows(scene: &Scene, full: bool, after: LateStage) -> bool {
+    [
+        (LateStage::ProbeVolume, probe_volume_wanted(scene)),
+        (LateStage::DnrtGrids, !scene.dynamic.is_empty()),
+        (LateStage::ShResponses, scene.settings.sh_responses),
+        (LateStage::DenseOperator, full),
+    ]
+    .into_iter()
+    .any(|(stage, runs)| stage > after && runs)
+}
+
 /// Whether [`probe_volume`] builds one for `scene`.
 pub fn probe_volume_wanted(scene: &Scene) -> bool {
     match scene.settings.probe_volume {
@@ -688,6 +714,45 @@ mod tests {
 
     fn sizes(m: &Mat<f64>) -> (usize, usize) {
         (m.nrows(), m.ncols())
+    }
+
+    fn example(name: &str) -> Scene {
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../scenes/{name}/scene.json"));
+        Scene::from_json(&std::fs::read_to_string(path).unwrap()).unwrap()
+    }
+
+    /// A partial bundle is announced after a stage only when a later one runs: each stage's
+    /// own condition, in bake order.
+    #[test]
+    fn a_stage_follows_only_when_a_later_one_runs() {
+        use LateStage::*;
+        let mut cornell = example("cornell");
+        assert!(!cornell.clutter.is_empty() && cornell.dynamic.is_empty());
+        assert!(!stage_follows(&cornell, false, ClutterOperators));
+        assert!(stage_follows(&cornell, true, ClutterOperators));
+        assert!(stage_follows(&cornell, true, ShResponses));
+        assert!(!stage_follows(&cornell, true, DenseOperator));
+        cornell.settings.probe_volume = ProbeVolumeMode::Always;
+        assert!(stage_follows(&cornell, false, ClutterOperators));
+        assert!(!stage_follows(&cornell, false, ProbeVolume));
+        cornell.settings.sh_responses = true;
+        assert!(stage_follows(&cornell, false, ProbeVolume));
+        assert!(stage_follows(&cornell, false, DnrtGrids));
+        assert!(!stage_follows(&cornell, false, ShResponses));
+
+        let mut balls = example("ball_corridor");
+        assert!(!balls.dynamic.is_empty() && !balls.settings.sh_responses);
+        assert!(stage_follows(&balls, false, ClutterOperators));
+        assert!(stage_follows(&balls, false, ProbeVolume));
+        assert!(!stage_follows(&balls, false, DnrtGrids));
+        balls.settings.sh_responses = true;
+        assert!(stage_follows(&balls, false, DnrtGrids));
+        assert!(!stage_follows(&balls, false, ShResponses));
+        balls.settings.probe_volume = ProbeVolumeMode::Never;
+        balls.dynamic.clear();
+        balls.settings.sh_responses = false;
+        assert!(!stage_follows(&balls, false, ClutterOperators));
     }
 
     /// A block's own copies lose what no later stage reads, keeping ranks and openings; a
