@@ -36,7 +36,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     }
     // Before any thread starts: bakes run on the blocking pool and rayon, and per-thread
     // arenas would keep each one's freed memory apart (see `bake::memory`).
-    crate::bake::memory::limit_arenas(crate::bake::memory::arenas_for_this_machine());
+    crate::bake::memory::limit_arenas();
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .worker_threads(2)

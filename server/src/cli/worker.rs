@@ -16,7 +16,7 @@ pub struct WorkerArgs {
 /// Works until killed.
 pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     // As `lightfarm serve`: one malloc arena per core for the bake threads (`bake::memory`).
-    crate::bake::memory::limit_arenas(crate::bake::memory::arenas_for_this_machine());
+    crate::bake::memory::limit_arenas();
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .worker_threads(2)

@@ -184,14 +184,14 @@ fn bake_once(
     report.transport = stats;
     let mut block_operators = block_operators.unwrap_or_else(|| plan.block_operators(&shapes));
     // DRT reads a block's L_imp a row per hit: row-major, one copy per distinct operator.
-    let l_imp_rows = if scene.clutter.is_empty() {
-        Vec::new()
-    } else {
+    let l_imp_rows = if LateStage::ClutterOperators.runs(scene, options.full) {
         let refs: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
         l_imp_rows(&refs)
+    } else {
+        Vec::new()
     };
     let inpainted = inpainting_targets(scene, &openings, &full_geometry);
-    stages::strip_instances(scene, &inpainted, &mut block_operators);
+    stages::strip_instances(scene, options.full, &inpainted, &mut block_operators);
     let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
     // Only the bundle reads the compaction (the transport dropped the lightfields itself).
     let transport = to_bundle::transport_ops(compact, &held);

@@ -448,10 +448,13 @@ fn clutter_of<'a>(
 /// the bake's peak.
 pub fn strip_instances(
     scene: &Scene,
+    full: bool,
     inpainted: &[bool],
     block_operators: &mut [Arc<ShapeOperators>],
 ) {
-    let l_imp_read_later = probe_volume_wanted(scene) || scene.settings.sh_responses;
+    let l_imp_read_later = [LateStage::ProbeVolume, LateStage::ShResponses]
+        .into_iter()
+        .any(|stage| stage.runs(scene, full));
     // The blocks sharing each operator, in first-use order.
     let mut groups: Vec<Vec<usize>> = Vec::new();
     let mut group_of = std::collections::HashMap::new();
@@ -511,20 +514,37 @@ pub enum LateStage {
     DenseOperator,
 }
 
-/// Whether a stage after `after` runs for `scene` (`full`: the dense operator is asked for).
-/// A partial bundle is announced only then: otherwise the whole one is written next, and a
-/// partial write would run while the last stage's operators are still held (the service's
-/// peak at 1,000 blocks). Each stage's own condition is the one its function above or below
-/// tests, so a stage added to the bake is added here.
+impl LateStage {
+    /// In bake order.
+    const ALL: [LateStage; 5] = [
+        LateStage::ClutterOperators,
+        LateStage::ProbeVolume,
+        LateStage::DnrtGrids,
+        LateStage::ShResponses,
+        LateStage::DenseOperator,
+    ];
+
+    /// Whether this stage runs for `scene` (`full`: the dense operator is asked for): the
+    /// condition its function tests, kept here once for everything that asks which stages
+    /// follow (a stage added to the bake is added here).
+    pub fn runs(self, scene: &Scene, full: bool) -> bool {
+        match self {
+            LateStage::ClutterOperators => !scene.clutter.is_empty(),
+            LateStage::ProbeVolume => probe_volume_wanted(scene),
+            LateStage::DnrtGrids => !scene.dynamic.is_empty(),
+            LateStage::ShResponses => scene.settings.sh_responses,
+            LateStage::DenseOperator => full,
+        }
+    }
+}
+
+/// Whether a stage after `after` runs for `scene`. A partial bundle is announced only then:
+/// otherwise the whole one is written next, and a partial write would run while the last
+/// stage's operators are still held (the service's peak at 1,000 blocks).
 pub fn stage_follows(scene: &Scene, full: bool, after: LateStage) -> bool {
-    [
-        (LateStage::ProbeVolume, probe_volume_wanted(scene)),
-        (LateStage::DnrtGrids, !scene.dynamic.is_empty()),
-        (LateStage::ShResponses, scene.settings.sh_responses),
-        (LateStage::DenseOperator, full),
-    ]
-    .into_iter()
-    .any(|(stage, runs)| stage > after && runs)
+    LateStage::ALL
+        .into_iter()
+        .any(|stage| stage > after && stage.runs(scene, full))
 }
 
 /// Whether [`probe_volume`] builds one for `scene`.
@@ -760,11 +780,7 @@ mod tests {
     /// responses will read it.
     #[test]
     fn stripping_keeps_what_later_stages_read() {
-        let text = std::fs::read_to_string(
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell/scene.json"),
-        )
-        .unwrap();
-        let mut scene = Scene::from_json(&text).unwrap();
+        let mut scene = example("cornell");
         assert!(!probe_volume_wanted(&scene) && !scene.settings.sh_responses);
         for sh in [false, true] {
             scene.settings.sh_responses = sh;
@@ -773,7 +789,7 @@ mod tests {
             let mut blocks = vec![shared.clone(), one.clone(), two.clone(), two];
             drop(one);
             // Block 1 is no inpainting target; blocks 2 and 3 share one instance, and 3 is.
-            strip_instances(&scene, &[false, false, false, true], &mut blocks);
+            strip_instances(&scene, false, &[false, false, false, true], &mut blocks);
             assert!(Arc::ptr_eq(&blocks[2], &blocks[3]));
             assert!(Arc::ptr_eq(&blocks[0], &shared));
             assert_eq!(sizes(&blocks[0].u_b), (10, 3));
