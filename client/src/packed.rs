@@ -146,6 +146,17 @@ impl PackedMatrix {
         }
     }
 
+    /// Packs `m` in f32, without looking for an 8-bit grid (for values computed at run time,
+    /// which lie on none).
+    pub fn f32(m: &Matrix) -> PackedMatrix {
+        let (rows, cols) = (m.rows as usize, m.cols as usize);
+        PackedMatrix {
+            rows,
+            cols,
+            values: Values::F32(to_panels(&m.data, rows, cols)),
+        }
+    }
+
     pub fn rows(&self) -> usize {
         self.rows
     }

@@ -145,6 +145,10 @@ enum Command {
         /// set).
         #[arg(long, default_value_t = 0)]
         light: usize,
+        /// Also time every `all` mode with its bounces over texels (`converged(…)-texels`
+        /// lines), side by side with the coefficient-space path MRT uses by default.
+        #[arg(long)]
+        texel_bounces: bool,
     },
     /// Show what a bundle holds: sections, operators, ranks, values.
     Inspect { bundle: PathBuf },
@@ -332,6 +336,7 @@ fn main() -> anyhow::Result<()> {
             threads,
             update,
             light,
+            texel_bounces,
         } => cli::frame_time::run(cli::frame_time::FrameTimeArgs {
             bundle,
             lights,
@@ -341,6 +346,7 @@ fn main() -> anyhow::Result<()> {
             threads,
             update_light: update.map(|UpdateArg::OneLight| light),
             moving_light: light,
+            texel_bounces,
         }),
         Command::Bake {
             scene,

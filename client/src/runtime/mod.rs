@@ -2,7 +2,8 @@
 //!
 //! Owns the decoded [`Bundle`] and every scratch buffer the per-frame work needs, so
 //! [`Runtime::apply`] and [`Runtime::apply_probes`] allocate nothing (they only resize `out`
-//! when its size is wrong).
+//! when its size is wrong; the one exception: `Converged` with [`Method::Mrt`] on a bundle that
+//! has DRT makes its coefficient-space operators on its first call, see `reduced`).
 //!
 //! [`Method::Mrt`] (modular radiance transfer), for every block B and channel c:
 //! 1. `b_B = T_d→b · l_d^B` (l_d^B: the block's texel range of direct radiance);
@@ -46,7 +47,9 @@
 //! exactly n bounces, one by one; [`Bounces::Converged`] (the default) solves `(I − A) I = A L_d`
 //! by restarted GMRES ([`krylov`]) to a relative residual of `tolerance`: the Neumann sum to the
 //! same error in fewer applications of `A` (maze with pillars, T=8, at 1e-3: 8 applications and
-//! 4.2e-4 relative L2 from 100 bounces, where the series needs 18 bounces for 7.7e-4);
+//! 4.2e-4 relative L2 from 100 bounces, where the series needs 18 bounces for 7.7e-4); with
+//! [`Method::Mrt`] the bounces after the first run in the blocks' coefficient space (module
+//! `reduced`; [`Runtime::set_reduced_bounces`] picks the texel path instead);
 //! [`Bounces::Feedback`] applies `A` once per call to the direct light plus the previous call's
 //! indirect light (Enlighten's radiosity feedback), so repeated calls with steady lights converge
 //! to `Converged` at one application each; [`Bounces::Warm`] is `Converged`'s accuracy at
@@ -69,6 +72,9 @@
 //! - `sh_apply`: [`Runtime::apply_sh`] and [`ShLight`], SH incident radiance per texel.
 //! - `kernels`: planar views of the scratch, the packed matrix-vector products, the block loop.
 //! - `krylov`: the restarted GMRES of [`Bounces::Converged`].
+//! - `reduced`: [`Bounces::Converged`] for MRT over the blocks' coefficients (`M = R D K`, made
+//!   with the runtime when the bundle has no DRT, else on the first such solve) instead of
+//!   texels.
 //! - `warm`: [`Bounces::Warm`], the solve that starts from the previous answer.
 //! - `incremental`: [`Runtime::apply_delta`], relighting by the change of direct light: only
 //!   the blocks, clutter objects and entries the change reaches do work, bounce by bounce.
@@ -109,6 +115,7 @@ mod krylov;
 mod mrt;
 mod packed_ops;
 mod probes;
+mod reduced;
 mod sh_apply;
 mod warm;
 
@@ -293,6 +300,13 @@ pub struct Runtime {
     /// non-zero (made on the first such call); `ld_everywhere`: a full copy filled `ld`.
     sparse: Option<incremental::Sparse>,
     ld_everywhere: bool,
+    /// [`Bounces::Converged`] with [`Method::Mrt`] in coefficient space (module `reduced`):
+    /// whether it is used, and its operators (made with the runtime for a bundle without DRT,
+    /// else on the first such solve; `reduced_tried` once made, None for a lightfield
+    /// transport).
+    reduced_enabled: bool,
+    reduced_tried: bool,
+    reduced: Option<Box<reduced::ReducedMrt>>,
 }
 
 /// [`Bounces::Converged`] refuses an operator whose bounces keep at least this fraction of the
@@ -415,7 +429,7 @@ impl Runtime {
             }
         }
 
-        Ok(Runtime {
+        let mut runtime = Runtime {
             n_texels,
             blocks,
             opening_lf,
@@ -463,7 +477,14 @@ impl Runtime {
             gather_by_change: None,
             sparse: None,
             ld_everywhere: true,
-        })
+            reduced_enabled: true,
+            reduced_tried: false,
+            reduced: None,
+        };
+        if runtime.bundle.drt.is_none() {
+            runtime.prepare_reduced();
+        }
+        Ok(runtime)
     }
 
     /// Forgets the light [`Bounces::Feedback`] feeds back (the next call starts from one
@@ -693,6 +714,12 @@ impl Runtime {
         out: &mut [[f32; 3]],
         tolerance: f32,
     ) -> Result<Applied, ApplyError> {
+        if method == Method::Mrt && self.reduced_enabled && self.reach.is_none() && !self.by_change
+        {
+            if let Some(result) = self.converge_reduced(direct, out, tolerance) {
+                return result;
+            }
+        }
         let mut first = std::mem::take(&mut self.bounce_in);
         self.apply_once(method, direct, &mut first);
         if !energy(&first).is_finite() {

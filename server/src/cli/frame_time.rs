@@ -9,6 +9,10 @@
 //! bandwidth measured here with a streaming sum over a buffer much larger than the caches: no
 //! implementation that reads every operator value once per frame can beat it.
 //!
+//! With `--texel-bounces`, every `Converged` mode is timed a second time with its bounces over
+//! texels (`Runtime::set_reduced_bounces(false)`; MRT runs them over the blocks' coefficients
+//! by default), in the same rounds.
+//!
 //! The direct light's own time (every light, texel-averaged as `eval` feeds the operators, one
 //! thread) is printed first, apart from the operators'. With `--update one-light`, one light
 //! moves instead and relighting by the change is timed against relighting everything
@@ -49,6 +53,39 @@ pub struct FrameTimeArgs {
     pub update_light: Option<usize>,
     /// The light the moving-light lines move ([`super::frame_moving`]).
     pub moving_light: usize,
+    /// Also time every `Converged` mode with its bounces over texels (`…-texels` lines), side
+    /// by side with the coefficient-space path MRT uses by default.
+    pub texel_bounces: bool,
+}
+
+/// One timed line: a bounce mode, and for MRT's `Converged` whether its bounces run over texels
+/// instead of the blocks' coefficients (`Runtime::set_reduced_bounces(false)`, for comparing
+/// the two in one run).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TimedMode {
+    pub bounces: Bounces,
+    pub texel_bounces: bool,
+}
+
+impl From<Bounces> for TimedMode {
+    fn from(bounces: Bounces) -> TimedMode {
+        TimedMode {
+            bounces,
+            texel_bounces: false,
+        }
+    }
+}
+
+impl TimedMode {
+    /// The mode's name in `frame-time`'s lines (`…-texels` on the texel path).
+    pub fn name(&self) -> String {
+        let name = mode_name(self.bounces);
+        if self.texel_bounces {
+            format!("{name}-texels")
+        } else {
+            name
+        }
+    }
 }
 
 /// Frame-time figures of one bounce mode.
@@ -71,7 +108,7 @@ pub fn time_frames(
     runtime: &mut Runtime,
     direct: &lightfarm_client::DirectLight,
     method: Method,
-    modes: &[Bounces],
+    modes: &[TimedMode],
     frames: usize,
     threads: usize,
 ) -> anyhow::Result<Vec<FrameTimes>> {
@@ -84,18 +121,20 @@ pub fn time_frames(
     let mut bounces = vec![0u32; modes.len()];
     pool.install(|| -> anyhow::Result<()> {
         // Warm-up: caches, page faults, the output's allocation.
-        for &mode in modes {
+        for mode in modes {
+            runtime.set_reduced_bounces(!mode.texel_bounces);
             for _ in 0..frames.min(20) {
-                runtime.apply(method, mode, direct, &mut out)?;
+                runtime.apply(method, mode.bounces, direct, &mut out)?;
             }
         }
         let mut done = 0;
         while done < frames {
             let round = ROUND.min(frames - done);
-            for (k, &mode) in modes.iter().enumerate() {
+            for (k, mode) in modes.iter().enumerate() {
+                runtime.set_reduced_bounces(!mode.texel_bounces);
                 for _ in 0..round {
                     let start = Instant::now();
-                    let applied = runtime.apply(method, mode, direct, &mut out)?;
+                    let applied = runtime.apply(method, mode.bounces, direct, &mut out)?;
                     times[k].push(start.elapsed().as_secs_f64() * 1e3);
                     bounces[k] = applied.bounces;
                 }
@@ -105,6 +144,7 @@ pub fn time_frames(
         Ok(())
     })?;
     runtime.set_parallel(false);
+    runtime.set_reduced_bounces(true);
     let operator_bytes = runtime.operator_bytes_per_frame(method);
     Ok(times
         .into_iter()
@@ -235,23 +275,35 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
         lights.lights.len(),
         runtime.n_texels()
     );
+    let mut timed: Vec<TimedMode> = modes.iter().map(|&b| b.into()).collect();
+    if args.texel_bounces {
+        timed.extend(
+            modes
+                .iter()
+                .filter(|b| matches!(b, Bounces::Converged { .. }))
+                .map(|&bounces| TimedMode {
+                    bounces,
+                    texel_bounces: true,
+                }),
+        );
+    }
     let results = time_frames(
         &mut runtime,
         &direct,
         method,
-        &modes,
+        &timed,
         args.frames,
         args.threads,
     )?;
     let bandwidth = read_bandwidth();
-    for (mode, t) in modes.iter().zip(&results) {
+    for (mode, t) in timed.iter().zip(&results) {
         // The bound: one pass over the operators per one-bounce application.
         let bound_ms = t.bounces as f64 * t.operator_bytes as f64 / bandwidth * 1e3;
         println!(
             "method={method:?} bounces={} applications={} threads={} frames={} median_ms={:.4} \
              p10_ms={:.4} p90_ms={:.4} operator_bytes={} read_bandwidth_gbs={:.2} \
              bound_ms={bound_ms:.4}",
-            mode_name(*mode),
+            mode.name(),
             t.bounces,
             args.threads,
             args.frames,

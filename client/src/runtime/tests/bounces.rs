@@ -600,3 +600,100 @@ fn converged_is_bit_identical_at_one_and_two_threads() {
     assert_eq!(outputs[0], outputs[2]);
     assert_eq!(outputs[1], outputs[3]);
 }
+
+/// `Converged` with MRT runs in coefficient space (`runtime/reduced.rs`): the same light as the
+/// texel path's GMRES and as many explicit bounces, within the tolerance and in about as many
+/// applications, for every transport (a lightfield keeps the texel path), with an albedo per
+/// texel (one matrix per channel) and one or two albedos per block (one matrix for the three
+/// channels per albedo); a second call allocates nothing and repeats the same bits.
+#[test]
+fn reduced_converged_matches_the_texel_path_and_many_bounces() {
+    let mut rng = Lcg(61);
+    let transports = [
+        Some(traced(&mut rng)),
+        Some(compact(&mut rng)),
+        Some(lightfield(&mut rng)),
+        None,
+    ];
+    for transport in transports {
+        for albedos_per_block in [0usize, 1, 2] {
+            let mut b = bundle(&mut rng, transport.clone(), false);
+            if albedos_per_block > 0 {
+                for blk in b.blocks.clone() {
+                    let start = blk.texel_offset as usize;
+                    let n = b.shapes[blk.shape as usize].u_b.rows as usize;
+                    let (first, last) = (b.layout.albedo[start], b.layout.albedo[start + n - 1]);
+                    for (i, a) in b.layout.albedo[start..start + n].iter_mut().enumerate() {
+                        *a = if albedos_per_block == 2 && i >= n / 2 {
+                            last
+                        } else {
+                            first
+                        };
+                    }
+                }
+            }
+            let ld = direct(&mut rng, b.layout.n_texels());
+            let case = format!(
+                "{:?}, {albedos_per_block} albedos per block",
+                b.transport.as_ref().map(std::mem::discriminant)
+            );
+            // The random operators may keep more light than they receive: dim the albedo
+            // until the light converges.
+            let mut rt = Runtime::new(b.clone());
+            let tolerance = Bounces::Converged { tolerance: 1e-5 };
+            let mut texel = IndirectLight::default();
+            for _ in 0..8 {
+                rt.set_reduced_bounces(false);
+                if rt.apply(Method::Mrt, tolerance, &ld, &mut texel).is_ok() {
+                    break;
+                }
+                b.layout.albedo.iter_mut().flatten().for_each(|a| *a *= 0.5);
+                rt = Runtime::new(b.clone());
+            }
+            let texel_applied = rt.apply(Method::Mrt, tolerance, &ld, &mut texel).unwrap();
+            rt.set_reduced_bounces(true);
+            let (mut reduced, mut many) = (IndirectLight::default(), IndirectLight::default());
+            let applied = rt.apply(Method::Mrt, tolerance, &ld, &mut reduced).unwrap();
+            rt.apply(Method::Mrt, Bounces::Fixed(400), &ld, &mut many)
+                .unwrap();
+            let (err, texel_err) = (
+                relative_l2(&reduced.radiance, &many.radiance),
+                relative_l2(&texel.radiance, &many.radiance),
+            );
+            assert!(
+                err <= 5e-5 && texel_err <= 5e-5,
+                "{case}: reduced {err}, texel {texel_err}"
+            );
+            assert!(
+                applied.bounces <= texel_applied.bounces + 2,
+                "{case}: {applied:?} against {texel_applied:?}"
+            );
+            // The energies the reduced path checks light with are those of the texel light.
+            let lightfield = matches!(b.transport, Some(TransportOps::Lightfield(_)));
+            let energies = rt.reduced_energies();
+            assert_eq!(energies.is_none(), lightfield, "{case}: which path solved");
+            let (e1, e) = energies.unwrap_or_default();
+            let mut one = IndirectLight::default();
+            rt.apply(Method::Mrt, Bounces::One, &ld, &mut one).unwrap();
+            for c in (0..3).filter(|_| !lightfield) {
+                let channel =
+                    |v: &IndirectLight| v.radiance.iter().map(|x| x[c] as f64).sum::<f64>();
+                let (want1, want) = (channel(&one), channel(&reduced));
+                let scale = want1.abs().max(want.abs()).max(1e-9);
+                assert!(
+                    (e1[c] - want1).abs() <= 1e-4 * scale && (e[c] - want).abs() <= 1e-4 * scale,
+                    "{case}: channel {c}: {e1:?} / {e:?} against {want1} / {want}"
+                );
+            }
+            let first = reduced.clone();
+            let before = allocs();
+            rt.apply(Method::Mrt, tolerance, &ld, &mut reduced).unwrap();
+            assert_eq!(
+                allocs(),
+                before,
+                "{case}: the second reduced solve allocated"
+            );
+            assert_eq!(reduced, first, "{case}: not deterministic");
+        }
+    }
+}

@@ -403,7 +403,7 @@ fn time_apply(
         &mut runtime,
         &direct,
         method.client_method(),
-        &[bounces],
+        &[bounces.into()],
         frames,
         1,
     )?

@@ -302,7 +302,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         &mut runtime,
         &direct,
         method,
-        &[Bounces::One, converged],
+        &[Bounces::One.into(), converged.into()],
         args.settings.frames,
         1,
     )?;
