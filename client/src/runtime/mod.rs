@@ -714,8 +714,7 @@ impl Runtime {
         out: &mut [[f32; 3]],
         tolerance: f32,
     ) -> Result<Applied, ApplyError> {
-        if method == Method::Mrt && self.reduced_enabled && self.reach.is_none() && !self.by_change
-        {
+        if method == Method::Mrt && self.reduced_enabled {
             if let Some(result) = self.converge_reduced(direct, out, tolerance) {
                 return result;
             }

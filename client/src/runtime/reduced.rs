@@ -22,6 +22,10 @@
 //! error in the same applications (maze: 3.3e-4 against 2.9e-4 at 1e-3, 8 applications each;
 //! unweighted, 2.4e-3).
 //!
+//! [`Runtime::apply_delta`](super::Runtime::apply_delta) with `Converged` takes the same path:
+//! only the blocks the change reaches project (`R ΔL_d`), then the solve and the expansion run
+//! over every block, since the bounces spread the change through the transport.
+//!
 //! Units: coefficients as in `mrt` (`b`); the pieces map coefficients of light leaving a block
 //! to coefficients of the next bounce's light leaving it.
 //!
@@ -553,7 +557,10 @@ impl super::Runtime {
         use super::{Applied, ApplyError, MAX_BOUNCES, MAX_CONVERGING_GAIN};
         self.prepare_reduced();
         let mut red = self.reduced.take()?;
-        // z₀ = R L_d.
+        // z₀ = R L_d; relighting by the change, only the blocks the change reaches project.
+        if self.reach.is_some() {
+            self.find_reach(direct);
+        }
         self.project_blocks(direct);
         let mut rhs = std::mem::take(&mut red.rhs);
         let mut solution = std::mem::take(&mut red.solution);
@@ -574,8 +581,11 @@ impl super::Runtime {
         to_planar(&self.blocks, &red.weight, &solution, &mut self.b);
         (red.rhs, red.solution, red.krylov) = (rhs, solution, Some(krylov));
         self.reduced = Some(red);
+        // The bounces reach every block the transport joins: expand all of them.
+        let reach = self.reach.take();
         self.mrt_albedo_free(out);
         self.multiply_albedo(out);
+        self.reach = reach;
         // Light, as the texel path checks it: per channel, all bounces carry at least the first
         // bounce's energy (`D K z₀`, from the coefficients alone).
         let red = self.reduced.as_ref()?;
@@ -583,7 +593,8 @@ impl super::Runtime {
             energy_of(&red.energy, &red.rhs),
             energy_of(&red.energy, &red.solution),
         );
-        let light = (0..3).all(|c| e1[c] <= 0.0 || e[c] >= 0.99 * e1[c]);
+        // A change of light (`apply_delta`) is signed: only its gain is checked.
+        let light = self.by_change || (0..3).all(|c| e1[c] <= 0.0 || e[c] >= 0.99 * e1[c]);
         let finite = out.iter().flatten().all(|x| x.is_finite());
         let refused = |applications: u32, gain: f64| ApplyError::NotConverging {
             bounces: applications + 1,
