@@ -743,6 +743,17 @@ impl Runtime {
                 e1 <= 0.0 || e >= 0.99 * e1
             });
         self.bounce_in = first;
+        self.converge_outcome(solved, light)
+    }
+
+    /// What a `Converged` solve (over texels or coefficients) returns: the applications and the
+    /// residual when it solved and the result is light (`light`: at least the first bounce's
+    /// energy per channel) of gain below [`MAX_CONVERGING_GAIN`], else the refusal.
+    fn converge_outcome(
+        &mut self,
+        solved: Result<krylov::Solved, Unsolved>,
+        light: bool,
+    ) -> Result<Applied, ApplyError> {
         let refused = |applications: u32, gain: f64| ApplyError::NotConverging {
             bounces: applications + 1,
             ratio: if gain.is_finite() { gain as f32 } else { 1.0 },

@@ -554,7 +554,7 @@ impl super::Runtime {
         out: &mut [[f32; 3]],
         tolerance: f32,
     ) -> Option<Result<super::Applied, super::ApplyError>> {
-        use super::{Applied, ApplyError, MAX_BOUNCES, MAX_CONVERGING_GAIN};
+        use super::MAX_BOUNCES;
         self.prepare_reduced();
         let mut red = self.reduced.take()?;
         // z₀ = R L_d; relighting by the change, only the blocks the change reaches project.
@@ -595,27 +595,9 @@ impl super::Runtime {
         );
         // A change of light (`apply_delta`) is signed: only its gain is checked.
         let light = self.by_change || (0..3).all(|c| e1[c] <= 0.0 || e[c] >= 0.99 * e1[c]);
-        let finite = out.iter().flatten().all(|x| x.is_finite());
-        let refused = |applications: u32, gain: f64| ApplyError::NotConverging {
-            bounces: applications + 1,
-            ratio: if gain.is_finite() { gain as f32 } else { 1.0 },
-        };
-        Some(match solved {
-            Ok(_) if !finite => Err(ApplyError::NonFinite { bounce: 1 }),
-            Ok(s) if light && s.gain < MAX_CONVERGING_GAIN => {
-                self.warm.solved(s.gain);
-                Ok(Applied {
-                    bounces: s.applications + 1,
-                    remaining_fraction: s.residual as f32,
-                })
-            }
-            Ok(s) => Err(refused(s.applications, s.gain.max(MAX_CONVERGING_GAIN))),
-            Err(super::krylov::Unsolved::Stalled {
-                applications, gain, ..
-            }) => Err(refused(applications, gain)),
-            Err(super::krylov::Unsolved::NonFinite { application }) => Err(ApplyError::NonFinite {
-                bounce: application + 1,
-            }),
-        })
+        if solved.is_ok() && !out.iter().flatten().all(|x| x.is_finite()) {
+            return Some(Err(super::ApplyError::NonFinite { bounce: 1 }));
+        }
+        Some(self.converge_outcome(solved, light))
     }
 }
