@@ -227,8 +227,8 @@ impl ReducedMrt {
 /// One of `M`'s pieces, `T diag(ρ_c) X` (r × w per channel, row-major).
 #[derive(Clone, Debug)]
 enum Piece {
-    /// `Σ_g ρ_g,c · P_g` over the block's distinct albedos (a block has one or two: its walls
-    /// and floor): each `P_g` read once for the three channels.
+    /// `Σ_g ρ_g,c · P_g` over the block's distinct albedos (one per block in our scenes, one per
+    /// material in general): each `P_g` read once for the three channels.
     Grouped(Vec<([f32; 3], PackedMatrix)>),
     /// One matrix per channel (three distinct albedos or more).
     PerChannel([Vec<f32>; 3]),
