@@ -7,6 +7,8 @@
 
 use crate::packed::PackedMatrix;
 
+use super::packed_ops::BlockSlots;
+
 /// The three channel slices `[offset, offset + len)` of a planar 3 × `stride` vector.
 #[inline]
 pub(super) fn planar(v: &[f32], stride: usize, offset: usize, len: usize) -> [&[f32]; 3] {
@@ -22,6 +24,35 @@ pub(super) fn planar(v: &[f32], stride: usize, offset: usize, len: usize) -> [&[
 #[inline]
 pub(super) fn group(v: &[f32], start: usize, width: usize, len: usize) -> [&[f32]; 3] {
     planar(&v[start..start + 3 * width], width, 0, len)
+}
+
+/// Stacks the coefficients of the blocks `sources` (a compact transport entry's), each block's
+/// `b` group side by side, into the channel-planar `3 × width` vector `x` (what the entry's `Z`
+/// multiplies); a source that `reached` refuses gets zeros.
+#[inline]
+pub(super) fn stack_sources(
+    blocks: &[BlockSlots],
+    b: &[f32],
+    sources: &[u32],
+    width: usize,
+    x: &mut [f32],
+    reached: impl Fn(u32) -> bool,
+) {
+    let mut col = 0;
+    for &s in sources {
+        let src = &blocks[s as usize];
+        let r = src.rank;
+        for ch in 0..3 {
+            let from = src.coef_start + ch * r;
+            let to = &mut x[ch * width + col..ch * width + col + r];
+            if reached(s) {
+                to.copy_from_slice(&b[from..from + r]);
+            } else {
+                to.fill(0.0);
+            }
+        }
+        col += r;
+    }
 }
 
 /// `out[t] += M · x` for every row t of `m`.

@@ -13,7 +13,9 @@
 
 use lightfarm_proto::bundle::TransportOps;
 
-use super::kernels::{acc_matvec, add_matvec, for_each_block, group, planar, set_matvec};
+use super::kernels::{
+    acc_matvec, add_matvec, for_each_block, group, planar, set_matvec, stack_sources,
+};
 use super::packed_ops::BlockSlots;
 use super::Runtime;
 
@@ -162,21 +164,7 @@ impl Runtime {
                             // Stack the sources' coefficients, channel-planar (an unreached
                             // source's are zero, and relighting by the change leaves its `b`
                             // unwritten).
-                            let mut col = 0;
-                            for &s in &e.sources {
-                                let src = &blocks[s as usize];
-                                let r = src.rank;
-                                for ch in 0..3 {
-                                    let from = src.coef_start + ch * r;
-                                    let to = &mut x[ch * width + col..ch * width + col + r];
-                                    if reached(s) {
-                                        to.copy_from_slice(&b[from..from + r]);
-                                    } else {
-                                        to.fill(0.0);
-                                    }
-                                }
-                                col += r;
-                            }
+                            stack_sources(blocks, b, &e.sources, width, x, reached);
                             let z_out = &mut rest[..3 * k];
                             set_matvec(z_out, k, z, planar(x, width, 0, width), scratch);
                             add_matvec(out_k, y, planar(z_out, k, 0, k), scratch);

@@ -39,7 +39,7 @@ use lightfarm_proto::bundle::{Bundle, Matrix, TransportOps};
 
 use crate::packed::PackedMatrix;
 
-use super::kernels::{planar, set_matvec};
+use super::kernels::{planar, set_matvec, stack_sources};
 use super::krylov::Krylov;
 use super::packed_ops::{BlockSlots, PackedOps};
 
@@ -197,16 +197,7 @@ impl ReducedMrt {
                         );
                         // Stack the sources' coefficients, channel-planar, then Z (shared by
                         // the channels, packed as the texel path reads it).
-                        let mut col = 0;
-                        for &src in &e.sources {
-                            let a = &blocks[src as usize];
-                            for c in 0..3 {
-                                let from = a.coef_start + c * a.rank;
-                                stacked[c * width + col..c * width + col + a.rank]
-                                    .copy_from_slice(&z_in[from..from + a.rank]);
-                            }
-                            col += a.rank;
-                        }
+                        stack_sources(blocks, z_in, &e.sources, width, stacked, |_| true);
                         let u = &mut z_k[..3 * depth];
                         set_matvec(u, depth, z, planar(stacked, width, 0, width), scratch);
                         piece.add(r, planar(u, depth, 0, depth), out_k, scratch);
