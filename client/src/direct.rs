@@ -6,6 +6,11 @@
 //! p gives outgoing radiance `L_d = ρ/π · I · max(cosθ, 0) / r² · V`, with `r = |p − x|`,
 //! `cosθ = n · (p − x) / r` and `V` the shadow-ray visibility from [`Occluders::occluded`].
 //!
+//! Shadow rays go to a [`LightBuffer`] per light when the level has at most
+//! [`WHOLE_LEVEL_MAX_OCCLUDERS`] occluders (a few microseconds to build, then a handful of
+//! primitive tests per ray), else to the occluders' hierarchy: both give the same answers, so
+//! the values do not depend on which was used.
+//!
 //! Invariants:
 //! - [`DirectLight::radiance`] has one entry per layout texel, in layout order.
 //! - Every value is finite and non-negative for finite, non-negative lights: `r²` is clamped
@@ -15,6 +20,7 @@
 use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::lights::{Light, LightKind};
 
+use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
 use crate::occluders::Occluders;
 
 /// `r²` is clamped below at `(R_MIN_REL · scene scale)²`.
@@ -55,25 +61,58 @@ pub fn direct_scale(layout: &Layout, occluders: &Occluders) -> f64 {
     }
 }
 
+/// What the shadow rays of a [`Lighting`] are tested against; every kind answers what
+/// [`Occluders::occluded`] answers for its occluders.
+#[derive(Clone, Copy)]
+pub(crate) enum Shadows<'a> {
+    /// Nothing is in the way (texels the caller knows every light sees).
+    Clear,
+    /// The occluders' hierarchy.
+    Occluders(&'a Occluders),
+    /// One [`LightBuffer`] per light, in the lighting's light order, over these occluders.
+    Buffers(&'a Occluders, &'a [LightBuffer]),
+}
+
 /// The lights and what every texel's direct light shares: their positions in f32 (the
-/// occluders' precision), the occluders and the `r²` clamp.
+/// occluders' precision), the shadow queries and the `r²` clamp.
 struct Lighting<'a> {
     lights: &'a [Light],
     positions: Vec<[f32; 3]>,
-    occluders: &'a Occluders,
+    shadows: Shadows<'a>,
     r2_min: f64,
 }
 
 impl<'a> Lighting<'a> {
-    fn new(lights: &'a [Light], occluders: &'a Occluders, scale: f64) -> Lighting<'a> {
+    fn new(lights: &'a [Light], shadows: Shadows<'a>, scale: f64) -> Lighting<'a> {
+        let positions: Vec<[f32; 3]> = lights
+            .iter()
+            .map(|l| l.position.map(|x| x as f32))
+            .collect();
+        if let Shadows::Buffers(_, buffers) = shadows {
+            assert!(
+                buffers.len() == positions.len()
+                    && buffers
+                        .iter()
+                        .zip(&positions)
+                        .all(|(b, p)| b.light().map(f32::to_bits) == p.map(f32::to_bits)),
+                "one light buffer per light, built at the light"
+            );
+        }
         Lighting {
             lights,
-            positions: lights
-                .iter()
-                .map(|l| l.position.map(|x| x as f32))
-                .collect(),
-            occluders,
+            positions,
+            shadows,
             r2_min: (R_MIN_REL * scale).powi(2),
+        }
+    }
+
+    /// Is the segment from `x` to light `li` occluded?
+    #[inline]
+    fn occluded(&self, li: usize, x: [f32; 3]) -> bool {
+        match self.shadows {
+            Shadows::Clear => false,
+            Shadows::Occluders(occluders) => occluders.occluded(x, self.positions[li]),
+            Shadows::Buffers(occluders, buffers) => buffers[li].occluded(occluders, x),
         }
     }
 
@@ -97,7 +136,7 @@ impl<'a> Lighting<'a> {
         }
         // Unshadowed first: a light behind the texel costs no shadow ray.
         let g = unshadowed(x, n, light, self.r2_min);
-        if g == 0.0 || self.occluders.occluded(x, self.positions[li]) {
+        if g == 0.0 || self.occluded(li, x) {
             return;
         }
         for (e, i) in irr.iter_mut().zip(light.intensity) {
@@ -149,6 +188,39 @@ fn texel_direct(lighting: &Lighting, t: TexelAt, m: usize, adaptive: bool) -> [f
     }
 }
 
+/// The most occluders × lights the whole-level functions build [`LightBuffer`]s for (one per
+/// light, each listing every occluder about once per direction cell it covers); beyond it, or
+/// beyond [`WHOLE_LEVEL_MAX_OCCLUDERS`] occluders, they trace the occluders' hierarchy (whose
+/// cost does not grow with the level for a light's nearby texels). Either answers the same.
+const LIGHT_BUFFERS_MAX: usize = 1 << 16;
+
+/// A [`LightBuffer`] per light over all of `occluders`, or `None` when there is nothing to
+/// hit or the level is too large for it (see [`LIGHT_BUFFERS_MAX`]).
+fn light_buffers(occluders: &Occluders, lights: &[Light]) -> Option<Vec<LightBuffer>> {
+    let n = occluders.len();
+    if n == 0 || n > WHOLE_LEVEL_MAX_OCCLUDERS || n * lights.len() > LIGHT_BUFFERS_MAX {
+        return None;
+    }
+    Some(
+        lights
+            .iter()
+            .map(|l| {
+                let mut buffer = LightBuffer::new();
+                buffer.build(occluders, l.position.map(|x| x as f32), None);
+                buffer
+            })
+            .collect(),
+    )
+}
+
+/// The buffers' shadow queries when there are buffers, else the occluders' hierarchy.
+fn shadows_of<'a>(occluders: &'a Occluders, buffers: &'a Option<Vec<LightBuffer>>) -> Shadows<'a> {
+    match buffers {
+        Some(b) => Shadows::Buffers(occluders, b),
+        None => Shadows::Occluders(occluders),
+    }
+}
+
 /// Direct radiance `ρ/π · Σ I cosθ / r² · V` at each texel centre.
 pub fn direct_from_point_lights(
     layout: &Layout,
@@ -168,7 +240,25 @@ pub fn direct_from_point_lights_averaged(
     lights: &[Light],
     samples_per_edge: u32,
 ) -> DirectLight {
-    let lighting = Lighting::new(lights, occluders, direct_scale(layout, occluders));
+    let buffers = light_buffers(occluders, lights);
+    averaged_with(
+        layout,
+        shadows_of(occluders, &buffers),
+        direct_scale(layout, occluders),
+        lights,
+        samples_per_edge,
+    )
+}
+
+/// [`direct_from_point_lights_averaged`] with its shadow rays tested against `shadows`.
+fn averaged_with(
+    layout: &Layout,
+    shadows: Shadows,
+    scale: f64,
+    lights: &[Light],
+    samples_per_edge: u32,
+) -> DirectLight {
+    let lighting = Lighting::new(lights, shadows, scale);
     let m = samples_per_edge.max(1) as usize;
     let radiance = (0..layout.n_texels())
         .map(|t| texel_direct(&lighting, TexelAt::of(layout, t), m, false))
@@ -260,12 +350,34 @@ pub fn direct_from_point_lights_adaptive_in(
     spans: &[TexelSpan],
     out: &mut [[f32; 3]],
 ) {
+    let buffers = light_buffers(occluders, lights);
+    adaptive_in_with(
+        layout,
+        shadows_of(occluders, &buffers),
+        lights,
+        samples_per_edge,
+        scale,
+        spans,
+        out,
+    );
+}
+
+/// [`direct_from_point_lights_adaptive_in`] with its shadow rays tested against `shadows`.
+pub(crate) fn adaptive_in_with(
+    layout: &Layout,
+    shadows: Shadows,
+    lights: &[Light],
+    samples_per_edge: u32,
+    scale: f64,
+    spans: &[TexelSpan],
+    out: &mut [[f32; 3]],
+) {
     let m = samples_per_edge.max(1) as usize;
-    let lighting = Lighting::new(lights, occluders, scale);
+    let lighting = Lighting::new(lights, shadows, scale);
     // The same lights with nothing in the way, for spans in sight.
     let in_sight = spans.iter().any(|s| s.in_sight).then(|| Lighting {
-        occluders: no_occluders(),
-        ..Lighting::new(lights, occluders, scale)
+        shadows: Shadows::Clear,
+        ..Lighting::new(lights, shadows, scale)
     });
     let n = out.len().min(layout.n_texels());
     for span in spans {
@@ -279,20 +391,21 @@ pub fn direct_from_point_lights_adaptive_in(
     }
 }
 
-/// The empty occluder set (nothing is ever in the way), built once.
-fn no_occluders() -> &'static Occluders {
-    static NONE: std::sync::OnceLock<Occluders> = std::sync::OnceLock::new();
-    NONE.get_or_init(|| Occluders::new(&[], &[]))
-}
-
 /// One texel of [`direct_from_point_lights_adaptive`] (`2 ≤ m ≤ ADAPTIVE_MAX_SAMPLES_PER_EDGE`,
 /// a texel with a size).
 fn adaptive_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
     let mut points = [[0.0f32; 3]; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
     let points = &mut points[..m * m];
-    sample_points(t.x, t.n, t.size, m, points);
+    let mut sampled = false;
     let mut irr = [0.0f64; 3];
     for li in 0..lighting.lights.len() {
+        // A light behind the texel adds zero terms (`faces_away`): skip its samples.
+        if faces_away(t.x, t.n, &lighting.lights[li]) {
+            continue;
+        }
+        if !std::mem::replace(&mut sampled, true) {
+            sample_points(t.x, t.n, t.size, m, points);
+        }
         add_adaptive(lighting, li, t.n, points, m, &mut irr);
     }
     outgoing(t.rho, irr).map(|v| v as f32)
@@ -309,7 +422,7 @@ fn add_adaptive(
     m: usize,
     irr: &mut [f64; 3],
 ) {
-    let (light, p) = (&lighting.lights[li], lighting.positions[li]);
+    let light = &lighting.lights[li];
     if light.intensity.iter().all(|&i| i == 0.0) {
         return;
     }
@@ -317,13 +430,11 @@ fn add_adaptive(
     // Unshadowed cos/r² per sample (0 where the light is behind).
     let mut g = [0.0f64; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
     let g = &mut g[..m * m];
-    for (gi, q) in g.iter_mut().zip(points.iter()) {
-        *gi = unshadowed(*q, n, light, lighting.r2_min);
-    }
+    unshadowed_samples(points, n, light, lighting.r2_min, g);
     if g.iter().all(|&v| v == 0.0) {
         return;
     }
-    let visible = |k: usize| !lighting.occluders.occluded(points[k], p);
+    let visible = |k: usize| !lighting.occluded(li, points[k]);
     let corner_seen = corners.map(visible);
     let sum: f64 = if corner_seen.iter().all(|&v| v == corner_seen[0]) {
         if corner_seen[0] {
@@ -356,7 +467,7 @@ fn add_adaptive(
 /// [`ADAPTIVE_MAX_SAMPLES_PER_EDGE`] (more averages samples over every light at once).
 pub(crate) fn add_light_term_in(
     layout: &Layout,
-    occluders: &Occluders,
+    shadows: Shadows,
     light: &Light,
     samples_per_edge: u32,
     scale: f64,
@@ -366,10 +477,10 @@ pub(crate) fn add_light_term_in(
     let m = samples_per_edge.max(1) as usize;
     debug_assert!(m <= ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize);
     let lights = std::slice::from_ref(light);
-    let lighting = Lighting::new(lights, occluders, scale);
+    let lighting = Lighting::new(lights, shadows, scale);
     let clear = spans.iter().any(|s| s.in_sight).then(|| Lighting {
-        occluders: no_occluders(),
-        ..Lighting::new(lights, occluders, scale)
+        shadows: Shadows::Clear,
+        ..Lighting::new(lights, shadows, scale)
     });
     let n = irr.len().min(layout.n_texels());
     let mut points = [[0.0f32; 3]; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
@@ -381,6 +492,10 @@ pub(crate) fn add_light_term_in(
         };
         for t in span.texels.start.min(n)..span.texels.end.min(n) {
             let at = TexelAt::of(layout, t);
+            if faces_away(at.x, at.n, light) {
+                // Every sample's term is zero (`faces_away`): what the samples would add.
+                continue;
+            }
             if m == 1 || at.size == [0.0, 0.0] {
                 lighting.add_point(0, at.x, at.n, &mut irr[t]);
             } else {
@@ -400,6 +515,64 @@ pub(crate) fn finish_irradiance(layout: &Layout, irr: &[[f64; 3]]) -> DirectLigh
             .zip(&layout.albedo)
             .map(|(e, &rho)| outgoing(rho, *e).map(|v| v as f32))
             .collect(),
+    }
+}
+
+/// True when `n` is axis-aligned and `light` lies behind or in the plane through `x` normal to
+/// it: then every sample point of the texel (which [`sample_points`] keeps in that plane) gets
+/// a zero [`unshadowed`] term, `n · (p − x)` being the same product `n_a (p_a − x_a)` at each.
+fn faces_away(x: [f32; 3], n: [f32; 3], light: &Light) -> bool {
+    let a = dominant_axis(n);
+    let (u, v) = match a {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    n[u] == 0.0 && n[v] == 0.0 && !(n[a] as f64 * (light.position[a] - x[a] as f64) > 0.0)
+}
+
+/// [`unshadowed`] at every point of `points` into `g`: the same operations in the same order
+/// (so the same bits), written without branches so the loop vectorizes (four lanes where the
+/// CPU has AVX2, chosen at run time; IEEE division and square root round alike in every
+/// width).
+#[inline]
+fn unshadowed_samples(points: &[[f32; 3]], n: [f32; 3], light: &Light, r2_min: f64, g: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked above); the function has no other contract.
+        return unsafe { unshadowed_samples_avx2(points, n, light, r2_min, g) };
+    }
+    unshadowed_samples_portable(points, n, light, r2_min, g)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn unshadowed_samples_avx2(
+    points: &[[f32; 3]],
+    n: [f32; 3],
+    light: &Light,
+    r2_min: f64,
+    g: &mut [f64],
+) {
+    unshadowed_samples_portable(points, n, light, r2_min, g)
+}
+
+#[inline(always)]
+fn unshadowed_samples_portable(
+    points: &[[f32; 3]],
+    n: [f32; 3],
+    light: &Light,
+    r2_min: f64,
+    g: &mut [f64],
+) {
+    let l = light.position;
+    let nn = n.map(f64::from);
+    for (gi, q) in g.iter_mut().zip(points) {
+        let to = [l[0] - q[0] as f64, l[1] - q[1] as f64, l[2] - q[2] as f64];
+        let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
+        let cos = (nn[0] * to[0] + nn[1] * to[1] + nn[2] * to[2]) / r2.sqrt();
+        let value = cos / r2.max(r2_min);
+        *gi = if r2 > 0.0 && cos > 0.0 { value } else { 0.0 };
     }
 }
 
@@ -428,19 +601,35 @@ fn sample_points(x: [f32; 3], n: [f32; 3], size: [f32; 2], m: usize, out: &mut [
         1 => (0, 2),
         _ => (0, 1),
     };
+    // The offset of sample `i` along an edge, in texel units: the same expression per sample
+    // whether evaluated once per column (up to 16 samples per edge) or per sample.
+    let offset = |i: usize| (i as f32 + 0.5) / m as f32 - 0.5;
+    let mut du_of = [0.0f32; 16];
+    for (i, du) in du_of.iter_mut().enumerate().take(m) {
+        *du = offset(i) * size[0];
+    }
+    let slanted = n[u] != 0.0 || n[v] != 0.0;
     for j in 0..m {
+        let dv = offset(j) * size[1];
         for i in 0..m {
-            let mut p = x;
-            let du = ((i as f32 + 0.5) / m as f32 - 0.5) * size[0];
-            let dv = ((j as f32 + 0.5) / m as f32 - 0.5) * size[1];
-            p[u] += du;
-            p[v] += dv;
-            if n[u] != 0.0 || n[v] != 0.0 {
-                // A slanted (mesh) texel: lift the sample onto the texel's plane along the
-                // dominant axis.
-                p[axis] -= (n[u] * du + n[v] * dv) / n[axis];
-            }
-            out[j * m + i] = p;
+            let du = if m <= du_of.len() {
+                du_of[i]
+            } else {
+                offset(i) * size[0]
+            };
+            // A slanted (mesh) texel: the sample lifted onto the texel's plane along the
+            // dominant axis.
+            let lifted = if slanted {
+                x[axis] - (n[u] * du + n[v] * dv) / n[axis]
+            } else {
+                x[axis]
+            };
+            // Built whole rather than by indexed stores (which stall the store of the array).
+            out[j * m + i] = match axis {
+                0 => [lifted, x[1] + du, x[2] + dv],
+                1 => [x[0] + du, lifted, x[2] + dv],
+                _ => [x[0] + du, x[1] + dv, lifted],
+            };
         }
     }
 }
@@ -600,6 +789,85 @@ mod tests {
             max: [2.7053, 4.0],
         });
         layout
+    }
+
+    /// Light buffers answer what the hierarchy answers: on random occluders (rects and
+    /// triangles) over random texels, axis-aligned and slanted, facing any way, the averaged
+    /// and the adaptive direct light are bit-identical either way.
+    #[test]
+    fn light_buffers_light_texels_bit_for_bit_as_the_hierarchy() {
+        use crate::occluders::tests::Lcg;
+        let mut rng = Lcg(0xb0ff_e12);
+        let mut lit = 0;
+        for case in 0..12 {
+            let mut layout = Layout::default();
+            for k in 0..300 {
+                let mut n = [0.0f32; 3];
+                if k % 3 == 0 {
+                    n = rng.point(-1.0, 1.0);
+                } else {
+                    n[(rng.next_u32() % 3) as usize] = if k % 2 == 0 { 1.0 } else { -1.0 };
+                }
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                if len < 0.1 {
+                    n = [0.0, 1.0, 0.0];
+                }
+                layout.positions.push(rng.point(-4.0, 4.0));
+                layout.normals.push(n.map(|x| x / len.max(0.1)));
+                layout.albedo.push([0.5, 0.6, 0.7]);
+                layout
+                    .texel_size
+                    .push([rng.range(0.05, 0.5), rng.range(0.05, 0.5)]);
+            }
+            for _ in 0..(10 + 5 * case) {
+                let (a, b) = (rng.range(-5.0, 5.0), rng.range(-5.0, 5.0));
+                layout.rects.push(Rect {
+                    axis: (rng.next_u32() % 3) as u8,
+                    coord: rng.range(-5.0, 5.0),
+                    min: [a, b],
+                    max: [a + rng.range(0.0, 3.0), b + rng.range(0.0, 3.0)],
+                });
+            }
+            for _ in 0..(3 * case) {
+                let c = rng.point(-4.0, 4.0);
+                let mut p = || {
+                    let o = rng.point(-1.0, 1.0);
+                    [c[0] + o[0], c[1] + o[1], c[2] + o[2]]
+                };
+                layout.triangles.push([p(), p(), p()]);
+            }
+            let occ = Occluders::from_layout(&layout);
+            let lights: Vec<Light> = (0..3)
+                .map(|_| {
+                    let p = rng.point(-4.5, 4.5).map(f64::from);
+                    light(p, [1.0, 2.0, 3.0])
+                })
+                .collect();
+            let scale = direct_scale(&layout, &occ);
+            for m in [1, 4] {
+                let by_buffers = direct_from_point_lights_averaged(&layout, &occ, &lights, m);
+                let by_tree = averaged_with(&layout, Shadows::Occluders(&occ), scale, &lights, m);
+                assert_eq!(by_buffers, by_tree, "case {case}, averaged, m = {m}");
+                lit += by_tree.radiance.iter().filter(|v| v[0] > 0.0).count();
+            }
+            let all = [TexelSpan {
+                texels: 0..layout.n_texels(),
+                in_sight: false,
+            }];
+            let by_buffers = direct_from_point_lights_adaptive(&layout, &occ, &lights, 4);
+            let mut by_tree = vec![[0.0f32; 3]; layout.n_texels()];
+            adaptive_in_with(
+                &layout,
+                Shadows::Occluders(&occ),
+                &lights,
+                4,
+                scale,
+                &all,
+                &mut by_tree,
+            );
+            assert_eq!(by_buffers.radiance, by_tree, "case {case}, adaptive");
+        }
+        assert!(lit > 1000, "{lit} texels lit");
     }
 
     #[test]

@@ -28,6 +28,9 @@
 //!
 //! # Layout
 //! - [`occluders`]: a BVH over the bundle's occluder rects and triangles; shadow-ray queries.
+//! - [`light_buffer`]: one point light's shadow rays answered from a cube of direction cells
+//!   listing the occluders nearest first (rebuilt per frame for a moving light; the same
+//!   answers as the BVH).
 //! - [`light_reach`]: which texels a point light can reach, by a portal walk over the bundle's
 //!   rooms (block boxes and openings), so one light's direct light is recomputed where it
 //!   reaches only.
@@ -67,6 +70,7 @@ pub mod direct;
 pub mod dnrt;
 #[cfg(feature = "fetch")]
 pub mod fetch;
+pub mod light_buffer;
 pub mod light_reach;
 pub mod lightmap;
 pub mod occluders;

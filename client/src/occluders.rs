@@ -49,6 +49,16 @@ enum Prim {
     Tri([[f32; 3]; 3]),
 }
 
+/// A shadow segment `o + t·d`, a hit counting for `tmin < t < tmax`
+/// ([`Occluders::shadow_segment`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Segment {
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+}
+
 /// A BVH node. `count > 0`: a leaf holding `prims[first .. first + count]`; `count == 0`: an
 /// inner node whose children are `nodes[first]` and `nodes[first + 1]`.
 #[derive(Clone, Copy, Debug)]
@@ -366,6 +376,34 @@ impl Occluders {
     /// Scene scale the epsilons are relative to: the diagonal of [`Occluders::bounds`], or 1.
     pub fn scale(&self) -> f32 {
         self.scale
+    }
+
+    /// Primitive `i`'s bounds (this hierarchy's primitive order), padded as the hierarchy pads
+    /// its node boxes: a segment the query reports as crossing primitive `i` touches this box
+    /// (the invariant that makes traversal equal to a loop over every primitive).
+    pub(crate) fn padded_prim_bounds(&self, i: usize) -> ([f32; 3], [f32; 3]) {
+        let (mut lo, mut hi) = self.prims[i].bounds();
+        let pad = BOX_PAD * self.scale;
+        for k in 0..3 {
+            lo[k] -= pad;
+            hi[k] += pad;
+        }
+        (lo, hi)
+    }
+
+    /// The segment from `origin` to `target` as [`Occluders::occluded`] tests it (`None`:
+    /// never occluded), for [`Occluders::prim_crosses`].
+    #[inline]
+    pub(crate) fn shadow_segment(&self, origin: [f32; 3], target: [f32; 3]) -> Option<Segment> {
+        let o = Vec3::from(origin);
+        self.segment(o, Vec3::from(target))
+            .map(|(d, tmin, tmax)| Segment { o, d, tmin, tmax })
+    }
+
+    /// Does primitive `i` cross `seg` (the test [`Occluders::occluded`] applies per primitive)?
+    #[inline]
+    pub(crate) fn prim_crosses(&self, i: usize, seg: &Segment) -> bool {
+        self.prims[i].hit(seg.o, seg.d, seg.tmin, seg.tmax)
     }
 
     /// Segment direction and the open parameter interval a hit must fall in; `None` when the

@@ -3,9 +3,11 @@
 //! light's neighbourhood rather than by the level.
 //!
 //! [`ReachDirect::light`] walks the light's reach ([`LightReach::texels`]) and traces the
-//! adaptive texel average's shadow rays ([`direct_from_point_lights_adaptive_in`]) against a
-//! small hierarchy holding only the level's occluders that touch a reached room
-//! ([`Occluders::subset`]), instead of the whole level's.
+//! adaptive texel average's shadow rays ([`direct_from_point_lights_adaptive_in`]) against only
+//! the level's occluders that touch a reached room, instead of the whole level's: a
+//! [`LightBuffer`] of the light over them, rebuilt per call, which lists per direction from the
+//! light the occluders nearest first (it answers what a hierarchy over the same occluders
+//! answers).
 //!
 //! Why that answers exactly what the level's occluders answer, on the reached texels: rooms are
 //! closed boxes that meet only through whole open faces, and a walk that runs to its end
@@ -13,8 +15,8 @@
 //! ([`crate::light_reach`]'s invariant). A shadow segment from the light to a point of a
 //! reached texel therefore stays inside reached rooms' closed boxes up to its first blocker
 //! (a wall of the room it is in, or an object in it), and that blocker's bounds meet the room:
-//! it is in the subset. The subset is part of the level's occluders and keeps their margins, so
-//! it never reports a hit the level's would not. Where the walk gives up or leaves the level
+//! it is in the subset. The subset is part of the level's occluders and is tested with their
+//! margins, so it never reports a hit the level's would not. Where the walk gives up or leaves the level
 //! (a `Void` face, a light outside every room) the level's occluders are used whole.
 //!
 //! [`ReachDirect::all_lights`] does the same for every light of a level and sums their terms
@@ -29,9 +31,10 @@
 use lightfarm_proto::bundle::{Bundle, Layout};
 
 use crate::direct::{
-    add_light_term_in, direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in,
-    finish_irradiance, DirectLight, TexelSpan, ADAPTIVE_MAX_SAMPLES_PER_EDGE,
+    adaptive_in_with, add_light_term_in, direct_from_point_lights_adaptive, finish_irradiance,
+    DirectLight, Shadows, TexelSpan, ADAPTIVE_MAX_SAMPLES_PER_EDGE,
 };
+use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
 use crate::light_reach::LightReach;
 use crate::occluders::Occluders;
 use lightfarm_proto::lights::Light;
@@ -50,6 +53,7 @@ pub struct ReachDirect {
     // Scratch, reset per call.
     picked: Vec<bool>,
     list: Vec<u32>,
+    buffer: LightBuffer,
     /// Occluders the last call traced against (the level's count when it used them whole).
     last_occluders: usize,
 }
@@ -77,6 +81,7 @@ impl ReachDirect {
             room_prims,
             picked: vec![false; level.len()],
             list: Vec::new(),
+            buffer: LightBuffer::new(),
             last_occluders: 0,
         })
     }
@@ -97,10 +102,10 @@ impl ReachDirect {
         spans: &mut Vec<TexelSpan>,
         out: &mut [[f32; 3]],
     ) {
-        let local = self.walk(layout, level, light, spans);
-        direct_from_point_lights_adaptive_in(
+        let shadows = self.walk(layout, level, light, spans);
+        adaptive_in_with(
             layout,
-            local.as_ref().unwrap_or(level),
+            shadows,
             std::slice::from_ref(light),
             samples_per_edge,
             scale,
@@ -129,10 +134,10 @@ impl ReachDirect {
         let mut irr = vec![[0.0f64; 3]; layout.n_texels()];
         let mut spans = Vec::new();
         for light in lights {
-            let local = self.walk(layout, level, light, &mut spans);
+            let shadows = self.walk(layout, level, light, &mut spans);
             add_light_term_in(
                 layout,
-                local.as_ref().unwrap_or(level),
+                shadows,
                 light,
                 samples_per_edge,
                 scale,
@@ -143,32 +148,40 @@ impl ReachDirect {
         finish_irradiance(layout, &irr)
     }
 
-    /// Walks `light`'s reach into `spans`; the occluders of the rooms it reached, or `None`
-    /// when the level's must be used whole (module doc).
-    fn walk(
-        &mut self,
+    /// Walks `light`'s reach into `spans`; its shadow queries: the light's buffer over the
+    /// occluders of the rooms it reached, or the level's hierarchy when the level must be used
+    /// whole (module doc).
+    fn walk<'s>(
+        &'s mut self,
         layout: &Layout,
-        level: &Occluders,
+        level: &'s Occluders,
         light: &Light,
         spans: &mut Vec<TexelSpan>,
-    ) -> Option<Occluders> {
+    ) -> Shadows<'s> {
         self.reach.texels(layout, light.position, spans);
-        let local = self.reach.rooms_of_last_walk().map(|rooms| {
-            self.list.clear();
-            for &r in rooms {
-                for &p in &self.room_prims[r as usize] {
-                    if !std::mem::replace(&mut self.picked[p as usize], true) {
-                        self.list.push(p);
-                    }
+        let light_at = light.position.map(|x| x as f32);
+        let Some(rooms) = self.reach.rooms_of_last_walk() else {
+            self.last_occluders = level.len();
+            if level.len() > WHOLE_LEVEL_MAX_OCCLUDERS {
+                return Shadows::Occluders(level);
+            }
+            self.buffer.build(level, light_at, None);
+            return Shadows::Buffers(level, std::slice::from_ref(&self.buffer));
+        };
+        self.list.clear();
+        for &r in rooms {
+            for &p in &self.room_prims[r as usize] {
+                if !std::mem::replace(&mut self.picked[p as usize], true) {
+                    self.list.push(p);
                 }
             }
-            for &p in &self.list {
-                self.picked[p as usize] = false;
-            }
-            level.subset(&self.list)
-        });
-        self.last_occluders = local.as_ref().unwrap_or(level).len();
-        local
+        }
+        for &p in &self.list {
+            self.picked[p as usize] = false;
+        }
+        self.buffer.build(level, light_at, Some(&self.list));
+        self.last_occluders = self.list.len();
+        Shadows::Buffers(level, std::slice::from_ref(&self.buffer))
     }
 
     /// Rooms the last [`ReachDirect::light`] call reached.
@@ -239,6 +252,31 @@ mod tests {
         }
     }
 
+    /// The adaptive direct light of every texel traced against the level's hierarchy (not the
+    /// light buffers every other path here uses).
+    fn by_tree(
+        layout: &Layout,
+        occluders: &Occluders,
+        lights: &[Light],
+        scale: f64,
+    ) -> DirectLight {
+        let mut radiance = vec![[0.0f32; 3]; layout.n_texels()];
+        let all = [TexelSpan {
+            texels: 0..layout.n_texels(),
+            in_sight: false,
+        }];
+        adaptive_in_with(
+            layout,
+            Shadows::Occluders(occluders),
+            lights,
+            4,
+            scale,
+            &all,
+            &mut radiance,
+        );
+        DirectLight { radiance }
+    }
+
     fn light(position: [f64; 3], intensity: [f64; 3]) -> Light {
         Light {
             kind: LightKind::Point,
@@ -249,10 +287,11 @@ mod tests {
 
     /// On random levels with boxes in a third of the rooms (some of them pillars from the
     /// floor nearly to the ceiling, which split a room's view), open ceilings and lights now and then above the
-    /// level: one light's direct light traced against the reached rooms' occluders is
-    /// bit-identical to the level's on its spans, every light at once lit light by light where
-    /// each reaches is bit-identical to lighting every texel, and most lights trace against far
-    /// fewer occluders than the level holds.
+    /// level: one light's direct light traced against the reached rooms' occluders (its light
+    /// buffer over them) is bit-identical to the level's hierarchy's on its spans, every light
+    /// at once lit light by light where each reaches is bit-identical to lighting every texel
+    /// against the hierarchy, and most lights trace against far fewer occluders than the level
+    /// holds.
     #[test]
     fn the_reached_rooms_occluders_answer_what_the_levels_answer() {
         let mut rng = Rng(0x0dd_ba11_5eed_0019);
@@ -296,12 +335,7 @@ mod tests {
                     [0, 1, 2].map(|k| rng.range(r.min[k] + 0.05, r.max[k] - 0.05))
                 };
                 let l = light(p, [rng.range(0.5, 2.0), 1.0, rng.range(0.0, 1.0)]);
-                let whole = direct_from_point_lights_adaptive(
-                    &layout,
-                    &occluders,
-                    std::slice::from_ref(&l),
-                    4,
-                );
+                let whole = by_tree(&layout, &occluders, std::slice::from_ref(&l), scale);
                 let mut part = vec![[f32::NAN; 3]; layout.n_texels()];
                 reach.light(&layout, &occluders, &l, 4, scale, &mut spans, &mut part);
                 calls += 1;
@@ -318,7 +352,7 @@ mod tests {
                 }
                 lights.push(l);
             }
-            let whole = direct_from_point_lights_adaptive(&layout, &occluders, &lights, 4);
+            let whole = by_tree(&layout, &occluders, &lights, scale);
             let by_reach = reach.all_lights(&layout, &occluders, &lights, 4, scale);
             for (t, (w, r)) in whole.radiance.iter().zip(&by_reach.radiance).enumerate() {
                 assert_eq!(
