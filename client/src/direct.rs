@@ -465,6 +465,10 @@ fn add_adaptive(
 /// give that function's values bit for bit (a texel a light cannot reach gets a zero term,
 /// which leaves the sum as it is). `m = samples_per_edge` must be at most
 /// [`ADAPTIVE_MAX_SAMPLES_PER_EDGE`] (more averages samples over every light at once).
+/// With `every_sample` every sample is traced (no corner shortcut): the term of
+/// [`direct_from_point_lights_averaged`]'s texel value, to float rounding (that function sums
+/// the lights per sample, this per texel).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn add_light_term_in(
     layout: &Layout,
     shadows: Shadows,
@@ -472,6 +476,7 @@ pub(crate) fn add_light_term_in(
     samples_per_edge: u32,
     scale: f64,
     spans: &[TexelSpan],
+    every_sample: bool,
     irr: &mut [[f64; 3]],
 ) {
     let m = samples_per_edge.max(1) as usize;
@@ -500,9 +505,42 @@ pub(crate) fn add_light_term_in(
                 lighting.add_point(0, at.x, at.n, &mut irr[t]);
             } else {
                 sample_points(at.x, at.n, at.size, m, points);
-                add_adaptive(lighting, 0, at.n, points, m, &mut irr[t]);
+                if every_sample {
+                    add_every_sample(lighting, 0, at.n, points, &mut irr[t]);
+                } else {
+                    add_adaptive(lighting, 0, at.n, points, m, &mut irr[t]);
+                }
             }
         }
+    }
+}
+
+/// Adds light `li`'s term of a texel's full average into `irr`: `I` times the mean over the
+/// sample `points` (normal `n`) of `cosθ / r² · V`, a shadow ray at every sample the light
+/// faces.
+fn add_every_sample(
+    lighting: &Lighting,
+    li: usize,
+    n: [f32; 3],
+    points: &[[f32; 3]],
+    irr: &mut [f64; 3],
+) {
+    let light = &lighting.lights[li];
+    if light.intensity.iter().all(|&i| i == 0.0) {
+        return;
+    }
+    let mut g = [0.0f64; (ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize).pow(2)];
+    let g = &mut g[..points.len()];
+    unshadowed_samples(points, n, light, lighting.r2_min, g);
+    let sum: f64 = g
+        .iter()
+        .zip(points)
+        .filter(|(&gk, &p)| gk > 0.0 && !lighting.occluded(li, p))
+        .map(|(&gk, _)| gk)
+        .sum();
+    let w = sum / points.len() as f64;
+    for (e, i) in irr.iter_mut().zip(light.intensity) {
+        *e += i * w;
     }
 }
 

@@ -31,8 +31,9 @@
 use lightfarm_proto::bundle::{Bundle, Layout};
 
 use crate::direct::{
-    adaptive_in_with, add_light_term_in, direct_from_point_lights_adaptive, finish_irradiance,
-    DirectLight, Shadows, TexelSpan, ADAPTIVE_MAX_SAMPLES_PER_EDGE,
+    adaptive_in_with, add_light_term_in, direct_from_point_lights_adaptive,
+    direct_from_point_lights_averaged, finish_irradiance, DirectLight, Shadows, TexelSpan,
+    ADAPTIVE_MAX_SAMPLES_PER_EDGE,
 };
 use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
 use crate::light_reach::LightReach;
@@ -142,6 +143,41 @@ impl ReachDirect {
                 samples_per_edge,
                 scale,
                 &spans,
+                false,
+                &mut irr,
+            );
+        }
+        finish_irradiance(layout, &irr)
+    }
+
+    /// [`direct_from_point_lights_averaged`] (every sample traced) for every light at every
+    /// texel, to float rounding (the lights' terms are summed per texel here, per sample
+    /// there), each light traced only where it reaches: the reference the adaptive average is
+    /// measured against, at a cost that follows what the lights reach. Beyond
+    /// [`ADAPTIVE_MAX_SAMPLES_PER_EDGE`] samples per edge it is that function.
+    pub fn all_lights_every_sample(
+        &mut self,
+        layout: &Layout,
+        level: &Occluders,
+        lights: &[Light],
+        samples_per_edge: u32,
+        scale: f64,
+    ) -> DirectLight {
+        if samples_per_edge > ADAPTIVE_MAX_SAMPLES_PER_EDGE {
+            return direct_from_point_lights_averaged(layout, level, lights, samples_per_edge);
+        }
+        let mut irr = vec![[0.0f64; 3]; layout.n_texels()];
+        let mut spans = Vec::new();
+        for light in lights {
+            let shadows = self.walk(layout, level, light, &mut spans);
+            add_light_term_in(
+                layout,
+                shadows,
+                light,
+                samples_per_edge,
+                scale,
+                &spans,
+                true,
                 &mut irr,
             );
         }
@@ -198,7 +234,9 @@ impl ReachDirect {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::direct::{direct_from_point_lights_adaptive, direct_scale};
+    use crate::direct::{
+        direct_from_point_lights_adaptive, direct_from_point_lights_averaged, direct_scale,
+    };
     use crate::light_reach::tests::{bundle_with, level, Rng};
     use lightfarm_proto::bundle::{Rect, Rooms, SurfaceInfo, SurfacePlace};
     use lightfarm_proto::lights::LightKind;
@@ -360,6 +398,18 @@ mod tests {
                     r.map(f32::to_bits),
                     "case {case}: texel {t}, every light at once against light by light"
                 );
+            }
+            // Every sample traced, light by light where each reaches: the whole-level average
+            // to float rounding.
+            let every = reach.all_lights_every_sample(&layout, &occluders, &lights, 4, scale);
+            let averaged = direct_from_point_lights_averaged(&layout, &occluders, &lights, 4);
+            for (t, (e, a)) in every.radiance.iter().zip(&averaged.radiance).enumerate() {
+                for c in 0..3 {
+                    assert!(
+                        (e[c] - a[c]).abs() <= 1e-6 * a[c].abs() + 1e-12,
+                        "case {case}: texel {t}, {e:?} against {a:?}"
+                    );
+                }
             }
             if case == 0 {
                 // More samples than the adaptive average holds: the whole-level average.

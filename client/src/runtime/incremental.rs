@@ -31,7 +31,8 @@
 //! and added to `out` only on the blocks and clutter objects written (MRT's blocks, the delta
 //! entries' rows, the gather's rows), and unreached blocks' coefficients are never written nor
 //! read. What stays proportional to the level there is finding the reach (one read of the
-//! input, per unit until its first non-zero value) and loops over blocks and entries without
+//! input, per unit until its first non-zero value; none when the caller names the spans the
+//! change lies in, [`Runtime::apply_delta_in`]) and loops over blocks and entries without
 //! products. With more bounces (and `Converged`) each application is the full-size one under
 //! a reach, since GMRES works on whole vectors anyway.
 //!
@@ -85,8 +86,9 @@ pub(super) struct Sparse {
     written: Vec<usize>,
     marked: Vec<bool>,
     change_everywhere: bool,
-    /// Units this call's input reaches.
+    /// Units this call's input reaches, and a flag per unit while they are listed.
     reached: Vec<usize>,
+    listed: Vec<bool>,
     /// While the stages run for a sparse call (`project_blocks` and `mrt_albedo_free` then
     /// skip their passes over the level).
     pub(super) active: bool,
@@ -100,6 +102,7 @@ impl Sparse {
         let (ranges, unit_of) = texel_units(&units, rt.n_texels);
         Sparse {
             marked: vec![false; ranges.len()],
+            listed: vec![false; ranges.len()],
             ranges,
             n_blocks,
             n_clutter,
@@ -196,6 +199,48 @@ impl Runtime {
         delta: &DirectLight,
         out: &mut IndirectLight,
     ) -> Result<DeltaApplied, ApplyError> {
+        self.apply_delta_impl(method, bounces, delta, None, out)
+    }
+
+    /// [`Runtime::apply_delta`] when the caller knows the texel ranges `spans` outside which
+    /// `delta` is zero (e.g. where a moved light was and is, [`crate::ReachDirect::light`]'s
+    /// spans): at one bounce the reach is then found on those texels alone, so not even one
+    /// read passes over the level. The same results as `apply_delta` when the promise holds
+    /// (checked in debug builds); a non-zero value outside the spans is not seen.
+    pub fn apply_delta_in(
+        &mut self,
+        method: Method,
+        bounces: Bounces,
+        delta: &DirectLight,
+        spans: &[Range<usize>],
+        out: &mut IndirectLight,
+    ) -> Result<DeltaApplied, ApplyError> {
+        debug_assert!(
+            {
+                let mut inside = vec![false; delta.radiance.len()];
+                for s in spans {
+                    let end = s.end.min(inside.len());
+                    inside[s.start.min(end)..end].fill(true);
+                }
+                delta
+                    .radiance
+                    .iter()
+                    .zip(&inside)
+                    .all(|(v, &i)| i || *v == [0.0; 3])
+            },
+            "apply_delta_in: a non-zero change outside its spans"
+        );
+        self.apply_delta_impl(method, bounces, delta, Some(spans), out)
+    }
+
+    fn apply_delta_impl(
+        &mut self,
+        method: Method,
+        bounces: Bounces,
+        delta: &DirectLight,
+        spans: Option<&[Range<usize>]>,
+        out: &mut IndirectLight,
+    ) -> Result<DeltaApplied, ApplyError> {
         let bounces = match bounces {
             Bounces::Feedback => return Err(ApplyError::DeltaFeedback),
             // The change's own light has no previous answer to start from.
@@ -220,7 +265,7 @@ impl Runtime {
         let sparse = matches!(bounces, Bounces::One | Bounces::Fixed(1)) && method != Method::Full;
         let result = if sparse {
             self.check_arguments(method, bounces, delta).map(|()| {
-                self.apply_once_sparse(method, &delta.radiance, &mut change.radiance);
+                self.apply_once_sparse(method, &delta.radiance, spans, &mut change.radiance);
                 Applied {
                     bounces: 1,
                     remaining_fraction: 0.0,
@@ -277,7 +322,15 @@ impl Runtime {
     /// input visit each unit once, `change` is cleared only where the last call wrote it, and
     /// the albedo touches only the units written. Every value equals the full application's
     /// (up to the sign of zeros): what is skipped multiplies, copies or scales zeros.
-    fn apply_once_sparse(&mut self, method: Method, delta: &[[f32; 3]], change: &mut [[f32; 3]]) {
+    /// With `spans`, the input is zero outside them and only their texels are read for the
+    /// reach (units listed in ascending order either way).
+    fn apply_once_sparse(
+        &mut self,
+        method: Method,
+        delta: &[[f32; 3]],
+        spans: Option<&[Range<usize>]>,
+        change: &mut [[f32; 3]],
+    ) {
         let n = self.n_texels;
         let mut sparse = self.sparse.take().unwrap_or_else(|| Sparse::new(self));
         // The last call's light.
@@ -296,15 +349,46 @@ impl Runtime {
         // The reach, and the input's planar copy on the reached units alone.
         let reach = self.reach.as_mut().expect("apply_delta sets the reach");
         sparse.reached.clear();
-        for (u, r) in sparse.ranges.iter().enumerate() {
-            let hit = Reach::any_light(delta, r.clone());
-            if u < sparse.n_blocks {
-                reach.blocks[u] = hit;
-            } else if u < sparse.n_blocks + sparse.n_clutter {
-                reach.clutter[u - sparse.n_blocks] = hit;
+        match spans {
+            None => {
+                for (u, r) in sparse.ranges.iter().enumerate() {
+                    let hit = Reach::any_light(delta, r.clone());
+                    if u < sparse.n_blocks {
+                        reach.blocks[u] = hit;
+                    } else if u < sparse.n_blocks + sparse.n_clutter {
+                        reach.clutter[u - sparse.n_blocks] = hit;
+                    }
+                    if hit {
+                        sparse.reached.push(u);
+                    }
+                }
             }
-            if hit {
-                sparse.reached.push(u);
+            Some(spans) => {
+                // A unit no span touches holds zeros only: unreached, as the scan would find.
+                reach.blocks.fill(false);
+                reach.clutter.fill(false);
+                let n = delta.len().min(sparse.unit_of.len());
+                for span in spans {
+                    let (mut t, end) = (span.start.min(n), span.end.min(n));
+                    while t < end {
+                        let u = sparse.unit_of[t] as usize;
+                        let stop = sparse.ranges[u].end.min(end);
+                        if !sparse.listed[u] && Reach::any_light(delta, t..stop) {
+                            sparse.listed[u] = true;
+                            sparse.reached.push(u);
+                        }
+                        t = stop;
+                    }
+                }
+                sparse.reached.sort_unstable();
+                for &u in &sparse.reached {
+                    sparse.listed[u] = false;
+                    if u < sparse.n_blocks {
+                        reach.blocks[u] = true;
+                    } else if u < sparse.n_blocks + sparse.n_clutter {
+                        reach.clutter[u - sparse.n_blocks] = true;
+                    }
+                }
             }
         }
         self.blocks_projected += reach.blocks.iter().filter(|r| **r).count();

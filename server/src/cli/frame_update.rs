@@ -13,14 +13,16 @@
 //!   was and where it is now (`ReachDirect::light`: the portal walk over the bundle's rooms, and
 //!   shadow rays against the reached rooms' occluders only; every texel against the level's
 //!   occluders for a bundle without rooms), its change from the previous frame, and
-//!   `Runtime::apply_delta` adding that change's indirect light to the previous frame's, on a
+//!   `Runtime::apply_delta_in` adding that change's indirect light to the previous frame's
+//!   (told the spans the change lies in, so it reads nothing else), on a
 //!   runtime of its own (a game relighting by the change does nothing else with it). Both
 //!   the walk and the direct light's bookkeeping touch the reached texels only. With `warm`
 //!   (all bounces, which reach most of a level anyway) the change's direct light updates the
 //!   level's direct light on the reached texels only and `Runtime::apply` relights it whole
 //!   from the previous frame's answer, on a runtime of its own.
 //!
-//! The adaptive direct light's error against tracing every sample, and that tracing's time,
+//! The adaptive direct light's error against tracing every sample (each light where it
+//! reaches, with rooms: `ReachDirect::all_lights_every_sample`), and that tracing's time,
 //! are printed first. Each way is reported with its direct-light and operator times apart
 //! (medians), then the
 //! update's total last (`median_ms=…`, like the other `frame-time` lines). The update's drift
@@ -192,13 +194,20 @@ pub fn time_update(
     };
     // Frame 0: both ways start from the same light.
     lights[moved].position = at(0);
-    let start = Instant::now();
-    let every_sample =
-        direct_from_point_lights_averaged(&layout, occluders, &lights, DIRECT_SAMPLES_PER_EDGE);
-    let direct_every_sample_ms = start.elapsed().as_secs_f64() * 1e3;
     let scale = direct_scale(&layout, occluders);
     // Each way walks its lights' reaches with scratch of its own.
     let mut full_reach = ReachDirect::new(runtime.bundle(), occluders);
+    // Every sample traced (each light where it reaches, with rooms).
+    let start = Instant::now();
+    let every_sample = match full_reach.as_mut() {
+        Some(r) => {
+            r.all_lights_every_sample(&layout, occluders, &lights, DIRECT_SAMPLES_PER_EDGE, scale)
+        }
+        None => {
+            direct_from_point_lights_averaged(&layout, occluders, &lights, DIRECT_SAMPLES_PER_EDGE)
+        }
+    };
+    let direct_every_sample_ms = start.elapsed().as_secs_f64() * 1e3;
     let direct0 = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
     let direct_error = relative_l2(&direct0.radiance, &every_sample.radiance);
     let mut full_out = IndirectLight::default();
@@ -288,12 +297,10 @@ pub fn time_update(
                     blocks_total: blocks,
                 }
             }
-            None => by_change.as_mut().expect("made unless warm").apply_delta(
-                method,
-                bounces,
-                &change,
-                &mut update_out,
-            )?,
+            None => by_change
+                .as_mut()
+                .expect("made unless warm")
+                .apply_delta_in(method, bounces, &change, &change_spans, &mut update_out)?,
         };
         update[0].push((mid - start).as_secs_f64() * 1e3);
         update[1].push(mid.elapsed().as_secs_f64() * 1e3);

@@ -149,7 +149,9 @@ fn one_and_fixed_bounces_by_the_change_equal_applying_the_new_light() {
 
 /// Changes one after another on one runtime, with no full application between them (one
 /// bounce skips its passes over the level: each call clears only what the last one wrote):
-/// every step equals applying the new light on a runtime of its own.
+/// every step equals applying the new light on a runtime of its own. Naming the spans the
+/// change lies in (`apply_delta_in`: wider than the change, split in two, overlapping, out of
+/// order) gives the same bits as finding them.
 #[test]
 fn consecutive_changes_relight_like_the_new_light() {
     let mut rng = Lcg(75);
@@ -163,9 +165,11 @@ fn consecutive_changes_relight_like_the_new_light() {
         }
         let mut rt = Runtime::new(b);
         let mut fresh = rt.clone();
+        let mut by_spans = rt.clone();
         let mut ld = direct(&mut rng, n);
         let mut out = IndirectLight::default();
         rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
+        let mut out_spans = out.clone();
         for (step, range) in ranges.into_iter().enumerate() {
             let (new, delta) = changed(&ld, range.clone(), &mut rng);
             rt.apply_delta(method, Bounces::One, &delta, &mut out)
@@ -174,6 +178,16 @@ fn consecutive_changes_relight_like_the_new_light() {
             fresh.apply(method, Bounces::One, &new, &mut want).unwrap();
             let err = max_rel(&out.radiance, &want.radiance);
             assert!(err < 1e-5, "{name} step {step} {range:?}: {err}");
+            let (lo, hi) = (range.start.saturating_sub(1), (range.end + 2).min(n));
+            let mid = (lo + hi) / 2;
+            let spans = [mid..hi, lo..mid + 1, mid..mid];
+            by_spans
+                .apply_delta_in(method, Bounces::One, &delta, &spans, &mut out_spans)
+                .unwrap();
+            let bits = |l: &IndirectLight| -> Vec<[u32; 3]> {
+                l.radiance.iter().map(|v| v.map(f32::to_bits)).collect()
+            };
+            assert_eq!(bits(&out_spans), bits(&out), "{name} step {step} {range:?}");
             ld = new;
         }
     }
