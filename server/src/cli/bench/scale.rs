@@ -83,8 +83,8 @@ pub struct ScaleSettings {
     pub tolerance: f64,
     /// Paths per texel of the error's references.
     pub reference_rays: u32,
-    /// Timed frames of each apply (the one-light comparison times a quarter of them, at
-    /// least 4: relighting everything includes every light's direct light).
+    /// Timed frames of each apply and of the one-light comparison (whose medians a first
+    /// frame's setup, e.g. indexing the exact gather by change, would sway with fewer).
     pub frames: usize,
 }
 
@@ -313,7 +313,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         0,
         method,
         Bounces::One,
-        (args.settings.frames / 4).max(4),
+        args.settings.frames,
     )?;
     drop(runtime);
     let way = |w: crate::cli::frame_update::Way| WayMs {
