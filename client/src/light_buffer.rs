@@ -255,38 +255,18 @@ fn ratio_range(ylo: f64, yhi: f64, xlo: f64, xhi: f64) -> Option<(f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::occluders::tests::Lcg;
+    use crate::occluders::tests::{random_scene, Lcg};
     use lightfarm_proto::bundle::Rect;
 
-    /// Random rects and triangles in a 10 m box, some of them walls across it.
+    /// Random rects and triangles in a 10 m box, every fifth rect a wall across it.
     fn scene(rng: &mut Lcg, n_rects: usize, n_tris: usize) -> Occluders {
-        let rects: Vec<Rect> = (0..n_rects)
-            .map(|k| {
-                let (a, b) = (rng.range(-5.0, 5.0), rng.range(-5.0, 5.0));
-                let big = k % 5 == 0;
-                let (w, h) = if big {
-                    (rng.range(4.0, 10.0), rng.range(4.0, 10.0))
-                } else {
-                    (rng.range(0.0, 2.0), rng.range(0.0, 2.0))
-                };
-                Rect {
-                    axis: (rng.next_u32() % 3) as u8,
-                    coord: rng.range(-5.0, 5.0),
-                    min: [a, b],
-                    max: [a + w, b + h],
-                }
-            })
-            .collect();
-        let tris: Vec<[[f32; 3]; 3]> = (0..n_tris)
-            .map(|_| {
-                let c = rng.point(-5.0, 5.0);
-                let mut p = || {
-                    let o = rng.point(-1.0, 1.0);
-                    [c[0] + o[0], c[1] + o[1], c[2] + o[2]]
-                };
-                [p(), p(), p()]
-            })
-            .collect();
+        let (mut rects, tris) = random_scene(rng, n_rects, n_tris);
+        for r in rects.iter_mut().step_by(5) {
+            r.max = [
+                r.min[0] + rng.range(4.0, 10.0),
+                r.min[1] + rng.range(4.0, 10.0),
+            ];
+        }
         Occluders::new(&rects, &tris)
     }
 

@@ -476,7 +476,8 @@ pub(crate) mod tests {
     /// A fixed-seed linear congruential generator (no `rand` in this crate).
     pub(crate) use lightfarm_proto::testing::Lcg;
 
-    fn random_scene(
+    /// Random rects and triangles in a 10 m box (seeded).
+    pub(crate) fn random_scene(
         rng: &mut Lcg,
         n_rects: usize,
         n_tris: usize,

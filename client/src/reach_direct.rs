@@ -132,22 +132,7 @@ impl ReachDirect {
         if samples_per_edge > ADAPTIVE_MAX_SAMPLES_PER_EDGE {
             return direct_from_point_lights_adaptive(layout, level, lights, samples_per_edge);
         }
-        let mut irr = vec![[0.0f64; 3]; layout.n_texels()];
-        let mut spans = Vec::new();
-        for light in lights {
-            let shadows = self.walk(layout, level, light, &mut spans);
-            add_light_term_in(
-                layout,
-                shadows,
-                light,
-                samples_per_edge,
-                scale,
-                &spans,
-                false,
-                &mut irr,
-            );
-        }
-        finish_irradiance(layout, &irr)
+        self.each_where_it_reaches(layout, level, lights, samples_per_edge, scale, false)
     }
 
     /// [`direct_from_point_lights_averaged`] (every sample traced) for every light at every
@@ -166,6 +151,20 @@ impl ReachDirect {
         if samples_per_edge > ADAPTIVE_MAX_SAMPLES_PER_EDGE {
             return direct_from_point_lights_averaged(layout, level, lights, samples_per_edge);
         }
+        self.each_where_it_reaches(layout, level, lights, samples_per_edge, scale, true)
+    }
+
+    /// Every light's terms ([`add_light_term_in`], adaptive or `every_sample`) summed per
+    /// texel in light order, each light on the texels it reaches, finished with the albedo.
+    fn each_where_it_reaches(
+        &mut self,
+        layout: &Layout,
+        level: &Occluders,
+        lights: &[Light],
+        samples_per_edge: u32,
+        scale: f64,
+        every_sample: bool,
+    ) -> DirectLight {
         let mut irr = vec![[0.0f64; 3]; layout.n_texels()];
         let mut spans = Vec::new();
         for light in lights {
@@ -177,7 +176,7 @@ impl ReachDirect {
                 samples_per_edge,
                 scale,
                 &spans,
-                true,
+                every_sample,
                 &mut irr,
             );
         }
