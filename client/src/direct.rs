@@ -559,6 +559,7 @@ pub(crate) fn finish_irradiance(layout: &Layout, irr: &[[f64; 3]]) -> DirectLigh
 /// True when `n` is axis-aligned and `light` lies behind or in the plane through `x` normal to
 /// it: then every sample point of the texel (which [`sample_points`] keeps in that plane) gets
 /// a zero [`unshadowed`] term, `n · (p − x)` being the same product `n_a (p_a − x_a)` at each.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(… > 0)`: a NaN product faces away too.
 fn faces_away(x: [f32; 3], n: [f32; 3], light: &Light) -> bool {
     let a = dominant_axis(n);
     let (u, v) = match a {

@@ -213,7 +213,7 @@ fn tangent_axes(axis: usize) -> (usize, usize) {
 /// direction from the light to a point of the box that lies on this face's pyramid falls in it.
 fn face_cells(face: u8, lo: [f64; 3], hi: [f64; 3]) -> Option<[u16; 4]> {
     let axis = (face / 2) as usize;
-    let (xlo, xhi) = if face % 2 == 0 {
+    let (xlo, xhi) = if face.is_multiple_of(2) {
         (lo[axis], hi[axis])
     } else {
         (-hi[axis], -lo[axis])

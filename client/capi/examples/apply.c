@@ -29,6 +29,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "lightfarm.h"
 
@@ -225,14 +226,14 @@ static LfTexelSpan *reach_of(LfRuntime *rt, const float *position, size_t *n) {
 
 /* Moves light 0 by 0.25 m along x the way a game relights one moving light: where it reaches
  * before and after (lf_runtime_light_reach), its direct light there only
- * (lf_runtime_direct_in_spans), the change, and lf_runtime_apply_delta on `indirect` (which
- * holds the indirect light of `direct`). Then relights everything for the moved lights and
+ * (lf_runtime_direct_in_spans), the change, and lf_runtime_apply_delta_in_spans on `indirect`
+ * (which holds the indirect light of `direct`), told the change lies in those spans. Then relights everything for the moved lights and
  * prints "moved_spans=S moved_error=R": the spans the moved light reaches and the relative L2
  * between the two answers. Returns 0, or 1 on error. */
 static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long n_lights,
                       const float *direct, float *indirect, size_t n_floats) {
     size_t i, k, n_old = 0, n_new = 0;
-    LfTexelSpan *old_spans, *new_spans;
+    LfTexelSpan *old_spans, *new_spans, *both;
     float *light0, *change, *moved, *want;
     double diff = 0.0, norm = 0.0;
     if (n_lights < 1) { printf(" moved_spans=0 moved_error=0"); return 0; }
@@ -258,8 +259,15 @@ static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long 
         != LF_STATUS_OK)
         return fail();
     for (i = 0; i < n_floats; i++) change[i] += light0[i];
-    if (lf_runtime_apply_delta(rt, method, change, n_floats, indirect, n_floats) != LF_STATUS_OK)
+    /* The change lies where the light reached before and after: relight by it there only. */
+    both = malloc((n_old + n_new + 1) * sizeof *both);
+    if (!both) { fprintf(stderr, "out of memory\n"); return 1; }
+    memcpy(both, old_spans, n_old * sizeof *both);
+    memcpy(both + n_old, new_spans, n_new * sizeof *both);
+    if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, both, n_old + n_new,
+                                        indirect, n_floats) != LF_STATUS_OK)
         return fail();
+    free(both);
     /* Everything again, for the moved lights. */
     for (i = 0; i < n_floats; i++) moved[i] = direct[i] + change[i];
     if (lf_runtime_apply(rt, method, moved, n_floats, want, n_floats) != LF_STATUS_OK)

@@ -396,6 +396,38 @@ int32_t lf_runtime_direct_in_spans(const LfRuntime *rt,
                                    size_t out_len);
 
 /**
+ * `lf_runtime_apply_delta` for a change of direct light that is zero outside `spans` (e.g.
+ * one moved light: the spans of `lf_runtime_light_reach` where it was and where it is now,
+ * its direct light before and after from `lf_runtime_direct_in_spans`): `delta_rgb` is read
+ * on the spans' texels only (whatever it holds elsewhere is taken as zero), and at one bounce
+ * (`LF_BOUNCES_ONE`) `indirect_rgb` is read and written only on the blocks and clutter
+ * objects the change's light reaches, so the call costs what the change reaches, not the
+ * level (with more bounces every texel is updated). The same values as `lf_runtime_apply_delta`
+ * with that change (up to the sign of zeros). Allocates only on its first call and when it is
+ * given more spans than before.
+ *
+ * Both buffers hold `3 x texels` floats, texel-major RGB in layout order, and must not
+ * overlap. Returns `LF_STATUS_OK`, or the statuses of `lf_runtime_apply_delta`, or
+ * `LF_STATUS_BAD_INDEX` (a span that is not a range of the layout's texels). `indirect_rgb`
+ * is changed only on success.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call. `delta_rgb` must be NULL or point to `delta_len` readable floats, `spans` to
+ * `n_spans` readable `LfTexelSpan`s; `indirect_rgb` must be NULL or point to `indirect_len`
+ * readable and writable floats overlapping neither; no other thread may write any of them
+ * during the call.
+ */
+int32_t lf_runtime_apply_delta_in_spans(LfRuntime *rt,
+                                        int32_t method,
+                                        const float *delta_rgb,
+                                        size_t delta_len,
+                                        const LfTexelSpan *spans,
+                                        size_t n_spans,
+                                        float *indirect_rgb,
+                                        size_t indirect_len);
+
+/**
  * Loads a bundle (the bytes of an `.lfb` file; they are copied, so the caller may free them
  * on return).
  *

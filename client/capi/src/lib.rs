@@ -29,7 +29,8 @@
 //! lf_runtime_apply_delta(rt, method, change, n, indirect, n);
 //! /* one moving light, direct light included: where it reaches before and after the move,
 //!    its direct light there (lf_runtime_direct_in_spans into `before` and `after`, which
-//!    hold that light's direct light), the change on those texels only, then apply_delta */
+//!    hold that light's direct light), the change on those texels only, then
+//!    lf_runtime_apply_delta_in_spans with both reaches' spans (reads and writes only there) */
 //! lf_runtime_light_reach(rt, old_position, spans, capacity, &n_spans);
 //! lf_runtime_free(rt);
 //! ```
@@ -39,8 +40,9 @@
 //!   scratch) and the entry points that create, query, apply (all of the direct light, or
 //!   [`lf_runtime_apply_delta`]: its change) and free it.
 //! - [`direct`]: [`LfPointLight`] and direct light from point lights at every texel.
-//! - [`reach`]: one moving light: the [`LfTexelSpan`]s a point light can reach and direct
-//!   light on given spans only, to relight by the change.
+//! - [`reach`]: one moving light: the [`LfTexelSpan`]s a point light can reach, direct
+//!   light on given spans only, and relighting by a change that lies in given spans
+//!   ([`lf_runtime_apply_delta_in_spans`]), so nothing passes over the whole level.
 //! - [`layout`]: the texel layout (centres, normals, albedo, sizes, surfaces) and each texel's
 //!   lightmap-atlas pixel, for engines that compute direct light themselves.
 //! - [`method`]: [`LfMethod`], the C names of the client's methods.
@@ -84,7 +86,10 @@ pub use layout::{
     lf_runtime_texel_sizes,
 };
 pub use method::LfMethod;
-pub use reach::{lf_runtime_direct_in_spans, lf_runtime_light_reach, LfTexelSpan};
+pub use reach::{
+    lf_runtime_apply_delta_in_spans, lf_runtime_direct_in_spans, lf_runtime_light_reach,
+    LfTexelSpan,
+};
 pub use runtime::{
     lf_runtime_apply, lf_runtime_apply_delta, lf_runtime_free, lf_runtime_has_drt,
     lf_runtime_has_full, lf_runtime_last_bounces, lf_runtime_new, lf_runtime_set_bounces,

@@ -171,3 +171,52 @@ pub unsafe extern "C" fn lf_runtime_direct_in_spans(
         Ok(())
     })
 }
+
+/// `lf_runtime_apply_delta` for a change of direct light that is zero outside `spans` (e.g.
+/// one moved light: the spans of `lf_runtime_light_reach` where it was and where it is now,
+/// its direct light before and after from `lf_runtime_direct_in_spans`): `delta_rgb` is read
+/// on the spans' texels only (whatever it holds elsewhere is taken as zero), and at one bounce
+/// (`LF_BOUNCES_ONE`) `indirect_rgb` is read and written only on the blocks and clutter
+/// objects the change's light reaches, so the call costs what the change reaches, not the
+/// level (with more bounces every texel is updated). The same values as `lf_runtime_apply_delta`
+/// with that change (up to the sign of zeros). Allocates only on its first call and when it is
+/// given more spans than before.
+///
+/// Both buffers hold `3 x texels` floats, texel-major RGB in layout order, and must not
+/// overlap. Returns `LF_STATUS_OK`, or the statuses of `lf_runtime_apply_delta`, or
+/// `LF_STATUS_BAD_INDEX` (a span that is not a range of the layout's texels). `indirect_rgb`
+/// is changed only on success.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+/// the call. `delta_rgb` must be NULL or point to `delta_len` readable floats, `spans` to
+/// `n_spans` readable `LfTexelSpan`s; `indirect_rgb` must be NULL or point to `indirect_len`
+/// readable and writable floats overlapping neither; no other thread may write any of them
+/// during the call.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)]
+pub unsafe extern "C" fn lf_runtime_apply_delta_in_spans(
+    rt: *mut LfRuntime,
+    method: i32,
+    delta_rgb: *const f32,
+    delta_len: usize,
+    spans: *const LfTexelSpan,
+    n_spans: usize,
+    indirect_rgb: *mut f32,
+    indirect_len: usize,
+) -> i32 {
+    status_call("lf_runtime_apply_delta_in_spans", || {
+        // SAFETY: NULL or live and unshared, per the contract.
+        let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
+        // SAFETY: readable for their lengths, per the contract; `indirect_rgb` overlaps
+        // neither input.
+        let (delta, spans, indirect) = unsafe {
+            (
+                slice(delta_rgb, delta_len, "delta_rgb")?,
+                slice(spans, n_spans, "spans")?,
+                slice_mut(indirect_rgb, indirect_len, "indirect_rgb")?,
+            )
+        };
+        rt.apply_delta_in_spans(method, delta, spans, indirect)
+    })
+}

@@ -6,6 +6,9 @@
 //! - Its direct and indirect scratch always hold exactly `texels` entries (sized in
 //!   [`lf_runtime_new`]), so [`lf_runtime_apply`] allocates nothing: it copies the caller's
 //!   direct light in, applies, and copies the indirect light out.
+//! - The scratch of [`LfRuntime::apply_delta_in_spans`] is sized on its first call and holds
+//!   zeros outside the spans of its last call (the change) and everywhere between calls (the
+//!   change's light).
 //! - Its lightmap atlas is computed once, in [`lf_runtime_new`], from the bundle it applies, so
 //!   the layout queries of [`crate::layout`] only copy.
 //! - C only ever sees `LfRuntime*` from [`lf_runtime_new`] (a leaked `Box`), and
@@ -16,10 +19,12 @@ use lightfarm_client::{
     TexelSpan,
 };
 use lightfarm_proto::bundle::Bundle;
+use std::ops::Range;
 
 use crate::bounces::LfBounces;
 use crate::boundary::{pointer_call, slice, slice_mut, status_call, value_call};
 use crate::method::LfMethod;
+use crate::reach::LfTexelSpan;
 use crate::status::CapiError;
 
 /// A loaded bundle ready to apply every frame (opaque to C).
@@ -44,6 +49,12 @@ pub struct LfRuntime {
     reach_spans: Vec<TexelSpan>,
     /// The direct light's clamp scale (`direct_scale`: a pass over every texel, made once).
     direct_scale: f64,
+    /// Scratch of `lf_runtime_apply_delta_in_spans` (sized on its first call): the change of
+    /// direct light, zero outside `span_delta_at` (its last call's spans), and the change's
+    /// indirect light, zero everywhere between calls.
+    span_delta: DirectLight,
+    span_delta_at: Vec<Range<usize>>,
+    span_change: IndirectLight,
 }
 
 impl LfRuntime {
@@ -71,7 +82,72 @@ impl LfRuntime {
             },
             bounces: Bounces::default(),
             last_bounces: 0,
+            span_delta: DirectLight::default(),
+            span_delta_at: Vec::new(),
+            span_change: IndirectLight::default(),
         })
+    }
+
+    /// `lf_runtime_apply_delta_in_spans` once its pointers are slices: `delta` and `indirect`
+    /// hold `3 x texels` floats (checked), the change is read on `spans` only and its indirect
+    /// light added to `indirect` only where the runtime wrote it (everywhere unless the bounce
+    /// mode is one bounce). On an error `indirect` is unchanged.
+    pub(crate) fn apply_delta_in_spans(
+        &mut self,
+        method: i32,
+        delta: &[f32],
+        spans: &[LfTexelSpan],
+        indirect: &mut [f32],
+    ) -> Result<(), CapiError> {
+        let method = LfMethod::from_raw(method)?.method();
+        check_rgb_len(self, "delta_rgb", delta.len())?;
+        check_rgb_len(self, "indirect_rgb", indirect.len())?;
+        let texels = self.runtime.n_texels();
+        for (index, s) in spans.iter().enumerate() {
+            let (start, end) = (s.start as usize, s.end as usize);
+            if start > end || end > texels {
+                return Err(CapiError::BadSpan {
+                    index,
+                    start,
+                    end,
+                    texels,
+                });
+            }
+        }
+        if self.span_delta.radiance.len() != texels {
+            self.span_delta.radiance = vec![[0.0; 3]; texels];
+            self.span_change.radiance = vec![[0.0; 3]; texels];
+        }
+        for r in self.span_delta_at.drain(..) {
+            self.span_delta.radiance[r].fill([0.0; 3]);
+        }
+        let (delta, _) = delta.as_chunks::<3>();
+        for s in spans {
+            let r = s.start as usize..s.end as usize;
+            self.span_delta.radiance[r.clone()].copy_from_slice(&delta[r.clone()]);
+            self.span_delta_at.push(r);
+        }
+        let applied = self.runtime.apply_delta_in(
+            method,
+            self.bounces,
+            &self.span_delta,
+            &self.span_delta_at,
+            &mut self.span_change,
+        )?;
+        self.last_bounces = applied.applied.bounces;
+        let (indirect, _) = indirect.as_chunks_mut::<3>();
+        let change = &mut self.span_change.radiance;
+        let mut add = |r: Range<usize>| {
+            for (o, c) in indirect[r.clone()].iter_mut().zip(&mut change[r]) {
+                *o = [o[0] + c[0], o[1] + c[1], o[2] + c[2]];
+                *c = [0.0; 3];
+            }
+        };
+        match self.runtime.delta_written() {
+            Some(ranges) => ranges.for_each(add),
+            None => add(0..texels),
+        }
+        Ok(())
     }
 
     /// The client runtime (its bundle holds the layout direct light is computed on).

@@ -14,7 +14,7 @@ use lightfarm::*;
 use lightfarm_client::{direct_from_point_lights_averaged, Atlas, Light, Occluders};
 use lightfarm_proto::bundle::{Bundle, Layout, Matrix, SurfaceAtlas, SurfaceInfo};
 use lightfarm_proto::lights::LightKind;
-use lightfarm_proto::testing::one_block_bundle;
+use lightfarm_proto::testing::{drt_bundle, one_block_bundle, Lcg};
 
 const OK: i32 = LfStatus::Ok as i32;
 
@@ -956,6 +956,107 @@ fn apply_delta_adds_the_indirect_light_of_the_change() {
     let mut indirect = [0.0f32; 6];
     assert_eq!(rt.apply_delta(mrt, &DIRECT, &mut indirect), OK);
     assert_eq!(indirect, MRT);
+}
+
+impl Rt {
+    fn apply_delta_in_spans(
+        &self,
+        method: i32,
+        delta: &[f32],
+        spans: &[LfTexelSpan],
+        indirect: &mut [f32],
+    ) -> i32 {
+        // SAFETY: live runtime; the slices are live for the call and do not overlap.
+        unsafe {
+            lf_runtime_apply_delta_in_spans(
+                self.0,
+                method,
+                delta.as_ptr(),
+                delta.len(),
+                spans.as_ptr(),
+                spans.len(),
+                indirect.as_mut_ptr(),
+                indirect.len(),
+            )
+        }
+    }
+}
+
+/// Relighting by a change named by its spans gives what `lf_runtime_apply_delta` gives with
+/// that change (MRT and DRT, one bounce and all), reads the change on its spans only (NaN
+/// elsewhere is never seen), clears its last call's spans before the next, and refuses a
+/// span outside the layout leaving the light alone.
+#[test]
+fn apply_delta_in_spans_is_apply_delta_on_the_spans() {
+    let mut rng = Lcg(0x5a7a_2026);
+    let mut bundle = drt_bundle(&mut rng, false, true, false);
+    // Dim albedo, so the random operators' bounces converge.
+    for a in &mut bundle.layout.albedo {
+        *a = a.map(|x| x * 0.2);
+    }
+    let bytes = bundle.encode();
+    let load = || {
+        // SAFETY: `bytes` is live for the call.
+        let rt = unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) };
+        assert!(!rt.is_null(), "DRT test bundle loads: {}", last_error());
+        Rt(rt)
+    };
+    let n = 17;
+    let span = |start: u32, end: u32| LfTexelSpan {
+        start,
+        end,
+        in_sight: 0,
+    };
+    // Changes one after another: block a's texels, then the lamp's and block b's.
+    let steps = [vec![span(1, 3)], vec![span(14, 17), span(5, 9)]];
+    for (mode, tolerance) in [(LfBounces::One, 0.0), (LfBounces::Converged, 1e-6)] {
+        for method in [LfMethod::Mrt as i32, LfMethod::Drt as i32] {
+            let (whole, by_spans) = (load(), load());
+            for rt in [&whole, &by_spans] {
+                // SAFETY: live runtime.
+                let set = unsafe { lf_runtime_set_bounces(rt.0, mode as i32, tolerance) };
+                assert_eq!(set, OK);
+            }
+            let direct: Vec<f32> = (0..3 * n).map(|_| rng.range(0.1, 1.0)).collect();
+            let mut a = vec![0.0f32; 3 * n];
+            assert_eq!(
+                whole.apply(method, &direct, &mut a),
+                OK,
+                "{mode:?} method {method}: {}",
+                last_error()
+            );
+            let mut b = a.clone();
+            for spans in &steps {
+                let mut delta = vec![0.0f32; 3 * n];
+                let mut outside = vec![f32::NAN; 3 * n];
+                for s in spans {
+                    for k in 3 * s.start as usize..3 * s.end as usize {
+                        delta[k] = rng.range(-0.3, 0.5);
+                        outside[k] = delta[k];
+                    }
+                }
+                assert_eq!(whole.apply_delta(method, &delta, &mut a), OK);
+                assert_eq!(
+                    by_spans.apply_delta_in_spans(method, &outside, spans, &mut b),
+                    OK,
+                    "{}",
+                    last_error()
+                );
+                // Equal as values (a zero's sign may differ).
+                assert_eq!(a, b, "{mode:?} method {method} spans {spans:?}");
+                assert!(b.iter().all(|v| v.is_finite()));
+            }
+        }
+    }
+    let rt = load();
+    let mut indirect = vec![0.5f32; 3 * n];
+    let bad = [span(2, 4), span(16, 18)];
+    assert_eq!(
+        rt.apply_delta_in_spans(0, &vec![1.0; 3 * n], &bad, &mut indirect),
+        LfStatus::BadIndex as i32
+    );
+    assert!(last_error().contains("spans[1]"), "{}", last_error());
+    assert_eq!(indirect, vec![0.5f32; 3 * n]);
 }
 
 #[test]

@@ -178,6 +178,17 @@ impl Runtime {
         blocks.chain(clutter).collect()
     }
 
+    /// The texel ranges in which the last successful [`Runtime::apply_delta`] (or
+    /// [`Runtime::apply_delta_in`]) may have changed its `out`: `Some` after a call at one
+    /// bounce that worked by the change (the blocks, clutter objects and other texel runs it
+    /// wrote, each once), `None` when it may have changed every texel (more bounces,
+    /// [`Method::Full`], or no such call yet). A caller keeping its own copy of the indirect
+    /// light can pass zeros as `out` and add them to its copy on these ranges alone.
+    pub fn delta_written(&self) -> Option<impl Iterator<Item = Range<usize>> + '_> {
+        let s = self.sparse.as_ref().filter(|s| !s.change_everywhere)?;
+        Some(s.written.iter().map(|&u| s.ranges[u].clone()))
+    }
+
     /// Whether block `k` is reached (always, outside [`Runtime::apply_delta`]).
     #[inline]
     pub(super) fn block_reached(reach: Option<&Reach>, k: usize) -> bool {
