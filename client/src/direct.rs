@@ -7,9 +7,10 @@
 //! `cosθ = n · (p − x) / r` and `V` the shadow-ray visibility from [`Occluders::occluded`].
 //!
 //! Shadow rays go to a [`LightBuffer`] per light when the level has at most
-//! [`WHOLE_LEVEL_MAX_OCCLUDERS`] occluders (a few microseconds to build, then a handful of
-//! primitive tests per ray), else to the occluders' hierarchy: both give the same answers, so
-//! the values do not depend on which was used.
+//! [`WHOLE_LEVEL_MAX_OCCLUDERS`] occluders and at most `LIGHT_BUFFERS_MAX` occluders × lights
+//! (a few microseconds to build, then a handful of primitive tests per ray), else to the
+//! occluders' hierarchy: both give the same answers, so the values do not depend on which was
+//! used.
 //!
 //! Invariants:
 //! - [`DirectLight::radiance`] has one entry per layout texel, in layout order.

@@ -16,8 +16,9 @@
 //! reached texel therefore stays inside reached rooms' closed boxes up to its first blocker
 //! (a wall of the room it is in, or an object in it), and that blocker's bounds meet the room:
 //! it is in the subset. The subset is part of the level's occluders and is tested with their
-//! margins, so it never reports a hit the level's would not. Where the walk gives up or leaves the level
-//! (a `Void` face, a light outside every room) the level's occluders are used whole.
+//! margins, so it never reports a hit the level's would not. Where the walk gives up or leaves
+//! the level (a `Void` face, a light outside every room) the level's occluders are used whole:
+//! a buffer over all of them up to [`WHOLE_LEVEL_MAX_OCCLUDERS`], else their hierarchy.
 //!
 //! [`ReachDirect::all_lights`] does the same for every light of a level and sums their terms
 //! per texel in light order, as the whole-level adaptive average sums them; a light adds
