@@ -22,7 +22,7 @@ use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::lights::{Light, LightKind};
 
 use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
-use crate::occluders::Occluders;
+use crate::occluders::{tangent_axes, Occluders};
 
 /// `r²` is clamped below at `(R_MIN_REL · scene scale)²`.
 const R_MIN_REL: f64 = 1e-4;
@@ -563,11 +563,7 @@ pub(crate) fn finish_irradiance(layout: &Layout, irr: &[[f64; 3]]) -> DirectLigh
 #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(… > 0)`: a NaN product faces away too.
 fn faces_away(x: [f32; 3], n: [f32; 3], light: &Light) -> bool {
     let a = dominant_axis(n);
-    let (u, v) = match a {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    };
+    let (u, v) = tangent_axes(a as u8);
     n[u] == 0.0 && n[v] == 0.0 && !(n[a] as f64 * (light.position[a] - x[a] as f64) > 0.0)
 }
 
@@ -636,11 +632,7 @@ fn unshadowed(x: [f32; 3], n: [f32; 3], light: &Light, r2_min: f64) -> f64 {
 /// [`direct_from_point_lights_averaged`] averages.
 fn sample_points(x: [f32; 3], n: [f32; 3], size: [f32; 2], m: usize, out: &mut [[f32; 3]]) {
     let axis = dominant_axis(n);
-    let (u, v) = match axis {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    };
+    let (u, v) = tangent_axes(axis as u8);
     // The offset of sample `i` along an edge, in texel units: the same expression per sample
     // whether evaluated once per column (up to 16 samples per edge) or per sample.
     let offset = |i: usize| (i as f32 + 0.5) / m as f32 - 0.5;

@@ -24,7 +24,7 @@
 //! coordinates against f64 rounding; the
 //! distance cut compares exact f64 distances with a relative `1e-9` margin.
 
-use crate::occluders::Occluders;
+use crate::occluders::{tangent_axes, Occluders};
 
 /// Cells per cube-face edge: 6 × 32² direction cells.
 pub const CELLS_PER_EDGE: usize = 32;
@@ -52,8 +52,9 @@ pub struct LightBuffer {
     /// Start of each cell's entries (`6 · n² + 1`).
     offsets: Vec<u32>,
     entries: Vec<Entry>,
-    /// Scratch: (distance, primitive) sorted, and each one's cell rectangles per face.
-    order: Vec<(f64, u32)>,
+    /// Scratch: (distance, primitive, padded bounds relative to the light) sorted by
+    /// distance, and each one's cell rectangles per face.
+    order: Vec<(f64, u32, [f64; 3], [f64; 3])>,
     rects: Vec<(u32, u8, [u16; 4])>,
 }
 
@@ -72,20 +73,21 @@ impl LightBuffer {
         self.order.clear();
         let mut push = |i: u32| {
             let (lo, hi) = occluders.padded_prim_bounds(i as usize);
+            let lo = [0, 1, 2].map(|k| lo[k] as f64 - p[k]);
+            let hi = [0, 1, 2].map(|k| hi[k] as f64 - p[k]);
             let d2: f64 = (0..3)
                 .map(|k| {
-                    let (a, b) = (lo[k] as f64 - p[k], hi[k] as f64 - p[k]);
-                    let gap = if a > 0.0 {
-                        a
-                    } else if b < 0.0 {
-                        -b
+                    let gap = if lo[k] > 0.0 {
+                        lo[k]
+                    } else if hi[k] < 0.0 {
+                        -hi[k]
                     } else {
                         0.0
                     };
                     gap * gap
                 })
                 .sum();
-            self.order.push((d2.sqrt(), i));
+            self.order.push((d2.sqrt(), i, lo, hi));
         };
         match prims {
             Some(ix) => ix.iter().for_each(|&i| push(i)),
@@ -97,10 +99,7 @@ impl LightBuffer {
 
         let n = CELLS_PER_EDGE;
         self.rects.clear();
-        for (rank, &(_, i)) in self.order.iter().enumerate() {
-            let (lo, hi) = occluders.padded_prim_bounds(i as usize);
-            let lo = [0, 1, 2].map(|k| lo[k] as f64 - p[k]);
-            let hi = [0, 1, 2].map(|k| hi[k] as f64 - p[k]);
+        for (rank, &(_, _, lo, hi)) in self.order.iter().enumerate() {
             for face in 0..6u8 {
                 if let Some(r) = face_cells(face, lo, hi) {
                     self.rects.push((rank as u32, face, r));
@@ -126,7 +125,7 @@ impl LightBuffer {
         // Filled in rank order, so each cell's list comes out nearest first.
         let mut cursor = std::mem::take(&mut self.offsets);
         for &(rank, face, [i0, i1, j0, j1]) in &self.rects {
-            let (dmin, prim) = self.order[rank as usize];
+            let (dmin, prim, _, _) = self.order[rank as usize];
             for j in j0..=j1 {
                 let row = (face as usize * n + j as usize) * n;
                 for i in i0..=i1 {
@@ -179,7 +178,7 @@ impl LightBuffer {
         } else {
             2
         };
-        let (u, v) = tangent_axes(axis);
+        let (u, v) = tangent_axes(axis as u8);
         let face = 2 * axis + usize::from(w[axis] < 0.0);
         let n = CELLS_PER_EDGE;
         let cell = |t: f64| (((t + 1.0) * 0.5 * n as f64) as usize).min(n - 1);
@@ -199,15 +198,6 @@ impl LightBuffer {
     }
 }
 
-/// The other two axes of `axis`, ascending.
-fn tangent_axes(axis: usize) -> (usize, usize) {
-    match axis {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    }
-}
-
 /// The cell rectangle `[i0, i1] × [j0, j1]` (i along the face's first tangent axis) covering
 /// the projection onto cube face `face` of the box `[lo, hi]` given relative to the light: every
 /// direction from the light to a point of the box that lies on this face's pyramid falls in it.
@@ -221,7 +211,7 @@ fn face_cells(face: u8, lo: [f64; 3], hi: [f64; 3]) -> Option<[u16; 4]> {
     if xhi <= 0.0 {
         return None;
     }
-    let (u, v) = tangent_axes(axis);
+    let (u, v) = tangent_axes(axis as u8);
     let (u0, u1) = ratio_range(lo[u], hi[u], xlo, xhi)?;
     let (v0, v1) = ratio_range(lo[v], hi[v], xlo, xhi)?;
     let n = CELLS_PER_EDGE;

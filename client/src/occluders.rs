@@ -81,7 +81,8 @@ pub struct Occluders {
     scale: f32,
 }
 
-fn tangent_axes(axis: u8) -> (usize, usize) {
+/// The other two axes of `axis`, ascending (a rect's tangents; a texel plane's axes).
+pub(crate) fn tangent_axes(axis: u8) -> (usize, usize) {
     match axis {
         0 => (1, 2),
         1 => (0, 2),

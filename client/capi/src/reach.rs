@@ -33,6 +33,23 @@ pub struct LfTexelSpan {
     pub in_sight: u8,
 }
 
+/// Fails unless every span is a range of the layout's `texels` texels (`start <= end <=
+/// texels`), naming the first that is not.
+pub(crate) fn check_spans(spans: &[LfTexelSpan], texels: usize) -> Result<(), CapiError> {
+    for (index, s) in spans.iter().enumerate() {
+        let (start, end) = (s.start as usize, s.end as usize);
+        if start > end || end > texels {
+            return Err(CapiError::BadSpan {
+                index,
+                start,
+                end,
+                texels,
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Writes the texel spans the point light at `position` (3 floats, world metres) can reach to
 /// `out_spans`, and their number to `*out_count`.
 ///
@@ -136,26 +153,14 @@ pub unsafe extern "C" fn lf_runtime_direct_in_spans(
         }
         check_rgb_len(rt, "out_rgb", out_len)?;
         let lights = client_lights(lights)?;
-        let texels = rt.runtime().n_texels();
-        let spans = spans
+        check_spans(spans, rt.runtime().n_texels())?;
+        let spans: Vec<TexelSpan> = spans
             .iter()
-            .enumerate()
-            .map(|(index, s)| {
-                let (start, end) = (s.start as usize, s.end as usize);
-                if start > end || end > texels {
-                    return Err(CapiError::BadSpan {
-                        index,
-                        start,
-                        end,
-                        texels,
-                    });
-                }
-                Ok(TexelSpan {
-                    texels: start..end,
-                    in_sight: s.in_sight != 0,
-                })
+            .map(|s| TexelSpan {
+                texels: s.start as usize..s.end as usize,
+                in_sight: s.in_sight != 0,
             })
-            .collect::<Result<Vec<_>, CapiError>>()?;
+            .collect();
         // SAFETY: `out_len` writable floats, per the contract, overlapping no input.
         let out = unsafe { slice_mut(out_rgb, out_len, "out_rgb") }?;
         let (out, _) = out.as_chunks_mut::<3>();

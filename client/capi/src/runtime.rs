@@ -24,7 +24,7 @@ use std::ops::Range;
 use crate::bounces::LfBounces;
 use crate::boundary::{pointer_call, slice, slice_mut, status_call, value_call};
 use crate::method::LfMethod;
-use crate::reach::LfTexelSpan;
+use crate::reach::{check_spans, LfTexelSpan};
 use crate::status::CapiError;
 
 /// A loaded bundle ready to apply every frame (opaque to C).
@@ -103,17 +103,7 @@ impl LfRuntime {
         check_rgb_len(self, "delta_rgb", delta.len())?;
         check_rgb_len(self, "indirect_rgb", indirect.len())?;
         let texels = self.runtime.n_texels();
-        for (index, s) in spans.iter().enumerate() {
-            let (start, end) = (s.start as usize, s.end as usize);
-            if start > end || end > texels {
-                return Err(CapiError::BadSpan {
-                    index,
-                    start,
-                    end,
-                    texels,
-                });
-            }
-        }
+        check_spans(spans, texels)?;
         if self.span_delta.radiance.len() != texels {
             self.span_delta.radiance = vec![[0.0; 3]; texels];
             self.span_change.radiance = vec![[0.0; 3]; texels];
