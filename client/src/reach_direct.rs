@@ -220,6 +220,12 @@ impl ReachDirect {
         Shadows::Buffers(level, std::slice::from_ref(&self.buffer))
     }
 
+    /// Sets `spans` to the texels a light at `position` reaches ([`LightReach::texels`]),
+    /// without lighting them: the spans [`ReachDirect::light`] writes for a light there.
+    pub fn texels(&mut self, layout: &Layout, position: [f64; 3], spans: &mut Vec<TexelSpan>) {
+        self.reach.texels(layout, position, spans);
+    }
+
     /// Rooms the last [`ReachDirect::light`] call reached.
     pub fn rooms_reached(&self) -> usize {
         self.reach.rooms_reached()

@@ -5,8 +5,9 @@
 //! then that the example's engine path (unshadowed direct light it computes itself from the
 //! layout queries, through the lightmap atlas) matches the client's centre-sampled direct light
 //! without occluders, applied the same way, and that its surfaces and atlas are the bundle's;
-//! and that its moved light, relit through the one-light path (reach, direct light on the
-//! spans, `lf_runtime_apply_delta`), agrees with relighting everything.
+//! and that its moved light, relit through the one-light path (reach and direct light there,
+//! `lf_runtime_light_direct`, bit-identical to `lf_runtime_direct_in_spans` on its spans; then
+//! `lf_runtime_apply_delta_in_spans`), agrees with relighting everything.
 //!
 //! The library is found beside this test binary: `lightfarm-client-capi` is a dev-dependency
 //! of this crate, so cargo builds its cdylib into `target/<profile>/deps/` (and, when the capi
@@ -251,6 +252,9 @@ fn c_example_matches_the_rust_client() {
         moved_error < 3e-3,
         "moved light relit by its change: {moved_error:.2e}"
     );
+    // The one-call reach and direct light (shadow rays against the reached room's occluders
+    // only) gave what direct light on the same spans against the whole level gives.
+    assert_eq!(field(line, "light_direct_same"), "1", "{line}");
 
     // A file that is not a bundle: exit status 1 and the library's reason on stderr.
     let garbage = dir.join("garbage.lfb");

@@ -209,55 +209,62 @@ static long read_lights(const char *path, LfPointLight **lights) {
     return n;
 }
 
-/* The spans a light at `position` reaches (malloc'd, `*n` of them), or NULL on error. Asks for
- * the count first (LF_STATUS_BAD_LENGTH when there are any), then takes them. */
-static LfTexelSpan *reach_of(LfRuntime *rt, const float *position, size_t *n) {
+/* The spans `light` reaches (malloc'd, `*n` of them), with its direct light on them written
+ * to `out` (`n_floats` floats; other texels keep their values), or NULL on error. Asks for the
+ * count first (LF_STATUS_BAD_LENGTH when there are any), then takes both. Checks that the
+ * one-call path gives what lf_runtime_direct_in_spans gives on the same spans, bit for bit
+ * (`*same` becomes 0 otherwise). */
+static LfTexelSpan *light_direct_of(LfRuntime *rt, const LfPointLight *light, size_t *n,
+                                    float *out, size_t n_floats, int *same) {
     LfTexelSpan *spans;
-    int32_t status = lf_runtime_light_reach(rt, position, NULL, 0, n);
+    float *check;
+    int32_t status = lf_runtime_light_direct(rt, light, NULL, 0, n, out, n_floats);
     if (status != LF_STATUS_OK && status != LF_STATUS_BAD_LENGTH) return NULL;
     spans = malloc((*n + 1) * sizeof *spans);
-    if (!spans) { fprintf(stderr, "out of memory\n"); return NULL; }
-    if (lf_runtime_light_reach(rt, position, spans, *n, n) != LF_STATUS_OK) {
+    check = malloc(n_floats * sizeof *check);
+    if (!spans || !check) { fprintf(stderr, "out of memory\n"); return NULL; }
+    memcpy(check, out, n_floats * sizeof *check);
+    if (lf_runtime_light_direct(rt, light, spans, *n, n, out, n_floats) != LF_STATUS_OK ||
+        lf_runtime_direct_in_spans(rt, light, 1, spans, *n, check, n_floats) != LF_STATUS_OK) {
         free(spans);
+        free(check);
         return NULL;
     }
+    if (memcmp(check, out, n_floats * sizeof *check) != 0) *same = 0;
+    free(check);
     return spans;
 }
 
 /* Moves light 0 by 0.25 m along x the way a game relights one moving light: where it reaches
- * before and after (lf_runtime_light_reach), its direct light there only
- * (lf_runtime_direct_in_spans), the change, and lf_runtime_apply_delta_in_spans on `indirect`
- * (which holds the indirect light of `direct`), told the change lies in those spans. Then relights everything for the moved lights and
- * prints "moved_spans=S moved_error=R": the spans the moved light reaches and the relative L2
- * between the two answers. Returns 0, or 1 on error. */
+ * before and after and its direct light there only (lf_runtime_light_direct), the change, and
+ * lf_runtime_apply_delta_in_spans on `indirect` (which holds the indirect light of `direct`),
+ * told the change lies in those spans. Then relights everything for the moved lights and
+ * prints "moved_spans=S moved_error=R light_direct_same=B": the spans the moved light reaches,
+ * the relative L2 between the two answers, and 1 when lf_runtime_light_direct gave what
+ * lf_runtime_direct_in_spans gives on its spans. Returns 0, or 1 on error. */
 static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long n_lights,
                       const float *direct, float *indirect, size_t n_floats) {
     size_t i, k, n_old = 0, n_new = 0;
     LfTexelSpan *old_spans, *new_spans, *both;
     float *light0, *change, *moved, *want;
     double diff = 0.0, norm = 0.0;
-    if (n_lights < 1) { printf(" moved_spans=0 moved_error=0"); return 0; }
+    int same = 1;
+    if (n_lights < 1) { printf(" moved_spans=0 moved_error=0 light_direct_same=1"); return 0; }
     light0 = calloc(n_floats, sizeof *light0);
     change = malloc(n_floats * sizeof *change);
     moved = malloc(n_floats * sizeof *moved);
     want = malloc(n_floats * sizeof *want);
     if (!light0 || !change || !moved || !want) { fprintf(stderr, "out of memory\n"); return 1; }
-    old_spans = reach_of(rt, lights[0].position, &n_old);
-    if (!old_spans) return fail();
     /* Light 0's direct light alone, on its reach (zero elsewhere, as it is). */
-    if (lf_runtime_direct_in_spans(rt, lights, 1, old_spans, n_old, light0, n_floats)
-        != LF_STATUS_OK)
-        return fail();
+    old_spans = light_direct_of(rt, lights, &n_old, light0, n_floats, &same);
+    if (!old_spans) return fail();
     for (i = 0; i < n_floats; i++) change[i] = -light0[i];
     lights[0].position[0] += 0.25f;
-    new_spans = reach_of(rt, lights[0].position, &n_new);
-    if (!new_spans) return fail();
     for (k = 0; k < n_old; k++)
         for (i = 3 * (size_t)old_spans[k].start; i < 3 * (size_t)old_spans[k].end; i++)
             light0[i] = 0.0f;
-    if (lf_runtime_direct_in_spans(rt, lights, 1, new_spans, n_new, light0, n_floats)
-        != LF_STATUS_OK)
-        return fail();
+    new_spans = light_direct_of(rt, lights, &n_new, light0, n_floats, &same);
+    if (!new_spans) return fail();
     for (i = 0; i < n_floats; i++) change[i] += light0[i];
     /* The change lies where the light reached before and after: relight by it there only. */
     both = malloc((n_old + n_new + 1) * sizeof *both);
@@ -276,7 +283,8 @@ static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long 
         diff += ((double)indirect[i] - want[i]) * ((double)indirect[i] - want[i]);
         norm += (double)want[i] * want[i];
     }
-    printf(" moved_spans=%zu moved_error=%.3e", n_new, norm > 0.0 ? sqrt(diff / norm) : 0.0);
+    printf(" moved_spans=%zu moved_error=%.3e light_direct_same=%d", n_new,
+           norm > 0.0 ? sqrt(diff / norm) : 0.0, same);
     free(old_spans);
     free(new_spans);
     free(light0);

@@ -367,6 +367,38 @@ int32_t lf_runtime_light_reach(LfRuntime *rt,
                                size_t *out_count);
 
 /**
+ * One point light's reach and its direct light there, in one call: writes the texel spans
+ * `light` reaches to `out_spans` (as `lf_runtime_light_reach`; their number to `*out_count`)
+ * and the light's direct outgoing radiance on those spans to `out_rgb` (`out_len` = `3 x
+ * texels` floats, texel-major RGB; every other texel keeps its value): the values
+ * `lf_runtime_direct_in_spans` gives for this light on these spans, bit for bit, at the cost
+ * of what the light reaches: its shadow rays are tested against the occluders of the rooms the
+ * light reached only (the whole level's when the bundle has no rooms section, or the walk
+ * gives up or leaves the level), where `lf_runtime_direct_in_spans` prepares the whole level's
+ * occluders for every call.
+ *
+ * Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, `light`, `out_count`, `out_rgb`
+ * with `out_len > 0`, or `out_spans` when spans are to be written), `LF_STATUS_INVALID_LIGHT`,
+ * `LF_STATUS_BAD_LENGTH` (`out_len` is not `3 x texels`, or `capacity` is below the number of
+ * spans: `*out_count` then holds the number needed) or `LF_STATUS_PANIC`. On an error neither
+ * `out_spans` nor `out_rgb` is written. Allocates only while a walk reaches more than any
+ * before it.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call. `light` must be NULL or readable; `out_spans` must be NULL or point to `capacity`
+ * writable `LfTexelSpan`s, `out_count` NULL or writable, `out_rgb` NULL or `out_len` writable
+ * floats, none overlapping another.
+ */
+int32_t lf_runtime_light_direct(LfRuntime *rt,
+                                const LfPointLight *light,
+                                LfTexelSpan *out_spans,
+                                size_t capacity,
+                                size_t *out_count,
+                                float *out_rgb,
+                                size_t out_len);
+
+/**
  * Computes direct outgoing radiance from `n_lights` point lights on the texels of `spans`
  * only (e.g. where a moved light reaches, before and after the move), with shadow rays against
  * the bundle's geometry, averaged over each texel adaptively; every other texel of `out_rgb`

@@ -27,11 +27,12 @@
 //! /* when some lights move: only their change of direct light (new minus old), and only
 //!    what it reaches is computed */
 //! lf_runtime_apply_delta(rt, method, change, n, indirect, n);
-//! /* one moving light, direct light included: where it reaches before and after the move,
-//!    its direct light there (lf_runtime_direct_in_spans into `before` and `after`, which
-//!    hold that light's direct light), the change on those texels only, then
-//!    lf_runtime_apply_delta_in_spans with both reaches' spans (reads and writes only there) */
-//! lf_runtime_light_reach(rt, old_position, spans, capacity, &n_spans);
+//! /* one moving light, direct light included: where it reaches before and after the move and
+//!    its direct light there (lf_runtime_light_direct into `before` and `after`, which hold
+//!    that light's direct light; shadow rays against the reached rooms only), the change on
+//!    those texels only, then lf_runtime_apply_delta_in_spans with both reaches' spans (reads
+//!    and writes only there) */
+//! lf_runtime_light_direct(rt, &moved, spans, capacity, &n_spans, after, n);
 //! lf_runtime_free(rt);
 //! ```
 //!
@@ -41,7 +42,8 @@
 //!   [`lf_runtime_apply_delta`]: its change) and free it.
 //! - [`direct`]: [`LfPointLight`] and direct light from point lights at every texel.
 //! - [`reach`]: one moving light: the [`LfTexelSpan`]s a point light can reach, direct
-//!   light on given spans only, and relighting by a change that lies in given spans
+//!   light on given spans only or on the light's own reach ([`lf_runtime_light_direct`]),
+//!   and relighting by a change that lies in given spans
 //!   ([`lf_runtime_apply_delta_in_spans`]), so nothing passes over the whole level.
 //! - [`layout`]: the texel layout (centres, normals, albedo, sizes, surfaces) and each texel's
 //!   lightmap-atlas pixel, for engines that compute direct light themselves.
@@ -87,8 +89,8 @@ pub use layout::{
 };
 pub use method::LfMethod;
 pub use reach::{
-    lf_runtime_apply_delta_in_spans, lf_runtime_direct_in_spans, lf_runtime_light_reach,
-    LfTexelSpan,
+    lf_runtime_apply_delta_in_spans, lf_runtime_direct_in_spans, lf_runtime_light_direct,
+    lf_runtime_light_reach, LfTexelSpan,
 };
 pub use runtime::{
     lf_runtime_apply, lf_runtime_apply_delta, lf_runtime_free, lf_runtime_has_drt,

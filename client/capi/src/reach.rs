@@ -1,7 +1,9 @@
 //! One moving light at a time, for C callers: where a point light can reach
 //! ([`lf_runtime_light_reach`]) and direct light computed only there
-//! ([`lf_runtime_direct_in_spans`]), so that a game relights by the change of direct light
-//! (`lf_runtime_apply_delta`) without lighting the whole level every frame.
+//! ([`lf_runtime_direct_in_spans`]), or both in one call with shadow rays against only the
+//! reached rooms' occluders ([`lf_runtime_light_direct`]), so that a game relights by the
+//! change of direct light (`lf_runtime_apply_delta_in_spans`) without lighting the whole level
+//! every frame.
 //!
 //! The spans are those of `lightfarm_client::LightReach` (the bundle's rooms and the windows
 //! between them): a texel outside them has no straight segment to the light, so the light's
@@ -99,6 +101,81 @@ pub unsafe extern "C" fn lf_runtime_light_reach(
         // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
         let out = unsafe { slice_mut(out_spans, spans.len(), "out_spans") }?;
         for (o, s) in out.iter_mut().zip(spans) {
+            *o = LfTexelSpan {
+                start: s.texels.start as u32,
+                end: s.texels.end as u32,
+                in_sight: u8::from(s.in_sight),
+            };
+        }
+        Ok(())
+    })
+}
+
+/// One point light's reach and its direct light there, in one call: writes the texel spans
+/// `light` reaches to `out_spans` (as `lf_runtime_light_reach`; their number to `*out_count`)
+/// and the light's direct outgoing radiance on those spans to `out_rgb` (`out_len` = `3 x
+/// texels` floats, texel-major RGB; every other texel keeps its value): the values
+/// `lf_runtime_direct_in_spans` gives for this light on these spans, bit for bit, at the cost
+/// of what the light reaches: its shadow rays are tested against the occluders of the rooms the
+/// light reached only (the whole level's when the bundle has no rooms section, or the walk
+/// gives up or leaves the level), where `lf_runtime_direct_in_spans` prepares the whole level's
+/// occluders for every call.
+///
+/// Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, `light`, `out_count`, `out_rgb`
+/// with `out_len > 0`, or `out_spans` when spans are to be written), `LF_STATUS_INVALID_LIGHT`,
+/// `LF_STATUS_BAD_LENGTH` (`out_len` is not `3 x texels`, or `capacity` is below the number of
+/// spans: `*out_count` then holds the number needed) or `LF_STATUS_PANIC`. On an error neither
+/// `out_spans` nor `out_rgb` is written. Allocates only while a walk reaches more than any
+/// before it.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+/// the call. `light` must be NULL or readable; `out_spans` must be NULL or point to `capacity`
+/// writable `LfTexelSpan`s, `out_count` NULL or writable, `out_rgb` NULL or `out_len` writable
+/// floats, none overlapping another.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_light_direct(
+    rt: *mut LfRuntime,
+    light: *const LfPointLight,
+    out_spans: *mut LfTexelSpan,
+    capacity: usize,
+    out_count: *mut usize,
+    out_rgb: *mut f32,
+    out_len: usize,
+) -> i32 {
+    status_call("lf_runtime_light_direct", || {
+        // SAFETY: NULL or live and unshared, per the contract.
+        let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
+        // SAFETY: NULL or readable, per the contract.
+        let light = unsafe { light.as_ref() }.ok_or(CapiError::NullPointer("light"))?;
+        // SAFETY: NULL or writable, per the contract.
+        let count = unsafe { out_count.as_mut() }.ok_or(CapiError::NullPointer("out_count"))?;
+        let light = client_lights(std::slice::from_ref(light))?.remove(0);
+        if out_rgb.is_null() && out_len > 0 {
+            return Err(CapiError::NullPointer("out_rgb"));
+        }
+        check_rgb_len(rt, "out_rgb", out_len)?;
+        // The walk alone first: nothing is written unless the spans fit.
+        let needed = rt.light_reach(light.position).len();
+        *count = needed;
+        if needed > capacity {
+            return Err(CapiError::TooFew {
+                what: "out_spans",
+                needed,
+                got: capacity,
+            });
+        }
+        if out_spans.is_null() && needed > 0 {
+            return Err(CapiError::NullPointer("out_spans"));
+        }
+        // SAFETY: `out_len` writable floats, per the contract, overlapping no input.
+        let out = unsafe { slice_mut(out_rgb, out_len, "out_rgb") }?;
+        let (out, _) = out.as_chunks_mut::<3>();
+        let spans = rt.light_direct(&light, out);
+        debug_assert_eq!(spans.len(), needed, "the same walk twice");
+        // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
+        let out_spans = unsafe { slice_mut(out_spans, spans.len(), "out_spans") }?;
+        for (o, s) in out_spans.iter_mut().zip(spans) {
             *o = LfTexelSpan {
                 start: s.texels.start as u32,
                 end: s.texels.end as u32,

@@ -15,8 +15,8 @@
 //!   [`lf_runtime_free`] is the only place that box is dropped.
 
 use lightfarm_client::{
-    direct_scale, Atlas, Bounces, DirectLight, IndirectLight, LightReach, Occluders, Runtime,
-    TexelSpan,
+    direct_from_point_lights_adaptive_in, direct_scale, Atlas, Bounces, DirectLight, IndirectLight,
+    Light, Occluders, ReachDirect, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Bundle;
 use std::ops::Range;
@@ -43,9 +43,10 @@ pub struct LfRuntime {
     bounces: Bounces,
     /// One-bounce applications the last successful `lf_runtime_apply` made.
     last_bounces: u32,
-    /// A point light's reach over the bundle's rooms (None: the bundle has no rooms section).
-    reach: Option<LightReach>,
-    /// Scratch: the spans of the last `lf_runtime_light_reach`.
+    /// A point light's reach over the bundle's rooms, with the occluders of each room (None:
+    /// the bundle has no rooms section).
+    reach: Option<ReachDirect>,
+    /// Scratch: the spans of the last `lf_runtime_light_reach` or `lf_runtime_light_direct`.
     reach_spans: Vec<TexelSpan>,
     /// The direct light's clamp scale (`direct_scale`: a pass over every texel, made once).
     direct_scale: f64,
@@ -63,7 +64,7 @@ impl LfRuntime {
         let bundle = Bundle::decode(bytes)?;
         let occluders = Occluders::from_layout(&bundle.layout);
         let atlas = Atlas::from_layout_with(&bundle.layout, &bundle.surface_atlases);
-        let reach = LightReach::new(&bundle);
+        let reach = ReachDirect::new(&bundle, &occluders);
         let direct_scale = direct_scale(&bundle.layout, &occluders);
         let runtime = Runtime::try_new(bundle)?;
         let n = runtime.n_texels();
@@ -166,6 +167,43 @@ impl LfRuntime {
                     texels: 0..layout.n_texels(),
                     in_sight: false,
                 });
+            }
+        }
+        &self.reach_spans
+    }
+
+    /// `light`'s direct light on the spans it reaches ([`LfRuntime::light_reach`]) into `out`
+    /// (one RGB per texel; other texels untouched), with shadow rays against the occluders of
+    /// the rooms it reached only (`ReachDirect::light`); the same values as
+    /// `direct_from_point_lights_adaptive_in` with the level's occluders on those spans.
+    /// Returns the spans.
+    pub(crate) fn light_direct(&mut self, light: &Light, out: &mut [[f32; 3]]) -> &[TexelSpan] {
+        let layout = &self.runtime.bundle().layout;
+        match &mut self.reach {
+            Some(reach) => reach.light(
+                layout,
+                &self.occluders,
+                light,
+                crate::direct::LF_DIRECT_SAMPLES_PER_EDGE,
+                self.direct_scale,
+                &mut self.reach_spans,
+                out,
+            ),
+            None => {
+                self.reach_spans.clear();
+                self.reach_spans.push(TexelSpan {
+                    texels: 0..layout.n_texels(),
+                    in_sight: false,
+                });
+                direct_from_point_lights_adaptive_in(
+                    layout,
+                    &self.occluders,
+                    std::slice::from_ref(light),
+                    crate::direct::LF_DIRECT_SAMPLES_PER_EDGE,
+                    self.direct_scale,
+                    &self.reach_spans,
+                    out,
+                );
             }
         }
         &self.reach_spans

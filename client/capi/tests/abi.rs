@@ -1232,3 +1232,97 @@ fn light_reach_and_direct_in_spans() {
         );
     }
 }
+
+/// `lf_runtime_light_direct` on the two-texel bundle (no rooms: the light reaches every
+/// texel): the spans of `lf_runtime_light_reach`, the direct light `lf_runtime_direct_in_spans`
+/// gives on them bit for bit, the count protocol, and nothing written on any error.
+#[test]
+fn light_direct_is_light_reach_then_direct_in_spans() {
+    let rt = Rt::load();
+    let light = LfPointLight {
+        position: [0.5, 1.0, 0.25],
+        intensity: [2.0, 1.0, 0.5],
+    };
+    let mut count = 99usize;
+    let mut spans = [LfTexelSpan::default(); 2];
+    let mut out = [-1.0f32; 6];
+    // SAFETY: live runtime; every buffer is live for its call with the length passed; NULLs
+    // are refused, never read.
+    unsafe {
+        // Too few spans: the count, and nothing written.
+        assert_eq!(
+            lf_runtime_light_direct(rt.0, &light, null_mut(), 0, &mut count, out.as_mut_ptr(), 6),
+            LfStatus::BadLength as i32
+        );
+        assert_eq!(count, 1);
+        assert_eq!(out, [-1.0; 6]);
+        assert_eq!(
+            lf_runtime_light_direct(
+                rt.0,
+                &light,
+                spans.as_mut_ptr(),
+                2,
+                &mut count,
+                out.as_mut_ptr(),
+                6
+            ),
+            OK
+        );
+        assert_eq!(count, 1);
+        let mut reach = [LfTexelSpan::default(); 2];
+        let mut n = 0usize;
+        assert_eq!(
+            lf_runtime_light_reach(rt.0, light.position.as_ptr(), reach.as_mut_ptr(), 2, &mut n),
+            OK
+        );
+        assert_eq!(spans[..count], reach[..n]);
+        let mut want = [-1.0f32; 6];
+        assert_eq!(
+            lf_runtime_direct_in_spans(rt.0, &light, 1, reach.as_ptr(), n, want.as_mut_ptr(), 6),
+            OK
+        );
+        assert_eq!(out.map(f32::to_bits), want.map(f32::to_bits));
+        assert!(out.iter().all(|v| *v > 0.0), "{out:?}");
+        // Errors: nothing written.
+        let mut untouched = [7.0f32; 6];
+        let bad = LfPointLight {
+            position: [f32::NAN, 0.0, 0.0],
+            ..light
+        };
+        let check = |status: i32, message: &str| {
+            assert_ne!(status, OK, "{message}");
+            assert!(
+                last_error().contains(message),
+                "{message}: {}",
+                last_error()
+            );
+        };
+        let out = untouched.as_mut_ptr();
+        let sp = spans.as_mut_ptr();
+        check(
+            lf_runtime_light_direct(null_mut(), &light, sp, 2, &mut count, out, 6),
+            "rt is NULL",
+        );
+        check(
+            lf_runtime_light_direct(rt.0, null(), sp, 2, &mut count, out, 6),
+            "light is NULL",
+        );
+        check(
+            lf_runtime_light_direct(rt.0, &bad, sp, 2, &mut count, out, 6),
+            "not finite",
+        );
+        check(
+            lf_runtime_light_direct(rt.0, &light, sp, 2, &mut count, out, 5),
+            "out_rgb",
+        );
+        check(
+            lf_runtime_light_direct(rt.0, &light, null_mut(), 2, &mut count, out, 6),
+            "out_spans is NULL",
+        );
+        check(
+            lf_runtime_light_direct(rt.0, &light, sp, 2, null_mut(), out, 6),
+            "out_count is NULL",
+        );
+        assert_eq!(untouched, [7.0; 6]);
+    }
+}
