@@ -459,7 +459,7 @@ impl TexelSamples {
         let g = &mut self.g[..m * m];
         if is_axis_aligned(t.n) {
             assert_eq!(self.m, m, "started on this texel");
-            unshadowed_grid(t.x, t.n, t.size, (m, &self.offsets), light, r2_min, g);
+            unshadowed_grid(t, (m, &self.offsets), light, r2_min, g);
         } else {
             unshadowed_samples(&self.points[..m * m], t.n, light, r2_min, g);
         }
@@ -523,29 +523,42 @@ fn add_adaptive(
         return;
     }
     let corner_seen = corners.map(|k| !lighting.occluded(li, samples.points[k]));
-    let sum: f64 = if corner_seen.iter().all(|&v| v == corner_seen[0]) {
-        if corner_seen[0] {
-            samples.g[..m * m].iter().sum()
-        } else {
-            0.0
-        }
-    } else {
+    if corner_seen.iter().any(|&v| v != corner_seen[0]) {
         samples.fill_points(t, m);
-        let (g, points) = (&samples.g[..m * m], &samples.points[..m * m]);
-        (0..m * m)
-            .filter(|&k| g[k] > 0.0)
-            .map(|k| match corners.iter().position(|&c| c == k) {
-                Some(i) if corner_seen[i] => g[k],
-                Some(_) => 0.0,
-                None if !lighting.occluded(li, points[k]) => g[k],
-                None => 0.0,
-            })
-            .sum()
-    };
+    }
+    let points = &samples.points[..m * m];
+    let sum = visible_sum(&samples.g[..m * m], m, corner_seen, |k| {
+        !lighting.occluded(li, points[k])
+    });
     let w = sum / (m * m) as f64;
     for (e, i) in irr.iter_mut().zip(light.intensity) {
         *e += i * w;
     }
+}
+
+/// The sum of the unshadowed terms `g` (`m × m` samples) over the samples seen: all of them
+/// when the four corners agree they are seen (`corner_seen`), none when they agree they are
+/// not, else each corner as seen and every other sample with a positive term as `visible(k)`
+/// says (a shadow ray).
+fn visible_sum(
+    g: &[f64],
+    m: usize,
+    corner_seen: [bool; 4],
+    mut visible: impl FnMut(usize) -> bool,
+) -> f64 {
+    let corners = corner_indices(m);
+    if corner_seen.iter().all(|&v| v == corner_seen[0]) {
+        return if corner_seen[0] { g.iter().sum() } else { 0.0 };
+    }
+    (0..m * m)
+        .filter(|&k| g[k] > 0.0)
+        .map(|k| match corners.iter().position(|&c| c == k) {
+            Some(i) if corner_seen[i] => g[k],
+            Some(_) => 0.0,
+            None if visible(k) => g[k],
+            None => 0.0,
+        })
+        .sum()
 }
 
 /// Adds one light's term of [`direct_from_point_lights_adaptive_in`]'s texel value, before
@@ -750,60 +763,52 @@ type GridSamples<'a> = (usize, &'a [f32; ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize]
 /// and products are made per column and row and the per-sample work is the sums, the square
 /// root and the two divisions (four lanes at a time where the CPU has AVX2).
 fn unshadowed_grid(
-    x: [f32; 3],
-    n: [f32; 3],
-    size: [f32; 2],
+    t: &TexelAt,
     (m, offsets): GridSamples,
     light: &Light,
     r2_min: f64,
     g: &mut [f64],
 ) {
-    debug_assert!(is_axis_aligned(n) && m <= ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize);
+    debug_assert!(is_axis_aligned(t.n) && m <= ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize);
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked above); the function has no other contract.
-        return unsafe { unshadowed_grid_avx2(x, n, size, (m, offsets), light, r2_min, g) };
+        return unsafe { unshadowed_grid_avx2(t, (m, offsets), light, r2_min, g) };
     }
-    unshadowed_grid_portable(x, n, size, (m, offsets), light, r2_min, g)
+    unshadowed_grid_portable(t, (m, offsets), light, r2_min, g)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn unshadowed_grid_avx2(
-    x: [f32; 3],
-    n: [f32; 3],
-    size: [f32; 2],
+    t: &TexelAt,
     (m, offsets): GridSamples,
     light: &Light,
     r2_min: f64,
     g: &mut [f64],
 ) {
-    unshadowed_grid_portable(x, n, size, (m, offsets), light, r2_min, g)
+    unshadowed_grid_portable(t, (m, offsets), light, r2_min, g)
 }
 
 #[inline(always)]
 fn unshadowed_grid_portable(
-    x: [f32; 3],
-    n: [f32; 3],
-    size: [f32; 2],
+    t: &TexelAt,
     (m, offsets): GridSamples,
     light: &Light,
     r2_min: f64,
     g: &mut [f64],
 ) {
-    match dominant_axis(n) {
-        0 => unshadowed_grid_on::<0>(x, n, size, (m, offsets), light, r2_min, g),
-        1 => unshadowed_grid_on::<1>(x, n, size, (m, offsets), light, r2_min, g),
-        _ => unshadowed_grid_on::<2>(x, n, size, (m, offsets), light, r2_min, g),
+    match dominant_axis(t.n) {
+        0 => unshadowed_grid_on::<0>(t, (m, offsets), light, r2_min, g),
+        1 => unshadowed_grid_on::<1>(t, (m, offsets), light, r2_min, g),
+        _ => unshadowed_grid_on::<2>(t, (m, offsets), light, r2_min, g),
     }
 }
 
 /// [`unshadowed_grid`] on a texel whose normal lies along axis `A`.
 #[inline(always)]
 fn unshadowed_grid_on<const A: usize>(
-    x: [f32; 3],
-    n: [f32; 3],
-    size: [f32; 2],
+    t: &TexelAt,
     (m, offsets): GridSamples,
     light: &Light,
     r2_min: f64,
@@ -811,8 +816,8 @@ fn unshadowed_grid_on<const A: usize>(
 ) {
     const M: usize = ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize;
     let (u, v) = tangent_axes(A as u8);
-    let l = light.position;
-    let nn = n.map(f64::from);
+    let (x, size, l) = (t.x, t.size, light.position);
+    let nn = t.n.map(f64::from);
     // Per column (u) and row (v): the component toward the light, its square and its product
     // with the normal's component, as `unshadowed_samples` forms them from the f32 point.
     let (mut tu, mut tv) = ([0.0f64; M], [0.0f64; M]);
@@ -1138,7 +1143,8 @@ mod tests {
     }
 
     /// The adaptive average as first written (every sample point made, the unshadowed terms
-    /// per point, corners traced, every sample where they disagree) for one light.
+    /// per point, corners traced, every sample where they disagree) for one light; which
+    /// samples count is `visible_sum`, shared.
     fn adaptive_by_points(lighting: &Lighting, li: usize, t: &TexelAt, m: usize) -> [f64; 3] {
         let mut points = vec![[0.0f32; 3]; m * m];
         sample_points(t.x, t.n, t.size, m, &mut points);
@@ -1148,25 +1154,8 @@ mod tests {
         if g.iter().all(|&v| v == 0.0) {
             return [0.0; 3];
         }
-        let corners = corner_indices(m);
-        let seen = corners.map(|k| !lighting.occluded(li, points[k]));
-        let sum: f64 = if seen.iter().all(|&v| v == seen[0]) {
-            if seen[0] {
-                g.iter().sum()
-            } else {
-                0.0
-            }
-        } else {
-            (0..m * m)
-                .filter(|&k| g[k] > 0.0)
-                .map(|k| match corners.iter().position(|&c| c == k) {
-                    Some(i) if seen[i] => g[k],
-                    Some(_) => 0.0,
-                    None if !lighting.occluded(li, points[k]) => g[k],
-                    None => 0.0,
-                })
-                .sum()
-        };
+        let seen = corner_indices(m).map(|k| !lighting.occluded(li, points[k]));
+        let sum = visible_sum(&g, m, seen, |k| !lighting.occluded(li, points[k]));
         let w = sum / (m * m) as f64;
         light.intensity.map(|i| i * w)
     }

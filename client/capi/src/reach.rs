@@ -52,6 +52,24 @@ pub(crate) fn check_spans(spans: &[LfTexelSpan], texels: usize) -> Result<(), Ca
     Ok(())
 }
 
+/// Copies `spans` to C's `out`.
+///
+/// # Safety
+/// `out` must be NULL (refused unless `spans` is empty) or point to `spans.len()` writable
+/// `LfTexelSpan`s.
+unsafe fn write_spans(spans: &[TexelSpan], out: *mut LfTexelSpan) -> Result<(), CapiError> {
+    // SAFETY: per this function's contract.
+    let out = unsafe { slice_mut(out, spans.len(), "out_spans") }?;
+    for (o, s) in out.iter_mut().zip(spans) {
+        *o = LfTexelSpan {
+            start: s.texels.start as u32,
+            end: s.texels.end as u32,
+            in_sight: u8::from(s.in_sight),
+        };
+    }
+    Ok(())
+}
+
 /// Writes the texel spans the point light at `position` (3 floats, world metres) can reach to
 /// `out_spans`, and their number to `*out_count`.
 ///
@@ -99,15 +117,7 @@ pub unsafe extern "C" fn lf_runtime_light_reach(
             return Err(CapiError::NullPointer("out_spans"));
         }
         // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
-        let out = unsafe { slice_mut(out_spans, spans.len(), "out_spans") }?;
-        for (o, s) in out.iter_mut().zip(spans) {
-            *o = LfTexelSpan {
-                start: s.texels.start as u32,
-                end: s.texels.end as u32,
-                in_sight: u8::from(s.in_sight),
-            };
-        }
-        Ok(())
+        unsafe { write_spans(spans, out_spans) }
     })
 }
 
@@ -174,15 +184,7 @@ pub unsafe extern "C" fn lf_runtime_light_direct(
         let spans = rt.light_direct(&light, out);
         debug_assert_eq!(spans.len(), needed, "the same walk twice");
         // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
-        let out_spans = unsafe { slice_mut(out_spans, spans.len(), "out_spans") }?;
-        for (o, s) in out_spans.iter_mut().zip(spans) {
-            *o = LfTexelSpan {
-                start: s.texels.start as u32,
-                end: s.texels.end as u32,
-                in_sight: u8::from(s.in_sight),
-            };
-        }
-        Ok(())
+        unsafe { write_spans(spans, out_spans) }
     })
 }
 
