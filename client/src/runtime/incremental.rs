@@ -47,6 +47,7 @@ use std::ops::Range;
 
 use super::{Applied, ApplyError, Bounces, DirectLight, IndirectLight, Method, Runtime};
 use crate::packed_gather::texel_units;
+use lightfarm_proto::bundle::TransportOps;
 
 /// Which blocks and clutter objects an application's input reaches (see the module doc).
 #[derive(Clone, Debug, Default)]
@@ -92,6 +93,12 @@ pub(super) struct Sparse {
     /// While the stages run for a sparse call (`project_blocks` and `mrt_albedo_free` then
     /// skip their passes over the level).
     pub(super) active: bool,
+    /// Per source block `s`: the blocks that transport entries carry its light into,
+    /// `targets[target_start[s] .. target_start[s + 1]]` (ascending, each once).
+    targets: Vec<u32>,
+    target_start: Vec<u32>,
+    /// Scratch: the blocks this call writes (the reached ones and their targets).
+    blocks_written: Vec<u32>,
 }
 
 impl Sparse {
@@ -100,7 +107,11 @@ impl Sparse {
         let n_blocks = rt.blocks.len();
         let n_clutter = units.len() - n_blocks;
         let (ranges, unit_of) = texel_units(&units, rt.n_texels);
+        let (targets, target_start) = transport_targets(rt);
         Sparse {
+            targets,
+            target_start,
+            blocks_written: Vec::new(),
             marked: vec![false; ranges.len()],
             listed: vec![false; ranges.len()],
             ranges,
@@ -113,6 +124,11 @@ impl Sparse {
             reached: Vec::new(),
             active: false,
         }
+    }
+
+    /// The blocks transport carries block `s`'s light into.
+    fn targets_of(&self, s: usize) -> &[u32] {
+        &self.targets[self.target_start[s] as usize..self.target_start[s + 1] as usize]
     }
 
     fn mark(&mut self, u: usize) {
@@ -424,14 +440,32 @@ impl Runtime {
         sparse.in_ld.clone_from(&sparse.reached);
         // What is written: MRT's blocks, marked here (MRT skips the others); the delta entries'
         // and the gather's rows, marked by those stages as they scatter.
-        let reach = self.reach.as_ref();
-        let transport = self.bundle.transport.as_ref();
-        for (k, slots) in self.blocks.iter().enumerate() {
-            let targeting = &self.entry_order[slots.entries_start..slots.entries_end];
-            if Runtime::block_written(reach, transport, targeting, k) {
-                sparse.mark(k);
-            }
+        // Written: the reached blocks and the blocks transport carries their light into (what
+        // `Runtime::block_written` says of each block, found from the reached blocks alone
+        // rather than by a pass over every block's entries), marked in ascending order.
+        let mut written = std::mem::take(&mut sparse.blocks_written);
+        written.clear();
+        for &u in sparse.reached.iter().filter(|&&u| u < sparse.n_blocks) {
+            written.push(u as u32);
+            written.extend_from_slice(sparse.targets_of(u));
         }
+        written.sort_unstable();
+        written.dedup();
+        for &k in &written {
+            sparse.mark(k as usize);
+        }
+        debug_assert!((0..self.blocks.len()).all(|k| {
+            let slots = &self.blocks[k];
+            let targeting = &self.entry_order[slots.entries_start..slots.entries_end];
+            let by_pass = Runtime::block_written(
+                self.reach.as_ref(),
+                self.bundle.transport.as_ref(),
+                targeting,
+                k,
+            );
+            by_pass == written.binary_search(&(k as u32)).is_ok()
+        }));
+        sparse.blocks_written = written;
         sparse.active = true;
         self.sparse = Some(sparse);
 
@@ -457,4 +491,34 @@ impl Runtime {
         }
         self.sparse = Some(sparse);
     }
+}
+
+/// Per source block, the blocks the bundle's transport entries carry its light into: `(targets,
+/// target_start)` in the layout of [`Sparse::targets`].
+fn transport_targets(rt: &Runtime) -> (Vec<u32>, Vec<u32>) {
+    let n = rt.blocks.len();
+    let mut pairs: Vec<(u32, u32)> = Vec::new();
+    for (k, slots) in rt.blocks.iter().enumerate() {
+        for &i in &rt.entry_order[slots.entries_start..slots.entries_end] {
+            let i = i as usize;
+            match rt.bundle.transport.as_ref() {
+                Some(TransportOps::Traced(e)) => pairs.push((e[i].source_block, k as u32)),
+                Some(TransportOps::Lightfield(e)) => pairs.push((e[i].source_block, k as u32)),
+                Some(TransportOps::Compact(e)) => {
+                    pairs.extend(e[i].sources.iter().map(|&s| (s, k as u32)))
+                }
+                None => {}
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    let mut start = vec![0u32; n + 1];
+    for &(s, _) in &pairs {
+        start[s as usize + 1] += 1;
+    }
+    for s in 0..n {
+        start[s + 1] += start[s];
+    }
+    (pairs.into_iter().map(|(_, k)| k).collect(), start)
 }
