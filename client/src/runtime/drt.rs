@@ -103,13 +103,22 @@ impl Runtime {
         } else {
             None
         };
-        // 3. out[rows[i]] += matrix.row(i) · (b_source or c_source).
-        for ((e, m), mix) in drt
-            .entries
-            .iter()
-            .zip(&self.ops.deltas)
-            .zip(&self.ops.delta_mix)
-        {
+        // 3. out[rows[i]] += matrix.row(i) · (b_source or c_source), in entry order. Relighting
+        // by the change, only the entries whose sources read a reached unit are looked at
+        // (not a pass over every entry of the level).
+        let candidates = sparse.as_mut().map(|s| s.reached_entries());
+        debug_assert!(candidates.as_ref().is_none_or(|c| {
+            (0..drt.entries.len())
+                .all(|i| !self.source_reached(drt.entries[i].source) || c.contains(&(i as u32)))
+        }));
+        let all = 0..drt.entries.len() as u32;
+        let order: &mut dyn Iterator<Item = u32> = match &candidates {
+            Some(c) => &mut c.iter().copied(),
+            None => &mut all.clone(),
+        };
+        for i in order {
+            let i = i as usize;
+            let (e, m, mix) = (&drt.entries[i], &self.ops.deltas[i], &self.ops.delta_mix[i]);
             if !self.source_reached(e.source) {
                 continue;
             }
@@ -132,8 +141,9 @@ impl Runtime {
             }
         }
         self.scratch = scratch;
-        if sparse.is_some() {
-            self.sparse = sparse;
+        if let Some(mut sparse) = sparse {
+            sparse.give_back_entries(candidates.unwrap_or_default());
+            self.sparse = Some(sparse);
         }
     }
 

@@ -47,7 +47,7 @@ use std::ops::Range;
 
 use super::{Applied, ApplyError, Bounces, DirectLight, IndirectLight, Method, Runtime};
 use crate::packed_gather::texel_units;
-use lightfarm_proto::bundle::TransportOps;
+use lightfarm_proto::bundle::{DeltaSource, TransportOps};
 
 /// Which blocks and clutter objects an application's input reaches (see the module doc).
 #[derive(Clone, Debug, Default)]
@@ -99,6 +99,13 @@ pub(super) struct Sparse {
     target_start: Vec<u32>,
     /// Scratch: the blocks this call writes (the reached ones and their targets).
     blocks_written: Vec<u32>,
+    /// Per unit: the DRT delta entries whose source reads it (a block's or clutter object's
+    /// coefficients, or a `Direct` source's texels overlapping it),
+    /// `unit_entries[unit_entry_start[u] .. unit_entry_start[u + 1]]` ascending.
+    unit_entries: Vec<u32>,
+    unit_entry_start: Vec<u32>,
+    /// Scratch: the entries this call's reached units may move.
+    entries: Vec<u32>,
 }
 
 impl Sparse {
@@ -108,7 +115,11 @@ impl Sparse {
         let n_clutter = units.len() - n_blocks;
         let (ranges, unit_of) = texel_units(&units, rt.n_texels);
         let (targets, target_start) = transport_targets(rt);
+        let (unit_entries, unit_entry_start) = delta_entries_by_unit(rt, n_blocks, &unit_of);
         Sparse {
+            unit_entries,
+            unit_entry_start,
+            entries: Vec::new(),
             targets,
             target_start,
             blocks_written: Vec::new(),
@@ -124,6 +135,26 @@ impl Sparse {
             reached: Vec::new(),
             active: false,
         }
+    }
+
+    /// The DRT delta entries a source reached by this call may move, ascending, each once: a
+    /// superset of those whose source is reached (`Runtime::source_reached`), since every such
+    /// source reads a reached unit. Taken out of the sparse state; hand it back with
+    /// [`Sparse::give_back_entries`].
+    pub(super) fn reached_entries(&mut self) -> Vec<u32> {
+        let mut entries = std::mem::take(&mut self.entries);
+        entries.clear();
+        for &u in &self.reached {
+            let r = self.unit_entry_start[u] as usize..self.unit_entry_start[u + 1] as usize;
+            entries.extend_from_slice(&self.unit_entries[r]);
+        }
+        entries.sort_unstable();
+        entries.dedup();
+        entries
+    }
+
+    pub(super) fn give_back_entries(&mut self, entries: Vec<u32>) {
+        self.entries = entries;
     }
 
     /// The blocks transport carries block `s`'s light into.
@@ -521,4 +552,44 @@ fn transport_targets(rt: &Runtime) -> (Vec<u32>, Vec<u32>) {
         start[s + 1] += start[s];
     }
     (pairs.into_iter().map(|(_, k)| k).collect(), start)
+}
+
+/// Per unit (of `unit_of`, the sparse state's), the DRT delta entries whose source reads it:
+/// `(entries, start)` in the layout of [`Sparse::unit_entries`].
+fn delta_entries_by_unit(rt: &Runtime, n_blocks: usize, unit_of: &[u32]) -> (Vec<u32>, Vec<u32>) {
+    let n_units = unit_of
+        .iter()
+        .map(|&u| u as usize + 1)
+        .max()
+        .unwrap_or(0)
+        .max(n_blocks);
+    let mut pairs: Vec<(u32, u32)> = Vec::new();
+    for (i, e) in rt
+        .bundle
+        .drt
+        .iter()
+        .flat_map(|d| d.entries.iter())
+        .enumerate()
+    {
+        match e.source {
+            DeltaSource::Block(k) => pairs.push((k, i as u32)),
+            DeltaSource::Clutter(j) => pairs.push((n_blocks as u32 + j, i as u32)),
+            DeltaSource::Direct { first, count } => {
+                let (first, count) = (first as usize, count as usize);
+                let end = (first + count).min(unit_of.len());
+                pairs.extend(unit_of[first.min(end)..end].iter().map(|&u| (u, i as u32)));
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    let n_units = n_units.max(pairs.last().map_or(0, |p| p.0 as usize + 1));
+    let mut start = vec![0u32; n_units + 1];
+    for &(u, _) in &pairs {
+        start[u as usize + 1] += 1;
+    }
+    for u in 0..n_units {
+        start[u + 1] += start[u];
+    }
+    (pairs.into_iter().map(|(_, i)| i).collect(), start)
 }
