@@ -37,6 +37,8 @@
 //! - [`reach_direct`]: one light's direct light on the texels it reaches, shadow rays traced
 //!   against only the occluders of the rooms it reaches (exactly the level's answer there).
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
+//! - `texel_samples` (private): a texel's sample points and each one's unshadowed term, the
+//!   adaptive average's scratch; what [`direct`] shadows and averages.
 //! - [`runtime`]: the per-frame, allocation-free application of the bundle's operators
 //!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
 //!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator) over one,
@@ -81,6 +83,7 @@ pub mod reach_direct;
 pub mod runtime;
 #[cfg(feature = "fetch")]
 pub mod service;
+mod texel_samples;
 
 pub use compare::relative_l2;
 pub use direct::{

@@ -542,16 +542,22 @@ fn transport_targets(rt: &Runtime) -> (Vec<u32>, Vec<u32>) {
             }
         }
     }
+    grouped_by_key(pairs, n)
+}
+
+/// `(key, value)` pairs with keys below `n` as lists per key: `(values, start)`, key `k`'s
+/// values `values[start[k] .. start[k + 1]]` ascending, each once.
+fn grouped_by_key(mut pairs: Vec<(u32, u32)>, n: usize) -> (Vec<u32>, Vec<u32>) {
     pairs.sort_unstable();
     pairs.dedup();
     let mut start = vec![0u32; n + 1];
-    for &(s, _) in &pairs {
-        start[s as usize + 1] += 1;
+    for &(k, _) in &pairs {
+        start[k as usize + 1] += 1;
     }
-    for s in 0..n {
-        start[s + 1] += start[s];
+    for k in 0..n {
+        start[k + 1] += start[k];
     }
-    (pairs.into_iter().map(|(_, k)| k).collect(), start)
+    (pairs.into_iter().map(|(_, v)| v).collect(), start)
 }
 
 /// Per unit (of `unit_of`, the sparse state's), the DRT delta entries whose source reads it:
@@ -581,15 +587,9 @@ fn delta_entries_by_unit(rt: &Runtime, n_blocks: usize, unit_of: &[u32]) -> (Vec
             }
         }
     }
-    pairs.sort_unstable();
-    pairs.dedup();
-    let n_units = n_units.max(pairs.last().map_or(0, |p| p.0 as usize + 1));
-    let mut start = vec![0u32; n_units + 1];
-    for &(u, _) in &pairs {
-        start[u as usize + 1] += 1;
-    }
-    for u in 0..n_units {
-        start[u + 1] += start[u];
-    }
-    (pairs.into_iter().map(|(_, i)| i).collect(), start)
+    let n_units = pairs
+        .iter()
+        .map(|p| p.0 as usize + 1)
+        .fold(n_units, usize::max);
+    grouped_by_key(pairs, n_units)
 }

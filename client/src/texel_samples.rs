@@ -1,0 +1,393 @@
+//! A texel's samples for its direct light, and what a point light gives each before shadows:
+//! where the `m × m` samples of a texel lie ([`sample_points`], [`sample_point`]), the
+//! unshadowed term `cos θ / max(r², r2_min)` at each ([`unshadowed`], [`unshadowed_samples`],
+//! and per row and column on an axis-aligned texel, [`unshadowed_grid`]), the facing test that
+//! skips a texel's samples, and the scratch the adaptive average keeps across texels
+//! ([`TexelSamples`]). [`crate::direct`] adds the shadow rays and the averaging.
+//!
+//! Units: world metres; terms in 1/m² (times a light's intensity, W/sr, they are irradiance).
+//! Invariants: every path here gives a sample the same f32 coordinates and the same f64
+//! operations in the same order, so the terms are bit-identical whichever computes them (on
+//! any CPU: the AVX2 variants use IEEE division and square root, never fused products).
+
+use lightfarm_proto::bundle::Layout;
+use lightfarm_proto::lights::Light;
+
+use crate::occluders::tangent_axes;
+
+/// The most samples per edge [`crate::direct::direct_from_point_lights_adaptive`] handles adaptively (its
+/// samples live on the stack); more fall back to [`crate::direct::direct_from_point_lights_averaged`].
+pub const ADAPTIVE_MAX_SAMPLES_PER_EDGE: u32 = 8;
+
+/// What the direct light of one layout texel reads: centre, normal, albedo and extent.
+#[derive(Clone, Copy)]
+pub(crate) struct TexelAt {
+    pub(crate) x: [f32; 3],
+    pub(crate) n: [f32; 3],
+    pub(crate) rho: [f32; 3],
+    pub(crate) size: [f32; 2],
+}
+
+impl TexelAt {
+    pub(crate) fn of(layout: &Layout, t: usize) -> TexelAt {
+        TexelAt {
+            x: layout.positions[t],
+            n: layout.normals[t],
+            rho: layout.albedo[t],
+            size: layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]),
+        }
+    }
+}
+
+/// Scratch for one texel's adaptive average (kept across texels, so nothing is cleared per
+/// texel): the unshadowed terms of the light at hand and the sample points, the four corners
+/// always and the rest only once some light's corners disagree (or the texel is slanted).
+pub(crate) struct TexelSamples {
+    pub(crate) g: [f64; MAX_ADAPTIVE_SAMPLES],
+    pub(crate) points: [[f32; 3]; MAX_ADAPTIVE_SAMPLES],
+    /// `points` holds every sample of the current texel (else its four corners only).
+    pub(crate) all_points: bool,
+    /// Samples per edge `offsets` are for (0: none yet), and the samples' offsets along an
+    /// edge ([`sample_offset`], made once per `m` rather than per texel).
+    m: usize,
+    offsets: [f32; ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize],
+}
+
+/// Samples of the adaptive average at most.
+const MAX_ADAPTIVE_SAMPLES: usize =
+    (ADAPTIVE_MAX_SAMPLES_PER_EDGE * ADAPTIVE_MAX_SAMPLES_PER_EDGE) as usize;
+
+impl TexelSamples {
+    pub(crate) fn new() -> TexelSamples {
+        TexelSamples {
+            g: [0.0; MAX_ADAPTIVE_SAMPLES],
+            points: [[0.0; 3]; MAX_ADAPTIVE_SAMPLES],
+            all_points: false,
+            m: 0,
+            offsets: [0.0; ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize],
+        }
+    }
+
+    /// Starts texel `t` (`m × m` samples): its corner points, and every point when it is
+    /// slanted (its unshadowed terms are then taken per point).
+    pub(crate) fn start(&mut self, t: &TexelAt, m: usize) {
+        self.all_points = false;
+        if self.m != m {
+            self.m = m;
+            for (i, o) in self.offsets.iter_mut().enumerate().take(m) {
+                *o = sample_offset(i, m);
+            }
+        }
+        if is_axis_aligned(t.n) {
+            for k in corner_indices(m) {
+                let (ou, ov) = (self.offsets[k % m], self.offsets[k / m]);
+                self.points[k] = sample_point(t.x, t.n, t.size, ou, ov);
+            }
+        } else {
+            self.fill_points(t, m);
+        }
+    }
+
+    pub(crate) fn fill_points(&mut self, t: &TexelAt, m: usize) {
+        if !self.all_points {
+            sample_points(t.x, t.n, t.size, m, &mut self.points[..m * m]);
+            self.all_points = true;
+        }
+    }
+
+    /// `light`'s unshadowed terms at the texel's samples into `g[..m²]`.
+    pub(crate) fn unshadowed(&mut self, t: &TexelAt, m: usize, light: &Light, r2_min: f64) {
+        let g = &mut self.g[..m * m];
+        if is_axis_aligned(t.n) {
+            assert_eq!(self.m, m, "started on this texel");
+            unshadowed_grid(t, (m, &self.offsets), light, r2_min, g);
+        } else {
+            unshadowed_samples(&self.points[..m * m], t.n, light, r2_min, g);
+        }
+    }
+}
+
+/// The indices of the four corner samples of an `m × m` grid (row by row).
+pub(crate) fn corner_indices(m: usize) -> [usize; 4] {
+    [0, m - 1, m * (m - 1), m * m - 1]
+}
+
+pub(crate) fn is_axis_aligned(n: [f32; 3]) -> bool {
+    let a = dominant_axis(n);
+    let (u, v) = tangent_axes(a as u8);
+    n[u] == 0.0 && n[v] == 0.0
+}
+
+/// True when `n` is axis-aligned and `light` lies behind or in the plane through `x` normal to
+/// it: then every sample point of the texel (which [`sample_points`] keeps in that plane) gets
+/// a zero [`unshadowed`] term, `n · (p − x)` being the same product `n_a (p_a − x_a)` at each.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(… > 0)`: a NaN product faces away too.
+pub(crate) fn faces_away(x: [f32; 3], n: [f32; 3], light: &Light) -> bool {
+    let a = dominant_axis(n);
+    let (u, v) = tangent_axes(a as u8);
+    n[u] == 0.0 && n[v] == 0.0 && !(n[a] as f64 * (light.position[a] - x[a] as f64) > 0.0)
+}
+
+/// [`unshadowed`] at every point of `points` into `g`: the same operations in the same order
+/// (so the same bits), written without branches so the loop vectorizes (four lanes where the
+/// CPU has AVX2, chosen at run time; IEEE division and square root round alike in every
+/// width).
+#[inline]
+pub(crate) fn unshadowed_samples(
+    points: &[[f32; 3]],
+    n: [f32; 3],
+    light: &Light,
+    r2_min: f64,
+    g: &mut [f64],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked above); the function has no other contract.
+        return unsafe { unshadowed_samples_avx2(points, n, light, r2_min, g) };
+    }
+    unshadowed_samples_portable(points, n, light, r2_min, g)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn unshadowed_samples_avx2(
+    points: &[[f32; 3]],
+    n: [f32; 3],
+    light: &Light,
+    r2_min: f64,
+    g: &mut [f64],
+) {
+    unshadowed_samples_portable(points, n, light, r2_min, g)
+}
+
+#[inline(always)]
+fn unshadowed_samples_portable(
+    points: &[[f32; 3]],
+    n: [f32; 3],
+    light: &Light,
+    r2_min: f64,
+    g: &mut [f64],
+) {
+    let l = light.position;
+    let nn = n.map(f64::from);
+    for (gi, q) in g.iter_mut().zip(points) {
+        let to = [l[0] - q[0] as f64, l[1] - q[1] as f64, l[2] - q[2] as f64];
+        let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
+        let cos = (nn[0] * to[0] + nn[1] * to[1] + nn[2] * to[2]) / r2.sqrt();
+        let value = cos / r2.max(r2_min);
+        *gi = if r2 > 0.0 && cos > 0.0 { value } else { 0.0 };
+    }
+}
+
+/// `cos θ / max(r², r2_min)` of `light` at point `x` with normal `n`, 0 when the light is
+/// behind (or at) the point; no shadow ray. Every direct-light path here shares it.
+pub(crate) fn unshadowed(x: [f32; 3], n: [f32; 3], light: &Light, r2_min: f64) -> f64 {
+    let to = [0, 1, 2].map(|k| light.position[k] - x[k] as f64);
+    let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
+    if r2.is_nan() || r2 <= 0.0 {
+        return 0.0;
+    }
+    let cos = (n[0] as f64 * to[0] + n[1] as f64 * to[1] + n[2] as f64 * to[2]) / r2.sqrt();
+    if cos.is_nan() || cos <= 0.0 {
+        return 0.0;
+    }
+    cos / r2.max(r2_min)
+}
+
+/// The sample of a texel at offsets `(ou, ov)` along its edges ([`sample_offset`] of its
+/// column and row): the point [`sample_points`] puts there, bit for bit (the same
+/// expressions).
+#[inline]
+pub(crate) fn sample_point(x: [f32; 3], n: [f32; 3], size: [f32; 2], ou: f32, ov: f32) -> [f32; 3] {
+    let axis = dominant_axis(n);
+    let (u, v) = tangent_axes(axis as u8);
+    let du = ou * size[0];
+    let dv = ov * size[1];
+    let slanted = n[u] != 0.0 || n[v] != 0.0;
+    let lifted = if slanted {
+        x[axis] - (n[u] * du + n[v] * dv) / n[axis]
+    } else {
+        x[axis]
+    };
+    match axis {
+        0 => [lifted, x[1] + du, x[2] + dv],
+        1 => [x[0] + du, lifted, x[2] + dv],
+        _ => [x[0] + du, x[1] + dv, lifted],
+    }
+}
+
+/// The offset of sample `i` of `m` along a texel's edge, in texel units (−0.5 … 0.5).
+#[inline]
+pub(crate) fn sample_offset(i: usize, m: usize) -> f32 {
+    (i as f32 + 0.5) / m as f32 - 0.5
+}
+
+/// Samples per edge and their offsets ([`sample_offset`] of `0..m`).
+type GridSamples<'a> = (usize, &'a [f32; ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize]);
+
+/// [`unshadowed_samples`] at the `m × m` [`sample_points`] of an axis-aligned texel (`m ≤
+/// ADAPTIVE_MAX_SAMPLES_PER_EDGE`), bit for bit, without making the points: each sample's
+/// vector to the light has one component per column, one per row and one shared by all (the
+/// same f32 sample coordinates, the same f64 operations in the same order), so the squares
+/// and products are made per column and row and the per-sample work is the sums, the square
+/// root and the two divisions (four lanes at a time where the CPU has AVX2).
+fn unshadowed_grid(
+    t: &TexelAt,
+    (m, offsets): GridSamples,
+    light: &Light,
+    r2_min: f64,
+    g: &mut [f64],
+) {
+    debug_assert!(is_axis_aligned(t.n) && m <= ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize);
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked above); the function has no other contract.
+        return unsafe { unshadowed_grid_avx2(t, (m, offsets), light, r2_min, g) };
+    }
+    unshadowed_grid_portable(t, (m, offsets), light, r2_min, g)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn unshadowed_grid_avx2(
+    t: &TexelAt,
+    (m, offsets): GridSamples,
+    light: &Light,
+    r2_min: f64,
+    g: &mut [f64],
+) {
+    unshadowed_grid_portable(t, (m, offsets), light, r2_min, g)
+}
+
+#[inline(always)]
+fn unshadowed_grid_portable(
+    t: &TexelAt,
+    (m, offsets): GridSamples,
+    light: &Light,
+    r2_min: f64,
+    g: &mut [f64],
+) {
+    match dominant_axis(t.n) {
+        0 => unshadowed_grid_on::<0>(t, (m, offsets), light, r2_min, g),
+        1 => unshadowed_grid_on::<1>(t, (m, offsets), light, r2_min, g),
+        _ => unshadowed_grid_on::<2>(t, (m, offsets), light, r2_min, g),
+    }
+}
+
+/// [`unshadowed_grid`] on a texel whose normal lies along axis `A`.
+#[inline(always)]
+fn unshadowed_grid_on<const A: usize>(
+    t: &TexelAt,
+    (m, offsets): GridSamples,
+    light: &Light,
+    r2_min: f64,
+    g: &mut [f64],
+) {
+    const M: usize = ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize;
+    let (u, v) = tangent_axes(A as u8);
+    let (x, size, l) = (t.x, t.size, light.position);
+    let nn = t.n.map(f64::from);
+    // Per column (u) and row (v): the component toward the light, its square and its product
+    // with the normal's component, as `unshadowed_samples` forms them from the f32 point.
+    let (mut tu, mut tv) = ([0.0f64; M], [0.0f64; M]);
+    for i in 0..m {
+        tu[i] = l[u] - (x[u] + offsets[i] * size[0]) as f64;
+        tv[i] = l[v] - (x[v] + offsets[i] * size[1]) as f64;
+    }
+    let ta = l[A] - x[A] as f64;
+    // Whole rows of four or eight lanes (fixed trip counts vectorize); lanes past `m` are
+    // made from zeros and dropped.
+    if m <= 4 {
+        for j in 0..m {
+            let row: [f64; 4] =
+                grid_row::<A, 4>(tu[..4].try_into().expect("4"), tv[j], ta, nn, r2_min);
+            g[j * m..(j + 1) * m].copy_from_slice(&row[..m]);
+        }
+    } else {
+        for j in 0..m {
+            let row: [f64; 8] = grid_row::<A, 8>(tu, tv[j], ta, nn, r2_min);
+            g[j * m..(j + 1) * m].copy_from_slice(&row[..m]);
+        }
+    }
+}
+
+/// One row of [`unshadowed_grid_on`]: the terms at columns `tu` (components toward the light
+/// along the first tangent axis), row component `tv`, normal component `ta`.
+#[inline(always)]
+fn grid_row<const A: usize, const L: usize>(
+    tu: [f64; L],
+    tv: f64,
+    ta: f64,
+    nn: [f64; 3],
+    r2_min: f64,
+) -> [f64; L] {
+    let mut out = [0.0f64; L];
+    for i in 0..L {
+        let to = match A {
+            0 => [ta, tu[i], tv],
+            1 => [tu[i], ta, tv],
+            _ => [tu[i], tv, ta],
+        };
+        let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
+        let cos = (nn[0] * to[0] + nn[1] * to[1] + nn[2] * to[2]) / r2.sqrt();
+        let value = cos / r2.max(r2_min);
+        out[i] = if r2 > 0.0 && cos > 0.0 { value } else { 0.0 };
+    }
+    out
+}
+
+/// The `m × m` sample points of a texel (centre `x`, normal `n`, extent `size` along its
+/// dominant plane's axes), row by row, lifted onto the texel's plane: the samples
+/// [`crate::direct::direct_from_point_lights_averaged`] averages.
+pub(crate) fn sample_points(
+    x: [f32; 3],
+    n: [f32; 3],
+    size: [f32; 2],
+    m: usize,
+    out: &mut [[f32; 3]],
+) {
+    let axis = dominant_axis(n);
+    let (u, v) = tangent_axes(axis as u8);
+    // The offset of sample `i` along an edge, in texel units: the same expression per sample
+    // whether evaluated once per column (up to 16 samples per edge) or per sample.
+    let offset = |i: usize| (i as f32 + 0.5) / m as f32 - 0.5;
+    let mut du_of = [0.0f32; 16];
+    for (i, du) in du_of.iter_mut().enumerate().take(m) {
+        *du = offset(i) * size[0];
+    }
+    let slanted = n[u] != 0.0 || n[v] != 0.0;
+    for j in 0..m {
+        let dv = offset(j) * size[1];
+        for i in 0..m {
+            let du = if m <= du_of.len() {
+                du_of[i]
+            } else {
+                offset(i) * size[0]
+            };
+            // A slanted (mesh) texel: the sample lifted onto the texel's plane along the
+            // dominant axis.
+            let lifted = if slanted {
+                x[axis] - (n[u] * du + n[v] * dv) / n[axis]
+            } else {
+                x[axis]
+            };
+            // Built whole rather than by indexed stores (which stall the store of the array).
+            out[j * m + i] = match axis {
+                0 => [lifted, x[1] + du, x[2] + dv],
+                1 => [x[0] + du, lifted, x[2] + dv],
+                _ => [x[0] + du, x[1] + dv, lifted],
+            };
+        }
+    }
+}
+
+pub(crate) fn dominant_axis(n: [f32; 3]) -> usize {
+    let a = n.map(f32::abs);
+    if a[0] >= a[1] && a[0] >= a[2] {
+        0
+    } else if a[1] >= a[2] {
+        1
+    } else {
+        2
+    }
+}
