@@ -375,7 +375,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             }
         }
     }
-    bar.message("ray throughput (obvhs, Embree)");
+    bar.message("ray throughput (ours, Embree)");
     let throughput = match scenes.iter().find(|s| s.name == plan.throughput_scene) {
         Some(bench) => Some(throughput_of(bench, &plan, &args)?),
         None => {

@@ -272,26 +272,26 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
             Some(embree) => {
                 let _ = writeln!(
                     w,
-                    "- **Ray throughput** ({}, {} triangles, {} rays, one thread): obvhs {:.2} Mrays/s \
-                     on the triangles, Embree {:.2} Mrays/s: obvhs : Embree = {:.2} : 1 ({:.2} Mrays/s \
+                    "- **Ray throughput** ({}, {} triangles, {} rays, one thread): ours {:.2} Mrays/s \
+                     on the triangles, Embree {:.2} Mrays/s: ours : Embree = {:.2} : 1 ({:.2} Mrays/s \
                      on our native rectangles).",
                     t.scene,
                     t.triangles,
                     t.rays,
-                    t.obvhs_triangles_rays_per_second / 1e6,
+                    t.ours_triangles_rays_per_second / 1e6,
                     embree / 1e6,
-                    t.obvhs_triangles_rays_per_second / embree,
-                    t.obvhs_native_rays_per_second / 1e6
+                    t.ours_triangles_rays_per_second / embree,
+                    t.ours_native_rays_per_second / 1e6
                 );
             }
             None => {
                 let _ = writeln!(
                     w,
-                    "- **Ray throughput**: Embree NOT measured ({}); obvhs {:.2} Mrays/s on the \
+                    "- **Ray throughput**: Embree NOT measured ({}); ours {:.2} Mrays/s on the \
                      triangles, {:.2} Mrays/s on the native rectangles.",
                     t.embree_missing.as_deref().unwrap_or("unknown reason"),
-                    t.obvhs_triangles_rays_per_second / 1e6,
-                    t.obvhs_native_rays_per_second / 1e6
+                    t.ours_triangles_rays_per_second / 1e6,
+                    t.ours_native_rays_per_second / 1e6
                 );
             }
         }
@@ -426,7 +426,7 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
     }
     let _ = writeln!(w);
     if let Some(t) = &results.throughput {
-        let _ = writeln!(w, "## Ray throughput: obvhs against Embree\n");
+        let _ = writeln!(w, "## Ray throughput: our tracer against Embree\n");
         let _ = writeln!(
             w,
             "Closest-hit rays from the texels of `{}` (cosine-distributed, seeded), the scene as \
@@ -437,22 +437,22 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
         let _ = writeln!(w, "| tracer | Mrays/s |\n|---|---|");
         let _ = writeln!(
             w,
-            "| obvhs (`bake::tracer::Tracer`), triangles | {:.3} |",
-            t.obvhs_triangles_rays_per_second / 1e6
+            "| ours (`bake::tracer::Tracer`, 4-wide BVH), triangles | {:.3} |",
+            t.ours_triangles_rays_per_second / 1e6
         );
         let _ = writeln!(
             w,
-            "| obvhs, native rectangles | {:.3} |",
-            t.obvhs_native_rays_per_second / 1e6
+            "| ours, native rectangles | {:.3} |",
+            t.ours_native_rays_per_second / 1e6
         );
         match t.embree_rays_per_second {
             Some(e) => {
                 let _ = writeln!(w, "| Embree (embreex), triangles | {:.3} |", e / 1e6);
                 let _ = writeln!(
                     w,
-                    "\nobvhs : Embree = **{:.2} : 1** on the same triangles and rays; hit \
+                    "\nours : Embree = **{:.2} : 1** on the same triangles and rays; hit \
                      distances agree on {:.2}% of the rays; Embree's BVH build {:.3} s.\n",
-                    t.obvhs_triangles_rays_per_second / e,
+                    t.ours_triangles_rays_per_second / e,
                     100.0 * t.agreement.unwrap_or(f64::NAN),
                     t.embree_build_seconds.unwrap_or(f64::NAN)
                 );
@@ -525,15 +525,15 @@ pub fn summary(results: &BenchResults) -> String {
         let _ = match t.embree_rays_per_second {
             Some(e) => write!(
                 s,
-                "\nrays/s: obvhs {:.0}, Embree {:.0}, obvhs:Embree = {:.2}",
-                t.obvhs_triangles_rays_per_second,
+                "\nrays/s: ours {:.0}, Embree {:.0}, ours:Embree = {:.2}",
+                t.ours_triangles_rays_per_second,
                 e,
-                t.obvhs_triangles_rays_per_second / e
+                t.ours_triangles_rays_per_second / e
             ),
             None => write!(
                 s,
-                "\nrays/s: obvhs {:.0}; Embree not measured: {}",
-                t.obvhs_triangles_rays_per_second,
+                "\nrays/s: ours {:.0}; Embree not measured: {}",
+                t.ours_triangles_rays_per_second,
                 t.embree_missing.as_deref().unwrap_or("?")
             ),
         };
