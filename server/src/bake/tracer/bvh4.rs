@@ -92,8 +92,11 @@ impl Bvh4 {
             primitive_indices: bvh2.primitive_indices.clone(),
             stack_need: 0,
         };
-        // A BVH2 leaf as a child code, splitting leaves over the coded size (never expected,
-        // MAX_LEAF bounds the collapse) into a node of their own.
+        assert!(
+            out.primitive_indices.len() <= FIRST_MASK as usize,
+            "{} primitives are more than the BVH's slot code holds",
+            out.primitive_indices.len()
+        );
         let root = out.node_of(n2, &[0]);
         debug_assert_eq!(root, 0);
         out.stack_need = 3 * out.depth(0) + 1;
@@ -115,8 +118,8 @@ impl Bvh4 {
             .unwrap_or(0)
     }
 
-    /// Makes the node whose children are BVH2 nodes `children` widened to four, returns its
-    /// index (children are made after their parent, so the root is node 0).
+    /// Makes the node whose children are the BVH2 nodes `start`, widened to four, and returns
+    /// its index (children are made after their parent, so the root is node 0).
     fn node_of(&mut self, n2: &[obvhs::bvh2::node::Bvh2Node], start: &[u32]) -> u32 {
         let mut kids: Vec<u32> = start.to_vec();
         // Open the largest inner child until there are four children or only leaves.
@@ -152,16 +155,37 @@ impl Bvh4 {
             node.valid |= 1 << lane;
             node.child[lane] = if n.prim_count == 0 {
                 self.node_of(n2, &[n.first_index, n.first_index + 1])
-            } else if n.prim_count <= MAX_LEAF {
-                LEAF | ((n.prim_count - 1) << COUNT_SHIFT) | n.first_index
             } else {
-                unreachable!("a BVH2 leaf of {} primitives", n.prim_count)
+                self.leaf(n.first_index, n.prim_count, lane, &node)
             };
         }
-        assert!(
-            (self.primitive_indices.len() as u32) <= FIRST_MASK,
-            "too many primitives for the BVH's slot code"
-        );
+        self.nodes[index as usize] = node;
+        index
+    }
+
+    /// The child code of slots `first..first + count`, whose box is lane `lane` of `parent`: a
+    /// leaf, or, over [`MAX_LEAF`] slots (the collapse is bounded by it, so not expected), a
+    /// node of up to four such children sharing that box.
+    fn leaf(&mut self, first: u32, count: u32, lane: usize, parent: &Node) -> u32 {
+        if count <= MAX_LEAF {
+            return LEAF | ((count - 1) << COUNT_SHIFT) | first;
+        }
+        let index = self.nodes.len() as u32;
+        let mut node = Node {
+            bounds: parent.bounds.map(|b| Vec4::splat(b[lane])),
+            child: [0; 4],
+            valid: 0,
+        };
+        self.nodes.push(node);
+        let share = count.div_ceil(4);
+        for part in 0..4 {
+            let start = first + part * share;
+            let end = (start + share).min(first + count);
+            if start < end {
+                node.valid |= 1 << part;
+                node.child[part as usize] = self.leaf(start, end - start, part as usize, &node);
+            }
+        }
         self.nodes[index as usize] = node;
         index
     }
@@ -284,6 +308,33 @@ mod tests {
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
         (*state >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// A leaf over the coded size (which obvhs's collapse does not make) becomes nodes of
+    /// leaves that together visit every slot once.
+    #[test]
+    fn an_oversized_leaf_is_split_and_every_slot_visited_once() {
+        let mut bvh = Bvh4 {
+            nodes: Vec::new(),
+            primitive_indices: (0..45).collect(),
+            stack_need: 0,
+        };
+        let mut root = Node {
+            bounds: [-1.0, 1.0, -1.0, 1.0, -1.0, 1.0].map(Vec4::splat),
+            child: [0; 4],
+            valid: 1,
+        };
+        bvh.nodes.push(root);
+        root.child[0] = bvh.leaf(0, 45, 0, &root);
+        bvh.nodes[0] = root;
+        bvh.stack_need = 3 * bvh.depth(0) + 1;
+        assert!(bvh.depth(0) >= 3, "45 slots need two levels below the root");
+        let mut seen = vec![0; 45];
+        bvh.traverse(Vec3A::ZERO, Vec3A::X, 10.0, |slot| {
+            seen[slot] += 1;
+            f32::INFINITY
+        });
+        assert_eq!(seen, vec![1; 45]);
     }
 
     /// Every box a ray's segment crosses is visited, on random boxes and rays including ones
