@@ -275,6 +275,11 @@ enum Command {
         /// 1,024.
         #[arg(long, value_delimiter = ',')]
         scale: Option<Vec<u32>>,
+        /// Measure only the ray throughput against Embree (on the scene and ray count of
+        /// OUT/results.json's plan), replace results.json's throughput with it (keeping every
+        /// other figure) and rewrite the markdown.
+        #[arg(long, conflicts_with_all = ["scale", "replot"])]
+        throughput: bool,
         /// The level generator of --scale.
         #[arg(long, default_value = "scripts/gen_level.py")]
         generator: PathBuf,
@@ -478,6 +483,7 @@ fn main() -> anyhow::Result<()> {
             replot,
             bounces,
             scale,
+            throughput,
             generator,
         } => cli::bench::run(cli::bench::BenchArgs {
             preset: if quick {
@@ -495,6 +501,7 @@ fn main() -> anyhow::Result<()> {
             replot,
             bounces,
             scale,
+            throughput_only: throughput,
             python,
             generator,
         }),

@@ -89,6 +89,9 @@ pub struct BenchArgs {
     pub bounces: BounceCount,
     /// `--scale`: measure only the sweep over these level sizes (blocks), into OUT/scale.json.
     pub scale: Option<Vec<u32>>,
+    /// `--throughput`: measure only the ray throughput against Embree, into OUT/results.json's
+    /// `throughput` (its other figures kept).
+    pub throughput_only: bool,
     /// Python interpreter and the level generator of `--scale` (Embree's interpreter is in
     /// `embree`).
     pub python: String,
@@ -327,6 +330,9 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     if let Some(sizes) = &args.scale {
         return run_scale(&args, sizes);
     }
+    if args.throughput_only {
+        return run_throughput(&args);
+    }
     let started = Instant::now();
     let plan = plan(args.preset, args.bounces);
     std::fs::create_dir_all(&args.out)?;
@@ -436,6 +442,38 @@ fn run_scale(args: &BenchArgs, sizes: &[u32]) -> anyhow::Result<()> {
     let _ = std::fs::remove_dir_all(&scale_args.levels);
     let sweep = sweep?;
     write_json(&args.out.join("scale.json"), &sweep)?;
+    write_outputs(args)
+}
+
+/// `--throughput`: the ray throughput alone, on the scene and ray count of OUT/results.json's
+/// plan, replaces that file's `throughput` (marked with this command line, as the report says);
+/// every other figure is kept, then the markdown is rewritten.
+fn run_throughput(args: &BenchArgs) -> anyhow::Result<()> {
+    let path = args.out.join("results.json");
+    anyhow::ensure!(
+        path.exists(),
+        "{}: no results.json; run `lightfarm bench` first",
+        args.out.display()
+    );
+    let mut results: BenchResults = serde_json::from_str(&super::read_text(&path)?)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let (scene, dir) = load_scene(
+        &args
+            .scenes
+            .join(&results.plan.throughput_scene)
+            .join("scene.json"),
+    )?;
+    let bench = BenchScene {
+        name: results.plan.throughput_scene.clone(),
+        scene,
+        dir,
+        light_sets: vec![],
+        methods: vec![],
+    };
+    let mut measured = throughput_of(&bench, &results.plan, args)?;
+    measured.measured_by = Some(args.command_line.clone());
+    results.throughput = Some(measured);
+    write_json(&path, &results)?;
     write_outputs(args)
 }
 
@@ -697,6 +735,7 @@ mod tests {
             replot: true,
             bounces: BounceCount::All,
             scale: None,
+            throughput_only: false,
             python: "python3".into(),
             generator: PathBuf::from("unused"),
         })
@@ -746,11 +785,74 @@ mod tests {
             replot: true,
             bounces: BounceCount::ONE,
             scale: None,
+            throughput_only: false,
             python: "python3".into(),
             generator: PathBuf::from("unused"),
         })
         .unwrap();
         assert_eq!(md, std::fs::read_to_string(out.join("again.md")).unwrap());
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+
+    /// `bench --throughput` measures the ray throughput alone on the plan's scene and ray
+    /// count, replaces results.json's (none before) and keeps every other figure; the markdown
+    /// says it was measured apart, by which command.
+    #[test]
+    fn the_throughput_alone_replaces_only_the_throughput() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let out = std::env::temp_dir().join(format!("lf-bench-rays-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir_all(&out).unwrap();
+        let written = results_with_both_yardsticks();
+        assert!(written.throughput.is_none());
+        write_json(&out.join("results.json"), &written).unwrap();
+        run(BenchArgs {
+            preset: Preset::Quick,
+            out: out.clone(),
+            markdown: None,
+            reference_cache: out.join("refs"),
+            scenes: root.join("scenes"),
+            seed: 1,
+            embree: None,
+            command_line: "lightfarm bench --throughput".into(),
+            replot: false,
+            bounces: BounceCount::All,
+            scale: None,
+            throughput_only: true,
+            python: "python3".into(),
+            generator: PathBuf::from("unused"),
+        })
+        .unwrap();
+        let read: BenchResults =
+            serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap())
+                .unwrap();
+        let t = read.throughput.as_ref().expect("measured");
+        assert_eq!(t.scene, written.plan.throughput_scene);
+        assert_eq!(t.rays, written.plan.throughput_rays);
+        assert!(t.ours_triangles_rays_per_second > 0.0 && t.ours_native_rays_per_second > 0.0);
+        assert_eq!(
+            t.measured_by.as_deref(),
+            Some("lightfarm bench --throughput")
+        );
+        assert_eq!(t.embree_missing.as_deref(), Some("skipped (--no-embree)"));
+        // Everything else as it was (to JSON's round trip of f64, which may move a last digit).
+        assert_eq!(read.command_line, written.command_line);
+        assert_eq!(read.rows.len(), written.rows.len());
+        for (a, b) in read.rows.iter().zip(&written.rows) {
+            assert_eq!(
+                (a.point.relative_l2, a.point.apply_ms),
+                (b.point.relative_l2, b.point.apply_ms)
+            );
+        }
+        assert_eq!(read.brute_force.len(), written.brute_force.len());
+        let md = std::fs::read_to_string(out.join("BENCHMARKS.md")).unwrap();
+        assert!(md.contains(
+            "Measured apart from the rest of this page, by `lightfarm bench --throughput`."
+        ));
+        assert!(
+            md.contains("| full | 8 | 256 | 1e-3 | auto | 12/7.5 |"),
+            "{md}"
+        );
         std::fs::remove_dir_all(&out).unwrap();
     }
 
@@ -774,6 +876,7 @@ mod tests {
             replot,
             bounces: BounceCount::All,
             scale: Some(vec![2, 6]),
+            throughput_only: false,
             python: "python3".into(),
             generator: root.join("scripts/gen_level.py"),
         };

@@ -274,14 +274,19 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
                     w,
                     "- **Ray throughput** ({}, {} triangles, {} rays, one thread): ours {:.2} Mrays/s \
                      on the triangles, Embree {:.2} Mrays/s: ours : Embree = {:.2} : 1 ({:.2} Mrays/s \
-                     on our native rectangles).",
+                     on our native rectangles){}.",
                     t.scene,
                     t.triangles,
                     t.rays,
                     t.ours_triangles_rays_per_second / 1e6,
                     embree / 1e6,
                     t.ours_triangles_rays_per_second / embree,
-                    t.ours_native_rays_per_second / 1e6
+                    t.ours_native_rays_per_second / 1e6,
+                    if t.measured_by.is_some() {
+                        ", measured apart from the rest of this page"
+                    } else {
+                        ""
+                    }
                 );
             }
             None => {
@@ -434,6 +439,12 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
              (`scripts/embree_throughput.py`, `EmbreeScene.run`, one ray at a time).\n",
             t.scene, t.triangles, t.rays
         );
+        if let Some(command) = &t.measured_by {
+            let _ = writeln!(
+                w,
+                "Measured apart from the rest of this page, by `{command}`.\n"
+            );
+        }
         let _ = writeln!(w, "| tracer | Mrays/s |\n|---|---|");
         let _ = writeln!(
             w,

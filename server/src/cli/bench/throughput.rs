@@ -40,6 +40,10 @@ pub struct Throughput {
     pub agreement: Option<f64>,
     /// Why Embree was not measured.
     pub embree_missing: Option<String>,
+    /// The command line of a `bench --throughput` run that measured this apart from the rest
+    /// of results.json (None: measured with it).
+    #[serde(default)]
+    pub measured_by: Option<String>,
 }
 
 /// The geometry's primitives as triangles (a rectangle becomes two).
