@@ -104,7 +104,8 @@ impl Bvh4 {
     }
 
     /// The most entries a traversal's stack holds (tests check the tree is deep).
-    pub fn stack_need(&self) -> usize {
+    #[cfg(test)]
+    pub(crate) fn stack_need(&self) -> usize {
         self.stack_need
     }
 

@@ -558,6 +558,29 @@ mod tests {
     use lightfarm_proto::scene::Aabb;
     use lightfarm_proto::Face;
 
+    /// The closest f64 hit over every primitive, no BVH: its distance and primitive (the
+    /// first of equal distances).
+    fn brute_closest(tracer: &Tracer, o: [f64; 3], d: [f64; 3]) -> Option<(f64, usize)> {
+        tracer
+            .primitives
+            .iter()
+            .enumerate()
+            .filter_map(|(p, prim)| tracer.intersect(prim, o, d, f64::INFINITY).map(|t| (t, p)))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+    }
+
+    /// What `occluded` must answer, by an f64 test of every primitive, no BVH.
+    fn brute_occluded(tracer: &Tracer, from: [f64; 3], to: [f64; 3]) -> bool {
+        let delta = DVec3::from(to) - DVec3::from(from);
+        let len = delta.length();
+        let d = (delta / len).to_array();
+        len > 2.0 * tracer.epsilon
+            && tracer
+                .primitives
+                .iter()
+                .any(|p| tracer.intersect(p, from, d, len - tracer.epsilon).is_some())
+    }
+
     #[test]
     fn closed_box_is_watertight_and_hits_match_brute_force() {
         let mut g = Geometry::default();
@@ -582,18 +605,7 @@ mod tests {
                 let hit = tracer
                     .closest(texel.position, d, f64::INFINITY, &sign)
                     .expect("closed box leaks");
-                // Brute force over all primitives.
-                let best = g
-                    .primitives
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(p, prim)| {
-                        tracer
-                            .intersect(prim, texel.position, d, f64::INFINITY)
-                            .map(|t| (t, p))
-                    })
-                    .min_by(|a, b| a.0.total_cmp(&b.0))
-                    .unwrap();
+                let best = brute_closest(&tracer, texel.position, d).unwrap();
                 assert!(
                     (best.0 - hit.t).abs() < 1e-9,
                     "bvh {} vs brute {}",
@@ -644,14 +656,7 @@ mod tests {
                     texel.normal,
                 );
                 let o = texel.position;
-                let brute = tracer
-                    .primitives
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(p, prim)| {
-                        tracer.intersect(prim, o, d, f64::INFINITY).map(|t| (t, p))
-                    })
-                    .min_by(|a, b| a.0.total_cmp(&b.0));
+                let brute = brute_closest(&tracer, o, d);
                 let hit = tracer.closest(o, d, f64::INFINITY, &sign);
                 match (hit, brute) {
                     (Some(h), Some((t, p))) => {
@@ -664,13 +669,7 @@ mod tests {
                         assert!(h.primitive as usize == p || ties > 1, "texel {k} ray {i}");
                         hits += 1;
                         let to = [o[0] + 0.7 * t * d[0], o[1] + 0.7 * t * d[1], o[2]];
-                        let delta = DVec3::from(to) - DVec3::from(o);
-                        let len = delta.length();
-                        let dd = (delta / len).to_array();
-                        let expected = len > 2.0 * tracer.epsilon
-                            && tracer.primitives.iter().any(|q| {
-                                tracer.intersect(q, o, dd, len - tracer.epsilon).is_some()
-                            });
+                        let expected = brute_occluded(&tracer, o, to);
                         assert_eq!(tracer.occluded(o, to), expected, "texel {k} ray {i}");
                         shadowed += usize::from(expected);
                     }
@@ -788,15 +787,7 @@ mod tests {
                 }
                 // Shadow rays to the hit and to points beside it.
                 for to in [h.point, [h.point[0], h.point[1] + 0.3, h.point[2]]] {
-                    let delta = DVec3::from(to) - DVec3::from(o);
-                    let len = delta.length();
-                    let dd = (delta / len).to_array();
-                    let tmax = len - tracer.epsilon;
-                    let exact = len > 2.0 * tracer.epsilon
-                        && tracer
-                            .primitives
-                            .iter()
-                            .any(|p| tracer.intersect(p, o, dd, tmax).is_some());
+                    let exact = brute_occluded(&tracer, o, to);
                     assert_eq!(tracer.occluded(o, to), exact, "texel {k} ray {i}");
                 }
             }

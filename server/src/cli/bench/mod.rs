@@ -385,15 +385,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let throughput = match scenes.iter().find(|s| s.name == plan.throughput_scene) {
         Some(bench) => Some(throughput_of(bench, &plan, &args)?),
         None => {
-            let (scene, dir) =
-                load_scene(&args.scenes.join(&plan.throughput_scene).join("scene.json"))?;
-            let bench = BenchScene {
-                name: plan.throughput_scene.clone(),
-                scene,
-                dir,
-                light_sets: vec![],
-                methods: vec![],
-            };
+            let bench = geometry_only(&args.scenes, &plan.throughput_scene)?;
             Some(throughput_of(&bench, &plan, &args)?)
         }
     };
@@ -457,19 +449,7 @@ fn run_throughput(args: &BenchArgs) -> anyhow::Result<()> {
     );
     let mut results: BenchResults = serde_json::from_str(&super::read_text(&path)?)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    let (scene, dir) = load_scene(
-        &args
-            .scenes
-            .join(&results.plan.throughput_scene)
-            .join("scene.json"),
-    )?;
-    let bench = BenchScene {
-        name: results.plan.throughput_scene.clone(),
-        scene,
-        dir,
-        light_sets: vec![],
-        methods: vec![],
-    };
+    let bench = geometry_only(&args.scenes, &results.plan.throughput_scene)?;
     let mut measured = throughput_of(&bench, &results.plan, args)?;
     measured.measured_by = Some(args.command_line.clone());
     results.throughput = Some(measured);
@@ -526,6 +506,19 @@ fn write_outputs(args: &BenchArgs) -> anyhow::Result<()> {
     }
     println!("markdown: {}", markdown_path.display());
     Ok(())
+}
+
+/// Scene `name` of `scenes_dir` with no light sets or methods: only its geometry is measured
+/// (the ray throughput's scene when the sweep does not light it).
+fn geometry_only(scenes_dir: &Path, name: &str) -> anyhow::Result<BenchScene> {
+    let (scene, dir) = load_scene(&scenes_dir.join(name).join("scene.json"))?;
+    Ok(BenchScene {
+        name: name.to_string(),
+        scene,
+        dir,
+        light_sets: vec![],
+        methods: vec![],
+    })
 }
 
 fn throughput_of(
@@ -711,6 +704,27 @@ mod tests {
         }
     }
 
+    /// The quick preset writing into `out`, measuring nothing on its own (no scenes, no
+    /// Embree, no replot, scale or throughput): each test sets what it runs.
+    fn quick_args(out: &Path) -> BenchArgs {
+        BenchArgs {
+            preset: Preset::Quick,
+            out: out.to_path_buf(),
+            markdown: None,
+            reference_cache: out.join("refs"),
+            scenes: PathBuf::from("unused"),
+            seed: 1,
+            embree: None,
+            command_line: String::new(),
+            replot: false,
+            bounces: BounceCount::All,
+            scale: None,
+            throughput_only: false,
+            python: "python3".into(),
+            generator: PathBuf::from("unused"),
+        }
+    }
+
     /// `bench --replot` reads the results.json the new code writes, and the report and plots
     /// it writes name every figure's bounce count.
     #[test]
@@ -724,20 +738,8 @@ mod tests {
         assert!(text.contains(r#""bounces":"all""#) && text.contains(r#""bounces":1"#));
         assert!(text.contains(r#""iterations":14"#));
         run(BenchArgs {
-            preset: Preset::Quick,
-            out: out.clone(),
-            markdown: None,
-            reference_cache: out.join("refs"),
-            scenes: PathBuf::from("unused"),
-            seed: 1,
-            embree: None,
-            command_line: String::new(),
             replot: true,
-            bounces: BounceCount::All,
-            scale: None,
-            throughput_only: false,
-            python: "python3".into(),
-            generator: PathBuf::from("unused"),
+            ..quick_args(&out)
         })
         .unwrap();
         let md = std::fs::read_to_string(out.join("BENCHMARKS.md")).unwrap();
@@ -774,20 +776,10 @@ mod tests {
         assert!(svg.contains("cornell, all bounces: error vs bake time"));
         // And replot twice gives the same markdown (nothing measured, nothing lost).
         run(BenchArgs {
-            preset: Preset::Quick,
-            out: out.clone(),
             markdown: Some(out.join("again.md")),
-            reference_cache: out.join("refs"),
-            scenes: PathBuf::from("unused"),
-            seed: 1,
-            embree: None,
-            command_line: String::new(),
             replot: true,
             bounces: BounceCount::ONE,
-            scale: None,
-            throughput_only: false,
-            python: "python3".into(),
-            generator: PathBuf::from("unused"),
+            ..quick_args(&out)
         })
         .unwrap();
         assert_eq!(md, std::fs::read_to_string(out.join("again.md")).unwrap());
@@ -807,20 +799,10 @@ mod tests {
         assert!(written.throughput.is_none());
         write_json(&out.join("results.json"), &written).unwrap();
         run(BenchArgs {
-            preset: Preset::Quick,
-            out: out.clone(),
-            markdown: None,
-            reference_cache: out.join("refs"),
             scenes: root.join("scenes"),
-            seed: 1,
-            embree: None,
             command_line: "lightfarm bench --throughput".into(),
-            replot: false,
-            bounces: BounceCount::All,
-            scale: None,
             throughput_only: true,
-            python: "python3".into(),
-            generator: PathBuf::from("unused"),
+            ..quick_args(&out)
         })
         .unwrap();
         let read: BenchResults =
@@ -865,20 +847,12 @@ mod tests {
         let out = std::env::temp_dir().join(format!("lf-bench-scale-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&out);
         let args = |replot: bool| BenchArgs {
-            preset: Preset::Quick,
-            out: out.clone(),
-            markdown: None,
-            reference_cache: out.join("refs"),
             scenes: root.join("scenes"),
-            seed: 1,
-            embree: None,
             command_line: "lightfarm bench --quick --scale 2,6".into(),
             replot,
-            bounces: BounceCount::All,
             scale: Some(vec![2, 6]),
-            throughput_only: false,
-            python: "python3".into(),
             generator: root.join("scripts/gen_level.py"),
+            ..quick_args(&out)
         };
         run(args(false)).unwrap();
         let sweep: scale::ScaleSweep =
