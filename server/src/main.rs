@@ -146,7 +146,7 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         light: usize,
         /// Also time every `all` mode with its bounces over texels (`converged(…)-texels`
-        /// lines), side by side with the coefficient-space path MRT uses by default.
+        /// lines), side by side with the coefficient-space paths MRT and DRT use by default.
         #[arg(long)]
         texel_bounces: bool,
     },

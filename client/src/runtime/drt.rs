@@ -95,6 +95,11 @@ impl Runtime {
     /// DRT step 3, after [`Runtime::project_blocks`] and [`Runtime::project_clutter`]: adds
     /// every delta entry (albedo-free). Does nothing without a DRT section.
     pub(super) fn add_drt_deltas(&mut self, out: &mut [[f32; 3]]) {
+        self.add_deltas_of(out, Deltas::All);
+    }
+
+    /// [`Runtime::add_drt_deltas`] over the entries `which` selects.
+    pub(super) fn add_deltas_of(&mut self, out: &mut [[f32; 3]], which: Deltas) {
         let Some(drt) = &self.bundle.drt else { return };
         let mut scratch = std::mem::take(&mut self.scratch);
         // Relighting by the change at one bounce: the rows written are marked.
@@ -119,7 +124,13 @@ impl Runtime {
         for i in order {
             let i = i as usize;
             let (e, m, mix) = (&drt.entries[i], &self.ops.deltas[i], &self.ops.delta_mix[i]);
-            if !self.source_reached(e.source) {
+            let direct = matches!(e.source, DeltaSource::Direct { .. });
+            let selected = match which {
+                Deltas::All => true,
+                Deltas::OfCoefficients => !direct,
+                Deltas::OfLight => direct,
+            };
+            if !selected || !self.source_reached(e.source) {
                 continue;
             }
             if let Some(sparse) = sparse.as_mut() {
@@ -189,6 +200,17 @@ impl Runtime {
             sparse.mark_texels(by_change.rows.iter().map(|&i| g.row_texel(i as usize)));
         }
     }
+}
+
+/// Which delta entries [`Runtime::add_deltas_of`] adds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Deltas {
+    All,
+    /// Entries whose source is a block's or clutter object's coefficients.
+    OfCoefficients,
+    /// Entries over a texel range of the light (`DeltaSource::Direct`, the exact clutter
+    /// gather in low-rank form).
+    OfLight,
 }
 
 /// The exact gather's state when relighting by the change: which rows read each unit (block,

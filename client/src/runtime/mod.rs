@@ -2,8 +2,9 @@
 //!
 //! Owns the decoded [`Bundle`] and every scratch buffer the per-frame work needs, so
 //! [`Runtime::apply`] and [`Runtime::apply_probes`] allocate nothing (they only resize `out`
-//! when its size is wrong; the one exception: `Converged` with [`Method::Mrt`] on a bundle that
-//! has DRT makes its coefficient-space operators on its first call, see `reduced`).
+//! when its size is wrong; the exceptions: the first `Converged` solve with [`Method::Drt`], or
+//! with [`Method::Mrt`] on a bundle that has DRT, makes its coefficient-space operators, see
+//! `reduced` and `reduced_drt`).
 //!
 //! [`Method::Mrt`] (modular radiance transfer), for every block B and channel c:
 //! 1. `b_B = T_d→b · l_d^B` (l_d^B: the block's texel range of direct radiance);
@@ -49,7 +50,9 @@
 //! same error in fewer applications of `A` (maze with pillars, T=8, at 1e-3: 8 applications and
 //! 4.2e-4 relative L2 from 100 bounces, where the series needs 18 bounces for 7.7e-4); with
 //! [`Method::Mrt`] the bounces after the first run in the blocks' coefficient space (module
-//! `reduced`; [`Runtime::set_reduced_bounces`] picks the texel path instead);
+//! `reduced`), with [`Method::Drt`] in the blocks' and clutter objects' (module `reduced_drt`,
+//! where that reads under half a texel application's values); [`Runtime::set_reduced_bounces`]
+//! picks the texel path instead;
 //! [`Bounces::Feedback`] applies `A` once per call to the direct light plus the previous call's
 //! indirect light (Enlighten's radiosity feedback), so repeated calls with steady lights converge
 //! to `Converged` at one application each; [`Bounces::Warm`] is `Converged`'s accuracy at
@@ -65,7 +68,7 @@
 //!   bundle's) and `BlockSlots` (one block's ranges in the block-major scratch).
 //! - `mrt`: MRT steps 1–4 (`project_blocks`, `mrt_albedo_free`, `multiply_albedo`).
 //! - `drt`: DRT steps 1–3 beyond MRT (`project_clutter`, `source_coefficients`,
-//!   `add_drt_deltas`, `drop_replaced`, `add_direct_gather`) and `GatherByChange`, the
+//!   `add_drt_deltas` or `add_deltas_of` a kind of entry, `drop_replaced`, `add_direct_gather`) and `GatherByChange`, the
 //!   gather's rows by the texels they read, for relighting by the change.
 //! - `full`: [`Method::Full`], the sparse dense-bounce operator.
 //! - `probes`: [`Runtime::apply_probes`], the probe volume's SH radiance.
@@ -75,6 +78,9 @@
 //! - `reduced`: [`Bounces::Converged`] for MRT over the blocks' coefficients (`M = R D K`, made
 //!   with the runtime when the bundle has no DRT, else on the first such solve) instead of
 //!   texels.
+//! - `reduced_drt`: [`Bounces::Converged`] for DRT over the blocks' and clutter objects'
+//!   coefficients (the exact gather seen from the clutter's coefficients; made on the first such
+//!   solve) instead of texels.
 //! - `warm`: [`Bounces::Warm`], the solve that starts from the previous answer.
 //! - `incremental`: [`Runtime::apply_delta`], relighting by the change of direct light: only
 //!   the blocks, clutter objects and entries the change reaches do work, bounce by bounce.
@@ -116,6 +122,7 @@ mod mrt;
 mod packed_ops;
 mod probes;
 mod reduced;
+mod reduced_drt;
 mod sh_apply;
 mod warm;
 
@@ -307,6 +314,13 @@ pub struct Runtime {
     reduced_enabled: bool,
     reduced_tried: bool,
     reduced: Option<Box<reduced::ReducedMrt>>,
+    /// [`Bounces::Converged`] with [`Method::Drt`] in coefficient space (module
+    /// `reduced_drt`), made on the first such solve (None: the texel path).
+    reduced_drt_tried: bool,
+    reduced_drt: Option<Box<reduced_drt::ReducedDrt>>,
+    /// Whether DRT's coefficient-space path is refused where it would not read well under
+    /// half a texel application's values (always true outside tests).
+    reduced_drt_gated: bool,
 }
 
 /// [`Bounces::Converged`] refuses an operator whose bounces keep at least this fraction of the
@@ -480,6 +494,9 @@ impl Runtime {
             reduced_enabled: true,
             reduced_tried: false,
             reduced: None,
+            reduced_drt_tried: false,
+            reduced_drt: None,
+            reduced_drt_gated: true,
         };
         if runtime.bundle.drt.is_none() {
             runtime.prepare_reduced();
@@ -714,8 +731,13 @@ impl Runtime {
         out: &mut [[f32; 3]],
         tolerance: f32,
     ) -> Result<Applied, ApplyError> {
-        if method == Method::Mrt && self.reduced_enabled {
-            if let Some(result) = self.converge_reduced(direct, out, tolerance) {
+        if self.reduced_enabled {
+            let reduced = match method {
+                Method::Mrt => self.converge_reduced(direct, out, tolerance),
+                Method::Drt => self.converge_reduced_drt(direct, out, tolerance),
+                Method::Full => None,
+            };
+            if let Some(result) = reduced {
                 return result;
             }
         }

@@ -121,21 +121,7 @@ impl ReducedMrt {
                 .flat_map(Piece::packed)
                 .chain(&ops.transport_z),
         );
-        let mut weight = vec![1.0f32; n_coef / 3];
-        for (k, blk) in bundle.blocks.iter().enumerate() {
-            let u_b = &bundle.shapes[blk.shape as usize].u_b;
-            let (rows, r) = (u_b.rows as usize, u_b.cols as usize);
-            let base = blocks[k].coef_start / 3;
-            for i in 0..r {
-                let norm = (0..rows)
-                    .map(|t| (u_b.data[t * r + i] as f64).powi(2))
-                    .sum::<f64>()
-                    .sqrt() as f32;
-                if norm > 0.0 && norm.is_finite() {
-                    weight[base + i] = norm;
-                }
-            }
-        }
+        let weight = block_weights(bundle, blocks, n_coef / 3);
         let energy = energy_functional(bundle, blocks, &weight);
         Some(ReducedMrt {
             energy,
@@ -217,21 +203,56 @@ impl ReducedMrt {
 
 /// One of `M`'s pieces, `T diag(ρ_c) X` (r × w per channel, row-major).
 #[derive(Clone, Debug)]
-enum Piece {
+pub(super) enum Piece {
     /// `Σ_g ρ_g,c · P_g` over the block's distinct albedos (one per block in our scenes, one per
     /// material in general): each `P_g` read once for the three channels.
     Grouped(Vec<([f32; 3], PackedMatrix)>),
-    /// One matrix per channel (three distinct albedos or more).
+    /// One matrix per channel (four distinct albedos or more).
     PerChannel([Vec<f32>; 3]),
 }
 
-/// Albedo groups up to which a piece stays [`Piece::Grouped`] (its matrices then hold at most
-/// two-thirds of the per-channel ones' values).
-const MAX_GROUPS: usize = 2;
+/// Albedo groups up to which a piece stays [`Piece::Grouped`]: its matrices then hold at most
+/// the per-channel ones' values, and the packed kernel reads each once for the three channels
+/// (cornell, a block of three albedos: DRT `Converged` 2.4-2.6× one bounce against 2.9-3.1×
+/// with a matrix per channel; MRT 2.8× against 3.0×).
+const MAX_GROUPS: usize = 3;
 
 impl Piece {
+    /// The piece from its per-albedo sums `(ρ, P_g)` (each r × w, row-major, in the order
+    /// made): [`Piece::Grouped`] up to [`MAX_GROUPS`] albedos, else one matrix per channel.
+    pub(super) fn from_groups(r: usize, w: usize, groups: Vec<([f32; 3], Vec<f32>)>) -> Piece {
+        if groups.len() <= MAX_GROUPS {
+            return Piece::Grouped(
+                groups
+                    .into_iter()
+                    .map(|(rho, data)| {
+                        let m = Matrix {
+                            rows: r as u32,
+                            cols: w as u32,
+                            data,
+                        };
+                        (rho, PackedMatrix::f32(&m))
+                    })
+                    .collect(),
+            );
+        }
+        let mut out = [
+            vec![0.0f32; r * w],
+            vec![0.0f32; r * w],
+            vec![0.0f32; r * w],
+        ];
+        for (rho, p) in &groups {
+            for c in 0..3 {
+                for (o, g) in out[c].iter_mut().zip(p) {
+                    *o += rho[c] * g;
+                }
+            }
+        }
+        Piece::PerChannel(out)
+    }
+
     /// The packed matrices of a grouped piece.
-    fn packed(&self) -> impl Iterator<Item = &PackedMatrix> {
+    pub(super) fn packed(&self) -> impl Iterator<Item = &PackedMatrix> {
         let groups = match self {
             Piece::Grouped(g) => g.as_slice(),
             Piece::PerChannel(_) => &[],
@@ -243,7 +264,7 @@ impl Piece {
     /// sums' order is fixed by the code, so results are bit-identical with or without AVX2
     /// (used where present, at run time, as in [`crate::packed`]).
     #[inline]
-    fn add(&self, r: usize, x: [&[f32]; 3], y: &mut [f32], scratch: &mut [f32]) {
+    pub(super) fn add(&self, r: usize, x: [&[f32]; 3], y: &mut [f32], scratch: &mut [f32]) {
         if let Piece::Grouped(groups) = self {
             for (rho, p) in groups {
                 p.matvec(x, scratch, |i, d| {
@@ -340,34 +361,7 @@ fn project_portable(t: &Matrix, albedo: &[[f32; 3]], x: &Matrix) -> Piece {
         groups.push((rho, group));
         start = end;
     }
-    if groups.len() <= MAX_GROUPS {
-        return Piece::Grouped(
-            groups
-                .into_iter()
-                .map(|(rho, data)| {
-                    let m = Matrix {
-                        rows: r as u32,
-                        cols: w as u32,
-                        data,
-                    };
-                    (rho, PackedMatrix::f32(&m))
-                })
-                .collect(),
-        );
-    }
-    let mut out = [
-        vec![0.0f32; r * w],
-        vec![0.0f32; r * w],
-        vec![0.0f32; r * w],
-    ];
-    for (rho, p) in &groups {
-        for c in 0..3 {
-            for (o, g) in out[c].iter_mut().zip(p) {
-                *o += rho[c] * g;
-            }
-        }
-    }
-    Piece::PerChannel(out)
+    Piece::from_groups(r, w, groups)
 }
 
 /// `a · b` in eight interleaved partial sums (a fixed order).
@@ -387,6 +381,27 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
         s += a * b;
     }
     s
+}
+
+/// Per coefficient (RGB-vector index `coef_start / 3 + i`, `len` in all, 1 beyond the blocks'):
+/// the norm of its `U_b` column, the light one unit of it expands to (1 where that is 0).
+pub(super) fn block_weights(bundle: &Bundle, blocks: &[BlockSlots], len: usize) -> Vec<f32> {
+    let mut weight = vec![1.0f32; len];
+    for (k, blk) in bundle.blocks.iter().enumerate() {
+        let u_b = &bundle.shapes[blk.shape as usize].u_b;
+        let (rows, r) = (u_b.rows as usize, u_b.cols as usize);
+        let base = blocks[k].coef_start / 3;
+        for i in 0..r {
+            let norm = (0..rows)
+                .map(|t| (u_b.data[t * r + i] as f64).powi(2))
+                .sum::<f64>()
+                .sqrt() as f32;
+            if norm > 0.0 && norm.is_finite() {
+                weight[base + i] = norm;
+            }
+        }
+    }
+    weight
 }
 
 /// Per weighted coefficient and channel, the energy of the light it expands to:
@@ -529,10 +544,12 @@ impl super::Runtime {
         }
     }
 
-    /// Uses the coefficient-space path for [`Method::Mrt`](super::Method::Mrt)'s bounces
-    /// (`true`, the default) or the texel path ([`super::Bounces::Converged`]'s GMRES over
-    /// texels, as for the other methods), for measuring one against the other. Both solve the
-    /// same system to the same tolerance.
+    /// Uses the coefficient-space paths for [`Method::Mrt`](super::Method::Mrt)'s and
+    /// [`Method::Drt`](super::Method::Drt)'s bounces (`true`, the default; modules `reduced` and
+    /// `reduced_drt`) or the texel path ([`super::Bounces::Converged`]'s GMRES over texels, as
+    /// for the full operator), for measuring one against the other. Both solve the same system
+    /// to the same tolerance (DRT's, with clutter-to-clutter light through the gather taken in
+    /// the clutter basis: see `reduced_drt`).
     pub fn set_reduced_bounces(&mut self, on: bool) {
         self.reduced_enabled = on;
     }

@@ -11,7 +11,7 @@
 //!
 //! With `--texel-bounces`, every `Converged` mode is timed a second time with its bounces over
 //! texels (`Runtime::set_reduced_bounces(false)`; MRT runs them over the blocks' coefficients
-//! by default), in the same rounds.
+//! by default, DRT over the blocks' and clutter objects'), in the same rounds.
 //!
 //! The direct light's own time (every light, texel-averaged as `eval` feeds the operators, one
 //! thread) is printed first, apart from the operators'. With `--update one-light`, one light
@@ -54,7 +54,7 @@ pub struct FrameTimeArgs {
     /// The light the moving-light lines move ([`super::frame_moving`]).
     pub moving_light: usize,
     /// Also time every `Converged` mode with its bounces over texels (`…-texels` lines), side
-    /// by side with the coefficient-space path MRT uses by default.
+    /// by side with the coefficient-space paths MRT and DRT use by default.
     pub texel_bounces: bool,
 }
 

@@ -536,7 +536,7 @@ fn warm_refuses_an_operator_with_gain_one() {
 
 /// A pool of `threads` threads and a runtime of `b` that runs its blocks on it (more than one).
 #[cfg(feature = "rayon")]
-fn runtime_on(threads: usize, b: &Bundle) -> (rayon::ThreadPool, Runtime) {
+pub(super) fn runtime_on(threads: usize, b: &Bundle) -> (rayon::ThreadPool, Runtime) {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -604,7 +604,7 @@ fn converged_is_bit_identical_at_one_and_two_threads() {
 /// `Converged` with MRT runs in coefficient space (`runtime/reduced.rs`): the same light as the
 /// texel path's GMRES and as many explicit bounces, within the tolerance and in about as many
 /// applications, for every transport (a lightfield keeps the texel path), with an albedo per
-/// texel (one matrix per channel) and one or two albedos per block (one matrix for the three
+/// texel (one matrix per channel) and one to three albedos per block (one matrix for the three
 /// channels per albedo); a second call allocates nothing and repeats the same bits.
 #[test]
 fn reduced_converged_matches_the_texel_path_and_many_bounces() {
@@ -616,23 +616,37 @@ fn reduced_converged_matches_the_texel_path_and_many_bounces() {
         None,
     ];
     for transport in transports {
-        for albedos_per_block in [0usize, 1, 2] {
-            let mut b = bundle(&mut rng, transport.clone(), false);
+        for albedos_per_block in [0usize, 1, 2, 3] {
+            // The three-albedo case draws from a generator of its own (the others' bundles
+            // stay what they were).
+            let mut own = Lcg(67);
+            let rng = if albedos_per_block == 3 {
+                &mut own
+            } else {
+                &mut rng
+            };
+            let mut b = bundle(rng, transport.clone(), false);
             if albedos_per_block > 0 {
                 for blk in b.blocks.clone() {
                     let start = blk.texel_offset as usize;
                     let n = b.shapes[blk.shape as usize].u_b.rows as usize;
-                    let (first, last) = (b.layout.albedo[start], b.layout.albedo[start + n - 1]);
+                    let (first, middle, last) = (
+                        b.layout.albedo[start],
+                        b.layout.albedo[start + 1],
+                        b.layout.albedo[start + n - 1],
+                    );
                     for (i, a) in b.layout.albedo[start..start + n].iter_mut().enumerate() {
-                        *a = if albedos_per_block == 2 && i >= n / 2 {
-                            last
-                        } else {
-                            first
+                        // Groups of texels by albedo: all, halves, or thirds.
+                        *a = match (albedos_per_block, 3 * i / n) {
+                            (2, 1) | (2, 2) if i >= n / 2 => last,
+                            (3, 1) => middle,
+                            (3, 2) => last,
+                            _ => first,
                         };
                     }
                 }
             }
-            let ld = direct(&mut rng, b.layout.n_texels());
+            let ld = direct(rng, b.layout.n_texels());
             let case = format!(
                 "{:?}, {albedos_per_block} albedos per block",
                 b.transport.as_ref().map(std::mem::discriminant)
@@ -650,7 +664,9 @@ fn reduced_converged_matches_the_texel_path_and_many_bounces() {
                 b.layout.albedo.iter_mut().flatten().for_each(|a| *a *= 0.5);
                 rt = Runtime::new(b.clone());
             }
-            let texel_applied = rt.apply(Method::Mrt, tolerance, &ld, &mut texel).unwrap();
+            let texel_applied = rt
+                .apply(Method::Mrt, tolerance, &ld, &mut texel)
+                .unwrap_or_else(|e| panic!("{case}: {e}"));
             rt.set_reduced_bounces(true);
             let (mut reduced, mut many) = (IndirectLight::default(), IndirectLight::default());
             let applied = rt.apply(Method::Mrt, tolerance, &ld, &mut reduced).unwrap();

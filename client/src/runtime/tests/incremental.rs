@@ -109,6 +109,10 @@ fn cases(rng: &mut Lcg, rho: f32) -> Vec<(Bundle, Method, &'static str)> {
     }
     gathered.drt.as_mut().unwrap().direct_gather = Some(gather);
     out.push((gathered, Method::Drt, "drt exact gather"));
+    // A bundle whose `Converged` runs in coefficient space (module `reduced_drt`).
+    let rng = &mut Lcg(101);
+    let reducible = super::reduced_drt::reducible(rng, &super::reduced_drt::LAMP_READS);
+    out.push((reducible, Method::Drt, "drt reduced bounces"));
     for (b, _, _) in &mut out {
         for a in &mut b.layout.albedo {
             *a = a.map(|x| x * rho);
@@ -281,6 +285,8 @@ fn converged_by_the_change_is_within_its_tolerance() {
     for (b, method, name) in cases(&mut rng, 0.2) {
         let n = b.layout.n_texels();
         let mut rt = Runtime::new(b);
+        // The reducible case's Converged runs in coefficient space (module `reduced_drt`).
+        rt.ungate_reduced_drt();
         let ld = direct(&mut rng, n);
         let (new, delta) = changed(&ld, 0..4, &mut rng);
         let bounces = Bounces::Converged { tolerance: 1e-5 };
@@ -295,6 +301,12 @@ fn converged_by_the_change_is_within_its_tolerance() {
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         let err = max_rel(&out.radiance, &want.radiance);
         assert!(err < 1e-4, "{name}: {err}");
+        if name == "drt reduced bounces" {
+            assert!(
+                rt.reduced_drt_first_energy().is_some(),
+                "{name}: texel path"
+            );
+        }
     }
 }
 

@@ -14,6 +14,8 @@
 //!   `proto/tests/decode_fuzz.rs`).
 //! - `bounces`: `Fixed`, `Converged` and `Feedback` against hand-iterated series, refusal of a
 //!   gain-one operator, bit-identical results at one and two threads.
+//! - `reduced_drt`: DRT's `Converged` in coefficient space against the texel path and many
+//!   bounces, its first-bounce energy, the texel path kept for what it does not model.
 //! - `incremental`: `apply_delta` (relighting by the change of direct light) against applying
 //!   the new light, the reach it follows, `Feedback` refused.
 
@@ -32,6 +34,7 @@ mod drt;
 mod fuzz;
 mod incremental;
 mod probes;
+mod reduced_drt;
 
 #[global_allocator]
 static GLOBAL: CountingAlloc = CountingAlloc;
