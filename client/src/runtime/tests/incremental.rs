@@ -5,7 +5,6 @@
 //! the reach follows the change; `Feedback` is refused and leaves `out` alone.
 
 use super::*;
-use lightfarm_proto::bundle::TexelGather;
 
 /// `ld` with `change` added on the texels `range` (zero elsewhere): (new light, change).
 fn changed(
@@ -95,18 +94,7 @@ fn cases(rng: &mut Lcg, rho: f32) -> Vec<(Bundle, Method, &'static str)> {
     let rng = &mut Lcg(97);
     let mut gathered = drt_bundle(rng, false, true, false);
     let reads: [&[u32]; 5] = [&[0, 2], &[3, 4, 9], &[7, 11, 12], &[13, 14, 16], &[]];
-    let mut gather = TexelGather {
-        rows: vec![1, 5, 8, 12, 15],
-        row_start: vec![0],
-        ..TexelGather::default()
-    };
-    for cols in reads {
-        gather.cols.extend_from_slice(cols);
-        gather
-            .values
-            .extend(cols.iter().map(|_| rng.range(0.01, 0.2)));
-        gather.row_start.push(gather.cols.len() as u32);
-    }
+    let gather = gather_rows(rng, &[1, 5, 8, 12, 15], &reads, (0.01, 0.2));
     gathered.drt.as_mut().unwrap().direct_gather = Some(gather);
     out.push((gathered, Method::Drt, "drt exact gather"));
     // A bundle whose `Converged` runs in coefficient space (module `reduced_drt`).

@@ -23,7 +23,7 @@
 
 use super::*;
 use crate::probes::ProbeField;
-use lightfarm_proto::bundle::{CompactEntry, DeltaSource, DrtOps, Matrix, SparseRows};
+use lightfarm_proto::bundle::{CompactEntry, DeltaSource, DrtOps, Matrix, SparseRows, TexelGather};
 use lightfarm_proto::testing::{
     allocs, blocks, drt_bundle, join_sections, layout, lightfield_transport, matrix, probe_bundle,
     random_full, shape, traced_transport, CountingAlloc, Lcg, N_PROBES,
@@ -66,6 +66,22 @@ fn bundle(rng: &mut Lcg, transport: Option<TransportOps>, full: bool) -> Bundle 
         full,
         ..Bundle::default()
     }
+}
+
+/// An exact gather whose row `rows[i]` reads the texels `reads[i]`, its values drawn from
+/// `lo..hi`.
+fn gather_rows(rng: &mut Lcg, rows: &[u32], reads: &[&[u32]], (lo, hi): (f32, f32)) -> TexelGather {
+    let mut gather = TexelGather {
+        rows: rows.to_vec(),
+        row_start: vec![0],
+        ..TexelGather::default()
+    };
+    for cols in reads {
+        gather.cols.extend_from_slice(cols);
+        gather.values.extend(cols.iter().map(|_| rng.range(lo, hi)));
+        gather.row_start.push(gather.cols.len() as u32);
+    }
+    gather
 }
 
 /// Texels of the DRT test bundle ([`drt_bundle`]): blocks a (0..4) and b (4..10), clutter box

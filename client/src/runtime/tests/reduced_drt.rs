@@ -7,7 +7,7 @@
 
 use super::*;
 use crate::compare::relative_l2;
-use lightfarm_proto::bundle::{DeltaEntry, TexelGather};
+use lightfarm_proto::bundle::DeltaEntry;
 
 /// Clutter texels of [`drt_bundle`] with two clutter objects: the box (m = 2 < 4 texels) and
 /// the lamp (m = 3 = its texels).
@@ -34,18 +34,7 @@ pub(super) fn reducible(rng: &mut Lcg, reads: &[&[u32]]) -> Bundle {
         data: vec![1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c],
     };
     if !reads.is_empty() {
-        let mut gather = TexelGather {
-            rows: vec![10, 11, 13, 14, 16],
-            row_start: vec![0],
-            ..TexelGather::default()
-        };
-        for cols in reads {
-            gather.cols.extend_from_slice(cols);
-            gather
-                .values
-                .extend(cols.iter().map(|_| rng.range(0.05, 0.3)));
-            gather.row_start.push(gather.cols.len() as u32);
-        }
+        let gather = gather_rows(rng, &[10, 11, 13, 14, 16], reads, (0.05, 0.3));
         d.direct_gather = Some(gather);
     }
     b
