@@ -440,4 +440,77 @@ mod tests {
         assert_eq!(rest.values[..2], [0.5, 0.25]);
         assert_eq!(stats.gather_sparse_left, 60);
     }
+
+    /// Why the bundle factors the gather at a fraction of the scene's tolerance
+    /// (`GATHER_TOLERANCE_SCALE`): the gather multiplies direct light, bright where a light is
+    /// near. A range whose rows see a smooth floor plus a small patch of it lit differently
+    /// (its second component holds 3e-4 of the energy) loses the patch at the scene's 1e-3, and
+    /// with it most of the light gathered from a lamp over the patch; at the bundle's scale it
+    /// keeps it.
+    #[test]
+    fn a_point_lights_gather_survives_the_bundles_gather_tolerance() {
+        use crate::bake::pipeline::to_bundle::GATHER_TOLERANCE_SCALE;
+        let (rows, cols) = (100usize, 200usize);
+        let patch = 60..64;
+        let a = |i: usize| 1.0 + i as f64 / rows as f64;
+        let b = |j: usize| 0.01 * (1.5 + (j as f64 * 0.1).sin());
+        let d = |i: usize| 1.0 + (i % 7) as f64;
+        // Scale of the patch's component: 3e-4 of the smooth part's energy.
+        let smooth: f64 = (0..rows)
+            .flat_map(|i| (0..cols).map(move |j| (a(i) * b(j)).powi(2)))
+            .sum();
+        let detail: f64 = (0..rows).map(|i| d(i).powi(2) * patch.len() as f64).sum();
+        let c = (3e-4 * smooth / detail).sqrt();
+        let value =
+            |i: usize, j: usize| a(i) * b(j) + if patch.contains(&j) { c * d(i) } else { 0.0 };
+        let mut g = TexelGather::default();
+        g.row_start.push(0);
+        for i in 0..rows {
+            g.rows.push(1000 + i as u32);
+            for j in 0..cols {
+                g.cols.push(j as u32);
+                g.values.push(value(i, j) as f32);
+            }
+            g.row_start.push(g.cols.len() as u32);
+        }
+        // Direct light: a lamp over the patch on a dim floor.
+        let x: Vec<f64> = (0..cols)
+            .map(|j| if patch.contains(&j) { 100.0 } else { 1.0 })
+            .collect();
+        let exact: Vec<f64> = (0..rows)
+            .map(|i| (0..cols).map(|j| value(i, j) * x[j]).sum())
+            .collect();
+        let error_at = |tolerance: f64| {
+            let mut stats = DeltaCompactionStats::default();
+            let (entries, _) =
+                compact_gather(&g, &[(0, cols as u32)], tolerance, None, &mut stats).unwrap();
+            let e = &entries[0];
+            let mix = e.mix.as_ref().unwrap();
+            let k = mix.rows as usize;
+            let y: Vec<f64> = (0..k)
+                .map(|q| {
+                    (0..cols)
+                        .map(|j| mix.data[q * cols + j] as f64 * x[j])
+                        .sum()
+                })
+                .collect();
+            let (mut num, mut den) = (0.0, 0.0);
+            for (r, want) in exact.iter().enumerate() {
+                let got: f64 = (0..k).map(|q| e.matrix.data[r * k + q] as f64 * y[q]).sum();
+                num += (got - want).powi(2);
+                den += want.powi(2);
+            }
+            ((num / den).sqrt(), k)
+        };
+        let (scene, bundle) = (error_at(1e-3), error_at(GATHER_TOLERANCE_SCALE * 1e-3));
+        assert_eq!((scene.1, bundle.1), (1, 2), "ranks");
+        assert!(
+            bundle.0 <= 1e-4,
+            "at the bundle's gather tolerance: {}",
+            bundle.0
+        );
+        // 4.2%: the patch's light, a small share of the gather's energy, a large one of a
+        // lamp's.
+        assert!(scene.0 >= 0.03, "at the scene's: {}", scene.0);
+    }
 }
