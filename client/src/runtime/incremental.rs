@@ -10,8 +10,9 @@
 //!   objects project (`c = t_dc · x`) and feed delta entries; a delta entry reading direct light
 //!   (`DeltaSource::Direct`) runs only when its texel range holds a non-zero value;
 //! - every bounce after the first starts from the previous bounce's output, so the reach grows
-//!   by one transport hop a bounce, as the light does (MRT's `Converged` instead projects the
-//!   reached blocks once and runs the bounces in coefficient space, module `reduced`).
+//!   by one transport hop a bounce, as the light does (`Converged` with MRT, and with DRT where
+//!   its coefficient space is kept, instead projects the reached blocks and clutter once and
+//!   runs the bounces in coefficient space, modules `reduced` and `reduced_drt`).
 //!
 //! Skipped work would have multiplied exact zeros, so an application under a reach equals the
 //! full application bit for bit (up to the sign of zeros); `apply_delta` then adds `A(Δ)`
