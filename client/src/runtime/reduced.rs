@@ -149,7 +149,12 @@ impl ReducedMrt {
         v: &[[f32; 3]],
         w: &mut [[f32; 3]],
     ) {
-        to_planar(blocks, &self.weight, v, &mut self.z_in);
+        to_planar(
+            blocks.iter().map(block_group),
+            &self.weight,
+            v,
+            &mut self.z_in,
+        );
         let ReducedMrt {
             own,
             transport,
@@ -197,7 +202,7 @@ impl ReducedMrt {
                 }
             }
         }
-        from_planar(blocks, &self.weight, &self.z_out, w);
+        from_planar(blocks.iter().map(block_group), &self.weight, &self.z_out, w);
     }
 }
 
@@ -494,30 +499,45 @@ fn energy_of(energy: &[[f64; 3]], v: &[[f32; 3]]) -> [f64; 3] {
     e
 }
 
-/// Weighted RGB coefficients (index `coef_start / 3 + i`, each `weight` times the runtime's
-/// coefficient) → the runtime's block-major, channel-planar layout.
-fn to_planar(blocks: &[BlockSlots], weight: &[f32], v: &[[f32; 3]], z: &mut [f32]) {
-    for s in blocks {
-        let base = s.coef_start / 3;
-        for i in 0..s.rank {
+/// Weighted RGB coefficients (index `start / 3 + i` of each channel-planar group `(start,
+/// width)`, each `weight` times the runtime's coefficient) → the planar layout (a block's group
+/// is `(coef_start, rank)`; `reduced_drt` adds the clutter objects' after the blocks').
+pub(super) fn to_planar(
+    groups: impl IntoIterator<Item = (usize, usize)>,
+    weight: &[f32],
+    v: &[[f32; 3]],
+    z: &mut [f32],
+) {
+    for (start, width) in groups {
+        let base = start / 3;
+        for i in 0..width {
             for c in 0..3 {
-                z[s.coef_start + c * s.rank + i] = v[base + i][c] / weight[base + i];
+                z[start + c * width + i] = v[base + i][c] / weight[base + i];
             }
         }
     }
 }
 
-/// The runtime's coefficient layout → weighted RGB coefficients (the inverse of
-/// [`to_planar`]).
-fn from_planar(blocks: &[BlockSlots], weight: &[f32], z: &[f32], v: &mut [[f32; 3]]) {
-    for s in blocks {
-        let base = s.coef_start / 3;
-        for i in 0..s.rank {
+/// The planar layout → weighted RGB coefficients (the inverse of [`to_planar`]).
+pub(super) fn from_planar(
+    groups: impl IntoIterator<Item = (usize, usize)>,
+    weight: &[f32],
+    z: &[f32],
+    v: &mut [[f32; 3]],
+) {
+    for (start, width) in groups {
+        let base = start / 3;
+        for i in 0..width {
             for c in 0..3 {
-                v[base + i][c] = z[s.coef_start + c * s.rank + i] * weight[base + i];
+                v[base + i][c] = z[start + c * width + i] * weight[base + i];
             }
         }
     }
+}
+
+/// A block's group in the planar coefficient layout.
+fn block_group(s: &BlockSlots) -> (usize, usize) {
+    (s.coef_start, s.rank)
 }
 
 impl super::Runtime {
@@ -573,7 +593,12 @@ impl super::Runtime {
         let mut rhs = std::mem::take(&mut red.rhs);
         let mut solution = std::mem::take(&mut red.solution);
         let mut krylov = red.krylov.take().unwrap_or_else(|| Krylov::new(rhs.len()));
-        from_planar(&self.blocks, &red.weight, &self.b, &mut rhs);
+        from_planar(
+            self.blocks.iter().map(block_group),
+            &red.weight,
+            &self.b,
+            &mut rhs,
+        );
         let solved = {
             let (bundle, blocks, entry_order, ops) =
                 (&self.bundle, &self.blocks, &self.entry_order, &self.ops);
@@ -586,7 +611,12 @@ impl super::Runtime {
             )
         };
         // Light = D K w.
-        to_planar(&self.blocks, &red.weight, &solution, &mut self.b);
+        to_planar(
+            self.blocks.iter().map(block_group),
+            &red.weight,
+            &solution,
+            &mut self.b,
+        );
         (red.rhs, red.solution, red.krylov) = (rhs, solution, Some(krylov));
         self.reduced = Some(red);
         // The bounces reach every block the transport joins: expand all of them.

@@ -57,7 +57,7 @@ use super::drt::Deltas;
 use super::kernels::{group, planar, set_matvec, stack_sources};
 use super::krylov::Krylov;
 use super::packed_ops::{BlockSlots, PackedOps};
-use super::reduced::Piece;
+use super::reduced::{from_planar, to_planar, Piece};
 use crate::packed::PackedMatrix;
 
 mod pieces;
@@ -135,6 +135,8 @@ pub(super) struct ReducedDrt {
     scratch: Vec<f32>,
     /// Per texel: the light the final gather reads.
     gather_in: Vec<[f32; 3]>,
+    /// Whether the bundle has the gather in low-rank form (entries over the light).
+    light_entries: bool,
     krylov: Option<Krylov>,
     rhs: Vec<[f32; 3]>,
     solution: Vec<[f32; 3]>,
@@ -245,7 +247,7 @@ impl ReducedDrt {
         v: &[[f32; 3]],
         w: &mut [[f32; 3]],
     ) {
-        to_planar(&self.groups, &self.weight, v, &mut self.z_in);
+        to_planar(self.groups.iter().copied(), &self.weight, v, &mut self.z_in);
         self.make_mids(bundle, blocks, ops);
         self.z_out.fill(0.0);
         let ReducedDrt {
@@ -263,31 +265,7 @@ impl ReducedDrt {
         for t in [&*terms, &*implied] {
             ReducedDrt::add_terms(t, groups, n_blocks, mids, (z_in, mid), z_out, scratch);
         }
-        from_planar(&self.groups, &self.weight, &self.z_out, w);
-    }
-}
-
-/// Weighted RGB state (index `start / 3 + i` of each group) → planar state.
-fn to_planar(groups: &[(usize, usize)], weight: &[f32], v: &[[f32; 3]], z: &mut [f32]) {
-    for &(start, width) in groups {
-        let base = start / 3;
-        for i in 0..width {
-            for c in 0..3 {
-                z[start + c * width + i] = v[base + i][c] / weight[base + i];
-            }
-        }
-    }
-}
-
-/// Planar state → weighted RGB state (the inverse of [`to_planar`]).
-fn from_planar(groups: &[(usize, usize)], weight: &[f32], z: &[f32], v: &mut [[f32; 3]]) {
-    for &(start, width) in groups {
-        let base = start / 3;
-        for i in 0..width {
-            for c in 0..3 {
-                v[base + i][c] = z[start + c * width + i] * weight[base + i];
-            }
-        }
+        from_planar(self.groups.iter().copied(), &self.weight, &self.z_out, w);
     }
 }
 
@@ -386,8 +364,8 @@ impl super::Runtime {
             g0.fill([0.0; 3]);
             self.add_direct_gather(direct, &mut g0);
             self.add_deltas_of(&mut g0, Deltas::OfLight);
-            let drt = self.bundle.drt.as_ref()?;
-            for (j, c) in drt.clutter.iter().enumerate() {
+            let clutter = self.bundle.drt.iter().flat_map(|d| d.clutter.iter());
+            for (j, c) in clutter.enumerate() {
                 let Some(rho) = red.gathering[j] else {
                     continue;
                 };
@@ -440,40 +418,43 @@ impl super::Runtime {
                 }
             }
         }
-        {
-            if !red.implied.is_empty() {
-                // (0, c₀) into z_in; the implied pieces read clutter coefficients only.
-                let ReducedDrt {
-                    implied,
-                    groups,
-                    mids,
-                    z_in,
-                    mid,
-                    z_out,
-                    correction,
-                    scratch,
-                    ..
-                } = &mut *red;
-                correction.fill(0.0);
-                ReducedDrt::add_terms(
-                    implied,
-                    groups,
-                    self.blocks.len(),
-                    mids,
-                    (z_in, mid),
-                    correction,
-                    scratch,
-                );
-                for (r, c) in z_out.iter_mut().zip(correction.iter()) {
-                    *r -= c;
-                }
+        if !red.implied.is_empty() {
+            // (0, c₀) into z_in; the implied pieces read clutter coefficients only.
+            let ReducedDrt {
+                implied,
+                groups,
+                mids,
+                z_in,
+                mid,
+                z_out,
+                correction,
+                scratch,
+                ..
+            } = &mut *red;
+            correction.fill(0.0);
+            ReducedDrt::add_terms(
+                implied,
+                groups,
+                self.blocks.len(),
+                mids,
+                (z_in, mid),
+                correction,
+                scratch,
+            );
+            for (r, c) in z_out.iter_mut().zip(correction.iter()) {
+                *r -= c;
             }
         }
         red.first_energy = e1;
         let mut rhs = std::mem::take(&mut red.rhs);
         let mut solution = std::mem::take(&mut red.solution);
         let mut krylov = red.krylov.take().unwrap_or_else(|| Krylov::new(rhs.len()));
-        from_planar(&red.groups, &red.weight, &red.z_out, &mut rhs);
+        from_planar(
+            red.groups.iter().copied(),
+            &red.weight,
+            &red.z_out,
+            &mut rhs,
+        );
         let solved = {
             let (bundle, blocks, ops) = (&self.bundle, &self.blocks, &self.ops);
             krylov.solve(
@@ -484,7 +465,12 @@ impl super::Runtime {
                 MAX_BOUNCES - 1,
             )
         };
-        to_planar(&red.groups, &red.weight, &solution, &mut red.z_in);
+        to_planar(
+            red.groups.iter().copied(),
+            &red.weight,
+            &solution,
+            &mut red.z_in,
+        );
         (red.rhs, red.solution, red.krylov) = (rhs, solution, Some(krylov));
         self.b[..n_coef].copy_from_slice(&red.z_in[..n_coef]);
         self.c.copy_from_slice(&red.z_in[n_coef..]);
@@ -517,14 +503,16 @@ impl super::Runtime {
                 });
             }
             // The gather in low-rank form reads the same light, through `ld`.
-            let n = self.n_texels;
-            for (t, l) in light.iter().enumerate() {
-                for (ch, v) in l.iter().enumerate() {
-                    self.ld[ch * n + t] = *v;
+            if red.light_entries {
+                let n = self.n_texels;
+                for (t, l) in light.iter().enumerate() {
+                    for (ch, v) in l.iter().enumerate() {
+                        self.ld[ch * n + t] = *v;
+                    }
                 }
+                self.ld_everywhere = true;
+                self.add_deltas_of(out, Deltas::OfLight);
             }
-            self.ld_everywhere = true;
-            self.add_deltas_of(out, Deltas::OfLight);
             self.add_direct_gather(&light, out);
             red.gather_in = light;
         }

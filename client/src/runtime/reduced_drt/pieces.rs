@@ -853,6 +853,10 @@ impl ReducedDrt {
             g0: vec![[0.0; 3]; if rhs_by_gather { n_texels } else { 0 }],
             scratch: vec![0.0; scratch],
             gather_in: vec![[0.0; 3]; if has_gather { n_texels } else { 0 }],
+            light_entries: drt
+                .entries
+                .iter()
+                .any(|e| matches!(e.source, DeltaSource::Direct { .. })),
             krylov: Some(Krylov::new(n_state / 3)),
             rhs: vec![[0.0; 3]; n_state / 3],
             solution: vec![[0.0; 3]; n_state / 3],

@@ -672,18 +672,7 @@ fn reduced_converged_matches_the_texel_path_and_many_bounces() {
             let applied = rt.apply(Method::Mrt, tolerance, &ld, &mut reduced).unwrap();
             rt.apply(Method::Mrt, Bounces::Fixed(400), &ld, &mut many)
                 .unwrap();
-            let (err, texel_err) = (
-                relative_l2(&reduced.radiance, &many.radiance),
-                relative_l2(&texel.radiance, &many.radiance),
-            );
-            assert!(
-                err <= 5e-5 && texel_err <= 5e-5,
-                "{case}: reduced {err}, texel {texel_err}"
-            );
-            assert!(
-                applied.bounces <= texel_applied.bounces + 2,
-                "{case}: {applied:?} against {texel_applied:?}"
-            );
+            assert_reduced_matches(&case, (&reduced, applied), (&texel, texel_applied), &many);
             // The energies the reduced path checks light with are those of the texel light.
             let lightfield = matches!(b.transport, Some(TransportOps::Lightfield(_)));
             let energies = rt.reduced_energies();

@@ -68,6 +68,28 @@ fn bundle(rng: &mut Lcg, transport: Option<TransportOps>, full: bool) -> Bundle 
     }
 }
 
+/// A coefficient-space `Converged` against the texel path's and many explicit bounces: both
+/// within 5e-5 of the bounces, the coefficients in at most two applications more.
+fn assert_reduced_matches(
+    case: &str,
+    (reduced, applied): (&IndirectLight, Applied),
+    (texel, texel_applied): (&IndirectLight, Applied),
+    many: &IndirectLight,
+) {
+    let (err, texel_err) = (
+        crate::compare::relative_l2(&reduced.radiance, &many.radiance),
+        crate::compare::relative_l2(&texel.radiance, &many.radiance),
+    );
+    assert!(
+        err <= 5e-5 && texel_err <= 5e-5,
+        "{case}: reduced {err}, texel {texel_err}"
+    );
+    assert!(
+        applied.bounces <= texel_applied.bounces + 2,
+        "{case}: {applied:?} against {texel_applied:?}"
+    );
+}
+
 /// An exact gather whose row `rows[i]` reads the texels `reads[i]`, its values drawn from
 /// `lo..hi`.
 fn gather_rows(rng: &mut Lcg, rows: &[u32], reads: &[&[u32]], (lo, hi): (f32, f32)) -> TexelGather {

@@ -112,18 +112,7 @@ fn reduced_drt_matches_the_texel_path_and_many_bounces_where_exact() {
         let texel_applied = rt.apply(Method::Drt, tolerance, &ld, &mut texel).unwrap();
         rt.apply(Method::Drt, Bounces::Fixed(400), &ld, &mut many)
             .unwrap();
-        let (err, texel_err): (f64, f64) = (
-            relative_l2(&reduced.radiance, &many.radiance),
-            relative_l2(&texel.radiance, &many.radiance),
-        );
-        assert!(
-            err <= 5e-5 && texel_err <= 5e-5,
-            "{case}: reduced {err}, texel {texel_err}"
-        );
-        assert!(
-            applied.bounces <= texel_applied.bounces + 2,
-            "{case}: {applied:?} against {texel_applied:?}"
-        );
+        assert_reduced_matches(case, (&reduced, applied), (&texel, texel_applied), &many);
         // The first bounce's energy, made from coefficients, is that of one bounce.
         let mut one = IndirectLight::default();
         rt.apply(Method::Drt, Bounces::One, &ld, &mut one).unwrap();

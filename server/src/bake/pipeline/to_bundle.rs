@@ -211,14 +211,8 @@ pub fn drt_section(
             .map(|b| (b.texel_offset, bundle.shapes[b.shape as usize].u_b.rows))
             .chain(clutter.iter().map(|c| (c.texel_offset, c.t_dc.cols)))
             .collect();
-        let (gathered, rest) = compact_gather(
-            g,
-            &ranges,
-            GATHER_TOLERANCE_SCALE * settings.tolerance,
-            factors,
-            &mut stats,
-        )
-        .map_err(low_rank)?;
+        let (gathered, rest) = compact_gather(g, &ranges, settings.tolerance, factors, &mut stats)
+            .map_err(low_rank)?;
         entries.extend(gathered);
         direct_gather = rest.map(|g| g.sorted());
     }
@@ -231,14 +225,6 @@ pub fn drt_section(
     };
     Ok((drt, Some(stats)))
 }
-
-/// The exact gather's ranges are factored to this fraction of the scene's tolerance: the gather
-/// multiplies direct light, sharp where a light is near, so a truncation that keeps `1 −
-/// tolerance` of a range's energy can move the light a clutter texel gathers by far more than
-/// `√tolerance` (maze at 4,096 rays, one light set: the pillars' one-bounce light 7.2% off the
-/// dense operator's with the scene's 1e-3, 0.8% at this scale, where no range factors). The delta entries multiply coefficients, smooth
-/// by construction, and keep the scene's tolerance.
-pub(crate) const GATHER_TOLERANCE_SCALE: f64 = 1e-2;
 
 /// Delta entries compacted together by [`drt_section`] before their f64 matrices are freed:
 /// enough to keep both cores busy through entries of very different sizes.
