@@ -21,17 +21,22 @@
 //!    first sure hit and asks f64 only about unsure ones. An unsure test ends the f32
 //!    traversal at once (the callback's negative distance), as a shadow ray's first hit does.
 //!
-//! Layout: [`bvh4`] owns the tree and its traversal; this file the primitives' tests and the
-//! choice among hits.
+//! `closest` takes a leaf at a time: its triangles go through [`packet`] four at a time (each
+//! lane's verdict is the one-triangle test's, bit for bit), its rectangles one by one.
+//!
+//! Layout: [`bvh4`] owns the tree and its traversal; [`packet`] the four-lane triangle test;
+//! this file the primitives' tests and the choice among hits.
 //!
 //! Invariant: `closest` only reports hits with `t > epsilon`, where epsilon is relative to the
 //! scene's scale, so rays leaving a surface never hit that surface again.
 
 pub mod bvh4;
+mod packet;
 
 use glam::{DVec3, Vec3A};
 
 use bvh4::Bvh4;
+use packet::TrianglePacket;
 
 use crate::bake::scene::geometry::Primitive;
 
@@ -68,6 +73,18 @@ enum Fast {
     },
 }
 
+/// How [`Tracer::closest`] tests one leaf: its triangles' packets
+/// (`packets[first..end]`), then its rectangles one by one.
+#[derive(Clone, Copy, Debug, Default)]
+struct LeafTests {
+    packets: (u32, u32),
+    rects: bool,
+}
+
+/// [`Tracer::closest`]'s closest sure hit so far: its slot, f32 distance and margin, and its
+/// exact value once a near tie asked for it.
+type SureHit = (usize, f32, f32, Option<f32>);
+
 /// What the f32 test says about one primitive.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Verdict {
@@ -80,11 +97,50 @@ enum Verdict {
 /// The margin of the f32 test, relative to its rounding bound (~1e-7 of the scene's scale).
 const F32_MARGIN: f32 = 2e-6;
 
+/// Each leaf's triangles as packets of four, and per leaf (at its first slot) where they are.
+fn leaf_packets(bvh: &Bvh4, fast: &[Fast]) -> (Vec<TrianglePacket>, Vec<LeafTests>) {
+    let mut packets = Vec::new();
+    let mut leaves = vec![LeafTests::default(); fast.len()];
+    for (first, count) in bvh.leaves() {
+        let begin = packets.len() as u32;
+        let mut lanes = Vec::with_capacity(4);
+        let mut rects = false;
+        for (slot, f) in fast.iter().enumerate().skip(first).take(count) {
+            match *f {
+                Fast::Triangle {
+                    v0,
+                    e1,
+                    e2,
+                    len1,
+                    len2,
+                } => lanes.push((slot as u32, v0, e1, e2, len1, len2)),
+                Fast::Rect { .. } => rects = true,
+            }
+            if lanes.len() == 4 {
+                packets.push(TrianglePacket::new(&lanes));
+                lanes.clear();
+            }
+        }
+        if !lanes.is_empty() {
+            packets.push(TrianglePacket::new(&lanes));
+        }
+        leaves[first] = LeafTests {
+            packets: (begin, packets.len() as u32),
+            rects,
+        };
+    }
+    (packets, leaves)
+}
+
 /// A BVH over primitives.
 pub struct Tracer {
     bvh: Option<Bvh4>,
     /// Per BVH slot: the f32 copy of the primitive `bvh.primitive_indices[slot]` names.
     fast: Vec<Fast>,
+    /// Every leaf's triangles in packets of four (leaf by leaf, in slot order).
+    packets: Vec<TrianglePacket>,
+    /// Per BVH slot that begins a leaf: its packets and whether it holds rectangles.
+    leaves: Vec<LeafTests>,
     primitives: Vec<Primitive>,
     /// Per primitive index, a triangle's normal `(v1 − v0) × (v2 − v0)` and that divided by
     /// its length, made once so a hit does not take a square root (zeros for rectangles).
@@ -191,9 +247,15 @@ impl Tracer {
                 })
                 .collect()
         });
+        let (packets, leaves) = match &bvh {
+            Some(bvh) => leaf_packets(bvh, &fast),
+            None => (Vec::new(), Vec::new()),
+        };
         Tracer {
             bvh,
             fast,
+            packets,
+            leaves,
             triangle_normals: primitives
                 .iter()
                 .map(|p| match p {
@@ -383,35 +445,32 @@ impl Tracer {
             self.exact_value(bvh.primitive_indices[slot], o, d, tmax, lit_normal_sign)
         };
         let mut unsure = false;
-        // The closest sure hit so far: its slot, f32 distance and margin, and its exact value
-        // once a near tie asked for it.
-        let mut best: Option<(usize, f32, f32, Option<f32>)> = None;
-        // An unsure test returns -1, which ends the traversal: f64 decides from the start.
-        bvh.traverse(of, df, reach, |id| {
-            // Beyond the closest sure hit by more than both margins: a sure miss.
-            let far = best.map_or(limit, |(_, t, m, _)| t + m);
-            match self.classify(id, of, df, epsilon, far) {
+        let mut best: Option<SureHit> = None;
+        // What one primitive's verdict does to the search: its distance for the traversal,
+        // or -1 for an unsure test, which ends the traversal (f64 decides from the start).
+        let take = |id: usize, verdict: Verdict, best: &mut Option<SureHit>, unsure: &mut bool| {
+            match verdict {
                 Verdict::Miss => f32::INFINITY,
                 Verdict::Unsure => {
-                    unsure = true;
+                    *unsure = true;
                     -1.0
                 }
                 Verdict::Hit(t, m) if (t - limit).abs() <= m => {
-                    unsure = true; // at `tmax`: f64 decides
+                    *unsure = true; // at `tmax`: f64 decides
                     -1.0
                 }
-                Verdict::Hit(t, m) => match best {
+                Verdict::Hit(t, m) => match *best {
                     // A near tie (coincident walls): compared as f64's traversal does, the
                     // lower primitive index winning equal values.
                     Some((slot, bt, bm, value)) if (t - bt).abs() <= m + bm => {
                         let (Some(old), Some(new)) =
                             (value.or_else(|| exact_value(slot)), exact_value(id))
                         else {
-                            unsure = true;
+                            *unsure = true;
                             return -1.0;
                         };
                         let lower = bvh.primitive_indices[id] < bvh.primitive_indices[slot];
-                        best = Some(if new < old || (new == old && lower) {
+                        *best = Some(if new < old || (new == old && lower) {
                             (id, t, m, Some(new))
                         } else {
                             (slot, bt, bm, Some(old))
@@ -420,11 +479,55 @@ impl Tracer {
                     }
                     Some((_, bt, _, _)) if t > bt => f32::INFINITY,
                     _ => {
-                        best = Some((id, t, m, None));
+                        *best = Some((id, t, m, None));
                         t
                     }
                 },
             }
+        };
+        // Beyond the closest sure hit by more than both margins: a sure miss.
+        let far_of = |best: &Option<SureHit>| best.map_or(limit, |(_, t, m, _)| t + m);
+        bvh.traverse_leaves(of, df, reach, |first, count| {
+            let mut nearest = f32::INFINITY;
+            let leaf = self.leaves[first];
+            let (begin, end) = leaf.packets;
+            for packet in &self.packets[begin as usize..end as usize] {
+                let v = packet.classify(of, df, epsilon, far_of(&best), self.scale);
+                let mut lanes = packet.valid & !v.miss;
+                while lanes != 0 {
+                    let lane = lanes.trailing_zeros() as usize;
+                    lanes &= lanes - 1;
+                    let (t, m) = (v.t[lane], v.margin[lane]);
+                    // What the one-triangle test says at today's `far` (an earlier lane may
+                    // have brought it nearer): beyond it, a sure miss.
+                    if v.parallel & (1 << lane) == 0 && t > far_of(&best) + m {
+                        continue;
+                    }
+                    let verdict = if v.unsure & (1 << lane) != 0 {
+                        Verdict::Unsure
+                    } else {
+                        Verdict::Hit(t, m)
+                    };
+                    let r = take(packet.slots[lane] as usize, verdict, &mut best, &mut unsure);
+                    if r < 0.0 {
+                        return r;
+                    }
+                    nearest = nearest.min(r);
+                }
+            }
+            if leaf.rects {
+                for slot in first..first + count {
+                    if let Fast::Rect { .. } = self.fast[slot] {
+                        let verdict = self.classify(slot, of, df, epsilon, far_of(&best));
+                        let r = take(slot, verdict, &mut best, &mut unsure);
+                        if r < 0.0 {
+                            return r;
+                        }
+                        nearest = nearest.min(r);
+                    }
+                }
+            }
+            nearest
         });
         if !unsure {
             let (slot, _, _, _) = best?;
@@ -619,6 +722,87 @@ mod tests {
     /// A level of several rooms cluttered with 600 random triangles (a BVH many levels deep):
     /// the closest hit is brute force's closest, the same primitive unless two are hit at the
     /// same distance, and shadow rays agree with brute force.
+    /// Every packet lane's verdict is the one-triangle test's, bit for bit (distance and
+    /// margin included), for rays from inside and outside a cloud of triangles, some of them
+    /// slivers or nearly parallel to the rays, at several `far` limits.
+    #[test]
+    fn a_packets_lanes_say_what_the_one_triangle_test_says() {
+        let mut state = 5u64;
+        let mut rand = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut triangles: Vec<[[f64; 3]; 3]> = (0..300)
+            .map(|_| {
+                let c = [4.0 * rand(), 3.0 * rand(), 5.0 * rand()];
+                [0, 1, 2].map(|_| [0, 1, 2].map(|a| c[a] + 0.8 * (rand() - 0.5)))
+            })
+            .collect();
+        // Slivers (a vertex almost on the opposite edge) and axis-aligned ones.
+        for k in 0..40 {
+            let x = 0.1 * k as f64;
+            triangles.push([[x, 0.0, 0.0], [x + 1.0, 0.0, 0.0], [x + 0.5, 1e-7, 0.0]]);
+            triangles.push([[x, 1.0, 1.0], [x, 2.0, 1.0], [x, 1.0, 2.5]]);
+        }
+        let mut g = Geometry::default();
+        g.add_triangles(&triangles, [0.5; 3]);
+        let tracer = Tracer::new(g.primitives.clone(), g.scale());
+        assert!(tracer.packets.iter().any(|p| p.valid == 0xF));
+        let (mut lanes, mut hits, mut unsure) = (0, 0, 0);
+        for i in 0..400 {
+            let o = Vec3A::new(
+                (6.0 * rand() - 1.0) as f32,
+                (5.0 * rand() - 1.0) as f32,
+                (7.0 * rand() - 1.0) as f32,
+            );
+            let mut d = Vec3A::new(
+                (rand() - 0.5) as f32,
+                (rand() - 0.5) as f32,
+                (rand() - 0.5) as f32,
+            );
+            if i % 5 == 0 {
+                d.z = 1e-6; // grazing the z = const slivers' plane
+            }
+            let d = d.normalize();
+            for far in [f32::INFINITY, 3.0, 0.5] {
+                for packet in &tracer.packets {
+                    let v = packet.classify(o, d, tracer.epsilon as f32, far, tracer.scale);
+                    for lane in 0..4 {
+                        let bit = 1 << lane;
+                        if packet.valid & bit == 0 {
+                            assert_ne!(v.miss & bit, 0, "an empty lane is never reported");
+                            continue;
+                        }
+                        lanes += 1;
+                        let slot = packet.slots[lane] as usize;
+                        let one = tracer.classify(slot, o, d, tracer.epsilon as f32, far);
+                        let got = if v.miss & bit != 0 {
+                            Verdict::Miss
+                        } else if v.unsure & bit != 0 {
+                            unsure += 1;
+                            Verdict::Unsure
+                        } else {
+                            hits += 1;
+                            Verdict::Hit(v.t[lane], v.margin[lane])
+                        };
+                        match (got, one) {
+                            (Verdict::Hit(t, m), Verdict::Hit(t1, m1)) => {
+                                assert_eq!((t.to_bits(), m.to_bits()), (t1.to_bits(), m1.to_bits()))
+                            }
+                            _ => assert_eq!(got, one, "ray {i}, far {far}, slot {slot}"),
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            hits > 100 && unsure > 0,
+            "{lanes} lanes: {hits} hits, {unsure} unsure"
+        );
+    }
+
     #[test]
     fn a_deep_tree_finds_what_brute_force_finds() {
         let mut g = Geometry::default();
