@@ -34,6 +34,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use faer::Mat;
+use rayon::prelude::*;
 
 use lightfarm_proto::bundle::{DeltaSource, TexelGather};
 use lightfarm_proto::scene::{Aabb, ClutterBasis, ClutterGather, Opening, Scene, SceneGather};
@@ -298,36 +299,43 @@ fn clutter_projections(
     stats: &mut DrtStats,
 ) -> Result<Vec<(usize, ClutterProjection)>, DrtError> {
     let (scene, g) = (inputs.scene, inputs.geometry);
-    let mut clutter = Vec::new();
-    for (c, object) in scene.clutter.iter().enumerate() {
-        let range = g.clutter_texels[c].clone();
-        if range.is_empty() {
-            continue;
-        }
-        // The box, or the mesh's bounds (where prior lights are placed around it).
-        let bounds = g.clutter_shapes[c].bounds;
-        let aabb = object.box_.unwrap_or(Aabb {
-            min: bounds[0],
-            max: bounds[1],
-        });
-        let basis = if scene.settings.clutter_basis == ClutterBasis::Prior {
-            let lights = prior_lights(scene, inputs.openings, c, &aabb);
-            clutter_basis_unit(scene, g, c, &lights, cache, || {
-                clutter_basis(scene, inputs.openings, g, tracer, c, &aabb, range.clone())
-            })?
-        } else {
-            clutter_basis(scene, inputs.openings, g, tracer, c, &aabb, range.clone())?
-        };
-        stats.clutter_ranks.push(basis.basis.ncols());
-        clutter.push((
-            c,
-            ClutterProjection {
-                id: object.id.clone(),
-                texel_offset: range.start,
-                basis,
-            },
-        ));
-    }
+    // One object per worker (each basis is sequential inside), taken in scene order.
+    let made: Vec<Option<(usize, ClutterProjection)>> = (0..scene.clutter.len())
+        .into_par_iter()
+        .map(|c| -> Result<_, DrtError> {
+            let object = &scene.clutter[c];
+            let range = g.clutter_texels[c].clone();
+            if range.is_empty() {
+                return Ok(None);
+            }
+            // The box, or the mesh's bounds (where prior lights are placed around it).
+            let bounds = g.clutter_shapes[c].bounds;
+            let aabb = object.box_.unwrap_or(Aabb {
+                min: bounds[0],
+                max: bounds[1],
+            });
+            let basis = if scene.settings.clutter_basis == ClutterBasis::Prior {
+                let lights = prior_lights(scene, inputs.openings, c, &aabb);
+                clutter_basis_unit(scene, g, c, &lights, cache, || {
+                    clutter_basis(scene, inputs.openings, g, tracer, c, &aabb, range.clone())
+                })?
+            } else {
+                clutter_basis(scene, inputs.openings, g, tracer, c, &aabb, range.clone())?
+            };
+            Ok(Some((
+                c,
+                ClutterProjection {
+                    id: object.id.clone(),
+                    texel_offset: range.start,
+                    basis,
+                },
+            )))
+        })
+        .collect::<Result<_, _>>()?;
+    let clutter: Vec<(usize, ClutterProjection)> = made.into_iter().flatten().collect();
+    stats
+        .clutter_ranks
+        .extend(clutter.iter().map(|(_, p)| p.basis.basis.ncols()));
     Ok(clutter)
 }
 

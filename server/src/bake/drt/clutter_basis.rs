@@ -19,7 +19,7 @@ use rayon::prelude::*;
 
 use lightfarm_proto::scene::{Aabb, ClutterBasis, Opening, Scene};
 
-use crate::bake::math::low_rank::{truncated_svd, LowRankError};
+use crate::bake::math::low_rank::{truncated_column_basis, LowRankError};
 use crate::bake::math::sampling::{halton_point_in, stream_key, Purpose};
 use crate::bake::mrt::lighting_prior::unshadowed_pattern;
 use crate::bake::scene::geometry::{Geometry, SurfaceOwner};
@@ -191,9 +191,9 @@ pub fn clutter_basis(
         })
         .collect();
     let patterns = Mat::from_fn(n, columns.len(), |i, j| columns[j][i]);
-    let svd = truncated_svd(patterns.as_ref(), settings.tolerance)?;
+    let (basis, dropped_energy) = truncated_column_basis(patterns.as_ref(), settings.tolerance)?;
     Ok(ClutterBasisOps {
-        basis: svd.u,
-        dropped_energy: svd.dropped_energy,
+        basis,
+        dropped_energy,
     })
 }

@@ -28,7 +28,6 @@
 //! ascending by texel with weights summed in ray order, whether traced or reused — so a bake is
 //! the same bytes with or without the cache, at any thread count.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use glam::DVec3;
@@ -51,8 +50,9 @@ use crate::bake::scene::geometry::{ClutterShape, Geometry, Primitive, SurfaceOwn
 use crate::bake::tracer::{Hit, Tracer};
 
 /// Bumped whenever what a ray pass records for the same inputs, or how its cache stores it,
-/// changes (4: the shared entry framing). In every unit key, and every cache entry's version tag.
-pub const CODE_VERSION: &str = "lightfarm-drt-rays-4";
+/// changes (4: the shared entry framing; 5: prior bases through the Gram matrix, which the
+/// cache also keeps). In every unit key, and every cache entry's version tag.
+pub const CODE_VERSION: &str = "lightfarm-drt-rays-5";
 
 /// The on-disk cache of units and prior bases (it lived here; this path still names it).
 pub use crate::bake::cache::drt_rays::DrtRayCache;
@@ -212,11 +212,18 @@ pub struct RayPass<'a> {
 
 /// Sums weights per texel in ray order; ascending by texel.
 fn merge(hits: &[(u32, f64)]) -> Vec<(u32, f64)> {
-    let mut m: BTreeMap<u32, f64> = BTreeMap::new();
-    for &(t, w) in hits {
-        *m.entry(t).or_insert(0.0) += w;
+    // A stable sort keeps each texel's weights in ray order, so each sum is taken in the order
+    // the rays were traced.
+    let mut sorted = hits.to_vec();
+    sorted.sort_by_key(|&(t, _)| t);
+    let mut out: Vec<(u32, f64)> = Vec::new();
+    for (t, w) in sorted {
+        match out.last_mut() {
+            Some((last, sum)) if *last == t => *sum += w,
+            _ => out.push((t, w)),
+        }
     }
-    m.into_iter().collect()
+    out
 }
 
 impl<'a> RayPass<'a> {
@@ -363,7 +370,7 @@ impl<'a> RayPass<'a> {
         let inv = 1.0 / rays as f64;
         let texel = &g.texels[x];
         let key = stream_key(settings.seed, purpose, x as u64);
-        let mut hits: BTreeMap<u32, u32> = BTreeMap::new();
+        let mut seen: Vec<u32> = Vec::with_capacity(rays as usize);
         let mut back = 0.0;
         for i in 0..rays {
             let d = to_world(sample_cosine_hemisphere(sobol_2d(key, i)), texel.normal);
@@ -373,14 +380,20 @@ impl<'a> RayPass<'a> {
             };
             reach.add(d, hit.t);
             match classify(g, tracer, &hit) {
-                Seen::Block(t) | Seen::Clutter { texel: Some(t), .. } => {
-                    *hits.entry(t).or_insert(0) += 1
-                }
+                Seen::Block(t) | Seen::Clutter { texel: Some(t), .. } => seen.push(t),
                 Seen::Clutter { back: true, .. } => back += inv,
                 _ => {}
             }
         }
-        (hits.into_iter().collect(), back)
+        seen.sort_unstable();
+        let mut hits: Vec<(u32, u32)> = Vec::new();
+        for t in seen {
+            match hits.last_mut() {
+                Some((last, n)) if *last == t => *n += 1,
+                _ => hits.push((t, 1)),
+            }
+        }
+        (hits, back)
     }
 
     /// Traces clutter texel `x` (cosine-weighted rays from its lit side).

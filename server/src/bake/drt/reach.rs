@@ -27,9 +27,15 @@ pub struct RayReach {
 
 /// The cell a direction falls in.
 fn cell_of(d: [f64; 3]) -> u8 {
-    let a = (0..3)
-        .max_by(|&i, &j| d[i].abs().total_cmp(&d[j].abs()))
-        .expect("three axes");
+    // The largest |component|, the last of equals (as `max_by` picks).
+    let [x, y, z] = d.map(f64::abs);
+    let a = if z >= x && z >= y {
+        2
+    } else if y >= x {
+        1
+    } else {
+        0
+    };
     let (u, v) = tangents(a);
     let major = d[a].abs().max(f64::MIN_POSITIVE);
     let bin = |x: f64| (((x / major + 1.0) * 0.5 * CELLS as f64) as usize).min(CELLS - 1);

@@ -5,6 +5,7 @@
 //! `RELATIVE_FLOOR · σ_max` are always dropped, so nothing downstream ever divides by a
 //! numerically zero singular value.
 //!
+//! [`truncated_column_basis`] gives `U_k` alone (through the Gram matrix when large), and
 //! [`energy_rank`] gives the rank alone, from the Gram matrix's eigenvalues when the matrix is
 //! large (the prescreen that refuses a factorisation before its vectors are paid for).
 //!
@@ -88,6 +89,71 @@ pub fn truncated_svd(a: MatRef<'_, f64>, tolerance: f64) -> Result<TruncatedSvd,
         },
         all_singular_values: all,
     })
+}
+
+/// An orthonormal basis of `a`'s dominant column space: the left singular vectors
+/// [`truncated_svd`] keeps (same rank rule), and the fraction of energy dropped. Only the
+/// basis is wanted, so a matrix whose short side has at least [`GRAM_MIN_SIDE`] values is
+/// taken through its Gram matrix on the short side: for `m ≥ n`, the eigenvectors `V_k` of
+/// `AᵀA` give `A V_k`, orthonormalised by a thin QR; for `m < n`, the eigenvectors of `AAᵀ`
+/// are the basis. About four times faster than the SVD on a clutter object's prior (1,536
+/// texels × 761 lights: 0.31 s). The eigenvalues carry an absolute rounding error of about
+/// `ε · σ_max²`, so a kept direction whose `σ²` is far above that (any a tolerance of 1e-6 or
+/// more keeps) is the SVD's to rounding; the rank may differ from the SVD's by one where a
+/// value lies within rounding of the energy threshold. Falls back to the SVD when the
+/// eigendecomposition fails or is not finite.
+pub fn truncated_column_basis(
+    a: MatRef<'_, f64>,
+    tolerance: f64,
+) -> Result<(Mat<f64>, f64), LowRankError> {
+    let (m, n) = (a.nrows(), a.ncols());
+    check_finite(a)?;
+    if m.min(n) < GRAM_MIN_SIDE {
+        let svd = truncated_svd(a, tolerance)?;
+        return Ok((svd.u, svd.dropped_energy));
+    }
+    faer::set_global_parallelism(Par::Seq);
+    let tall = m >= n;
+    let gram = if tall {
+        a.transpose() * a
+    } else {
+        a * a.transpose()
+    };
+    let basis = gram
+        .self_adjoint_eigen(faer::Side::Lower)
+        .ok()
+        .and_then(|eig| {
+            // Ascending λ = σ² (rounding can leave a zero slightly negative).
+            let side = gram.nrows();
+            let lambda: Vec<f64> = (0..side).rev().map(|i| eig.S()[i].max(0.0)).collect();
+            let s: Vec<f64> = lambda.iter().map(|l| l.sqrt()).collect();
+            if !s.iter().all(|x| x.is_finite()) {
+                return None;
+            }
+            let k = rank_for_energy(&s, tolerance);
+            let vectors = Mat::from_fn(side, k, |i, j| eig.U()[(i, side - 1 - j)]);
+            let u = if tall {
+                let w = a * &vectors;
+                w.qr().compute_thin_Q()
+            } else {
+                vectors
+            };
+            let total: f64 = lambda.iter().sum();
+            let kept: f64 = lambda[..k].iter().sum();
+            let dropped = if total > 0.0 {
+                ((total - kept) / total).max(0.0)
+            } else {
+                0.0
+            };
+            is_finite(u.as_ref()).then_some((u, dropped))
+        });
+    match basis {
+        Some(b) => Ok(b),
+        None => {
+            let svd = truncated_svd(a, tolerance)?;
+            Ok((svd.u, svd.dropped_energy))
+        }
+    }
 }
 
 /// The thin SVD `a = U Σ Vᵀ` (singular values descending), checked: faer's divide-and-conquer
@@ -412,6 +478,37 @@ mod tests {
             let k = energy_rank(hits.as_ref(), tol).unwrap();
             assert_eq!(k, rank_for_energy(&s, tol), "tolerance {tol}");
             assert!(k > 1 && k < 120, "rank {k}");
+        }
+    }
+
+    /// The Gram route's basis is the SVD's: the same rank and dropped energy, orthonormal
+    /// columns (to 1e-12), and the same subspace (projectors within 1e-8), tall and wide, for
+    /// spectra decaying fast, slowly and not at all.
+    #[test]
+    fn the_column_basis_is_the_svds_left_vectors() {
+        let (m, n) = (160, 96);
+        let q1 = orthonormal(m, n, 7);
+        let q2 = orthonormal(n, n, 8);
+        for (decay, tol) in [(0.5, 1e-6), (0.9, 1e-3), (0.97, 1e-3), (1.0, 1e-2)] {
+            let sigma: Vec<f64> = (0..n).map(|i| f64::powi(decay, i as i32)).collect();
+            let tall = Mat::from_fn(m, n, |i, j| {
+                (0..n).map(|k| q1[(i, k)] * sigma[k] * q2[(j, k)]).sum()
+            });
+            for a in [tall.clone(), tall.transpose().to_owned()] {
+                let svd = truncated_svd(a.as_ref(), tol).unwrap();
+                let (u, dropped) = truncated_column_basis(a.as_ref(), tol).unwrap();
+                assert_eq!(u.ncols(), svd.u.ncols(), "decay {decay}");
+                assert!(
+                    (dropped - svd.dropped_energy).abs() < 1e-12,
+                    "decay {decay}"
+                );
+                let gram = u.transpose() * &u;
+                let eye = Mat::<f64>::identity(u.ncols(), u.ncols());
+                assert!((&gram - &eye).norm_max() < 1e-12, "decay {decay}");
+                let projector = |b: &Mat<f64>| b * b.transpose();
+                let gap = (projector(&u) - projector(&svd.u)).norm_max();
+                assert!(gap < 1e-8, "decay {decay}: projectors {gap:.1e} apart");
+            }
         }
     }
 
