@@ -1,7 +1,7 @@
 //! Ray throughput of the bake's tracer against Embree on one scene's texel rays (the comparison
 //! `lightfarm bench` runs, without the rest of the bench), and against obvhs alone: obvhs's
 //! own triangle test inside its compressed wide BVH's traversal, on BVHs built by its presets.
-//! The tracer traverses a 4-wide BVH of its own (`bake::tracer::bvh4`), so the obvhs-alone
+//! The tracer traverses an 8-wide BVH of its own (`bake::tracer::bvh8`), so the obvhs-alone
 //! lines say what that traversal and the f64-exact answer gain or cost against obvhs's.
 //!
 //! `cargo run --release -p lightfarm-server --example tracer_throughput -- SCENE.json [RAYS] [--obvhs-alone]`

@@ -4,7 +4,7 @@
 //! - [`math`]: seeded sampling and the registry of random streams; truncated SVD.
 //! - [`scene`]: texels and primitives of a scene or a lone shape; meshes, their albedo and
 //!   lightmap atlases.
-//! - [`tracer`]: a 4-wide BVH (from obvhs's BVH2), exact rectangle/triangle intersection and
+//! - [`tracer`]: an 8-wide BVH (from obvhs's BVH2), exact rectangle/triangle intersection and
 //!   the f32 triangle test four at a time.
 //! - [`mrt`]: scene-independent shape operators (lighting prior, lightfields, shapes and their
 //!   symmetries) and the one-bounce gather rows.

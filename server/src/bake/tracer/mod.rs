@@ -1,5 +1,5 @@
 //! Ray casting against a [`Geometry`](crate::bake::scene::geometry::Geometry)'s primitives
-//! through a four-wide BVH ([`bvh4`]: built from obvhs's BVH2, traversed here).
+//! through an eight-wide BVH ([`bvh8`]: built from obvhs's BVH2, traversed here).
 //!
 //! The exact answer is f64's: rectangles are closed at their edges so a closed box is
 //! watertight, and where two coincident rectangles are hit at the same distance (back-to-back
@@ -24,18 +24,18 @@
 //! `closest` takes a leaf at a time: its triangles go through [`packet`] four at a time (each
 //! lane's verdict is the one-triangle test's, bit for bit), its rectangles one by one.
 //!
-//! Layout: [`bvh4`] owns the tree and its traversal; [`packet`] the four-lane triangle test;
+//! Layout: [`bvh8`] owns the tree and its traversal; [`packet`] the four-lane triangle test;
 //! this file the primitives' tests and the choice among hits.
 //!
 //! Invariant: `closest` only reports hits with `t > epsilon`, where epsilon is relative to the
 //! scene's scale, so rays leaving a surface never hit that surface again.
 
-pub mod bvh4;
+pub mod bvh8;
 mod packet;
 
 use glam::{DVec3, Vec3A};
 
-use bvh4::Bvh4;
+use bvh8::Bvh8;
 use packet::TrianglePacket;
 
 use crate::bake::scene::geometry::Primitive;
@@ -53,7 +53,7 @@ pub struct Hit {
 }
 
 /// A primitive's f32 copy for the first test, stored in BVH slot order (the order
-/// `Bvh4::primitive_indices` lists) so a leaf reads neighbouring memory and no `Primitive`.
+/// `Bvh8::primitive_indices` lists) so a leaf reads neighbouring memory and no `Primitive`.
 #[derive(Clone, Copy, Debug)]
 enum Fast {
     /// The plane's axis and coordinate, and the extent along the two tangents.
@@ -98,7 +98,7 @@ enum Verdict {
 const F32_MARGIN: f32 = 2e-6;
 
 /// Each leaf's triangles as packets of four, and per leaf (at its first slot) where they are.
-fn leaf_packets(bvh: &Bvh4, fast: &[Fast]) -> (Vec<TrianglePacket>, Vec<LeafTests>) {
+fn leaf_packets(bvh: &Bvh8, fast: &[Fast]) -> (Vec<TrianglePacket>, Vec<LeafTests>) {
     let mut packets = Vec::new();
     let mut leaves = vec![LeafTests::default(); fast.len()];
     for (first, count) in bvh.leaves() {
@@ -134,7 +134,7 @@ fn leaf_packets(bvh: &Bvh4, fast: &[Fast]) -> (Vec<TrianglePacket>, Vec<LeafTest
 
 /// A BVH over primitives.
 pub struct Tracer {
-    bvh: Option<Bvh4>,
+    bvh: Option<Bvh8>,
     /// Per BVH slot: the f32 copy of the primitive `bvh.primitive_indices[slot]` names.
     fast: Vec<Fast>,
     /// Every leaf's triangles in packets of four (leaf by leaf, in slot order).
@@ -215,7 +215,7 @@ impl Tracer {
                 (v3(lo), v3(hi))
             })
             .collect();
-        let bvh = Bvh4::build(&boxes);
+        let bvh = Bvh8::build(&boxes);
         let fast = bvh.as_ref().map_or(Vec::new(), |bvh| {
             let f = |x: f64| x as f32;
             let v3d = |p: DVec3| v3(p.to_array());
@@ -544,7 +544,7 @@ impl Tracer {
     /// [`Tracer::closest`] with the f64 test on every primitive the traversal reaches.
     fn closest_exact(
         &self,
-        bvh: &Bvh4,
+        bvh: &Bvh8,
         reach: f32,
         o: [f64; 3],
         d: [f64; 3],

@@ -448,7 +448,7 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
         let _ = writeln!(w, "| tracer | Mrays/s |\n|---|---|");
         let _ = writeln!(
             w,
-            "| ours (`bake::tracer::Tracer`, 4-wide BVH), triangles | {:.3} |",
+            "| ours (`bake::tracer::Tracer`, 8-wide BVH), triangles | {:.3} |",
             t.ours_triangles_rays_per_second / 1e6
         );
         let _ = writeln!(

@@ -1,4 +1,4 @@
-//! Ray throughput of our tracer (`bake::tracer::Tracer`: a 4-wide BVH built from obvhs's BVH2,
+//! Ray throughput of our tracer (`bake::tracer::Tracer`: an 8-wide BVH built from obvhs's BVH2,
 //! f32 tests, f64 where it decides) against Embree (`embreex`, through `scripts/embree_throughput.py`) on the same triangles
 //! and the same rays.
 //!

@@ -1,16 +1,19 @@
-//! A four-wide BVH over primitive bounds, traversed one ray at a time with 4-lane f32 box tests.
+//! An eight-wide BVH over primitive bounds, traversed one ray at a time with f32 box tests in
+//! two 4-lane halves.
 //!
 //! Owns the node layout and the traversal; what a leaf's primitive is, and how it is tested,
-//! is the caller's (the traversal hands it a *slot*, an index into [`Bvh4::primitive_indices`],
+//! is the caller's (the traversal hands it a *slot*, an index into [`Bvh8::primitive_indices`],
 //! so per-primitive data stored in slot order is read from neighbouring memory, or a whole
-//! leaf's slots at once with [`Bvh4::traverse_leaves`]).
+//! leaf's slots at once with [`Bvh8::traverse_leaves`]).
 //!
 //! Built from `obvhs`'s BVH2 (PLOC, reinsertion, SAH leaf collapse) by pulling each node's
-//! grandchildren up until it has four children. Each node stores its children's boxes as
-//! structure-of-arrays `f32` lanes, so one ray tests four boxes with a handful of SSE
+//! grandchildren up until it has eight children. Each node stores its children's boxes as
+//! structure-of-arrays `f32` lanes, so one ray tests eight boxes with two handfuls of SSE
 //! instructions (glam's `Vec4` is an `__m128` on x86-64), then visits the hit children nearest
 //! first: the nearest next, without a trip through the stack (6.5 → 7.5 Mrays/s on the bench's
-//! triangle rays, one thread), the others pushed farthest first.
+//! triangle rays, one thread), the others pushed farthest first. Eight children rather than
+//! four: 7.5-7.9 → 8.5 Mrays/s on those rays (fewer nodes per ray; 4.5 four-wide nodes per ray
+//! on the maze).
 //!
 //! Units and frames: world metres, the boxes as given (callers pad them). Invariant: the box
 //! test is conservative for any box it reaches — a ray whose segment `[0, tmax]` touches a
@@ -34,30 +37,32 @@ const FIRST_MASK: u32 = (1 << COUNT_SHIFT) - 1;
 const MAX_LEAF: u32 = 8;
 /// The SAH cost of a traversal step against one primitive test, for the leaf collapse: obvhs's
 /// preset says 3; 1 makes smaller leaves, which pays here because the tracer's primitive test
-/// (f32 with margins) costs more than a 4-wide box test. Measured on the bench's rays, one
+/// (f32 with margins) costs more than a wide box test. Measured on the bench's rays, one
 /// thread: maze triangles 4.99 (obvhs CWBVH) → 7.19 Mrays/s, rectangles 5.90 → 8.83; cost 1.5
 /// gave 7.10 / 7.25, cost 3 about 10–25% less.
 const COLLAPSE_COST: f32 = 1.0;
 /// Entries of the traversal stack kept on the machine stack; a deeper tree (needing more than
-/// three per level of inner nodes, plus the root) takes a heap stack instead.
+/// seven per level of inner nodes, plus the root) takes a heap stack instead.
 const STACK: usize = 128;
+/// Children per node.
+const W: usize = 8;
 
 /// One node: its children's boxes as lanes (`bounds[2·axis]` the minima, `bounds[2·axis + 1]`
-/// the maxima), what each child is, and how many children it has.
+/// the maxima, each as two halves of four lanes), what each child is, and which exist.
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(16))]
 struct Node {
-    bounds: [Vec4; 6],
-    child: [u32; 4],
+    bounds: [[Vec4; 2]; 6],
+    child: [u32; W],
     /// Bit `i` set when child `i` exists.
     valid: u32,
 }
 
-/// A four-wide BVH; see the module doc.
+/// An eight-wide BVH; see the module doc.
 #[derive(Clone, Debug)]
-pub struct Bvh4 {
+pub struct Bvh8 {
     nodes: Vec<Node>,
-    /// Slot → the index of the primitive given to [`Bvh4::build`].
+    /// Slot → the index of the primitive given to [`Bvh8::build`].
     pub primitive_indices: Vec<u32>,
     /// The most stack entries a traversal can hold: each inner node visited pushes at most
     /// three (its nearest hit child is visited next, not pushed).
@@ -72,9 +77,9 @@ impl Boundable for Bounded {
     }
 }
 
-impl Bvh4 {
+impl Bvh8 {
     /// Builds the tree over boxes (min, max), one per primitive; None when there are none.
-    pub fn build(boxes: &[(Vec3A, Vec3A)]) -> Option<Bvh4> {
+    pub fn build(boxes: &[(Vec3A, Vec3A)]) -> Option<Bvh8> {
         if boxes.is_empty() {
             return None;
         }
@@ -89,7 +94,7 @@ impl Bvh4 {
         };
         let bvh2 = build_bvh2(&bounded, params, &mut Duration::default());
         let n2 = &bvh2.nodes;
-        let mut out = Bvh4 {
+        let mut out = Bvh8 {
             nodes: Vec::with_capacity(n2.len() / 2 + 1),
             primitive_indices: bvh2.primitive_indices.clone(),
             stack_need: 0,
@@ -101,7 +106,7 @@ impl Bvh4 {
         );
         let root = out.node_of(n2, &[0]);
         debug_assert_eq!(root, 0);
-        out.stack_need = 3 * out.depth(0) + 1;
+        out.stack_need = (W - 1) * out.depth(0) + 1;
         Some(out)
     }
 
@@ -114,19 +119,19 @@ impl Bvh4 {
     /// Levels of inner nodes from `node` down, itself included.
     fn depth(&self, node: u32) -> usize {
         let n = &self.nodes[node as usize];
-        1 + (0..4)
+        1 + (0..W)
             .filter(|&lane| n.valid & (1 << lane) != 0 && n.child[lane] & LEAF == 0)
             .map(|lane| self.depth(n.child[lane]))
             .max()
             .unwrap_or(0)
     }
 
-    /// Makes the node whose children are the BVH2 nodes `start`, widened to four, and returns
+    /// Makes the node whose children are the BVH2 nodes `start`, widened to eight, and returns
     /// its index (children are made after their parent, so the root is node 0).
     fn node_of(&mut self, n2: &[obvhs::bvh2::node::Bvh2Node], start: &[u32]) -> u32 {
         let mut kids: Vec<u32> = start.to_vec();
-        // Open the largest inner child until there are four children or only leaves.
-        while kids.len() < 4 {
+        // Open the largest inner child until there are eight children or only leaves.
+        while kids.len() < W {
             let inner = kids
                 .iter()
                 .enumerate()
@@ -144,16 +149,16 @@ impl Bvh4 {
         }
         let index = self.nodes.len() as u32;
         let mut node = Node {
-            bounds: [Vec4::ZERO; 6],
-            child: [0; 4],
+            bounds: [[Vec4::ZERO; 2]; 6],
+            child: [0; W],
             valid: 0,
         };
         self.nodes.push(node);
         for (lane, &k) in kids.iter().enumerate() {
             let n = &n2[k as usize];
             for axis in 0..3 {
-                node.bounds[2 * axis][lane] = n.aabb.min[axis];
-                node.bounds[2 * axis + 1][lane] = n.aabb.max[axis];
+                node.bounds[2 * axis][lane / 4][lane % 4] = n.aabb.min[axis];
+                node.bounds[2 * axis + 1][lane / 4][lane % 4] = n.aabb.max[axis];
             }
             node.valid |= 1 << lane;
             node.child[lane] = if n.prim_count == 0 {
@@ -168,20 +173,22 @@ impl Bvh4 {
 
     /// The child code of slots `first..first + count`, whose box is lane `lane` of `parent`: a
     /// leaf, or, over [`MAX_LEAF`] slots (the collapse is bounded by it, so not expected), a
-    /// node of up to four such children sharing that box.
+    /// node of up to eight such children sharing that box.
     fn leaf(&mut self, first: u32, count: u32, lane: usize, parent: &Node) -> u32 {
         if count <= MAX_LEAF {
             return LEAF | ((count - 1) << COUNT_SHIFT) | first;
         }
         let index = self.nodes.len() as u32;
         let mut node = Node {
-            bounds: parent.bounds.map(|b| Vec4::splat(b[lane])),
-            child: [0; 4],
+            bounds: parent
+                .bounds
+                .map(|b| [Vec4::splat(b[lane / 4][lane % 4]); 2]),
+            child: [0; W],
             valid: 0,
         };
         self.nodes.push(node);
-        let share = count.div_ceil(4);
-        for part in 0..4 {
+        let share = count.div_ceil(W as u32);
+        for part in 0..W as u32 {
             let start = first + part * share;
             let end = (start + share).min(first + count);
             if start < end {
@@ -218,7 +225,7 @@ impl Bvh4 {
         })
     }
 
-    /// [`Bvh4::traverse`] a leaf at a time: `leaf(first, count)` tests slots
+    /// [`Bvh8::traverse`] a leaf at a time: `leaf(first, count)` tests slots
     /// `first..first + count` and returns the nearest distance among them (infinity: none; a
     /// negative value stops the traversal). For callers that test a leaf's primitives together.
     #[inline(always)]
@@ -245,7 +252,7 @@ impl Bvh4 {
             .nodes
             .iter()
             .flat_map(|n| {
-                (0..4)
+                (0..W)
                     .filter(move |&l| n.valid & (1 << l) != 0)
                     .map(move |l| n.child[l])
             })
@@ -259,7 +266,7 @@ impl Bvh4 {
         out
     }
 
-    /// [`Bvh4::traverse`] with a stack of at least `stack_need` entries.
+    /// [`Bvh8::traverse`] with a stack of at least `stack_need` entries.
     #[inline(always)]
     fn walk(
         &self,
@@ -277,13 +284,11 @@ impl Bvh4 {
             }
         };
         let inv = [safe(d.x), safe(d.y), safe(d.z)];
-        let near = inv.map(|i| usize::from(i < 0.0));
-        let (ox, oy, oz) = (Vec4::splat(o.x), Vec4::splat(o.y), Vec4::splat(o.z));
-        let (ix, iy, iz) = (
-            Vec4::splat(inv[0]),
-            Vec4::splat(inv[1]),
-            Vec4::splat(inv[2]),
-        );
+        let ray = RayConstants {
+            o: o.to_array(),
+            inv,
+            near: inv.map(|i| usize::from(i < 0.0)),
+        };
         let mut tmax = tmax;
         // The node being visited; the nearest hit child is visited next without a trip through
         // the stack, the others are pushed farthest first.
@@ -302,24 +307,15 @@ impl Bvh4 {
                 }
             } else {
                 let node = &self.nodes[code as usize];
-                let b = &node.bounds;
-                let tnear = ((b[near[0]] - ox) * ix)
-                    .max((b[2 + near[1]] - oy) * iy)
-                    .max((b[4 + near[2]] - oz) * iz)
-                    .max(Vec4::ZERO);
-                let tfar = ((b[1 - near[0]] - ox) * ix)
-                    .min((b[3 - near[1]] - oy) * iy)
-                    .min((b[5 - near[2]] - oz) * iz)
-                    .min(Vec4::splat(tmax));
-                let mut hits = tnear.cmple(tfar).bitmask() & node.valid;
+                let (mask, t) = hits(node, &ray, tmax);
+                let mut hits = mask & node.valid;
                 if hits != 0 {
                     if hits & (hits - 1) == 0 {
                         code = node.child[hits.trailing_zeros() as usize];
                         continue;
                     }
                     // Sort the hit children nearest first; push all but the nearest.
-                    let t = tnear.to_array();
-                    let mut order = [(0f32, 0u32); 4];
+                    let mut order = [(0f32, 0u32); W];
                     let mut n = 0;
                     while hits != 0 {
                         let lane = hits.trailing_zeros() as usize;
@@ -358,6 +354,41 @@ impl Bvh4 {
     }
 }
 
+/// What the box test reads of a ray: its origin, the inverse direction and, per axis, which of
+/// a box's two planes it meets first (1: the maximum).
+struct RayConstants {
+    o: [f32; 3],
+    inv: [f32; 3],
+    near: [usize; 3],
+}
+
+/// The children of `node` the ray reaches before `tmax` (bit per lane) and each lane's entry
+/// distance, four lanes at a time (an eight-lane AVX copy of this test measured no faster:
+/// 7.7-7.9 against 7.9-8.6 Mrays/s on the bench's triangle rays).
+#[inline(always)]
+fn hits(node: &Node, ray: &RayConstants, tmax: f32) -> (u32, [f32; W]) {
+    let b = &node.bounds;
+    let near = ray.near;
+    let [ox, oy, oz] = ray.o.map(Vec4::splat);
+    let [ix, iy, iz] = ray.inv.map(Vec4::splat);
+    let tm = Vec4::splat(tmax);
+    let mut mask = 0u32;
+    let mut t = [0f32; W];
+    for h in 0..2 {
+        let tnear = ((b[near[0]][h] - ox) * ix)
+            .max((b[2 + near[1]][h] - oy) * iy)
+            .max((b[4 + near[2]][h] - oz) * iz)
+            .max(Vec4::ZERO);
+        let tfar = ((b[1 - near[0]][h] - ox) * ix)
+            .min((b[3 - near[1]][h] - oy) * iy)
+            .min((b[5 - near[2]][h] - oz) * iz)
+            .min(tm);
+        mask |= tnear.cmple(tfar).bitmask() << (4 * h);
+        t[4 * h..4 * h + 4].copy_from_slice(&tnear.to_array());
+    }
+    (mask, t)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -373,21 +404,21 @@ mod tests {
     /// leaves that together visit every slot once.
     #[test]
     fn an_oversized_leaf_is_split_and_every_slot_visited_once() {
-        let mut bvh = Bvh4 {
+        let mut bvh = Bvh8 {
             nodes: Vec::new(),
             primitive_indices: (0..45).collect(),
             stack_need: 0,
         };
         let mut root = Node {
-            bounds: [-1.0, 1.0, -1.0, 1.0, -1.0, 1.0].map(Vec4::splat),
-            child: [0; 4],
+            bounds: [-1.0, 1.0, -1.0, 1.0, -1.0, 1.0].map(|x| [Vec4::splat(x); 2]),
+            child: [0; W],
             valid: 1,
         };
         bvh.nodes.push(root);
         root.child[0] = bvh.leaf(0, 45, 0, &root);
         bvh.nodes[0] = root;
-        bvh.stack_need = 3 * bvh.depth(0) + 1;
-        assert!(bvh.depth(0) >= 3, "45 slots need two levels below the root");
+        bvh.stack_need = (W - 1) * bvh.depth(0) + 1;
+        assert!(bvh.depth(0) >= 2, "45 slots need a level below the root");
         let mut seen = vec![0; 45];
         bvh.traverse(Vec3A::ZERO, Vec3A::X, 10.0, |slot| {
             seen[slot] += 1;
@@ -410,7 +441,7 @@ mod tests {
                     (c - h, c + h)
                 })
                 .collect();
-            let bvh = Bvh4::build(&boxes).unwrap();
+            let bvh = Bvh8::build(&boxes).unwrap();
             let mut sorted = bvh.primitive_indices.clone();
             sorted.sort_unstable();
             assert_eq!(sorted, (0..n as u32).collect::<Vec<_>>());
