@@ -314,9 +314,7 @@ mod tests {
         let q1 = orthonormal(m, n, 1);
         let q2 = orthonormal(n, n, 2);
         let sigma: Vec<f64> = (0..n).map(|i| 0.5f64.powi(i as i32)).collect();
-        let a = Mat::from_fn(m, n, |i, j| {
-            (0..n).map(|k| q1[(i, k)] * sigma[k] * q2[(j, k)]).sum()
-        });
+        let a = with_spectrum(&q1, &sigma, &q2);
         let tol = 1e-4;
         let svd = truncated_svd(a.as_ref(), tol).unwrap();
         let k = svd.s.len();
@@ -426,9 +424,7 @@ mod tests {
             (1.0, 1e-3),
         ] {
             let sigma: Vec<f64> = (0..n).map(|i| f64::powi(decay, i as i32)).collect();
-            let a = Mat::from_fn(m, n, |i, j| {
-                (0..n).map(|k| q1[(i, k)] * sigma[k] * q2[(j, k)]).sum()
-            });
+            let a = with_spectrum(&q1, &sigma, &q2);
             let k = truncated_svd(a.as_ref(), tol).unwrap().s.len();
             assert_eq!(energy_rank(a.as_ref(), tol).unwrap(), k, "decay {decay}");
             assert_eq!(k, rank_for_energy(&sigma, tol), "decay {decay}");
@@ -453,9 +449,7 @@ mod tests {
         let q2 = orthonormal(n, n, 6);
         for (decay, tol) in [(0.5, 1e-4), (0.9, 1e-3), (0.97, 1e-3), (1.0, 1e-2)] {
             let sigma: Vec<f64> = (0..n).map(|i| f64::powi(decay, i as i32)).collect();
-            let a = Mat::from_fn(m, n, |i, j| {
-                (0..n).map(|k| q1[(i, k)] * sigma[k] * q2[(j, k)]).sum()
-            });
+            let a = with_spectrum(&q1, &sigma, &q2);
             let k = truncated_svd(a.as_ref(), tol).unwrap().s.len();
             assert_eq!(k, rank_for_energy(&sigma, tol), "decay {decay}");
             assert_eq!(energy_rank(a.as_ref(), tol).unwrap(), k, "decay {decay}");
@@ -491,9 +485,7 @@ mod tests {
         let q2 = orthonormal(n, n, 8);
         for (decay, tol) in [(0.5, 1e-6), (0.9, 1e-3), (0.97, 1e-3), (1.0, 1e-2)] {
             let sigma: Vec<f64> = (0..n).map(|i| f64::powi(decay, i as i32)).collect();
-            let tall = Mat::from_fn(m, n, |i, j| {
-                (0..n).map(|k| q1[(i, k)] * sigma[k] * q2[(j, k)]).sum()
-            });
+            let tall = with_spectrum(&q1, &sigma, &q2);
             for a in [tall.clone(), tall.transpose().to_owned()] {
                 let svd = truncated_svd(a.as_ref(), tol).unwrap();
                 let (u, dropped) = truncated_column_basis(a.as_ref(), tol).unwrap();
@@ -510,6 +502,15 @@ mod tests {
                 assert!(gap < 1e-8, "decay {decay}: projectors {gap:.1e} apart");
             }
         }
+    }
+
+    /// `Q1 diag(σ) Q2ᵀ`: a matrix with singular values `sigma`.
+    fn with_spectrum(q1: &Mat<f64>, sigma: &[f64], q2: &Mat<f64>) -> Mat<f64> {
+        Mat::from_fn(q1.nrows(), q2.nrows(), |i, j| {
+            (0..sigma.len())
+                .map(|k| q1[(i, k)] * sigma[k] * q2[(j, k)])
+                .sum()
+        })
     }
 
     fn orthonormal(m: usize, n: usize, seed: u64) -> Mat<f64> {

@@ -36,7 +36,7 @@ mod packet;
 use glam::{DVec3, Vec3A};
 
 use bvh8::Bvh8;
-use packet::TrianglePacket;
+use packet::{FastTriangle, TrianglePacket};
 
 use crate::bake::scene::geometry::Primitive;
 
@@ -63,14 +63,7 @@ enum Fast {
         min: [f32; 2],
         max: [f32; 2],
     },
-    /// Vertex 0, the two edges from it (computed in f64, then rounded) and their lengths.
-    Triangle {
-        v0: Vec3A,
-        e1: Vec3A,
-        e2: Vec3A,
-        len1: f32,
-        len2: f32,
-    },
+    Triangle(FastTriangle),
 }
 
 /// How [`Tracer::closest`] tests one leaf: its triangles' packets
@@ -107,13 +100,7 @@ fn leaf_packets(bvh: &Bvh8, fast: &[Fast]) -> (Vec<TrianglePacket>, Vec<LeafTest
         let mut rects = false;
         for (slot, f) in fast.iter().enumerate().skip(first).take(count) {
             match *f {
-                Fast::Triangle {
-                    v0,
-                    e1,
-                    e2,
-                    len1,
-                    len2,
-                } => lanes.push((slot as u32, v0, e1, e2, len1, len2)),
+                Fast::Triangle(t) => lanes.push((slot as u32, t)),
                 Fast::Rect { .. } => rects = true,
             }
             if lanes.len() == 4 {
@@ -236,13 +223,13 @@ impl Tracer {
                     },
                     Primitive::Triangle { v, .. } => {
                         let [v0, v1, v2] = v.map(DVec3::from);
-                        Fast::Triangle {
+                        Fast::Triangle(FastTriangle {
                             v0: v3d(v0),
                             e1: v3d(v1 - v0),
                             e2: v3d(v2 - v0),
                             len1: (v1 - v0).length() as f32,
                             len2: (v2 - v0).length() as f32,
-                        }
+                        })
                     }
                 })
                 .collect()
@@ -311,13 +298,13 @@ impl Tracer {
                 }
                 Verdict::Hit(t, mt)
             }
-            Fast::Triangle {
+            Fast::Triangle(FastTriangle {
                 v0,
                 e1,
                 e2,
                 len1,
                 len2,
-            } => {
+            }) => {
                 let p = d.cross(e2);
                 let det = e1.dot(p);
                 let inv = 1.0 / det;

@@ -13,6 +13,17 @@ use glam::{Vec3A, Vec4};
 
 use super::F32_MARGIN;
 
+/// One triangle's f32 copy for the test: vertex 0, the two edges from it (computed in f64,
+/// then rounded) and their lengths.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct FastTriangle {
+    pub v0: Vec3A,
+    pub e1: Vec3A,
+    pub e2: Vec3A,
+    pub len1: f32,
+    pub len2: f32,
+}
+
 /// Up to four triangles: vertex 0, the edges from it and their lengths, per lane.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct TrianglePacket {
@@ -39,8 +50,8 @@ pub(super) struct PacketVerdict {
 }
 
 impl TrianglePacket {
-    /// A packet of `lanes` (at most four): (slot, vertex 0, edge 1, edge 2, |edge 1|, |edge 2|).
-    pub fn new(lanes: &[(u32, Vec3A, Vec3A, Vec3A, f32, f32)]) -> TrianglePacket {
+    /// A packet of `lanes` (at most four): each triangle with its BVH slot.
+    pub fn new(lanes: &[(u32, FastTriangle)]) -> TrianglePacket {
         assert!(lanes.len() <= 4, "a packet holds four triangles");
         let mut p = TrianglePacket {
             v0: [Vec4::ZERO; 3],
@@ -51,15 +62,15 @@ impl TrianglePacket {
             slots: [0; 4],
             valid: 0,
         };
-        for (lane, &(slot, v0, e1, e2, len1, len2)) in lanes.iter().enumerate() {
+        for (lane, &(slot, t)) in lanes.iter().enumerate() {
             for k in 0..3 {
-                p.v0[k][lane] = v0[k];
-                p.e1[k][lane] = e1[k];
-                p.e2[k][lane] = e2[k];
+                p.v0[k][lane] = t.v0[k];
+                p.e1[k][lane] = t.e1[k];
+                p.e2[k][lane] = t.e2[k];
             }
-            p.len1[lane] = len1;
-            p.len2[lane] = len2;
-            p.slots[lane] = slot as u32;
+            p.len1[lane] = t.len1;
+            p.len2[lane] = t.len2;
+            p.slots[lane] = slot;
             p.valid |= 1 << lane;
         }
         p
