@@ -223,6 +223,8 @@ fn merge(hits: &[(u32, f64)]) -> Vec<(u32, f64)> {
             _ => out.push((t, w)),
         }
     }
+    // Kept for every traced texel until the bake's DRT stage ends: no growth slack.
+    out.shrink_to_fit();
     out
 }
 
@@ -393,6 +395,7 @@ impl<'a> RayPass<'a> {
                 _ => hits.push((t, 1)),
             }
         }
+        hits.shrink_to_fit();
         (hits, back)
     }
 
