@@ -216,14 +216,19 @@ fn merge(hits: &[(u32, f64)]) -> Vec<(u32, f64)> {
     // the rays were traced.
     let mut sorted = hits.to_vec();
     sorted.sort_by_key(|&(t, _)| t);
-    let mut out: Vec<(u32, f64)> = Vec::new();
+    sum_runs(sorted)
+}
+
+/// Pairs sorted by texel, each texel's values summed in the order given; the list is kept for
+/// every traced texel until the bake's DRT stage ends, so it carries no growth slack.
+fn sum_runs<W: std::ops::AddAssign>(sorted: impl IntoIterator<Item = (u32, W)>) -> Vec<(u32, W)> {
+    let mut out: Vec<(u32, W)> = Vec::new();
     for (t, w) in sorted {
         match out.last_mut() {
             Some((last, sum)) if *last == t => *sum += w,
             _ => out.push((t, w)),
         }
     }
-    // Kept for every traced texel until the bake's DRT stage ends: no growth slack.
     out.shrink_to_fit();
     out
 }
@@ -388,15 +393,7 @@ impl<'a> RayPass<'a> {
             }
         }
         seen.sort_unstable();
-        let mut hits: Vec<(u32, u32)> = Vec::new();
-        for t in seen {
-            match hits.last_mut() {
-                Some((last, n)) if *last == t => *n += 1,
-                _ => hits.push((t, 1)),
-            }
-        }
-        hits.shrink_to_fit();
-        (hits, back)
+        (sum_runs(seen.into_iter().map(|t| (t, 1u32))), back)
     }
 
     /// Traces clutter texel `x` (cosine-weighted rays from its lit side).

@@ -114,11 +114,7 @@ pub fn truncated_column_basis(
     }
     faer::set_global_parallelism(Par::Seq);
     let tall = m >= n;
-    let gram = if tall {
-        a.transpose() * a
-    } else {
-        a * a.transpose()
-    };
+    let gram = short_side_gram(a);
     let basis = gram
         .self_adjoint_eigen(faer::Side::Lower)
         .ok()

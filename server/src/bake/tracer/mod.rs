@@ -706,9 +706,6 @@ mod tests {
         }
     }
 
-    /// A level of several rooms cluttered with 600 random triangles (a BVH many levels deep):
-    /// the closest hit is brute force's closest, the same primitive unless two are hit at the
-    /// same distance, and shadow rays agree with brute force.
     /// Every packet lane's verdict is the one-triangle test's, bit for bit (distance and
     /// margin included), for rays from inside and outside a cloud of triangles, some of them
     /// slivers or nearly parallel to the rays, at several `far` limits.
@@ -790,6 +787,9 @@ mod tests {
         );
     }
 
+    /// A level of several rooms cluttered with 600 random triangles (a BVH many levels deep):
+    /// the closest hit is brute force's closest, the same primitive unless two are hit at the
+    /// same distance, and shadow rays agree with brute force.
     #[test]
     fn a_deep_tree_finds_what_brute_force_finds() {
         let mut g = Geometry::default();
