@@ -55,17 +55,7 @@ impl FactorCache {
     /// The key of factoring `m` at `tolerance` into factors of at most `max_values` values
     /// (`usize::MAX`: no bound beyond the compaction's own).
     pub fn key(m: &Mat<f64>, tolerance: f64, max_values: usize) -> String {
-        let mut h = blake3::Hasher::new();
-        h.update(CODE_VERSION.as_bytes());
-        h.update(&tolerance.to_bits().to_le_bytes());
-        // A bound on the factors' size changes the outcome; entries without one keep the
-        // keys they always had.
-        if max_values != usize::MAX {
-            h.update(b"max_values");
-            h.update(&(max_values as u64).to_le_bytes());
-        }
-        h.update(&(m.nrows() as u64).to_le_bytes());
-        h.update(&(m.ncols() as u64).to_le_bytes());
+        let mut h = key_header(tolerance, max_values, m.nrows(), m.ncols());
         let mut column = Vec::with_capacity(m.nrows() * 8);
         for j in 0..m.ncols() {
             column.clear();
@@ -74,6 +64,25 @@ impl FactorCache {
             }
             h.update(&column);
         }
+        h.finalize().to_hex().to_string()
+    }
+
+    /// The key of factoring a `rows × cols` matrix that `describe` determines bit for bit (it
+    /// feeds the hasher a description the matrix is a pure function of, e.g. its nonzeros in
+    /// the order they are summed), described the `tag` way: a key apart from [`Self::key`]'s
+    /// and from other tags', which costs the description instead of every value.
+    pub fn key_described(
+        tag: &str,
+        tolerance: f64,
+        max_values: usize,
+        (rows, cols): (usize, usize),
+        describe: impl FnOnce(&mut blake3::Hasher),
+    ) -> String {
+        let mut h = key_header(tolerance, max_values, rows, cols);
+        h.update(b"described:");
+        h.update(&(tag.len() as u64).to_le_bytes());
+        h.update(tag.as_bytes());
+        describe(&mut h);
         h.finalize().to_hex().to_string()
     }
 
@@ -105,6 +114,21 @@ impl FactorCache {
         }
         self.store.put(key, &w.bytes)
     }
+}
+
+/// What every key starts with: the version, the tolerance, a bound on the factors' size (entries
+/// without one keep the keys they always had) and the matrix's size.
+fn key_header(tolerance: f64, max_values: usize, rows: usize, cols: usize) -> blake3::Hasher {
+    let mut h = blake3::Hasher::new();
+    h.update(CODE_VERSION.as_bytes());
+    h.update(&tolerance.to_bits().to_le_bytes());
+    if max_values != usize::MAX {
+        h.update(b"max_values");
+        h.update(&(max_values as u64).to_le_bytes());
+    }
+    h.update(&(rows as u64).to_le_bytes());
+    h.update(&(cols as u64).to_le_bytes());
+    h
 }
 
 #[cfg(test)]
@@ -142,5 +166,29 @@ mod tests {
         );
         assert_ne!(dense, k);
         let _ = std::fs::remove_dir_all(&root);
+    }
+
+    /// A described key follows the description, the tag, the size and the tolerance, and never
+    /// equals a dense key, even for a description that is the dense key's own bytes.
+    #[test]
+    fn described_keys_follow_what_describes_the_matrix() {
+        let m = Mat::from_fn(3, 2, |i, j| (i * 2 + j) as f64);
+        let bits: Vec<u8> = (0..2)
+            .flat_map(|j| (0..3).flat_map(move |i| ((i * 2 + j) as f64).to_bits().to_le_bytes()))
+            .collect();
+        let key = |tag: &str, tol: f64, size: (usize, usize), bytes: &[u8]| {
+            FactorCache::key_described(tag, tol, usize::MAX, size, |h| {
+                h.update(bytes);
+            })
+        };
+        let k = key("a", 1e-3, (3, 2), &bits);
+        assert_eq!(k, key("a", 1e-3, (3, 2), &bits));
+        assert_ne!(k, FactorCache::key(&m, 1e-3, usize::MAX));
+        assert_ne!(k, key("b", 1e-3, (3, 2), &bits));
+        assert_ne!(k, key("a", 2e-3, (3, 2), &bits));
+        assert_ne!(k, key("a", 1e-3, (2, 3), &bits));
+        assert_ne!(k, key("a", 1e-3, (3, 2), &bits[1..]));
+        // The tag's length is hashed: a tag cannot run on into the description.
+        assert_ne!(key("ab", 1e-3, (3, 2), b"c"), key("a", 1e-3, (3, 2), b"bc"));
     }
 }

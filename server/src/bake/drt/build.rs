@@ -206,7 +206,15 @@ pub fn build_drt(
     let owners = TexelOwners::new(g, n_blocks);
 
     let mut stats = DrtStats::default();
-    let clutter = clutter_projections(inputs, &tracer, cache, &mut stats)?;
+    // The clutter bases and both ray passes (block texels guided toward clutter; clutter
+    // texels, reusing what an earlier bake traced where nothing it saw has changed) read only
+    // the geometry: side by side, so that one object's basis does not leave a core idle.
+    let pass = RayPass::new(scene, inputs.openings, g, gb, &tracer, &block_tracer);
+    let (clutter, rays) = rayon::join(
+        || clutter_projections(inputs, &tracer, cache, &mut stats),
+        || trace_all(&pass, cache, progress),
+    );
+    let (clutter, rays) = (clutter?, rays?);
     // Scene clutter index → index in the bundle's clutter list (objects with texels).
     let projection_of: Vec<Option<usize>> = (0..scene.clutter.len())
         .map(|c| clutter.iter().position(|(k, _)| *k == c))
@@ -215,11 +223,6 @@ pub fn build_drt(
         scene,
         e: 1e-6 * g.scale(),
     };
-
-    // Both ray passes (block texels guided toward clutter; clutter texels), reusing what an
-    // earlier bake traced where nothing it saw has changed.
-    let pass = RayPass::new(scene, inputs.openings, g, gb, &tracer, &block_tracer);
-    let rays = trace_all(&pass, cache, progress)?;
     stats.traced_texels = rays.traced_texels;
     stats.reused_texels = rays.reused_texels;
     stats.culled_texels = rays.culled_texels;
@@ -340,23 +343,32 @@ fn clutter_projections(
 }
 
 /// Row-major copies of every block's `L_imp`, one per distinct shape (blocks sharing a shape
-/// share the copy).
+/// share the copy), the distinct shapes copied one per core.
 pub fn l_imp_rows(shapes: &[&ShapeOperators]) -> Vec<Arc<RowMajor>> {
-    let mut by_shape: Vec<(*const ShapeOperators, Arc<RowMajor>)> = Vec::new();
-    shapes
+    let mut distinct: Vec<*const ShapeOperators> = Vec::new();
+    let which: Vec<usize> = shapes
         .iter()
         .map(|s| {
             let ptr = *s as *const ShapeOperators;
-            match by_shape.iter().find(|(p, _)| *p == ptr) {
-                Some((_, rows)) => rows.clone(),
-                None => {
-                    let rows = Arc::new(RowMajor::of(&s.l_imp));
-                    by_shape.push((ptr, rows.clone()));
-                    rows
-                }
-            }
+            distinct.iter().position(|p| *p == ptr).unwrap_or_else(|| {
+                distinct.push(ptr);
+                distinct.len() - 1
+            })
         })
-        .collect()
+        .collect();
+    let firsts: Vec<&ShapeOperators> = (0..distinct.len())
+        .map(|d| {
+            shapes[which
+                .iter()
+                .position(|&w| w == d)
+                .expect("each shape is some block's")]
+        })
+        .collect();
+    let rows: Vec<Arc<RowMajor>> = firsts
+        .par_iter()
+        .map(|s| Arc::new(RowMajor::of(&s.l_imp)))
+        .collect();
+    which.into_iter().map(|d| rows[d].clone()).collect()
 }
 
 /// What a hit reads: the `L_imp` row of a block texel, or the basis row of a clutter texel.
@@ -379,7 +391,8 @@ struct BlockRows {
 }
 
 /// ΔU_b and ΔU_c rows of block texels that see clutter (or, with `scene_gather: exact`, their
-/// gathers); buried texels are marked for [`inpaint`].
+/// gathers); buried texels are marked for [`inpaint`]. Each target block's rows are built on a
+/// worker of their own (a block's rows go to its own map), in texel order as one pass would.
 fn block_texel_rows(
     inputs: &DrtInputs,
     rays: &[BlockTexelRays],
@@ -387,50 +400,95 @@ fn block_texel_rows(
     burial: &Burial,
     stats: &mut DrtStats,
 ) -> BlockRows {
-    let (scene, g) = (inputs.scene, inputs.geometry);
-    let n_blocks = scene.blocks.len();
-    let exact_scene = scene.settings.scene_gather == SceneGather::Exact;
+    let g = inputs.geometry;
+    let n_blocks = inputs.scene.blocks.len();
+    let per_block: Vec<TargetRows> = (0..n_blocks)
+        .into_par_iter()
+        .map(|b| target_rows(inputs, b, &rays[g.block_texels[b].clone()], rows, burial))
+        .collect();
     let mut out = BlockRows {
-        per_target: (0..n_blocks).map(|_| BTreeMap::new()).collect(),
+        per_target: Vec::with_capacity(n_blocks),
         buried: vec![false; g.texels.len()],
         gathered: BTreeMap::new(),
     };
-    for (x, r) in (0..inputs.block_geometry.texels.len()).zip(rays) {
-        let (occluded, reflected) = (&r.occluded, &r.reflected);
-        let (target, _) = rows.owners.local(x as u32);
+    for (b, t) in per_block.into_iter().enumerate() {
+        let start = g.block_texels[b].start;
+        out.buried[start..start + t.buried.len()].copy_from_slice(&t.buried);
+        out.per_target.push(t.rows);
+        out.gathered.extend(t.gathered);
+        stats.buried_scene_texels += t.buried_count;
+        stats.scene_texels_skipped += t.skipped;
+        stats.scene_texels_with_rows += t.with_rows;
+    }
+    out
+}
+
+/// One target block's part of [`BlockRows`], with its counts.
+struct TargetRows {
+    rows: RowsBySource,
+    /// Per texel of the block.
+    buried: Vec<bool>,
+    gathered: BTreeMap<u32, Vec<(u32, u32)>>,
+    buried_count: usize,
+    skipped: usize,
+    with_rows: usize,
+}
+
+/// Block `target`'s rows from its texels' rays (`rays`, in the block's texel order).
+fn target_rows(
+    inputs: &DrtInputs,
+    target: usize,
+    rays: &[BlockTexelRays],
+    rows: &SourceRows,
+    burial: &Burial,
+) -> TargetRows {
+    let (scene, g) = (inputs.scene, inputs.geometry);
+    let n_blocks = scene.blocks.len();
+    let exact_scene = scene.settings.scene_gather == SceneGather::Exact;
+    let first = g.block_texels[target].start;
+    let mut out = TargetRows {
+        rows: BTreeMap::new(),
+        buried: vec![false; rays.len()],
+        gathered: BTreeMap::new(),
+        buried_count: 0,
+        skipped: 0,
+        with_rows: 0,
+    };
+    for (i, r) in rays.iter().enumerate() {
+        let x = first + i;
         let buried = burial.inside_box(g.texels[x].position, None) || r.back_hits > 0.5;
-        out.buried[x] = buried;
+        out.buried[i] = buried;
         if buried {
-            stats.buried_scene_texels += 1;
+            out.buried_count += 1;
             continue;
         }
         if !r.sees_clutter(scene.settings.tolerance) {
-            stats.scene_texels_skipped += 1;
+            out.skipped += 1;
             continue;
         }
-        stats.scene_texels_with_rows += 1;
+        out.with_rows += 1;
         if exact_scene {
             // The gather replaces MRT and the deltas on this texel.
             out.gathered.insert(x as u32, r.hits.clone());
             continue;
         }
-        for &(t, w) in occluded {
+        for &(t, w) in &r.occluded {
             let (source, l) = rows.owners.local(t);
             // Antiradiance: −L_imp at the wall behind.
             add_row(
-                &mut out.per_target[target],
+                &mut out.rows,
                 LitSource::Block(source as u32),
                 x as u32,
                 rows.l_imp[source].row(l),
                 -w,
             );
         }
-        for &(k, w) in reflected {
+        for &(k, w) in &r.reflected {
             let (owner, l) = rows.owners.local(k);
             let c = owner - n_blocks;
             if let Some(i) = rows.projection_of[c] {
                 add_row(
-                    &mut out.per_target[target],
+                    &mut out.rows,
                     LitSource::Clutter(i as u32),
                     x as u32,
                     rows.basis[i].row(l),
@@ -517,20 +575,30 @@ fn clutter_texel_rows(
 }
 
 /// Packs the rows into blocks: one entry per (target object, source), targets in block order
-/// then the clutter, sources in [`LitSource`] order.
+/// then the clutter, sources in [`LitSource`] order. Each target is packed on a worker (as its
+/// rows were built on one: a worker's freed rows make room for the matrices it packs), taken in
+/// order.
 fn pack_entries(per_target: Vec<RowsBySource>, per_clutter: RowsBySource) -> Vec<DeltaBlock> {
-    let mut entries = Vec::new();
-    for map in per_target.into_iter().chain(std::iter::once(per_clutter)) {
-        for (key, rows) in map {
-            let width = rows.values().next().map_or(0, |v| v.len());
-            let values: Vec<&Vec<f64>> = rows.values().collect();
-            let matrix = Mat::from_fn(rows.len(), width, |i, j| values[i][j]);
-            entries.push(DeltaBlock {
-                rows: rows.keys().copied().collect(),
-                source: key.into(),
-                matrix,
-            });
-        }
-    }
-    entries
+    let targets: Vec<RowsBySource> = per_target
+        .into_iter()
+        .chain(std::iter::once(per_clutter))
+        .collect();
+    let packed: Vec<Vec<DeltaBlock>> = targets
+        .into_par_iter()
+        .map(|map| {
+            map.into_iter()
+                .map(|(key, rows)| {
+                    let width = rows.values().next().map_or(0, |v| v.len());
+                    let values: Vec<&Vec<f64>> = rows.values().collect();
+                    let matrix = Mat::from_fn(rows.len(), width, |i, j| values[i][j]);
+                    DeltaBlock {
+                        rows: rows.keys().copied().collect(),
+                        source: key.into(),
+                        matrix,
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    packed.into_iter().flatten().collect()
 }

@@ -32,7 +32,7 @@ use rayon::prelude::*;
 use lightfarm_proto::bundle::{DeltaEntry, DeltaSource, TexelGather};
 
 use crate::bake::cache::factors::{FactorCache, Factors, MIN_VALUES};
-use crate::bake::math::low_rank::{energy_rank, truncated_svd, LowRankError};
+use crate::bake::math::low_rank::{energy_rank, rank_surely_exceeds, truncated_svd, LowRankError};
 use crate::bake::math::matrix::to_matrix;
 
 /// A factorisation is kept when its values are at most this fraction of the dense entry's.
@@ -78,17 +78,30 @@ fn factor(
     max_values: usize,
     cache: Option<&FactorCache>,
 ) -> Result<Factors, LowRankError> {
-    let Some(cache) = cache.filter(|_| m.nrows() * m.ncols() >= MIN_VALUES) else {
-        return factor_now(m, tolerance, max_values);
-    };
-    let key = FactorCache::key(m, tolerance, max_values);
-    if let Some(hit) = cache.get(&key) {
+    let cache = cache.filter(|_| m.nrows() * m.ncols() >= MIN_VALUES);
+    let key = cache.map(|_| FactorCache::key(m, tolerance, max_values));
+    factor_lazily(key, || m, tolerance, max_values, cache)
+}
+
+/// [`factor`] of the matrix `build` makes, looked up in `cache` under `key` (which names that
+/// matrix exactly) first: on a hit the matrix is never built.
+fn factor_lazily<M: std::borrow::Borrow<Mat<f64>>>(
+    key: Option<String>,
+    build: impl FnOnce() -> M,
+    tolerance: f64,
+    max_values: usize,
+    cache: Option<&FactorCache>,
+) -> Result<Factors, LowRankError> {
+    let cached = cache.zip(key.as_deref());
+    if let Some(hit) = cached.and_then(|(cache, key)| cache.get(key)) {
         return Ok(hit);
     }
-    let factors = factor_now(m, tolerance, max_values)?;
-    if let Err(e) = cache.put(&key, &factors) {
-        // Only a later rebake's time depends on it.
-        tracing::warn!(error = %e, "could not store a DRT factorisation in the cache");
+    let factors = factor_now(build().borrow(), tolerance, max_values)?;
+    if let Some((cache, key)) = cached {
+        if let Err(e) = cache.put(key, &factors) {
+            // Only a later rebake's time depends on it.
+            tracing::warn!(error = %e, "could not store a DRT factorisation in the cache");
+        }
     }
     Ok(factors)
 }
@@ -108,7 +121,16 @@ fn factor_now(m: &Mat<f64>, tolerance: f64, max_values: usize) -> Result<Factors
             || k * (rows + cols) > max_values
     };
     // Most candidates are refused (the exact gather's ray-hit fractions are noise-like, of
-    // high rank): the singular values alone tell that, without forming the vectors.
+    // high rank): part of the spectrum proves most refusals, the singular values alone tell the
+    // rest, without forming the vectors. Refused when the estimate less the margin is too big,
+    // i.e. when the rank is above the largest size kept plus the margin.
+    let largest_kept = (0..=rows.min(cols))
+        .take_while(|&k| !too_big(k))
+        .last()
+        .unwrap_or(0);
+    if rank_surely_exceeds(m.as_ref(), tolerance, largest_kept + PRESCREEN_MARGIN)? {
+        return Ok(None);
+    }
     let estimate = energy_rank(m.as_ref(), tolerance)?;
     if too_big(estimate.saturating_sub(PRESCREEN_MARGIN)) {
         return Ok(None);
@@ -205,6 +227,9 @@ pub fn compact_entry_keeping(
 /// by construction, and keep the scene's tolerance.
 pub const GATHER_TOLERANCE_SCALE: f64 = 1e-2;
 
+/// How a gather range's cache key describes it ([`FactorCache::key_described`]).
+const GATHER_KEY_TAG: &str = "gather range nonzeros (row, column, f32 bits)";
+
 /// Cuts the exact gather by `ranges` (`(first, count)` texel ranges, disjoint) into low-rank
 /// entries with `DeltaSource::Direct` sources, each range factored at
 /// [`GATHER_TOLERANCE_SCALE`] × `tolerance` (the scene's); returns them and what stays sparse
@@ -254,7 +279,10 @@ pub fn compact_gather(
     }
     // Which ranges become entries: each range's dense block is built and factored on a worker
     // of its own (a worker holds one block at a time), the outcomes taken in range order. A
-    // range is kept when its factors hold at most twice its sparse entries.
+    // range is kept when its factors hold at most twice its sparse entries. A range's cache key
+    // is its nonzeros in the order they are summed (the dense block follows from them), so a
+    // cached outcome costs neither the block nor a hash of all of its values.
+    let gather_tolerance = GATHER_TOLERANCE_SCALE * tolerance;
     let outcomes: Vec<Factors> = (0..ranges.len())
         .into_par_iter()
         .map(|ri| {
@@ -263,20 +291,46 @@ pub fn compact_gather(
             if rows.is_empty() {
                 return Ok(None);
             }
-            let mut dense = Mat::<f64>::zeros(rows.len(), count as usize);
-            for (r, &(i, _)) in rows.iter().enumerate() {
-                for (&c, &v) in row_entries(i) {
-                    if range_of(c) == Some(ri) {
-                        dense[(r, (c - first) as usize)] += v as f64;
+            let in_range = |i: usize| {
+                row_entries(i)
+                    .filter(move |(&c, _)| range_of(c) == Some(ri))
+                    .map(move |(&c, &v)| ((c - first) as usize, v))
+            };
+            let size = (rows.len(), count as usize);
+            let cache = cache.filter(|_| size.0 * size.1 >= MIN_VALUES);
+            let max_values = 2 * nnz_of[ri];
+            let key = cache.map(|_| {
+                let describe = |h: &mut blake3::Hasher| {
+                    // (row, column, value bits) per nonzero, a row's worth per update.
+                    let mut bytes = Vec::new();
+                    for (r, &(i, _)) in rows.iter().enumerate() {
+                        bytes.clear();
+                        for (c, v) in in_range(i) {
+                            bytes.extend_from_slice(&(r as u32).to_le_bytes());
+                            bytes.extend_from_slice(&(c as u32).to_le_bytes());
+                            bytes.extend_from_slice(&v.to_bits().to_le_bytes());
+                        }
+                        h.update(&bytes);
+                    }
+                };
+                FactorCache::key_described(
+                    GATHER_KEY_TAG,
+                    gather_tolerance,
+                    max_values,
+                    size,
+                    describe,
+                )
+            });
+            let build = || {
+                let mut dense = Mat::<f64>::zeros(size.0, size.1);
+                for (r, &(i, _)) in rows.iter().enumerate() {
+                    for (c, v) in in_range(i) {
+                        dense[(r, c)] += v as f64;
                     }
                 }
-            }
-            factor(
-                &dense,
-                GATHER_TOLERANCE_SCALE * tolerance,
-                2 * nnz_of[ri],
-                cache,
-            )
+                dense
+            };
+            factor_lazily(key, build, gather_tolerance, max_values, cache)
         })
         .collect::<Result<_, LowRankError>>()?;
     let mut factored_ranges = vec![false; ranges.len()];

@@ -39,7 +39,7 @@ use crate::bake::cache::drt_rays::Unit;
 use crate::bake::drt::clutter_basis::ClutterBasisOps;
 use crate::bake::drt::clutter_sampling::{ClutterGuidedSampler, Sphere};
 use crate::bake::drt::error::DrtError;
-use crate::bake::drt::reach::RayReach;
+use crate::bake::drt::reach::{RayReach, ReachRecorder};
 use crate::bake::drt::sight::ClutterSight;
 use crate::bake::math::low_rank::LowRankError;
 use crate::bake::math::sampling::{
@@ -318,6 +318,7 @@ impl<'a> RayPass<'a> {
         let mut occluded: Vec<(u32, f64)> = Vec::new();
         let mut reflected: Vec<(u32, f64)> = Vec::new();
         let mut out = BlockTexelRays::default();
+        let mut reach = ReachRecorder::default();
         for i in 0..rays {
             let (d, weight) = self.sampler.sample_with(
                 &cones,
@@ -330,10 +331,10 @@ impl<'a> RayPass<'a> {
             }
             let w = weight * inv;
             let Some(hit) = tracer.closest(texel.position, d, f64::INFINITY, &sign) else {
-                out.reach.add(d, f64::INFINITY);
+                reach.add(d, f64::INFINITY);
                 continue;
             };
-            out.reach.add(d, hit.t);
+            reach.add(d, hit.t);
             if let Seen::Clutter { texel: k, back } = classify(g, tracer, &hit) {
                 out.clutter_hits += w;
                 if back {
@@ -355,9 +356,10 @@ impl<'a> RayPass<'a> {
         out.occluded = merge(&occluded);
         out.reflected = merge(&reflected);
         if settings.scene_gather == SceneGather::Exact && out.sees_clutter(settings.tolerance) {
-            let (hits, _) = self.cosine_hits(x, Purpose::DrtSceneGather, &mut out.reach);
+            let (hits, _) = self.cosine_hits(x, Purpose::DrtSceneGather, &mut reach);
             out.hits = hits;
         }
+        out.reach = reach.finish();
         out
     }
 
@@ -368,7 +370,7 @@ impl<'a> RayPass<'a> {
         &self,
         x: usize,
         purpose: Purpose,
-        reach: &mut RayReach,
+        reach: &mut ReachRecorder,
     ) -> (Vec<(u32, u32)>, f64) {
         let (g, tracer) = (self.g, self.tracer);
         let settings = &self.scene.settings;
@@ -398,11 +400,13 @@ impl<'a> RayPass<'a> {
 
     /// Traces clutter texel `x` (cosine-weighted rays from its lit side).
     pub fn trace_clutter_texel(&self, x: usize) -> ClutterTexelRays {
-        let mut out = ClutterTexelRays::default();
-        let (hits, back) = self.cosine_hits(x, Purpose::DrtClutter, &mut out.reach);
-        out.hits = hits;
-        out.back = back;
-        out
+        let mut reach = ReachRecorder::default();
+        let (hits, back) = self.cosine_hits(x, Purpose::DrtClutter, &mut reach);
+        ClutterTexelRays {
+            hits,
+            back,
+            reach: reach.finish(),
+        }
     }
 }
 
@@ -678,33 +682,40 @@ pub fn trace_clutter_unit(
     ))
 }
 
-/// Runs both passes unit by unit, reusing what `cache` holds and storing the new units.
+/// Runs both passes, reusing what `cache` holds and storing the new units. Units run side by
+/// side as well as their texels (a unit's lookup, reuse test and store are sequential, and
+/// would leave a core idle), and are taken in order.
 pub fn trace_all(
     pass: &RayPass,
     cache: Option<&DrtRayCache>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> std::io::Result<RayPassResults> {
+    type Units<T> = std::io::Result<Vec<(Vec<T>, UnitCounts)>>;
+    let (blocks, clutter): (Units<BlockTexelRays>, Units<ClutterTexelRays>) = rayon::join(
+        || {
+            (0..pass.scene.blocks.len())
+                .into_par_iter()
+                .map(|b| trace_block_unit(pass, b, cache, progress))
+                .collect()
+        },
+        || {
+            (0..pass.scene.clutter.len())
+                .into_par_iter()
+                .map(|c| trace_clutter_unit(pass, c, cache, progress))
+                .collect()
+        },
+    );
+    let (blocks, clutter) = (blocks?, clutter?);
     let mut total = UnitCounts::default();
-    let mut add = |c: UnitCounts| {
+    let counts = blocks.iter().map(|(_, c)| c);
+    for c in counts.chain(clutter.iter().map(|(_, c)| c)) {
         total.traced += c.traced;
         total.reused += c.reused;
         total.culled += c.culled;
-    };
-    let mut block = Vec::with_capacity(pass.gb.texels.len());
-    for b in 0..pass.scene.blocks.len() {
-        let (texels, counts) = trace_block_unit(pass, b, cache, progress)?;
-        block.extend(texels);
-        add(counts);
-    }
-    let mut clutter = Vec::with_capacity(pass.g.texels.len() - pass.gb.texels.len());
-    for c in 0..pass.scene.clutter.len() {
-        let (texels, counts) = trace_clutter_unit(pass, c, cache, progress)?;
-        clutter.extend(texels);
-        add(counts);
     }
     Ok(RayPassResults {
-        block,
-        clutter,
+        block: blocks.into_iter().flat_map(|(t, _)| t).collect(),
+        clutter: clutter.into_iter().flat_map(|(t, _)| t).collect(),
         traced_texels: total.traced,
         reused_texels: total.reused,
         culled_texels: total.culled,

@@ -51,27 +51,56 @@ fn tangents(axis: usize) -> (usize, usize) {
     }
 }
 
-impl RayReach {
-    /// A reach that meets every box: for a texel whose rays were not traced, so that nothing
-    /// is ever concluded from them.
-    pub fn everywhere() -> RayReach {
-        RayReach {
-            cells: vec![(EVERYWHERE, f32::INFINITY)],
+/// Cells of a whole cube map.
+const ALL_CELLS: usize = 6 * CELLS * CELLS;
+
+/// A [`RayReach`] being recorded: the longest segment per cell in a dense table (a texel's
+/// 1,024 rays each update one slot, where a sorted list took a search and insertions), turned
+/// into the sparse form by [`ReachRecorder::finish`].
+#[derive(Clone, Debug)]
+pub struct ReachRecorder {
+    /// Per cell, the longest segment recorded; −∞ where none was.
+    longest: [f32; ALL_CELLS],
+}
+
+impl Default for ReachRecorder {
+    fn default() -> ReachRecorder {
+        ReachRecorder {
+            longest: [f32::NEG_INFINITY; ALL_CELLS],
         }
     }
+}
 
+impl ReachRecorder {
     /// Records a segment from the origin along unit direction `d` of length `t` (∞: escaped).
     pub fn add(&mut self, d: [f64; 3], t: f64) {
-        let cell = cell_of(d);
         // Rounded up so the stored length never falls short of the segment.
         let len = if t.is_finite() {
             (t * (1.0 + 1e-6) + 1e-9) as f32
         } else {
             f32::INFINITY
         };
-        match self.cells.binary_search_by_key(&cell, |c| c.0) {
-            Ok(i) => self.cells[i].1 = self.cells[i].1.max(len),
-            Err(i) => self.cells.insert(i, (cell, len)),
+        let slot = &mut self.longest[cell_of(d) as usize];
+        *slot = slot.max(len);
+    }
+
+    /// The cells that hold a segment, ascending, with their longest.
+    pub fn finish(&self) -> RayReach {
+        RayReach {
+            cells: (0..ALL_CELLS)
+                .filter(|&c| self.longest[c] != f32::NEG_INFINITY)
+                .map(|c| (c as u8, self.longest[c]))
+                .collect(),
+        }
+    }
+}
+
+impl RayReach {
+    /// A reach that meets every box: for a texel whose rays were not traced, so that nothing
+    /// is ever concluded from them.
+    pub fn everywhere() -> RayReach {
+        RayReach {
+            cells: vec![(EVERYWHERE, f32::INFINITY)],
         }
     }
 
@@ -154,14 +183,15 @@ mod tests {
     fn never_misses_a_box_a_segment_meets_and_rules_out_most_others() {
         let origin = [0.3, 0.2, -0.1];
         let n = [0.0, 0.0, 1.0];
-        let mut reach = RayReach::default();
+        let mut recorder = ReachRecorder::default();
         let mut segments = Vec::new();
         for i in 0..512 {
             let d = to_world(sample_cosine_hemisphere(sobol_2d(7, i)), n);
             let t = 0.5 + 3.0 * sobol_2d(9, i)[0];
-            reach.add(d, t);
+            recorder.add(d, t);
             segments.push((d, t));
         }
+        let reach = recorder.finish();
         let (mut ruled_out, mut total) = (0, 0);
         for i in 0..4000u32 {
             let u = sobol_2d(11, i);
@@ -195,8 +225,9 @@ mod tests {
 
     #[test]
     fn an_escaped_ray_reaches_everything_in_its_cell_only() {
-        let mut reach = RayReach::default();
-        reach.add([0.0, 0.0, 1.0], f64::INFINITY);
+        let mut recorder = ReachRecorder::default();
+        recorder.add([0.0, 0.0, 1.0], f64::INFINITY);
+        let reach = recorder.finish();
         let far_ahead = [[-0.1, -0.1, 1e6], [0.1, 0.1, 1e6 + 1.0]];
         let behind = [[-0.1, -0.1, -5.0], [0.1, 0.1, -4.0]];
         assert!(reach.meets([0.0; 3], &far_ahead, 0.0));

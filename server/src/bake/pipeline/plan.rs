@@ -10,6 +10,8 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
+use rayon::prelude::*;
+
 use lightfarm_proto::box_symmetry::BoxSymmetry;
 use lightfarm_proto::scene::Scene;
 
@@ -114,19 +116,30 @@ impl ShapePlan {
     /// `i`): the shape's own for an identity block, else the shape's seen through the block's
     /// symmetry, made once per distinct (shape, symmetry) and shared by the blocks using it.
     pub fn block_operators(&self, unique: &[Arc<ShapeOperators>]) -> Vec<Arc<ShapeOperators>> {
-        let mut instances: HashMap<(usize, BoxSymmetry), Arc<ShapeOperators>> = HashMap::new();
+        // Each distinct (shape, symmetry) pair is permuted once, one pair per core, in the
+        // order blocks first need it.
+        let mut pairs: Vec<(usize, BoxSymmetry, usize)> = Vec::new();
+        for b in 0..self.specs.len() {
+            let (shape, g) = (self.shape_index[b], self.symmetry[b]);
+            if !g.is_identity() && !pairs.iter().any(|&(s, h, _)| s == shape && h == g) {
+                pairs.push((shape, g, b));
+            }
+        }
+        let instances: Vec<Arc<ShapeOperators>> = pairs
+            .par_iter()
+            .map(|&(shape, g, b)| Arc::new(instance_operators(&unique[shape], &self.specs[b], g)))
+            .collect();
         (0..self.specs.len())
             .map(|b| {
                 let (shape, g) = (self.shape_index[b], self.symmetry[b]);
                 if g.is_identity() {
                     return unique[shape].clone();
                 }
-                instances
-                    .entry((shape, g))
-                    .or_insert_with(|| {
-                        Arc::new(instance_operators(&unique[shape], &self.specs[b], g))
-                    })
-                    .clone()
+                let i = pairs
+                    .iter()
+                    .position(|&(s, h, _)| s == shape && h == g)
+                    .expect("every pair was permuted");
+                instances[i].clone()
             })
             .collect()
     }
