@@ -23,6 +23,7 @@
 use std::io::Read;
 
 use crate::wire::{checksum, Reader, WireError, Writer};
+use crate::work_queue::{cores, map_in_order};
 
 pub const MAGIC: &[u8; 8] = b"LFBUNDLE";
 /// Kind of the closing table-of-contents section.
@@ -105,39 +106,16 @@ pub fn compress_section(raw: &[u8], level: i32) -> Option<Vec<u8>> {
 /// as many threads as there are cores (the bytes do not depend on how many).
 fn compress_frames(raw: &[u8], level: i32, frame: usize) -> std::io::Result<Vec<u8>> {
     let pieces: Vec<&[u8]> = raw.chunks(frame).collect();
-    let threads = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .min(pieces.len());
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let mut frames: Vec<(usize, std::io::Result<Vec<u8>>)> = std::thread::scope(|scope| {
-        let workers: Vec<_> = (0..threads)
-            .map(|_| {
-                scope.spawn(|| {
-                    let mut done = Vec::new();
-                    loop {
-                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        let Some(piece) = pieces.get(i) else {
-                            return done;
-                        };
-                        // Shrunk to its length: a frame is allocated at its raw size's bound,
-                        // and a large section's frames are all held until they are joined.
-                        let frame = zstd::bulk::compress(piece, level).map(|mut f| {
-                            f.shrink_to_fit();
-                            f
-                        });
-                        done.push((i, frame));
-                    }
-                })
-            })
-            .collect();
-        workers
-            .into_iter()
-            .flat_map(|w| w.join().expect("a frame compressor panicked"))
-            .collect()
+    let frames = map_in_order(&pieces, cores(), |_, piece| {
+        // Shrunk to its length: a frame is allocated at its raw size's bound, and a large
+        // section's frames are all held until they are joined.
+        zstd::bulk::compress(piece, level).map(|mut f| {
+            f.shrink_to_fit();
+            f
+        })
     });
-    frames.sort_by_key(|(i, _)| *i);
     let mut joined = Vec::new();
-    for (_, f) in frames {
+    for f in frames {
         joined.extend_from_slice(&f?);
     }
     Ok(joined)

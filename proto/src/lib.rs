@@ -19,6 +19,7 @@
 //! - [`wire`]: the little-endian encoding the bundle and the operator cache share.
 //! - [`dnrt_grid`]: one dynamic object's DNRT transfer grid (codecs, ranges, placement).
 //! - [`sh`], [`sh_rotation`]: the SH convention and rotation of SH coefficients.
+//! - [`work_queue`]: the bundle writer's parallel map (jobs in order on scoped threads).
 //! - `glam`: the vector crate, re-exported, so the client (which depends on this crate only)
 //!   writes its f32 geometry (`Vec3`) with the same types the server uses.
 //! - `testing` (feature `testing`, tests only): seeded hand-built bundles for the decoder
@@ -44,5 +45,6 @@ pub mod sh_rotation;
 #[cfg(feature = "testing")]
 pub mod testing;
 pub mod wire;
+pub mod work_queue;
 
 pub use face::Face;

@@ -15,6 +15,7 @@ use crate::codec::{
     choose_encoding, read_matrix, u8_step_name, write_matrix_smallest, CodecPolicy, MatrixCodec,
 };
 use crate::wire::{Reader, WireError, Writer};
+use crate::work_queue::map_in_order;
 
 use super::{BundleError, EncodeOptions, EncodeReport, Matrix};
 
@@ -151,40 +152,15 @@ impl<'a> MatrixEncoder<'a> {
         let Mode::Collect(jobs) = self.mode else {
             panic!("encode_listed on an encoder that did not list");
         };
-        let next = std::sync::atomic::AtomicUsize::new(0);
-        let mut done: Vec<(usize, MatrixEncoding)> = std::thread::scope(|scope| {
-            let workers: Vec<_> = (0..threads.max(1))
-                .map(|_| {
-                    scope.spawn(|| {
-                        let mut mine = Vec::new();
-                        loop {
-                            let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                            let Some(&(m, policy)) = jobs.get(k) else {
-                                break mine;
-                            };
-                            let encode = || encode_matrix(m, policy);
-                            let e = match memo {
-                                Some(memo) => memo.encoding(k, m, policy, &encode),
-                                None => encode(),
-                            };
-                            mine.push((k, e));
-                        }
-                    })
-                })
-                .collect();
-            workers
-                .into_iter()
-                .flat_map(|w| w.join().expect("a matrix encoder thread panicked"))
-                .collect()
+        let done = map_in_order(&jobs, threads, |k, &(m, policy)| {
+            let encode = || encode_matrix(m, policy);
+            match memo {
+                Some(memo) => memo.encoding(k, m, policy, &encode),
+                None => encode(),
+            }
         });
-        done.sort_unstable_by_key(|(k, _)| *k);
         MatrixEncoder {
-            mode: Mode::Replay(
-                done.into_iter()
-                    .map(|(_, e)| e)
-                    .collect::<Vec<_>>()
-                    .into_iter(),
-            ),
+            mode: Mode::Replay(done.into_iter()),
             ..MatrixEncoder::new(options)
         }
     }

@@ -62,7 +62,7 @@ impl Bundle {
     /// encoded on every core (a first pass lists them; each matrix's bytes are its own), then
     /// written in file order: the same bytes and report as one thread.
     pub fn encode_with(&self, options: &EncodeOptions) -> (Vec<u8>, EncodeReport) {
-        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let threads = crate::work_queue::cores();
         self.encode_on(options, threads)
     }
 

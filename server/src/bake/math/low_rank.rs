@@ -514,16 +514,7 @@ mod tests {
             assert_eq!(energy_rank(wide.as_ref(), tol).unwrap(), k, "decay {decay}");
         }
         // Hit fractions: ~6% nonzero, a few hits of 1/1024 each, plus one strong column.
-        let hits = Mat::from_fn(300, 120, |i, j| {
-            let x = crate::bake::math::sampling::mix64((i * 120 + j) as u64 + 77);
-            let strong = if j == 7 { 0.004 } else { 0.0 };
-            strong
-                + if x.is_multiple_of(16) {
-                    (1 + x % 3) as f64 / 1024.0
-                } else {
-                    0.0
-                }
-        });
+        let hits = hit_fractions((300, 120), 77, 16, 0.004);
         for tol in [1e-1, 1e-2, 1e-3] {
             let s = hits.singular_values().unwrap();
             let k = energy_rank(hits.as_ref(), tol).unwrap();
@@ -559,16 +550,7 @@ mod tests {
             }
         }
         assert!(proven > 100, "only {proven} bounds proven");
-        let hits = Mat::from_fn(600, 256, |i, j| {
-            let x = crate::bake::math::sampling::mix64((i * 256 + j) as u64 + 91);
-            let strong = if j == 7 { 0.02 } else { 0.0 };
-            strong
-                + if x.is_multiple_of(5) {
-                    (1 + x % 3) as f64 / 1024.0
-                } else {
-                    0.0
-                }
-        });
+        let hits = hit_fractions((600, 256), 91, 5, 0.02);
         let tol = 1e-5;
         let k = energy_rank(hits.as_ref(), tol).unwrap();
         assert!(k > 200, "rank {k}");
@@ -619,6 +601,21 @@ mod tests {
                 assert!(gap < 1e-8, "decay {decay}: projectors {gap:.1e} apart");
             }
         }
+    }
+
+    /// Ray-hit fractions like the exact gather's: one entry in `every` holds 1–3 hits of 1/1024
+    /// (seeded), and column 7 adds `strong` everywhere.
+    fn hit_fractions((rows, cols): (usize, usize), seed: u64, every: u64, strong: f64) -> Mat<f64> {
+        Mat::from_fn(rows, cols, |i, j| {
+            let x = crate::bake::math::sampling::mix64((i * cols + j) as u64 + seed);
+            let column = if j == 7 { strong } else { 0.0 };
+            column
+                + if x.is_multiple_of(every) {
+                    (1 + x % 3) as f64 / 1024.0
+                } else {
+                    0.0
+                }
+        })
     }
 
     /// `Q1 diag(σ) Q2ᵀ`: a matrix with singular values `sigma`.
