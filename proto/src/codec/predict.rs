@@ -29,11 +29,9 @@ pub(super) fn u8_form(
     cols: usize,
     plain: MatrixCodec,
 ) -> ((MatrixCodec, u16), Vec<u8>) {
-    let mut hist = [0u64; 256];
-    for &b in q {
-        hist[b as usize] += 1;
-    }
-    let plain_bits = entropy_bits(&hist);
+    let mut counts = ByteCounts::default();
+    counts.add(q);
+    let plain_bits = entropy_bits(&counts.total());
     let lines = to_lines(q, rows, cols, plain.per_column());
     let (width, predicted_bits) = best_predictor_width(&lines, line_len(rows, cols, plain));
     if predicted_bits + 16.0 < plain_bits {
@@ -82,51 +80,93 @@ pub(super) fn predict(line: &[u8], k: usize, width: usize) -> u8 {
 }
 
 /// The LOCO-I / JPEG-LS median of (left, up, left + up − upleft): always within [min, max]
-/// of left and up.
+/// of left and up. Written as `left + up − upleft` clamped to [min, max] of left and up (the
+/// same value in every case: above both, it is the smaller; below both, the larger), without
+/// branches, so that a row of residuals vectorizes.
 #[inline]
 fn median(left: u8, up: u8, upleft: u8) -> u8 {
-    let (a, b, c) = (left as i32, up as i32, upleft as i32);
-    let p = if c >= a.max(b) {
-        a.min(b)
-    } else if c <= a.min(b) {
-        a.max(b)
-    } else {
-        a + b - c
-    };
-    p as u8
+    let (a, b, c) = (left as i16, up as i16, upleft as i16);
+    (a + b - c).clamp(a.min(b), a.max(b)) as u8
 }
 
-/// Counts `(q − prediction) mod 256` of every value of one line into `hist`: what
-/// [`predict`] gives, walked image row by image row so that no element needs a division or a
-/// branch on its position.
-pub(super) fn add_residuals(line: &[u8], width: usize, hist: &mut [u64; 256]) {
+/// `(q − prediction) mod 256` of every value of one line, into `dst` (as long as the line):
+/// what [`predict`] gives, walked image row by image row so that no element needs a division
+/// or a branch on its position.
+pub(super) fn residuals_into(line: &[u8], width: usize, dst: &mut [u8]) {
     let n = line.len();
+    assert_eq!(dst.len(), n, "one residual per value");
     if n == 0 {
         return;
     }
     // The first value has no neighbour; the rest of the first image row (all of the line for
     // width 0) predicts from the left.
-    hist[line[0] as usize] += 1;
+    dst[0] = line[0];
     let first_row = if width == 0 { n } else { width.min(n) };
     for k in 1..first_row {
-        hist[line[k].wrapping_sub(line[k - 1]) as usize] += 1;
+        dst[k] = line[k].wrapping_sub(line[k - 1]);
     }
     let mut start = first_row;
     while start < n {
         let end = (start + width).min(n);
         // A row's first value predicts from above, the others by the median.
-        hist[line[start].wrapping_sub(line[start - width]) as usize] += 1;
-        for k in start + 1..end {
-            let p = median(line[k - 1], line[k - width], line[k - width - 1]);
-            hist[line[k].wrapping_sub(p) as usize] += 1;
+        dst[start] = line[start].wrapping_sub(line[start - width]);
+        let (row, up) = (&line[start..end], &line[start - width..end - width]);
+        let out = &mut dst[start..end];
+        for i in 1..row.len() {
+            out[i] = row[i].wrapping_sub(median(row[i - 1], up[i], up[i - 1]));
         }
         start = end;
     }
 }
 
+/// A byte histogram counted in four interleaved tables, so that a run of one value (residuals
+/// are mostly 0) does not wait on its own previous increment; [`ByteCounts::total`] sums them.
+pub(super) struct ByteCounts([[u64; 256]; 4]);
+
+impl Default for ByteCounts {
+    fn default() -> ByteCounts {
+        ByteCounts([[0; 256]; 4])
+    }
+}
+
+impl ByteCounts {
+    pub(super) fn add(&mut self, bytes: &[u8]) {
+        let [t0, t1, t2, t3] = &mut self.0;
+        let quads = bytes.chunks_exact(4);
+        for &b in quads.remainder() {
+            t0[b as usize] += 1;
+        }
+        for q in quads {
+            t0[q[0] as usize] += 1;
+            t1[q[1] as usize] += 1;
+            t2[q[2] as usize] += 1;
+            t3[q[3] as usize] += 1;
+        }
+    }
+
+    pub(super) fn total(&self) -> [u64; 256] {
+        std::array::from_fn(|v| self.0.iter().map(|t| t[v]).sum())
+    }
+}
+
+/// Counts `(q − prediction) mod 256` of every value of one line into `counts`, through
+/// `scratch` (any contents; left holding the residuals).
+pub(super) fn add_residuals(
+    line: &[u8],
+    width: usize,
+    counts: &mut ByteCounts,
+    scratch: &mut Vec<u8>,
+) {
+    scratch.resize(line.len(), 0);
+    residuals_into(line, width, scratch);
+    counts.add(scratch);
+}
+
 /// Appends `(q − prediction) mod 256` of every value of one line.
 pub(super) fn push_residuals(line: &[u8], width: usize, out: &mut Vec<u8>) {
-    out.extend((0..line.len()).map(|k| line[k].wrapping_sub(predict(line, k, width))));
+    let start = out.len();
+    out.resize(start + line.len(), 0);
+    residuals_into(line, width, &mut out[start..]);
 }
 
 /// Turns one line of residuals back into its q, in place.
@@ -162,20 +202,48 @@ fn entropy_bits(hist: &[u64; 256]) -> f64 {
 /// and ≥ n predict exactly like 0 and are never chosen.
 pub fn best_predictor_width(lines: &[u8], n: usize) -> (u16, f64) {
     let mut best = (0u16, f64::INFINITY);
+    let mut scratch = Vec::with_capacity(n);
     for width in std::iter::once(0).chain(PREDICTOR_WIDTHS) {
         if width != 0 && width as usize >= n {
             continue;
         }
-        let mut hist = [0u64; 256];
+        let mut counts = ByteCounts::default();
         if n > 0 {
             for line in lines.chunks_exact(n) {
-                add_residuals(line, width as usize, &mut hist);
+                add_residuals(line, width as usize, &mut counts, &mut scratch);
             }
         }
-        let bits = entropy_bits(&hist);
+        let bits = entropy_bits(&counts.total());
         if bits < best.1 {
             best = (width, bits);
         }
     }
     best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::median;
+
+    /// The branchless median is LOCO-I's, case by case, for every byte triple.
+    #[test]
+    fn median_is_the_loco_i_predictor_for_every_triple() {
+        let loco_i = |a: i32, b: i32, c: i32| {
+            if c >= a.max(b) {
+                a.min(b)
+            } else if c <= a.min(b) {
+                a.max(b)
+            } else {
+                a + b - c
+            }
+        };
+        for a in 0..=255u8 {
+            for b in 0..=255u8 {
+                for c in 0..=255u8 {
+                    let want = loco_i(a as i32, b as i32, c as i32);
+                    assert_eq!(median(a, b, c) as i32, want, "({a}, {b}, {c})");
+                }
+            }
+        }
+    }
 }

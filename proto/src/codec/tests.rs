@@ -2,7 +2,7 @@
 //! predicted forms decode to the bits of the plain ones and have the documented bytes, and a
 //! budget picks the smallest codec that fits.
 
-use super::predict::{add_residuals, predict, to_lines};
+use super::predict::{add_residuals, predict, push_residuals, to_lines, ByteCounts};
 use super::quantize::quantize_matrix;
 use super::*;
 use crate::wire::{Reader, Writer};
@@ -408,9 +408,9 @@ fn noise_keeps_the_plain_form() {
 }
 
 proptest! {
-    /// The encoder's residual histogram (walked by image rows) counts exactly what
-    /// [`predict`] gives element by element, for every width: 0, 1, inside the line, the
-    /// line's length and beyond.
+    /// The encoder's residuals (walked by image rows) and their histogram (counted in four
+    /// tables) are exactly what [`predict`] gives element by element, for every width: 0, 1,
+    /// inside the line, the line's length and beyond.
     #[test]
     fn residual_histogram_is_predict_element_by_element(
         line in proptest::collection::vec(any::<u8>(), 0..200),
@@ -421,9 +421,18 @@ proptest! {
             for k in 0..line.len() {
                 want[line[k].wrapping_sub(predict(&line, k, w)) as usize] += 1;
             }
-            let mut got = [0u64; 256];
-            add_residuals(&line, w, &mut got);
-            prop_assert_eq!(got, want, "width {}", w);
+            let mut got = ByteCounts::default();
+            let mut scratch = vec![7u8; 3];
+            add_residuals(&line, w, &mut got, &mut scratch);
+            prop_assert_eq!(got.total(), want, "width {}", w);
+            // And the residuals themselves, appended after what a buffer holds.
+            let mut pushed = vec![1u8, 2];
+            push_residuals(&line, w, &mut pushed);
+            let each: Vec<u8> = (0..line.len())
+                .map(|k| line[k].wrapping_sub(predict(&line, k, w)))
+                .collect();
+            prop_assert_eq!(&pushed[..2], &[1u8, 2][..]);
+            prop_assert_eq!(&pushed[2..], &each[..], "width {}", w);
         }
     }
 }
