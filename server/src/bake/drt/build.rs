@@ -30,7 +30,7 @@
 //!
 //! Invariant: deterministic per texel stream; rows are global texel indices, ascending.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 
 use faer::Mat;
@@ -345,26 +345,19 @@ fn clutter_projections(
 /// Row-major copies of every block's `L_imp`, one per distinct shape (blocks sharing a shape
 /// share the copy), the distinct shapes copied one per core.
 pub fn l_imp_rows(shapes: &[&ShapeOperators]) -> Vec<Arc<RowMajor>> {
-    let mut distinct: Vec<*const ShapeOperators> = Vec::new();
+    // Distinct shapes (by address) in first-use order, and each block's among them.
+    let mut index: HashMap<*const ShapeOperators, usize> = HashMap::new();
+    let mut distinct: Vec<&ShapeOperators> = Vec::new();
     let which: Vec<usize> = shapes
         .iter()
-        .map(|s| {
-            let ptr = *s as *const ShapeOperators;
-            distinct.iter().position(|p| *p == ptr).unwrap_or_else(|| {
-                distinct.push(ptr);
+        .map(|&s| {
+            *index.entry(s as *const ShapeOperators).or_insert_with(|| {
+                distinct.push(s);
                 distinct.len() - 1
             })
         })
         .collect();
-    let firsts: Vec<&ShapeOperators> = (0..distinct.len())
-        .map(|d| {
-            shapes[which
-                .iter()
-                .position(|&w| w == d)
-                .expect("each shape is some block's")]
-        })
-        .collect();
-    let rows: Vec<Arc<RowMajor>> = firsts
+    let rows: Vec<Arc<RowMajor>> = distinct
         .par_iter()
         .map(|s| Arc::new(RowMajor::of(&s.l_imp)))
         .collect();

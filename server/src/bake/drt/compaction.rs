@@ -78,26 +78,30 @@ fn factor(
     max_values: usize,
     cache: Option<&FactorCache>,
 ) -> Result<Factors, LowRankError> {
-    let cache = cache.filter(|_| m.nrows() * m.ncols() >= MIN_VALUES);
-    let key = cache.map(|_| FactorCache::key(m, tolerance, max_values));
-    factor_lazily(key, || m, tolerance, max_values, cache)
+    let size = (m.nrows(), m.ncols());
+    let key = || FactorCache::key(m, tolerance, max_values);
+    factor_lazily(size, key, || m, tolerance, max_values, cache)
 }
 
-/// [`factor`] of the matrix `build` makes, looked up in `cache` under `key` (which names that
-/// matrix exactly) first: on a hit the matrix is never built.
+/// [`factor`] of the `size` matrix `build` makes, looked up in `cache` under `key()` (which
+/// names that matrix exactly) first: on a hit the matrix is never built. Matrices smaller than
+/// [`MIN_VALUES`] are factored without the cache (nor a key).
 fn factor_lazily<M: std::borrow::Borrow<Mat<f64>>>(
-    key: Option<String>,
+    (rows, cols): (usize, usize),
+    key: impl FnOnce() -> String,
     build: impl FnOnce() -> M,
     tolerance: f64,
     max_values: usize,
     cache: Option<&FactorCache>,
 ) -> Result<Factors, LowRankError> {
-    let cached = cache.zip(key.as_deref());
-    if let Some(hit) = cached.and_then(|(cache, key)| cache.get(key)) {
+    let cached = cache
+        .filter(|_| rows * cols >= MIN_VALUES)
+        .map(|cache| (cache, key()));
+    if let Some(hit) = cached.as_ref().and_then(|(cache, key)| cache.get(key)) {
         return Ok(hit);
     }
     let factors = factor_now(build().borrow(), tolerance, max_values)?;
-    if let Some((cache, key)) = cached {
+    if let Some((cache, key)) = &cached {
         if let Err(e) = cache.put(key, &factors) {
             // Only a later rebake's time depends on it.
             tracing::warn!(error = %e, "could not store a DRT factorisation in the cache");
@@ -121,18 +125,17 @@ fn factor_now(m: &Mat<f64>, tolerance: f64, max_values: usize) -> Result<Factors
             || k * (rows + cols) > max_values
     };
     // Most candidates are refused (the exact gather's ray-hit fractions are noise-like, of
-    // high rank): part of the spectrum proves most refusals, the singular values alone tell the
-    // rest, without forming the vectors. Refused when the estimate less the margin is too big,
-    // i.e. when the rank is above the largest size kept plus the margin.
+    // high rank), without forming the vectors: refused when the rank is above the largest size
+    // kept plus the margin, which part of the spectrum proves for most, and the singular values
+    // alone tell for the rest.
     let largest_kept = (0..=rows.min(cols))
         .take_while(|&k| !too_big(k))
         .last()
         .unwrap_or(0);
-    if rank_surely_exceeds(m.as_ref(), tolerance, largest_kept + PRESCREEN_MARGIN)? {
-        return Ok(None);
-    }
-    let estimate = energy_rank(m.as_ref(), tolerance)?;
-    if too_big(estimate.saturating_sub(PRESCREEN_MARGIN)) {
+    let limit = largest_kept + PRESCREEN_MARGIN;
+    if rank_surely_exceeds(m.as_ref(), tolerance, limit)?
+        || energy_rank(m.as_ref(), tolerance)? > limit
+    {
         return Ok(None);
     }
     let svd = truncated_svd(m.as_ref(), tolerance)?;
@@ -297,9 +300,8 @@ pub fn compact_gather(
                     .map(move |(&c, &v)| ((c - first) as usize, v))
             };
             let size = (rows.len(), count as usize);
-            let cache = cache.filter(|_| size.0 * size.1 >= MIN_VALUES);
             let max_values = 2 * nnz_of[ri];
-            let key = cache.map(|_| {
+            let key = || {
                 let describe = |h: &mut blake3::Hasher| {
                     // (row, column, value bits) per nonzero, a row's worth per update.
                     let mut bytes = Vec::new();
@@ -320,7 +322,7 @@ pub fn compact_gather(
                     size,
                     describe,
                 )
-            });
+            };
             let build = || {
                 let mut dense = Mat::<f64>::zeros(size.0, size.1);
                 for (r, &(i, _)) in rows.iter().enumerate() {
@@ -330,7 +332,7 @@ pub fn compact_gather(
                 }
                 dense
             };
-            factor_lazily(key, build, gather_tolerance, max_values, cache)
+            factor_lazily(size, key, build, gather_tolerance, max_values, cache)
         })
         .collect::<Result<_, LowRankError>>()?;
     let mut factored_ranges = vec![false; ranges.len()];

@@ -116,13 +116,17 @@ impl ShapePlan {
     /// `i`): the shape's own for an identity block, else the shape's seen through the block's
     /// symmetry, made once per distinct (shape, symmetry) and shared by the blocks using it.
     pub fn block_operators(&self, unique: &[Arc<ShapeOperators>]) -> Vec<Arc<ShapeOperators>> {
-        // Each distinct (shape, symmetry) pair is permuted once, one pair per core, in the
-        // order blocks first need it.
+        // Each distinct (shape, symmetry) pair is permuted once, one pair per core; `index`
+        // numbers the pairs in the order blocks first need them.
+        let mut index: HashMap<(usize, BoxSymmetry), usize> = HashMap::new();
         let mut pairs: Vec<(usize, BoxSymmetry, usize)> = Vec::new();
         for b in 0..self.specs.len() {
             let (shape, g) = (self.shape_index[b], self.symmetry[b]);
-            if !g.is_identity() && !pairs.iter().any(|&(s, h, _)| s == shape && h == g) {
-                pairs.push((shape, g, b));
+            if !g.is_identity() {
+                index.entry((shape, g)).or_insert_with(|| {
+                    pairs.push((shape, g, b));
+                    pairs.len() - 1
+                });
             }
         }
         let instances: Vec<Arc<ShapeOperators>> = pairs
@@ -135,11 +139,7 @@ impl ShapePlan {
                 if g.is_identity() {
                     return unique[shape].clone();
                 }
-                let i = pairs
-                    .iter()
-                    .position(|&(s, h, _)| s == shape && h == g)
-                    .expect("every pair was permuted");
-                instances[i].clone()
+                instances[index[&(shape, g)]].clone()
             })
             .collect()
     }
