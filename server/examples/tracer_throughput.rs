@@ -4,15 +4,19 @@
 //! The tracer traverses an 8-wide BVH of its own (`bake::tracer::bvh8`), so the obvhs-alone
 //! lines say what that traversal and the f64-exact answer gain or cost against obvhs's.
 //!
-//! `cargo run --release -p lightfarm-server --example tracer_throughput -- SCENE.json [RAYS] [--obvhs-alone]`
+//! `cargo run --release -p lightfarm-server --example tracer_throughput -- SCENE.json [RAYS] [--obvhs-alone] [--instruction-sets]`
 //!
-//! One thread each, best of 3, the same rays and triangles for every line.
+//! One thread each, best of 3, the same rays and triangles for every line. `--instruction-sets`
+//! instead times the tracer's compiled copies (`InstructionSet`) against each other on the
+//! triangles, interleaved over seven rounds, and prints each one's median (and checks that
+//! every copy finds the same hits, bit for bit).
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use glam::Vec3A;
-use lightfarm_server::bake::scene::geometry::Geometry;
+use lightfarm_server::bake::scene::geometry::{Geometry, Primitive};
+use lightfarm_server::bake::tracer::{InstructionSet, Tracer};
 use lightfarm_server::cli::bake::load_scene;
 use lightfarm_server::cli::bench::throughput::{measure_throughput, texel_rays, triangle_soup};
 use obvhs::{
@@ -35,6 +39,10 @@ fn main() -> anyhow::Result<()> {
     };
     let (scene, dir) = load_scene(Path::new(path))?;
     let geometry = Geometry::from_scene(&scene, &dir)?;
+    if args.iter().any(|a| a == "--instruction-sets") {
+        compare_instruction_sets(&geometry, rays);
+        return Ok(());
+    }
     if args.iter().any(|a| a == "--obvhs-alone") {
         let soup: Vec<Triangle> = triangle_soup(&geometry.primitives)
             .iter()
@@ -111,9 +119,73 @@ fn main() -> anyhow::Result<()> {
         t.ours_triangles_rays_per_second / 1e6,
         t.ours_native_rays_per_second / 1e6,
         embree.map_or("-".into(), |r| format!("{:.3}", r / 1e6)),
-        embree.map_or("-".into(), |r| format!("{:.3}", t.ours_triangles_rays_per_second / r)),
+        t.ours_to_embree().map_or("-".into(), |r| format!("{r:.3}")),
         t.agreement.map_or("-".into(), |a| format!("{a}")),
         t.embree_missing.unwrap_or_default()
     );
     Ok(())
+}
+
+/// Times the tracer's compiled copies against each other on the scene's triangles (the bench's
+/// triangle rays), interleaved, and checks they agree bit for bit.
+fn compare_instruction_sets(geometry: &Geometry, rays: usize) {
+    let soup = triangle_soup(&geometry.primitives);
+    let rays = texel_rays(geometry, rays, 1);
+    let tracer = |isa| {
+        Tracer::new(
+            soup.iter()
+                .map(|v| Primitive::Triangle {
+                    v: v.map(|p| p.map(|x| x as f32 as f64)),
+                    albedo: [0.5; 3],
+                    lightmap: None,
+                })
+                .collect(),
+            geometry.scale(),
+        )
+        .with_instruction_set(isa)
+    };
+    let mut sets: Vec<(Tracer, Vec<f64>)> = Vec::new();
+    for isa in [
+        InstructionSet::Baseline,
+        InstructionSet::Avx2,
+        InstructionSet::Avx512,
+    ] {
+        let t = tracer(isa);
+        if sets
+            .iter()
+            .all(|(s, _)| s.instruction_set() != t.instruction_set())
+        {
+            sets.push((t, Vec::new()));
+        }
+    }
+    let no_surfaces = |_: u32| 1.0;
+    let mut answers: Vec<Vec<Option<(u64, u32)>>> = vec![Vec::new(); sets.len()];
+    for round in 0..7 {
+        for (k, (t, times)) in sets.iter_mut().enumerate() {
+            let start = Instant::now();
+            let hits: Vec<Option<(u64, u32)>> = rays
+                .iter()
+                .map(|(o, d)| {
+                    t.closest(*o, *d, f64::INFINITY, &no_surfaces)
+                        .map(|h| (h.t.to_bits(), h.primitive))
+                })
+                .collect();
+            times.push(start.elapsed().as_secs_f64());
+            if round == 0 {
+                answers[k] = hits;
+            }
+        }
+    }
+    let first = sets[0].0.instruction_set();
+    for (k, (t, times)) in sets.iter_mut().enumerate() {
+        times.sort_by(f64::total_cmp);
+        let same = answers[k] == answers[0];
+        println!(
+            "{:?}: median {:.3} Mrays/s (best {:.3}), same hits as {:?}: {same}",
+            t.instruction_set(),
+            rays.len() as f64 / times[3] / 1e6,
+            rays.len() as f64 / times[0] / 1e6,
+            first,
+        );
+    }
 }

@@ -212,17 +212,23 @@ impl Bvh8 {
         tmax: f32,
         mut test: impl FnMut(usize) -> f32,
     ) -> f32 {
-        self.traverse_leaves(o, d, tmax, |first, count| {
-            let mut nearest = f32::INFINITY;
-            for slot in first..first + count {
-                let t = test(slot);
-                if t < 0.0 {
-                    return t;
+        self.traverse_leaves(
+            o,
+            d,
+            tmax,
+            #[inline(always)]
+            |first, count| {
+                let mut nearest = f32::INFINITY;
+                for slot in first..first + count {
+                    let t = test(slot);
+                    if t < 0.0 {
+                        return t;
+                    }
+                    nearest = nearest.min(t);
                 }
-                nearest = nearest.min(t);
-            }
-            nearest
-        })
+                nearest
+            },
+        )
     }
 
     /// [`Bvh8::traverse`] a leaf at a time: `leaf(first, count)` tests slots

@@ -280,7 +280,7 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
                     t.rays,
                     t.ours_triangles_rays_per_second / 1e6,
                     embree / 1e6,
-                    t.ours_triangles_rays_per_second / embree,
+                    t.ours_to_embree().unwrap_or(f64::NAN),
                     t.ours_native_rays_per_second / 1e6,
                     if t.measured_by.is_some() {
                         ", measured apart from the rest of this page"
@@ -435,7 +435,7 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
         let _ = writeln!(
             w,
             "Closest-hit rays from the texels of `{}` (cosine-distributed, seeded), the scene as \
-             {} triangles, {} rays, one thread each, best of 3. Embree through `embreex` \
+             {} triangles, {} rays, one thread each, best of 3 per round. Embree through `embreex` \
              (`scripts/embree_throughput.py`, `EmbreeScene.run`, one ray at a time).\n",
             t.scene, t.triangles, t.rays
         );
@@ -448,7 +448,10 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
         let _ = writeln!(w, "| tracer | Mrays/s |\n|---|---|");
         let _ = writeln!(
             w,
-            "| ours (`bake::tracer::Tracer`, 8-wide BVH), triangles | {:.3} |",
+            "| ours (`bake::tracer::Tracer`, 8-wide BVH{}), triangles | {:.3} |",
+            t.instruction_set
+                .as_deref()
+                .map_or(String::new(), |isa| format!(", its {isa} copy")),
             t.ours_triangles_rays_per_second / 1e6
         );
         let _ = writeln!(
@@ -459,11 +462,26 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
         match t.embree_rays_per_second {
             Some(e) => {
                 let _ = writeln!(w, "| Embree (embreex), triangles | {:.3} |", e / 1e6);
+                let per_round: Vec<String> = t
+                    .rounds
+                    .iter()
+                    .filter_map(|r| r.ratio())
+                    .map(|r| format!("{r:.2}"))
+                    .collect();
+                if !per_round.is_empty() {
+                    let _ = writeln!(
+                        w,
+                        "\nMedians of {} rounds, each tracing ours and then Embree; ours : Embree \
+                         per round {}.",
+                        per_round.len(),
+                        per_round.join(", ")
+                    );
+                }
                 let _ = writeln!(
                     w,
                     "\nours : Embree = **{:.2} : 1** on the same triangles and rays; hit \
                      distances agree on {:.2}% of the rays; Embree's BVH build {:.3} s.\n",
-                    t.ours_triangles_rays_per_second / e,
+                    t.ours_to_embree().unwrap_or(f64::NAN),
                     100.0 * t.agreement.unwrap_or(f64::NAN),
                     t.embree_build_seconds.unwrap_or(f64::NAN)
                 );
@@ -536,10 +554,11 @@ pub fn summary(results: &BenchResults) -> String {
         let _ = match t.embree_rays_per_second {
             Some(e) => write!(
                 s,
-                "\nrays/s: ours {:.0}, Embree {:.0}, ours:Embree = {:.2}",
+                "\nrays/s: ours {:.0}, Embree {:.0}, ours:Embree = {:.2} (median of {} rounds)",
                 t.ours_triangles_rays_per_second,
                 e,
-                t.ours_triangles_rays_per_second / e
+                t.ours_to_embree().unwrap_or(f64::NAN),
+                t.rounds.len()
             ),
             None => write!(
                 s,

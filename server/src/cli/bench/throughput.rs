@@ -22,24 +22,63 @@ use crate::bake::math::sampling::{
 use crate::bake::scene::geometry::{Geometry, Primitive};
 use crate::bake::tracer::{tangents, Tracer};
 
+/// One round of [`measure_throughput`].
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct ThroughputRound {
+    pub ours_triangles_rays_per_second: f64,
+    pub ours_native_rays_per_second: f64,
+    pub embree_rays_per_second: Option<f64>,
+}
+
+impl ThroughputRound {
+    /// Ours : Embree in this round.
+    pub fn ratio(&self) -> Option<f64> {
+        self.embree_rays_per_second
+            .map(|e| self.ours_triangles_rays_per_second / e)
+    }
+}
+
+impl Throughput {
+    /// Ours : Embree: the median of the rounds' ratios, or the rates' quotient for results
+    /// written before the rounds.
+    pub fn ours_to_embree(&self) -> Option<f64> {
+        self.ratio.or_else(|| {
+            self.embree_rays_per_second
+                .map(|e| self.ours_triangles_rays_per_second / e)
+        })
+    }
+}
+
 /// Rays per second of both tracers (None where a side could not be measured, with why).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Throughput {
     pub scene: String,
     pub triangles: usize,
     pub rays: usize,
-    /// Ours on the triangle soup, one thread (named `obvhs_…` in results before the 4-wide BVH).
+    /// Ours on the triangle soup, one thread, the median of the rounds (named `obvhs_…` in
+    /// results before the 4-wide BVH).
     #[serde(alias = "obvhs_triangles_rays_per_second")]
     pub ours_triangles_rays_per_second: f64,
-    /// Ours on the native primitives (rectangles), one thread.
+    /// Ours on the native primitives (rectangles), one thread, the median of the rounds.
     #[serde(alias = "obvhs_native_rays_per_second")]
     pub ours_native_rays_per_second: f64,
+    /// Embree, the median of the rounds.
     pub embree_rays_per_second: Option<f64>,
     pub embree_build_seconds: Option<f64>,
     /// Fraction of rays whose closest-hit distance agrees (1e-3 relative) between the two.
     pub agreement: Option<f64>,
     /// Why Embree was not measured.
     pub embree_missing: Option<String>,
+    /// Ours : Embree, the median of the rounds' ratios (None: Embree not measured, or results
+    /// from before the rounds, whose ratio is the two rates' quotient).
+    #[serde(default)]
+    pub ratio: Option<f64>,
+    /// Each round side by side ([`ROUNDS`]); the rates above are their medians.
+    #[serde(default)]
+    pub rounds: Vec<ThroughputRound>,
+    /// The tracer's compiled copy that ran (`bake::tracer::InstructionSet`).
+    #[serde(default)]
+    pub instruction_set: Option<String>,
     /// The command line of a `bench --throughput` run that measured this apart from the rest
     /// of results.json (None: measured with it).
     #[serde(default)]
@@ -117,8 +156,13 @@ fn write_f32(path: &Path, values: impl Iterator<Item = f32>) -> anyhow::Result<(
     crate::cli::write_atomic(path, &bytes)
 }
 
-/// Measures both tracers on `g`; exports to `dir` and runs `python script dir` for Embree
-/// unless `python` is None.
+/// Rounds of the comparison: each traces the rays with ours (best of 3) and then Embree (its
+/// script's best of 3), so both sides of a round's ratio share the machine's state of the
+/// moment; the ratio reported is the median of the rounds' ratios.
+pub const ROUNDS: usize = 5;
+
+/// Measures both tracers on `g`, [`ROUNDS`] rounds side by side; exports to `dir` and runs
+/// `python script dir` each round for Embree unless `python_and_script` is None.
 pub fn measure_throughput(
     scene_name: &str,
     g: &Geometry,
@@ -139,63 +183,97 @@ pub fn measure_throughput(
             .collect(),
         g.scale(),
     );
-    let (distances, ours_triangles) = trace_all(&triangle_tracer, &rays);
     let native_tracer = Tracer::new(g.primitives.clone(), g.scale());
-    let (_, ours_native) = trace_all(&native_tracer, &rays);
     let mut out = Throughput {
         scene: scene_name.to_string(),
         triangles: soup.len(),
         rays: rays.len(),
-        ours_triangles_rays_per_second: ours_triangles,
-        ours_native_rays_per_second: ours_native,
+        instruction_set: Some(format!("{:?}", triangle_tracer.instruction_set())),
         ..Throughput::default()
     };
-    let Some((python, script)) = python_and_script else {
-        out.embree_missing = Some("skipped (--no-embree)".into());
-        return Ok(out);
-    };
-    std::fs::create_dir_all(dir)?;
-    write_f32(
-        &dir.join("triangles.f32"),
-        soup.iter().flatten().flatten().map(|&x| x as f32),
-    )?;
-    write_f32(
-        &dir.join("rays.f32"),
-        rays.iter()
-            .flat_map(|(o, d)| o.iter().chain(d).map(|&x| x as f32).collect::<Vec<_>>()),
-    )?;
-    write_f32(&dir.join("obvhs_t.f32"), distances.into_iter())?;
-    let output = match Command::new(python).arg(script).arg(dir).output() {
-        Ok(output) => output,
-        Err(e) => {
-            out.embree_missing = Some(format!("cannot run {python}: {e}"));
-            return Ok(out);
+    let mut embree = match python_and_script {
+        None => {
+            out.embree_missing = Some("skipped (--no-embree)".into());
+            None
+        }
+        Some(python_and_script) => {
+            std::fs::create_dir_all(dir)?;
+            write_f32(
+                &dir.join("triangles.f32"),
+                soup.iter().flatten().flatten().map(|&x| x as f32),
+            )?;
+            write_f32(
+                &dir.join("rays.f32"),
+                rays.iter()
+                    .flat_map(|(o, d)| o.iter().chain(d).map(|&x| x as f32).collect::<Vec<_>>()),
+            )?;
+            Some(python_and_script)
         }
     };
+    for round in 0..ROUNDS {
+        let (distances, ours_triangles) = trace_all(&triangle_tracer, &rays);
+        let (_, ours_native) = trace_all(&native_tracer, &rays);
+        let mut measured = ThroughputRound {
+            ours_triangles_rays_per_second: ours_triangles,
+            ours_native_rays_per_second: ours_native,
+            embree_rays_per_second: None,
+        };
+        if let Some((python, script)) = embree {
+            if round == 0 {
+                write_f32(&dir.join("obvhs_t.f32"), distances.into_iter())?;
+            }
+            match run_embree(python, script, dir) {
+                Ok(v) => {
+                    measured.embree_rays_per_second = v["rays_per_second"].as_f64();
+                    out.embree_build_seconds = v["build_seconds"].as_f64();
+                    out.agreement = v["agreement"].as_f64();
+                }
+                Err(why) => {
+                    out.embree_missing = Some(why);
+                    embree = None;
+                }
+            }
+        }
+        out.rounds.push(measured);
+    }
+    let median = |f: &dyn Fn(&ThroughputRound) -> Option<f64>| {
+        let mut v: Vec<f64> = out.rounds.iter().filter_map(f).collect();
+        v.sort_by(f64::total_cmp);
+        (!v.is_empty()).then(|| v[v.len() / 2])
+    };
+    out.ours_triangles_rays_per_second =
+        median(&|r| Some(r.ours_triangles_rays_per_second)).unwrap_or(0.0);
+    out.ours_native_rays_per_second =
+        median(&|r| Some(r.ours_native_rays_per_second)).unwrap_or(0.0);
+    if out.embree_missing.is_none() {
+        out.embree_rays_per_second = median(&|r| r.embree_rays_per_second);
+        out.ratio = median(&|r| r.ratio());
+    }
+    Ok(out)
+}
+
+/// One run of the Embree script: its JSON line, or why there is none.
+fn run_embree(python: &str, script: &Path, dir: &Path) -> Result<serde_json::Value, String> {
+    let output = Command::new(python)
+        .arg(script)
+        .arg(dir)
+        .output()
+        .map_err(|e| format!("cannot run {python}: {e}"))?;
     let stdout = String::from_utf8_lossy(&output.stdout);
     let parsed: Option<serde_json::Value> = stdout
         .lines()
         .last()
         .and_then(|l| serde_json::from_str(l).ok());
     match parsed {
-        Some(v) if output.status.success() => {
-            out.embree_rays_per_second = v["rays_per_second"].as_f64();
-            out.embree_build_seconds = v["build_seconds"].as_f64();
-            out.agreement = v["agreement"].as_f64();
-        }
-        Some(v) if v["error"].is_string() => {
-            out.embree_missing = v["error"].as_str().map(str::to_string);
-        }
-        _ => {
-            out.embree_missing = Some(format!(
-                "{} failed ({}): {}",
-                script.display(),
-                output.status,
-                String::from_utf8_lossy(&output.stderr).trim()
-            ));
-        }
+        Some(v) if output.status.success() && v["rays_per_second"].is_number() => Ok(v),
+        Some(v) if v["error"].is_string() => Err(v["error"].as_str().unwrap_or("").to_string()),
+        _ => Err(format!(
+            "{} failed ({}): {}",
+            script.display(),
+            output.status,
+            String::from_utf8_lossy(&output.stderr).trim()
+        )),
     }
-    Ok(out)
 }
 
 #[cfg(test)]
