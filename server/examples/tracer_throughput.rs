@@ -15,10 +15,12 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use glam::Vec3A;
-use lightfarm_server::bake::scene::geometry::{Geometry, Primitive};
+use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::bake::tracer::{InstructionSet, Tracer};
 use lightfarm_server::cli::bake::load_scene;
-use lightfarm_server::cli::bench::throughput::{measure_throughput, texel_rays, triangle_soup};
+use lightfarm_server::cli::bench::throughput::{
+    measure_throughput, texel_rays, triangle_soup, triangle_tracer,
+};
 use obvhs::{
     aabb::Aabb,
     cwbvh::builder::{build_cwbvh, build_cwbvh_from_tris},
@@ -131,19 +133,7 @@ fn main() -> anyhow::Result<()> {
 fn compare_instruction_sets(geometry: &Geometry, rays: usize) {
     let soup = triangle_soup(&geometry.primitives);
     let rays = texel_rays(geometry, rays, 1);
-    let tracer = |isa| {
-        Tracer::new(
-            soup.iter()
-                .map(|v| Primitive::Triangle {
-                    v: v.map(|p| p.map(|x| x as f32 as f64)),
-                    albedo: [0.5; 3],
-                    lightmap: None,
-                })
-                .collect(),
-            geometry.scale(),
-        )
-        .with_instruction_set(isa)
-    };
+    let tracer = |isa| triangle_tracer(&soup, geometry.scale()).with_instruction_set(isa);
     let mut sets: Vec<(Tracer, Vec<f64>)> = Vec::new();
     for isa in [
         InstructionSet::Baseline,

@@ -135,7 +135,8 @@ fn leaf_packets(bvh: &Bvh8, fast: &[Fast]) -> (Vec<TrianglePacket>, Vec<LeafTest
 /// compiled more than once; `closest` and `occluded` give the same answer bit for bit on every
 /// one, since none changes an f32 or f64 operation's result: Rust never fuses a multiply and an
 /// add unless told to, and the wider sets only add registers and three-operand forms).
-#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+/// Ordered narrowest first.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Debug)]
 pub enum InstructionSet {
     /// x86-64's baseline (SSE2), or whatever the target is built for elsewhere.
     Baseline,
@@ -176,6 +177,43 @@ impl InstructionSet {
             InstructionSet::Baseline
         })
     }
+}
+
+/// `pub fn $name(&self, args) -> ret` running `$portable::<COPY>` (an `#[inline(always)]`
+/// method) as compiled for [`Tracer::instruction_set`]: `$avx2` and `$avx512` are the copies
+/// compiled with those target features, `COPY` 0, 1, 2 the baseline, AVX2 and AVX-512.
+macro_rules! compiled_copies {
+    (
+        $(#[$doc:meta])*
+        fn $name:ident, $avx2:ident, $avx512:ident = $portable:ident(
+            $($arg:ident: $ty:ty),* $(,)?
+        ) -> $ret:ty
+    ) => {
+        $(#[$doc])*
+        pub fn $name(&self, $($arg: $ty),*) -> $ret {
+            #[cfg(target_arch = "x86_64")]
+            match self.isa {
+                // SAFETY: the CPU runs the set (`isa` is at most `InstructionSet::detected`);
+                // the copies have no other contract.
+                InstructionSet::Avx512 => return unsafe { self.$avx512($($arg),*) },
+                InstructionSet::Avx2 => return unsafe { self.$avx2($($arg),*) },
+                InstructionSet::Baseline => {}
+            }
+            self.$portable::<0>($($arg),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+        unsafe fn $avx2(&self, $($arg: $ty),*) -> $ret {
+            self.$portable::<1>($($arg),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx512vl,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+        unsafe fn $avx512(&self, $($arg: $ty),*) -> $ret {
+            self.$portable::<2>($($arg),*)
+        }
+    };
 }
 
 /// A BVH over primitives.
@@ -327,12 +365,7 @@ impl Tracer {
     /// `isa` is wider than this CPU runs (for comparing the compiled copies; each gives the
     /// same answers).
     pub fn with_instruction_set(mut self, isa: InstructionSet) -> Tracer {
-        let detected = InstructionSet::detected();
-        self.isa = match (isa, detected) {
-            (InstructionSet::Avx512, InstructionSet::Avx2) => InstructionSet::Avx2,
-            (InstructionSet::Baseline, _) | (_, InstructionSet::Avx512) => isa,
-            (_, d) => d,
-        };
+        self.isa = isa.min(InstructionSet::detected());
         self
     }
 
@@ -493,53 +526,16 @@ impl Tracer {
         }
     }
 
-    /// Closest hit along `o + t·d` (d unit) with `epsilon < t < tmax`. `lit_normal_sign` gives,
-    /// for a rectangle with a surface, the sign of its lit normal along its axis; it is used to
-    /// prefer the lit side when coincident rectangles tie.
-    pub fn closest(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        tmax: f64,
-        lit_normal_sign: &dyn Fn(u32) -> f64,
-    ) -> Option<Hit> {
-        #[cfg(target_arch = "x86_64")]
-        match self.isa {
-            // SAFETY: the CPU runs the set (`isa` is at most `InstructionSet::detected`); the
-            // functions have no other contract.
-            InstructionSet::Avx512 => unsafe {
-                return self.closest_avx512(o, d, tmax, lit_normal_sign);
-            },
-            InstructionSet::Avx2 => unsafe {
-                return self.closest_avx2(o, d, tmax, lit_normal_sign);
-            },
-            InstructionSet::Baseline => {}
-        }
-        self.closest_portable::<0>(o, d, tmax, lit_normal_sign)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,avx512vl,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
-    unsafe fn closest_avx512(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        tmax: f64,
-        lit_normal_sign: &dyn Fn(u32) -> f64,
-    ) -> Option<Hit> {
-        self.closest_portable::<2>(o, d, tmax, lit_normal_sign)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
-    unsafe fn closest_avx2(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        tmax: f64,
-        lit_normal_sign: &dyn Fn(u32) -> f64,
-    ) -> Option<Hit> {
-        self.closest_portable::<1>(o, d, tmax, lit_normal_sign)
+    compiled_copies! {
+        /// Closest hit along `o + t·d` (d unit) with `epsilon < t < tmax`. `lit_normal_sign`
+        /// gives, for a rectangle with a surface, the sign of its lit normal along its axis; it
+        /// is used to prefer the lit side when coincident rectangles tie.
+        fn closest, closest_avx2, closest_avx512 = closest_portable(
+            o: [f64; 3],
+            d: [f64; 3],
+            tmax: f64,
+            lit_normal_sign: &dyn Fn(u32) -> f64,
+        ) -> Option<Hit>
     }
 
     /// `closest`'s body, inlined into each compiled copy; `COPY` tells the copies apart, so
@@ -565,6 +561,8 @@ impl Tracer {
         let mut best: Option<SureHit> = None;
         // What one primitive's verdict does to the search: its distance for the traversal,
         // or -1 for an unsure test, which ends the traversal (f64 decides from the start).
+        // (`identity` only so that the closure is an argument: an attribute on a `let`'s
+        // expression is not stable Rust, one on a call's argument is.)
         let take = std::convert::identity(
             #[inline(always)]
             |id: usize, verdict: Verdict, best: &mut Option<SureHit>, unsure: &mut bool| {
@@ -749,32 +747,13 @@ impl Tracer {
         }
     }
 
-    /// True when anything lies strictly between `from` and `to` (both ends excluded by epsilon).
-    pub fn occluded(&self, from: [f64; 3], to: [f64; 3]) -> bool {
-        #[cfg(target_arch = "x86_64")]
-        match self.isa {
-            // SAFETY: as in `closest`.
-            InstructionSet::Avx512 => unsafe {
-                return self.occluded_avx512(from, to);
-            },
-            InstructionSet::Avx2 => unsafe {
-                return self.occluded_avx2(from, to);
-            },
-            InstructionSet::Baseline => {}
-        }
-        self.occluded_portable::<0>(from, to)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,avx512vl,avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
-    unsafe fn occluded_avx512(&self, from: [f64; 3], to: [f64; 3]) -> bool {
-        self.occluded_portable::<2>(from, to)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
-    unsafe fn occluded_avx2(&self, from: [f64; 3], to: [f64; 3]) -> bool {
-        self.occluded_portable::<1>(from, to)
+    compiled_copies! {
+        /// True when anything lies strictly between `from` and `to` (both ends excluded by
+        /// epsilon).
+        fn occluded, occluded_avx2, occluded_avx512 = occluded_portable(
+            from: [f64; 3],
+            to: [f64; 3],
+        ) -> bool
     }
 
     /// `occluded`'s body; `COPY` as in `closest_portable`.

@@ -116,6 +116,20 @@ pub fn triangle_soup(primitives: &[Primitive]) -> Vec<[[f64; 3]; 3]> {
     out
 }
 
+/// Our tracer over `soup`'s triangles as f32 (what Embree reads), at the scene's `scale`.
+pub fn triangle_tracer(soup: &[[[f64; 3]; 3]], scale: f64) -> Tracer {
+    Tracer::new(
+        soup.iter()
+            .map(|v| Primitive::Triangle {
+                v: v.map(|p| p.map(|x| x as f32 as f64)),
+                albedo: [0.5; 3],
+                lightmap: None,
+            })
+            .collect(),
+        scale,
+    )
+}
+
 /// `n_rays` seeded cosine-distributed rays from the texels (cycled), origins lifted off the
 /// surface; each value is rounded to f32 (what both tracers read).
 pub fn texel_rays(g: &Geometry, n_rays: usize, seed: u64) -> Vec<([f64; 3], [f64; 3])> {
@@ -173,16 +187,7 @@ pub fn measure_throughput(
 ) -> anyhow::Result<Throughput> {
     let soup = triangle_soup(&g.primitives);
     let rays = texel_rays(g, n_rays, seed);
-    let triangle_tracer = Tracer::new(
-        soup.iter()
-            .map(|v| Primitive::Triangle {
-                v: v.map(|p| p.map(|x| x as f32 as f64)),
-                albedo: [0.5; 3],
-                lightmap: None,
-            })
-            .collect(),
-        g.scale(),
-    );
+    let triangle_tracer = triangle_tracer(&soup, g.scale());
     let native_tracer = Tracer::new(g.primitives.clone(), g.scale());
     let mut out = Throughput {
         scene: scene_name.to_string(),
