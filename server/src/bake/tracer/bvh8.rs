@@ -35,12 +35,20 @@ const COUNT_SHIFT: u32 = 27;
 const FIRST_MASK: u32 = (1 << COUNT_SHIFT) - 1;
 /// Most primitives per leaf (the count is coded in four bits).
 const MAX_LEAF: u32 = 8;
-/// The SAH cost of a traversal step against one primitive test, for the leaf collapse: obvhs's
-/// preset says 3; 1 makes smaller leaves, which pays here because the tracer's primitive test
-/// (f32 with margins) costs more than a wide box test. Measured on the bench's rays, one
-/// thread: maze triangles 4.99 (obvhs CWBVH) → 7.19 Mrays/s, rectangles 5.90 → 8.83; cost 1.5
-/// gave 7.10 / 7.25, cost 3 about 10–25% less.
-const COLLAPSE_COST: f32 = 1.0;
+/// The SAH cost of a traversal step against one primitive test, for the leaf collapse, when a
+/// leaf's primitives are tested one by one (rectangles): obvhs's preset says 3; 1 makes smaller
+/// leaves, which pays here because the tracer's primitive test (f32 with margins) costs more
+/// than a wide box test. Measured on the bench's rays, one thread: maze triangles 4.99 (obvhs
+/// CWBVH) → 7.19 Mrays/s, rectangles 5.90 → 8.83; cost 1.5 gave 7.10 / 7.25, cost 3 about
+/// 10–25% less.
+pub const COLLAPSE_COST: f32 = 1.0;
+/// [`COLLAPSE_COST`] for leaves of triangles, which the tracer tests four at a time (one packet
+/// test costs about one triangle's), so a step costs more against each triangle and larger
+/// leaves pay. Measured with the AVX-512 copy, interleaved (Mrays/s on the bench's triangle
+/// rays, one thread): maze 9.21 / 8.97 / 8.77 / 9.10 / 9.08 at cost 1 against 9.33 / 9.26 /
+/// 9.25 / 9.36 / 9.12 at 2 (1.5: in between; 3: 6-8% below cost 1); cornell_mesh +4-5%; the
+/// same cost on rectangles lost 8-20% (maze 10.1-10.8 → 8.2-8.4), hence two costs.
+pub const TRIANGLE_COLLAPSE_COST: f32 = 2.0;
 /// Entries of the traversal stack kept on the machine stack; a deeper tree (needing more than
 /// seven per level of inner nodes, plus the root) takes a heap stack instead.
 const STACK: usize = 128;
@@ -78,8 +86,10 @@ impl Boundable for Bounded {
 }
 
 impl Bvh8 {
-    /// Builds the tree over boxes (min, max), one per primitive; None when there are none.
-    pub fn build(boxes: &[(Vec3A, Vec3A)]) -> Option<Bvh8> {
+    /// Builds the tree over boxes (min, max), one per primitive, its leaves collapsed at
+    /// `collapse_cost` (a traversal step's cost against one primitive test: [`COLLAPSE_COST`],
+    /// [`TRIANGLE_COLLAPSE_COST`]); None when there are none.
+    pub fn build(boxes: &[(Vec3A, Vec3A)], collapse_cost: f32) -> Option<Bvh8> {
         if boxes.is_empty() {
             return None;
         }
@@ -89,7 +99,7 @@ impl Bvh8 {
             .collect();
         let params = BvhBuildParams {
             max_prims_per_leaf: MAX_LEAF,
-            collapse_traversal_cost: COLLAPSE_COST,
+            collapse_traversal_cost: collapse_cost,
             ..BvhBuildParams::very_slow_build()
         };
         let bvh2 = build_bvh2(&bounded, params, &mut Duration::default());
@@ -447,7 +457,7 @@ mod tests {
                     (c - h, c + h)
                 })
                 .collect();
-            let bvh = Bvh8::build(&boxes).unwrap();
+            let bvh = Bvh8::build(&boxes, COLLAPSE_COST).unwrap();
             let mut sorted = bvh.primitive_indices.clone();
             sorted.sort_unstable();
             assert_eq!(sorted, (0..n as u32).collect::<Vec<_>>());

@@ -301,7 +301,18 @@ impl Tracer {
                 (v3(lo), v3(hi))
             })
             .collect();
-        let bvh = Bvh8::build(&boxes);
+        // Leaves collapse at the cost of what most primitives are (a leaf's triangles are
+        // tested four at a time, its rectangles one by one).
+        let triangles = primitives
+            .iter()
+            .filter(|p| matches!(p, Primitive::Triangle { .. }))
+            .count();
+        let collapse_cost = if 2 * triangles > primitives.len() {
+            bvh8::TRIANGLE_COLLAPSE_COST
+        } else {
+            bvh8::COLLAPSE_COST
+        };
+        let bvh = Bvh8::build(&boxes, collapse_cost);
         let fast = bvh.as_ref().map_or(Vec::new(), |bvh| {
             let f = |x: f64| x as f32;
             let v3d = |p: DVec3| v3(p.to_array());
