@@ -22,6 +22,8 @@
 //! - No allocation per call: the 8-bit per-column form needs `3 · cols` floats of scratch, which
 //!   the caller passes (see [`PackedMatrix::scratch_len`]).
 
+use std::sync::Arc;
+
 use lightfarm_proto::bundle::Matrix;
 
 /// Rows per panel (one AVX2 register of f32).
@@ -43,6 +45,23 @@ enum Values {
         offset: Vec<f32>,
         scale: Vec<f32>,
     },
+    /// `Z' · blockdiag(Q_s)` (compact transport with shared source bases, bundle transport
+    /// kind 3): the product is taken as the two, never multiplied out.
+    Factored(Box<Factored>),
+}
+
+/// `M = Z' · blockdiag(Q_s)`: `x` is cut into the sources' segments (r_s values each), a segment
+/// with a basis becomes `Q_s · x_s` (j_s values), one without is taken as it is, and `Z'` reads
+/// the results stacked. `Z'` and every `Q_s` keep their own (8-bit or f32) packing, so the
+/// product reads the bytes the bundle shipped, not the larger f32 `Z` they unfold to.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Factored {
+    z: PackedMatrix,
+    /// Per source in `x` order: its segment's length r_s and its basis, if any (shared by
+    /// every receiver of the source).
+    sources: Vec<(usize, Option<Arc<PackedMatrix>>)>,
+    /// Rows of `Z'`'s input: Σ j_s or r_s.
+    width: usize,
 }
 
 /// An operator matrix packed for the per-frame kernels (see the module doc).
@@ -157,6 +176,29 @@ impl PackedMatrix {
         }
     }
 
+    /// `z · blockdiag(Q_s)` for the sources `(r_s, basis)` in order (a source without a basis
+    /// reads its r_s values as they are): `z` is packed like any matrix, and must have
+    /// Σ (j_s or r_s) columns.
+    pub fn factored(z: &Matrix, sources: Vec<(usize, Option<Arc<PackedMatrix>>)>) -> PackedMatrix {
+        let width = sources
+            .iter()
+            .map(|(r, q)| q.as_ref().map_or(*r, |q| q.rows))
+            .sum();
+        assert_eq!(
+            width, z.cols as usize,
+            "Z' has one column per basis coefficient"
+        );
+        PackedMatrix {
+            rows: z.rows as usize,
+            cols: sources.iter().map(|(r, _)| r).sum(),
+            values: Values::Factored(Box::new(Factored {
+                z: PackedMatrix::new(z),
+                sources,
+                width,
+            })),
+        }
+    }
+
     pub fn rows(&self) -> usize {
         self.rows
     }
@@ -165,9 +207,13 @@ impl PackedMatrix {
         self.cols
     }
 
-    /// Whether the values are kept in 8 bits.
+    /// Whether the values are kept in 8 bits (a factored matrix: its `Z'`).
     pub fn is_u8(&self) -> bool {
-        !matches!(self.values, Values::F32(_))
+        match &self.values {
+            Values::F32(_) => false,
+            Values::Factored(f) => f.z.is_u8(),
+            _ => true,
+        }
     }
 
     /// Bytes one product reads (values and per-line parameters).
@@ -177,15 +223,42 @@ impl PackedMatrix {
             Values::U8Columns { q, offset, .. } | Values::U8Rows { q, offset, .. } => {
                 q.len() + 8 * offset.len()
             }
+            Values::Factored(f) => {
+                f.z.bytes()
+                    + f.sources
+                        .iter()
+                        .flat_map(|(_, q)| q)
+                        .map(|q| q.bytes())
+                        .sum::<usize>()
+            }
         }
     }
 
     /// Floats of scratch [`PackedMatrix::matvec`] needs.
     pub fn scratch_len(&self) -> usize {
-        match self.values {
+        match &self.values {
             Values::U8Columns { .. } => 3 * self.cols,
+            Values::Factored(f) => {
+                let inner = f
+                    .sources
+                    .iter()
+                    .flat_map(|(_, q)| q)
+                    .map(|q| q.scratch_len());
+                3 * f.width + inner.chain([f.z.scratch_len()]).max().unwrap_or(0)
+            }
             _ => 0,
         }
+    }
+
+    /// `out[c][i] = M.row(i) · x[c]` for every row (a non-generic [`PackedMatrix::matvec`], so
+    /// that a factored matrix's inner products instantiate nothing new).
+    fn matvec_into(&self, x: [&[f32]; 3], scratch: &mut [f32], out: [&mut [f32]; 3]) {
+        let [o0, o1, o2] = out;
+        self.matvec(x, scratch, |i, v| {
+            o0[i] = v[0];
+            o1[i] = v[1];
+            o2[i] = v[2];
+        });
     }
 
     /// For every row i in ascending order, `emit(i, [M.row(i) · x[0], · x[1], · x[2]])`.
@@ -195,6 +268,9 @@ impl PackedMatrix {
     pub fn matvec<E: FnMut(usize, [f32; 3])>(&self, x: [&[f32]; 3], scratch: &mut [f32], emit: E) {
         if self.rows == 0 {
             return;
+        }
+        if let Values::Factored(f) = &self.values {
+            return f.matvec(x, scratch, emit);
         }
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
@@ -290,7 +366,45 @@ impl PackedMatrix {
                     }
                 }
             }
+            Values::Factored(f) => f.matvec(x, scratch, emit),
         }
+    }
+}
+
+impl Factored {
+    /// `Z' · (blockdiag(Q_s) · x)`, the inner product into the front of `scratch`.
+    fn matvec<E: FnMut(usize, [f32; 3])>(&self, x: [&[f32]; 3], scratch: &mut [f32], emit: E) {
+        let w = self.width;
+        let (c, rest) = scratch.split_at_mut(3 * w);
+        let (c0, c12) = c.split_at_mut(w);
+        let (c1, c2) = c12.split_at_mut(w);
+        let (mut from, mut to) = (0, 0);
+        for (r, q) in &self.sources {
+            let seg = |ch: usize| &x[ch][from..from + r];
+            match q {
+                Some(q) => {
+                    let j = q.rows;
+                    q.matvec_into(
+                        [seg(0), seg(1), seg(2)],
+                        rest,
+                        [
+                            &mut c0[to..to + j],
+                            &mut c1[to..to + j],
+                            &mut c2[to..to + j],
+                        ],
+                    );
+                    to += j;
+                }
+                None => {
+                    c0[to..to + r].copy_from_slice(seg(0));
+                    c1[to..to + r].copy_from_slice(seg(1));
+                    c2[to..to + r].copy_from_slice(seg(2));
+                    to += r;
+                }
+            }
+            from += r;
+        }
+        self.z.matvec([c0, c1, c2], rest, emit)
     }
 }
 

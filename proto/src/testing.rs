@@ -15,8 +15,9 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::bundle::{
-    BlockOps, Bundle, ClutterOps, DeltaEntry, DeltaSource, DrtOps, Layout, Matrix, OpeningOps,
-    ProbeVolume, PropEntry, ShapeOps, SparseRows, SurfaceInfo, TracedEntry, TransportOps,
+    BlockOps, Bundle, ClutterOps, CompactEntry, DeltaEntry, DeltaSource, DrtOps, Layout, Matrix,
+    OpeningOps, ProbeVolume, PropEntry, ShapeOps, SourceBases, SourceBasis, SparseRows,
+    SurfaceInfo, TracedEntry, TransportOps,
 };
 use crate::bundle::{BUNDLE_MAJOR, BUNDLE_MINOR};
 use crate::container::write_container;
@@ -291,6 +292,33 @@ pub fn drt_bundle(rng: &mut Lcg, lightfield: bool, two_clutter: bool, full: bool
         }),
         ..Bundle::default()
     }
+}
+
+/// [`drt_bundle`]'s blocks (a: 4 texels, r = 2; b: 6 texels, r = 3) with compact transport
+/// through shared source bases (transport kind 3, section 16): block b's light through a 2 × 3
+/// basis, block a's as it is; a receives from b (k = 2), b from a and itself (k = 3).
+pub fn factored_bundle(rng: &mut Lcg) -> Bundle {
+    let mut b = drt_bundle(rng, false, true, true);
+    let entry = |rng: &mut Lcg, target: u32, sources: Vec<u32>, texels: usize, k: usize| {
+        let width = sources.iter().map(|&s| [2usize, 2][s as usize]).sum();
+        CompactEntry {
+            target_block: target,
+            sources,
+            y: matrix(rng, texels, k),
+            z: matrix(rng, k, width),
+        }
+    };
+    b.transport = Some(TransportOps::Factored(SourceBases {
+        bases: vec![SourceBasis {
+            source_block: 1,
+            q: matrix(rng, 2, 3),
+        }],
+        entries: vec![
+            entry(rng, 0, vec![1], 4, 2),
+            entry(rng, 1, vec![0, 1], 6, 3),
+        ],
+    }));
+    b
 }
 
 /// Probes of the probe test bundle; probe 5 (rows 45..54) is fed by no entry.

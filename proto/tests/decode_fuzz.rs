@@ -12,7 +12,9 @@
 #![allow(clippy::needless_range_loop)]
 
 use lightfarm_proto::bundle::{section, Bundle};
-use lightfarm_proto::testing::{drt_bundle, fuzz_mutations, probe_bundle, Lcg, Mutation};
+use lightfarm_proto::testing::{
+    drt_bundle, factored_bundle, fuzz_mutations, probe_bundle, Lcg, Mutation,
+};
 
 /// Decodes `bytes`; a decoded bundle must pass `validate` (what the runtime checks before
 /// anything else). Returns whether the bytes decoded.
@@ -49,6 +51,13 @@ fn mutated_drt_bundles_never_panic() {
     let mut rng = Lcg(24);
     let b = drt_bundle(&mut rng, false, true, true);
     fuzz_decode(&mut rng, &b, section::DRT_REPLACING);
+}
+
+#[test]
+fn mutated_shared_source_bases_never_panic() {
+    let mut rng = Lcg(27);
+    let b = factored_bundle(&mut rng);
+    fuzz_decode(&mut rng, &b, section::TRANSPORT_SOURCE_BASES);
 }
 
 #[test]

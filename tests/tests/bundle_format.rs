@@ -125,6 +125,12 @@ fn transport_matrices(bundle: &Bundle) -> Vec<&Matrix> {
         TransportOps::Compact(e) => e.iter().flat_map(|e| [&e.y, &e.z]).collect(),
         TransportOps::Lightfield(e) => e.iter().map(|e| &e.matrix).collect(),
         TransportOps::Traced(e) => e.iter().map(|e| &e.matrix).collect(),
+        TransportOps::Factored(f) => f
+            .bases
+            .iter()
+            .map(|b| &b.q)
+            .chain(f.entries.iter().flat_map(|e| [&e.y, &e.z]))
+            .collect(),
     }
 }
 

@@ -539,6 +539,9 @@ fn transport_targets(rt: &Runtime) -> (Vec<u32>, Vec<u32>) {
                 Some(TransportOps::Compact(e)) => {
                     pairs.extend(e[i].sources.iter().map(|&s| (s, k as u32)))
                 }
+                Some(TransportOps::Factored(_)) => {
+                    unreachable!("kind 3 is unfolded at load (Runtime::try_new)")
+                }
                 None => {}
             }
         }

@@ -358,6 +358,9 @@ impl Runtime {
         // frame loop never permutes (the same memory and per-frame work as a bundle that
         // stored every orientation).
         let bundle = bundle.unfold_symmetries();
+        // Compact transport with shared source bases reads as kind 2 everywhere (sizes, sums),
+        // while the products apply Z' and the bases as shipped (PackedOps::new).
+        let (bundle, factored) = bundle.unfold_source_bases();
         let n_texels = bundle.layout.n_texels();
 
         // Transport entries grouped by target block.
@@ -365,11 +368,14 @@ impl Runtime {
             Some(TransportOps::Lightfield(e)) => e.iter().map(|e| e.target_block).collect(),
             Some(TransportOps::Traced(e)) => e.iter().map(|e| e.target_block).collect(),
             Some(TransportOps::Compact(e)) => e.iter().map(|e| e.target_block).collect(),
+            Some(TransportOps::Factored(_)) => {
+                unreachable!("kind 3 is unfolded at load (Runtime::try_new)")
+            }
             None => Vec::new(),
         };
         let mut entry_order: Vec<u32> = (0..targets.len() as u32).collect();
         entry_order.sort_by_key(|&i| targets[i as usize]);
-        let ops = PackedOps::new(&bundle);
+        let ops = PackedOps::new(&bundle, factored.as_ref());
 
         let (mut blocks, mut opening_lf, mut first_opening) = (Vec::new(), Vec::new(), Vec::new());
         let (mut n_coef, mut n_lf, mut next_entry) = (0, 0, 0);

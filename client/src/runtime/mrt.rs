@@ -198,6 +198,9 @@ impl Runtime {
                             add_matvec(out_k, u_r, group(lf_k, start, q, q), scratch);
                         }
                     }
+                    Some(TransportOps::Factored(_)) => {
+                        unreachable!("kind 3 is unfolded at load (Runtime::try_new)")
+                    }
                     None => {}
                 }
             },
@@ -224,6 +227,9 @@ impl Runtime {
                 Some(TransportOps::Compact(e)) => targeting
                     .iter()
                     .any(|&i| e[i as usize].sources.iter().any(|&s| reached(s))),
+                Some(TransportOps::Factored(_)) => {
+                    unreachable!("kind 3 is unfolded at load (Runtime::try_new)")
+                }
                 None => false,
             }
     }

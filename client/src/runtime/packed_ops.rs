@@ -13,7 +13,9 @@
 //! `kernels::for_each_block`); scratch lengths ([`PackedOps::scratch_len`]) are the largest any
 //! product of the listed matrices needs, so no frame allocates.
 
-use lightfarm_proto::bundle::{Bundle, TransportOps};
+use std::sync::Arc;
+
+use lightfarm_proto::bundle::{Bundle, SourceBases, TransportOps};
 
 use crate::packed::PackedMatrix;
 use crate::packed_gather::PackedGather;
@@ -61,7 +63,9 @@ pub(super) struct PackedOps {
 }
 
 impl PackedOps {
-    pub(super) fn new(bundle: &Bundle) -> PackedOps {
+    /// `factored`: the shared source bases `bundle`'s compact transport was unfolded from
+    /// ([`Bundle::unfold_source_bases`]); each `Z` is then packed as `Z' · blockdiag(Q)`.
+    pub(super) fn new(bundle: &Bundle, factored: Option<&SourceBases>) -> PackedOps {
         let pack = PackedMatrix::new;
         let mut ops = PackedOps {
             shapes: bundle
@@ -83,7 +87,13 @@ impl PackedOps {
             }
             Some(TransportOps::Compact(e)) => {
                 ops.transport = e.iter().map(|e| pack(&e.y)).collect();
-                ops.transport_z = e.iter().map(|e| pack(&e.z)).collect();
+                ops.transport_z = match factored {
+                    Some(f) => factored_z(bundle, f),
+                    None => e.iter().map(|e| pack(&e.z)).collect(),
+                };
+            }
+            Some(TransportOps::Factored(_)) => {
+                unreachable!("kind 3 is unfolded at load (Runtime::try_new)")
             }
             None => {}
         }
@@ -115,4 +125,29 @@ impl PackedOps {
             .max()
             .unwrap_or(0)
     }
+}
+
+/// Each receiver's `Z` of compact transport with shared source bases, as `Z' · blockdiag(Q)`
+/// with every basis packed once and shared.
+fn factored_z(bundle: &Bundle, f: &SourceBases) -> Vec<PackedMatrix> {
+    let rank = |b: u32| {
+        bundle.shapes[bundle.blocks[b as usize].shape as usize]
+            .u_b
+            .cols as usize
+    };
+    let mut bases: Vec<Option<Arc<PackedMatrix>>> = vec![None; bundle.blocks.len()];
+    for b in &f.bases {
+        bases[b.source_block as usize] = Some(Arc::new(PackedMatrix::new(&b.q)));
+    }
+    f.entries
+        .iter()
+        .map(|e| {
+            let sources = e
+                .sources
+                .iter()
+                .map(|&s| (rank(s), bases[s as usize].clone()))
+                .collect();
+            PackedMatrix::factored(&e.z, sources)
+        })
+        .collect()
 }

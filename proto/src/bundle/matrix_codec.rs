@@ -172,6 +172,21 @@ impl<'a> MatrixEncoder<'a> {
         self.policy = operator_policy;
     }
 
+    /// Writes (inside `write`) under the current policy with its error budget scaled by
+    /// `factor` (a fixed codec stays as it is).
+    pub(super) fn with_budget_scaled(
+        &mut self,
+        factor: f64,
+        write: impl FnOnce(&mut MatrixEncoder<'a>),
+    ) {
+        let policy = self.policy;
+        if let CodecPolicy::Budget(b) = policy {
+            self.policy = CodecPolicy::Budget(b * factor);
+        }
+        write(self);
+        self.policy = policy;
+    }
+
     fn write(&mut self, w: &mut Writer, m: &'a Matrix) {
         let e = match &mut self.mode {
             Mode::Direct => encode_matrix(m, self.policy),

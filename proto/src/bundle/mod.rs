@@ -36,6 +36,8 @@
 //!   leads and the rooms each layout surface lies in, for a client's light reach.
 //! - `symmetric_blocks`: blocks instancing a shape through a box symmetry (section kind 14,
 //!   [`BlockSymmetry`]) and their unfolding at load.
+//! - `source_bases`: compact transport with shared source bases (transport kind 3,
+//!   [`SourceBases`]) and its unfolding at load.
 //! - `validate`: [`Bundle::validate`], every index, size and rank checked against the data.
 //!
 //! Invariant: [`Bundle::decode`] returns `Ok` only for a bundle whose every index, size and value
@@ -53,6 +55,7 @@ mod read;
 mod rooms;
 mod sections;
 mod sh_responses;
+mod source_bases;
 mod symmetric_blocks;
 mod validate;
 mod write;
@@ -61,15 +64,19 @@ pub use matrix_codec::{EncodingMemo, MatrixEncoding};
 pub use rooms::{FaceLink, Room, Rooms, SurfacePlace};
 pub use sections::{section, section_name};
 pub use sh_responses::{ShEntry, ShResponses};
+pub use source_bases::{SourceBases, SourceBasis};
 pub use symmetric_blocks::BlockSymmetry;
 
 pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 /// Format 2.0: blocks may instance a shape through a box symmetry (section kind 14) and 8-bit
 /// matrices may be stored predicted (codec tags 4 and 5). A 1.x reader refuses it by its major
 /// version; this reader still reads 1.x bundles (kind 3 blocks, tags 0–3). Minor 1 adds the
-/// rooms section (kind 15), which a 2.0 reader skips.
+/// rooms section (kind 15), which a 2.0 reader skips. Minor 2 adds compact transport with
+/// shared source bases ([`SourceBases`], transport kind 3) in a section of its own (kind 16),
+/// written instead of kind 4 when some source is factored: a 2.0 or 2.1 reader skips it and
+/// lights the level without light between blocks.
 pub const BUNDLE_MAJOR: u16 = 2;
-pub const BUNDLE_MINOR: u16 = 1;
+pub const BUNDLE_MINOR: u16 = 2;
 /// The oldest major version this reader decodes.
 pub const OLDEST_READABLE_MAJOR: u16 = 1;
 const READABLE_MAJORS: std::ops::RangeInclusive<u16> = OLDEST_READABLE_MAJOR..=BUNDLE_MAJOR;
@@ -263,6 +270,9 @@ pub enum TransportOps {
     Traced(Vec<TracedEntry>),
     /// One low-rank operator per receiving block (entries ascending by target, one each).
     Compact(Vec<CompactEntry>),
+    /// [`TransportOps::Compact`] with shared source bases (kind 3, minor 2); a runtime
+    /// unfolds it at load ([`Bundle::unfold_source_bases`]).
+    Factored(SourceBases),
 }
 
 /// A sparse row-major matrix (CSR) over all texels: the dense one-bounce operator F.

@@ -16,8 +16,8 @@ use super::sections::{is_known_section, section, section_name};
 use super::{gather_encoding, legacy_1x, sh_responses, symmetric_blocks};
 use super::{
     Bundle, BundleError, ClutterOps, CompactEntry, DrtOps, Layout, Matrix, OpeningOps,
-    PartialBundle, ProbeVolume, PropEntry, Rect, Rooms, ShapeOps, SparseRows, SurfaceAtlas,
-    SurfaceInfo, TracedEntry, TransportOps, READABLE_MAJORS,
+    PartialBundle, ProbeVolume, PropEntry, Rect, Rooms, ShapeOps, SourceBases, SourceBasis,
+    SparseRows, SurfaceAtlas, SurfaceInfo, TracedEntry, TransportOps, READABLE_MAJORS,
 };
 
 fn read_vec3s(r: &mut Reader, what: &str) -> Result<Vec<[f32; 3]>, BundleError> {
@@ -154,7 +154,21 @@ impl Bundle {
                 section::SHAPES => shapes = Some(read_shapes(&mut p)?),
                 section::BLOCKS => blocks = Some(legacy_1x::read_blocks(&mut p)?),
                 section::BLOCKS_SYMMETRIC => blocks = Some(symmetric_blocks::read_blocks(&mut p)?),
-                section::TRANSPORT => transport = Some(read_transport(&mut p)?),
+                section::TRANSPORT | section::TRANSPORT_SOURCE_BASES => {
+                    let t = read_transport(&mut p)?;
+                    // Kind 3 lives in its own section, which older readers skip; the other
+                    // kinds in section 4, which they read.
+                    if (*kind == section::TRANSPORT_SOURCE_BASES)
+                        != matches!(t, TransportOps::Factored(_))
+                    {
+                        return Err(BundleError::Invalid(format!(
+                            "transport section kind {kind} holds the wrong transport kind"
+                        )));
+                    }
+                    if transport.replace(t).is_some() {
+                        return Err(BundleError::Invalid("two transport sections".into()));
+                    }
+                }
                 section::FULL => full = Some(read_full(&mut p)?),
                 section::DRT | section::DRT_LOW_RANK => drt = Some(read_drt(&mut p)?),
                 section::DRT_REPLACING => {
@@ -269,20 +283,37 @@ fn read_transport(r: &mut Reader) -> Result<TransportOps, BundleError> {
             }
             Ok(TransportOps::Traced(out))
         }
-        2 => {
-            let mut out = Vec::with_capacity(n.min(r.remaining() / 30));
+        2 => Ok(TransportOps::Compact(read_compact_entries(r, n)?)),
+        3 => {
+            let mut bases = Vec::with_capacity(n.min(r.remaining() / 14));
             for _ in 0..n {
-                out.push(CompactEntry {
-                    target_block: r.u32()?,
-                    sources: r.u32s()?,
-                    y: Matrix::read(r, "transport y")?,
-                    z: Matrix::read(r, "transport z")?,
+                bases.push(SourceBasis {
+                    source_block: r.u32()?,
+                    q: Matrix::read(r, "transport source basis")?,
                 });
             }
-            Ok(TransportOps::Compact(out))
+            let n = r.u32()? as usize;
+            Ok(TransportOps::Factored(SourceBases {
+                bases,
+                entries: read_compact_entries(r, n)?,
+            }))
         }
         k => Err(BundleError::Invalid(format!("transport: unknown kind {k}"))),
     }
+}
+
+/// `n` compact transport entries (kinds 2 and 3).
+fn read_compact_entries(r: &mut Reader, n: usize) -> Result<Vec<CompactEntry>, BundleError> {
+    let mut out = Vec::with_capacity(n.min(r.remaining() / 30));
+    for _ in 0..n {
+        out.push(CompactEntry {
+            target_block: r.u32()?,
+            sources: r.u32s()?,
+            y: Matrix::read(r, "transport y")?,
+            z: Matrix::read(r, "transport z")?,
+        });
+    }
+    Ok(out)
 }
 
 fn read_full(r: &mut Reader) -> Result<SparseRows, BundleError> {

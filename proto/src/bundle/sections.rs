@@ -37,6 +37,10 @@ pub mod section {
     /// The level's rooms (format 2.1, [`crate::bundle::Rooms`]): block boxes, where each face
     /// leads, where each surface lies. Written right after the blocks.
     pub const ROOMS: u32 = 15;
+    /// Compact transport with shared source bases (format 2.2, transport kind 3,
+    /// [`crate::bundle::SourceBases`]): written instead of [`TRANSPORT`] when some source has a
+    /// basis. A 2.0 or 2.1 reader skips it and lights the level without light between blocks.
+    pub const TRANSPORT_SOURCE_BASES: u32 = 16;
 }
 
 /// Report name of a section kind.
@@ -56,6 +60,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::DRT_REPLACING => "drt",
         section::BLOCKS_SYMMETRIC => "blocks",
         section::ROOMS => "rooms",
+        section::TRANSPORT_SOURCE_BASES => "transport",
         _ => "unknown",
     }
 }

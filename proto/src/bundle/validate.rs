@@ -38,6 +38,10 @@ impl Bundle {
             Some(TransportOps::Lightfield(e)) => matrices.extend(e.iter().map(|e| &e.matrix)),
             Some(TransportOps::Traced(e)) => matrices.extend(e.iter().map(|e| &e.matrix)),
             Some(TransportOps::Compact(e)) => matrices.extend(e.iter().flat_map(|e| [&e.y, &e.z])),
+            Some(TransportOps::Factored(f)) => {
+                matrices.extend(f.bases.iter().map(|b| &b.q));
+                matrices.extend(f.entries.iter().flat_map(|e| [&e.y, &e.z]));
+            }
             None => {}
         }
         if let Some(d) = &self.drt {
@@ -133,34 +137,27 @@ impl Bundle {
                 }
             }
             Some(TransportOps::Compact(entries)) => {
-                for (k, e) in entries.iter().enumerate() {
-                    if k > 0 && entries[k - 1].target_block >= e.target_block {
-                        return bad("transport: compact entries not ascending by target".into());
+                check_compact(entries, &block_shape, |_, rank| rank)?;
+            }
+            Some(TransportOps::Factored(f)) => {
+                for (k, b) in f.bases.iter().enumerate() {
+                    if k > 0 && f.bases[k - 1].source_block >= b.source_block {
+                        return bad("transport: source bases not ascending by block".into());
                     }
-                    let Some(target) = block_shape(e.target_block) else {
-                        return bad("transport: entry names a missing block".into());
-                    };
-                    if e.sources.windows(2).any(|w| w[1] <= w[0]) {
-                        return bad("transport: compact sources not ascending".into());
-                    }
-                    let mut width = 0u64;
-                    for s in &e.sources {
-                        let Some(source) = block_shape(*s) else {
-                            return bad("transport: entry names a missing block".into());
-                        };
-                        width += source.u_b.cols as u64;
-                    }
-                    if e.y.rows != target.u_b.rows
-                        || e.z.rows != e.y.cols
-                        || e.z.cols as u64 != width
-                        || e.y.cols > e.y.rows
-                    {
+                    let Some(source) = block_shape(b.source_block) else {
                         return bad(format!(
-                            "transport: compact entry {k} has the wrong size (y {}×{}, z {}×{})",
-                            e.y.rows, e.y.cols, e.z.rows, e.z.cols
+                            "transport: source basis {k} names missing block {}",
+                            b.source_block
+                        ));
+                    };
+                    if b.q.cols != source.u_b.cols || b.q.rows == 0 || b.q.rows > b.q.cols {
+                        return bad(format!(
+                            "transport: source basis of block {} is {}×{}, the block's rank is {}",
+                            b.source_block, b.q.rows, b.q.cols, source.u_b.cols
                         ));
                     }
                 }
+                check_compact(&f.entries, &block_shape, |s, rank| f.width(s, rank))?;
             }
             None => {}
         }
@@ -351,4 +348,43 @@ impl Bundle {
         }
         Ok(())
     }
+}
+
+/// Compact transport entries (kinds 2 and 3): ascending targets, ascending existing sources,
+/// `y` texels_target × k with k ≤ texels, `z` k × Σ `width(source, source rank)`.
+fn check_compact<'a>(
+    entries: &[CompactEntry],
+    block_shape: &impl Fn(u32) -> Option<&'a ShapeOps>,
+    width: impl Fn(u32, u32) -> u32,
+) -> Result<(), BundleError> {
+    let bad = |m: String| Err(BundleError::Invalid(m));
+    for (k, e) in entries.iter().enumerate() {
+        if k > 0 && entries[k - 1].target_block >= e.target_block {
+            return bad("transport: compact entries not ascending by target".into());
+        }
+        let Some(target) = block_shape(e.target_block) else {
+            return bad("transport: entry names a missing block".into());
+        };
+        if e.sources.windows(2).any(|w| w[1] <= w[0]) {
+            return bad("transport: compact sources not ascending".into());
+        }
+        let mut cols = 0u64;
+        for s in &e.sources {
+            let Some(source) = block_shape(*s) else {
+                return bad("transport: entry names a missing block".into());
+            };
+            cols += u64::from(width(*s, source.u_b.cols));
+        }
+        if e.y.rows != target.u_b.rows
+            || e.z.rows != e.y.cols
+            || e.z.cols as u64 != cols
+            || e.y.cols > e.y.rows
+        {
+            return bad(format!(
+                "transport: compact entry {k} has the wrong size (y {}×{}, z {}×{})",
+                e.y.rows, e.y.cols, e.z.rows, e.z.cols
+            ));
+        }
+    }
+    Ok(())
 }

@@ -16,8 +16,31 @@ use super::matrix_codec::{EncodingMemo, MatrixEncoder};
 use super::sections::{section, section_name};
 use super::{gather_encoding, sh_responses, symmetric_blocks};
 use super::{
-    Bundle, EncodeOptions, EncodeReport, Layout, TransportOps, BUNDLE_MAJOR, BUNDLE_MINOR,
+    Bundle, CompactEntry, EncodeOptions, EncodeReport, Layout, TransportOps, BUNDLE_MAJOR,
+    BUNDLE_MINOR,
 };
+
+/// Share of the transport codec budget a source basis of transport kind 3 is coded within, and
+/// the share its receivers' `Z'` are: with both, the maze's all-bounce DRT error is the one of
+/// kind 2 at the full budget (0.0398 over four light sets), where the full budget for both gave
+/// 0.0403 and the bases alone at a quarter 0.0401.
+const BASIS_BUDGET: f64 = 0.25;
+const FACTORED_Z_BUDGET: f64 = 0.75;
+
+/// Compact transport entries (kinds 2 and 3): count, then per entry target, sources, y, z.
+fn write_compact_entries<'a>(
+    w: &mut Writer,
+    entries: &'a [CompactEntry],
+    enc: &mut MatrixEncoder<'a>,
+) {
+    w.u32(entries.len() as u32);
+    for e in entries {
+        w.u32(e.target_block);
+        w.u32s(&e.sources);
+        e.y.write(w, enc);
+        e.z.write(w, enc);
+    }
+}
 
 fn write_vec3s(w: &mut Writer, v: &[[f32; 3]]) {
     let flat: Vec<f32> = v.iter().flatten().copied().collect();
@@ -187,16 +210,30 @@ impl Bundle {
                 }
                 TransportOps::Compact(entries) => {
                     w.u8(2);
-                    w.u32(entries.len() as u32);
-                    for e in entries {
-                        w.u32(e.target_block);
-                        w.u32s(&e.sources);
-                        e.y.write(&mut w, enc);
-                        e.z.write(&mut w, enc);
-                    }
+                    write_compact_entries(&mut w, entries, enc);
+                }
+                TransportOps::Factored(f) => {
+                    w.u8(3);
+                    w.u32(f.bases.len() as u32);
+                    // The factoring spends some of the error the codec would; its matrices get
+                    // a tighter share of the transport's budget, a basis the least: it carries
+                    // its source's light to every receiver, so its error repeats in each.
+                    enc.with_budget_scaled(BASIS_BUDGET, |enc| {
+                        for b in &f.bases {
+                            w.u32(b.source_block);
+                            b.q.write(&mut w, enc);
+                        }
+                    });
+                    enc.with_budget_scaled(FACTORED_Z_BUDGET, |enc| {
+                        write_compact_entries(&mut w, &f.entries, enc)
+                    });
                 }
             });
-            sections.push((section::TRANSPORT, w.bytes));
+            let kind = match t {
+                TransportOps::Factored(_) => section::TRANSPORT_SOURCE_BASES,
+                _ => section::TRANSPORT,
+            };
+            sections.push((kind, w.bytes));
         }
         if let Some(d) = &self.drt {
             let mut w = Writer::new();

@@ -139,6 +139,13 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
             "transport: {} propagation steps ({} cut, max {} hops), {} traced pairs kept, {} dropped; compact ranks {}",
             t.steps, t.cut, t.max_hops, t.pairs_kept, t.pairs_dropped, list(&t.compact_ranks)
         );
+        let f = &t.factoring;
+        if f.sources > 0 {
+            eprintln!(
+                "transport sources: {} of {} with a shared basis, ranks {}; Z values {} -> {} (bases included)",
+                f.basis_ranks.len(), f.sources, list(&f.basis_ranks), f.values_before, f.values_after
+            );
+        }
         if let Some(d) = &report.drt {
             eprintln!(
                 "drt: {} scene texels with rows, {} skipped (view of clutter below tolerance), {} buried scene texels ({} without a valid neighbour), {} buried clutter texels, {} scene texels gathered exactly, clutter ranks {}",

@@ -50,7 +50,7 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
             s.u_b.cols
         );
     }
-    let mut transport = Tally::default();
+    let (mut transport, mut bases) = (Tally::default(), Tally::default());
     match &bundle.transport {
         Some(TransportOps::Lightfield(e)) => e.iter().for_each(|e| transport.add(&e.matrix)),
         Some(TransportOps::Traced(e)) => e.iter().for_each(|e| transport.add(&e.matrix)),
@@ -58,6 +58,13 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
             transport.add(&e.y);
             transport.add(&e.z);
         }),
+        Some(TransportOps::Factored(f)) => {
+            f.bases.iter().for_each(|b| bases.add(&b.q));
+            f.entries.iter().for_each(|e| {
+                transport.add(&e.y);
+                transport.add(&e.z);
+            })
+        }
         None => {}
     }
     let line = |name: &str, t: &Tally| {
@@ -70,6 +77,7 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
     line("T_d→b", &t_db);
     line("U_r (openings)", &u_r);
     line("transport", &transport);
+    line("transport source bases", &bases);
     if let Some(d) = &bundle.drt {
         let mut t_dc = Tally::default();
         d.clutter.iter().for_each(|c| t_dc.add(&c.t_dc));

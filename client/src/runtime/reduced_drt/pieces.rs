@@ -404,6 +404,9 @@ fn texel_application_values(bundle: &Bundle) -> usize {
         Some(TransportOps::Compact(e)) => e.iter().map(|e| e.y.data.len() + e.z.data.len()).sum(),
         Some(TransportOps::Traced(e)) => e.iter().map(|e| e.matrix.data.len()).sum(),
         Some(TransportOps::Lightfield(e)) => e.iter().map(|e| e.matrix.data.len()).sum(),
+        Some(TransportOps::Factored(_)) => {
+            unreachable!("kind 3 is unfolded at load (Runtime::try_new)")
+        }
         None => 0,
     };
     let drt = bundle.drt.as_ref().map_or(0, |d| {

@@ -614,6 +614,7 @@ fn reduced_converged_matches_the_texel_path_and_many_bounces() {
         Some(compact(&mut rng)),
         Some(lightfield(&mut rng)),
         None,
+        Some(factored(&mut rng)),
     ];
     for transport in transports {
         for albedos_per_block in [0usize, 1, 2, 3] {

@@ -7,7 +7,7 @@
 
 use super::*;
 use crate::probes::irradiance_at;
-use lightfarm_proto::testing::fuzz_mutations;
+use lightfarm_proto::testing::{factored_bundle, fuzz_mutations};
 
 /// Decodes `bytes`; a decoded bundle must make a runtime, which must apply every method
 /// without panicking. Returns whether the bytes decoded.
@@ -74,6 +74,17 @@ fn fuzz_bundle(rng: &mut Lcg, b: &Bundle, focus: u32) {
         "{} of {} decoded",
         counts.accepted,
         counts.tried
+    );
+}
+
+#[test]
+fn mutated_shared_source_bases_never_panic() {
+    let mut rng = Lcg(27);
+    let b = factored_bundle(&mut rng);
+    fuzz_bundle(
+        &mut rng,
+        &b,
+        lightfarm_proto::bundle::section::TRANSPORT_SOURCE_BASES,
     );
 }
 

@@ -23,7 +23,9 @@
 
 use super::*;
 use crate::probes::ProbeField;
-use lightfarm_proto::bundle::{CompactEntry, DeltaSource, DrtOps, Matrix, SparseRows, TexelGather};
+use lightfarm_proto::bundle::{
+    CompactEntry, DeltaSource, DrtOps, Matrix, SourceBases, SourceBasis, SparseRows, TexelGather,
+};
 use lightfarm_proto::testing::{
     allocs, blocks, drt_bundle, join_sections, layout, lightfield_transport, matrix, probe_bundle,
     random_full, shape, traced_transport, CountingAlloc, Lcg, N_PROBES,
@@ -136,6 +138,36 @@ fn compact(rng: &mut Lcg) -> TransportOps {
             })
             .collect(),
     )
+}
+
+/// Compact transport with shared source bases: [`compact`]'s receivers, source 1 (r = 3) read
+/// through a 2 × 3 basis and source 2 (r = 2) through a 1 × 2 one, source 0 as it is.
+fn factored(rng: &mut Lcg) -> TransportOps {
+    let texels = [4usize, 11, 4];
+    let bases = vec![
+        SourceBasis {
+            source_block: 1,
+            q: matrix(rng, 2, 3),
+        },
+        SourceBasis {
+            source_block: 2,
+            q: matrix(rng, 1, 2),
+        },
+    ];
+    let width = [2usize, 2, 1];
+    let entries = [(0u32, vec![1u32, 2], 2usize), (2, vec![0, 1, 2], 3)];
+    TransportOps::Factored(SourceBases {
+        bases,
+        entries: entries
+            .iter()
+            .map(|(t, sources, k)| CompactEntry {
+                target_block: *t,
+                sources: sources.clone(),
+                y: matrix(rng, texels[*t as usize], *k),
+                z: matrix(rng, *k, sources.iter().map(|s| width[*s as usize]).sum()),
+            })
+            .collect(),
+    })
 }
 
 fn lightfield(rng: &mut Lcg) -> TransportOps {
@@ -260,6 +292,44 @@ fn reference_mrt_albedo_free(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> 
                     .sources
                     .iter()
                     .flat_map(|s| coefs[*s as usize].iter().copied())
+                    .collect();
+                let z: Vec<[f64; 3]> = (0..e.z.rows as usize)
+                    .map(|k| {
+                        let mut v = [0.0; 3];
+                        for (j, x) in stacked.iter().enumerate() {
+                            for c in 0..3 {
+                                v[c] += get(&e.z, k, j) * x[c];
+                            }
+                        }
+                        v
+                    })
+                    .collect();
+                add(e.target_block, &e.y, &z);
+            }
+        }
+        Some(TransportOps::Factored(f)) => {
+            for e in &f.entries {
+                // A source with a basis is read as Q · b (j values), the others as b.
+                let stacked: Vec<[f64; 3]> = e
+                    .sources
+                    .iter()
+                    .flat_map(|&s| {
+                        let b = &coefs[s as usize];
+                        match f.basis(s) {
+                            Some(q) => (0..q.rows as usize)
+                                .map(|m| {
+                                    let mut v = [0.0; 3];
+                                    for (j, x) in b.iter().enumerate() {
+                                        for c in 0..3 {
+                                            v[c] += get(q, m, j) * x[c];
+                                        }
+                                    }
+                                    v
+                                })
+                                .collect::<Vec<_>>(),
+                            None => b.clone(),
+                        }
+                    })
                     .collect();
                 let z: Vec<[f64; 3]> = (0..e.z.rows as usize)
                     .map(|k| {
@@ -406,6 +476,30 @@ fn mrt_with_compact_transport_matches_reference() {
     let want = reference_mrt(&b, &ld.radiance);
     let got = run(b, Method::Mrt, &ld);
     assert_close(&got, &want);
+}
+
+/// Shared source bases: the runtime applies `Z'` and the bases as shipped, which is the kind-2
+/// bundle they unfold to within float rounding.
+#[test]
+fn mrt_with_factored_transport_matches_its_unfolded_reference() {
+    let mut rng = Lcg(15);
+    let t = factored(&mut rng);
+    let b = bundle(&mut rng, Some(t), false);
+    let (unfolded, kept) = b.clone().unfold_source_bases();
+    assert!(kept.is_some());
+    assert!(matches!(unfolded.transport, Some(TransportOps::Compact(_))));
+    unfolded
+        .validate()
+        .expect("the unfolded bundle is a valid kind-2 bundle");
+    let ld = direct(&mut rng, 21);
+    // The reference reads the factored form itself (Q · b, then Z'), not the unfolding.
+    let want = reference_mrt(&b, &ld.radiance);
+    assert_close(&run(b, Method::Mrt, &ld), &want);
+    assert_close(&run(unfolded.clone(), Method::Mrt, &ld), &want);
+    assert_close(
+        &run(unfolded.clone(), Method::Mrt, &ld),
+        &reference_mrt(&unfolded, &ld.radiance),
+    );
 }
 
 #[test]
@@ -582,7 +676,12 @@ fn apply_twice_is_identical_and_does_not_allocate() {
 #[test]
 fn encode_decode_round_trip_gives_the_same_output() {
     let mut rng = Lcg(18);
-    for transport in [traced(&mut rng), lightfield(&mut rng), compact(&mut rng)] {
+    for transport in [
+        traced(&mut rng),
+        lightfield(&mut rng),
+        compact(&mut rng),
+        factored(&mut rng),
+    ] {
         let b = bundle(&mut rng, Some(transport), true);
         let decoded = Bundle::decode(&b.encode()).expect("hand-built bundle decodes");
         assert_eq!(decoded, b);

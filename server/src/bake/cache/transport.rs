@@ -28,7 +28,7 @@ use std::path::Path;
 
 use faer::Mat;
 
-use lightfarm_proto::bundle::{CompactEntry, Matrix};
+use lightfarm_proto::bundle::{CompactEntry, Matrix, SourceBases, SourceBasis};
 
 use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_proto::wire::{Reader, WireError, Writer};
@@ -37,12 +37,14 @@ use lightfarm_proto::Face;
 use crate::bake::cache::entry::{EntryKind, EntryStore};
 use crate::bake::transport::build::{MrtTransport, PropBlock, TracedBlock, TransportStats};
 use crate::bake::transport::source::{TransportSource, TransportUnavailable};
+use crate::bake::transport::source_bases::FactoringStats;
 
 /// Bumped whenever the transport computed for the same inputs, or its payload, changes (2: the
 /// shared entry framing; 3: each target block's operators an entry of their own; 4: the
 /// compaction in f32, as the bundle ships it; 5: the lightfield `T_prop` in f32, as the bake holds
-/// it). In every key, and every entry's version tag.
-const CODE_VERSION: &str = "lightfarm-transport-5";
+/// it; 6: the compaction with its sources' shared bases, and their statistics). In every key, and
+/// every entry's version tag.
+const CODE_VERSION: &str = "lightfarm-transport-6";
 
 /// Where transport entries live and their version.
 pub const ENTRY: EntryKind = EntryKind {
@@ -209,7 +211,7 @@ fn target_key(key: &str, target: usize) -> String {
 fn encode_main(
     traced: bool,
     hs: &[Header],
-    compact: Option<&[CompactEntry]>,
+    compact: Option<&SourceBases>,
     stats: &TransportStats,
 ) -> Vec<u8> {
     let mut w = Writer::new();
@@ -222,10 +224,15 @@ fn encode_main(
     }
     match compact {
         None => w.u8(0),
-        Some(entries) => {
+        Some(f) => {
             w.u8(1);
-            w.u32(entries.len() as u32);
-            for c in entries {
+            w.u32(f.bases.len() as u32);
+            for b in &f.bases {
+                w.u32(b.source_block);
+                write_matrix(&mut w, &b.q);
+            }
+            w.u32(f.entries.len() as u32);
+            for c in &f.entries {
                 w.u32(c.target_block);
                 w.u32s(&c.sources);
                 write_matrix(&mut w, &c.y);
@@ -234,15 +241,22 @@ fn encode_main(
         }
     }
     let s = stats;
-    for x in [s.steps, s.cut, s.max_hops, s.pairs_kept, s.pairs_dropped] {
+    let f = &s.factoring;
+    for x in [
+        s.steps,
+        s.cut,
+        s.max_hops,
+        s.pairs_kept,
+        s.pairs_dropped,
+        f.sources,
+        f.values_before,
+        f.values_after,
+    ] {
         w.u64(x as u64);
     }
-    w.u32s(
-        &s.compact_ranks
-            .iter()
-            .map(|r| *r as u32)
-            .collect::<Vec<_>>(),
-    );
+    let u32s = |v: &[usize]| v.iter().map(|r| *r as u32).collect::<Vec<_>>();
+    w.u32s(&u32s(&s.compact_ranks));
+    w.u32s(&u32s(&f.basis_ranks));
     w.bytes
 }
 
@@ -250,7 +264,7 @@ fn encode_main(
 struct Main {
     traced: bool,
     headers: Vec<Header>,
-    compact: Option<Vec<CompactEntry>>,
+    compact: Option<SourceBases>,
     stats: TransportStats,
 }
 
@@ -285,6 +299,14 @@ fn decode_main(bytes: &[u8]) -> Result<Main, WireError> {
         0 => None,
         1 => {
             let n = r.u32()? as usize;
+            let mut bases = Vec::with_capacity(n.min(r.remaining() / 12));
+            for _ in 0..n {
+                bases.push(SourceBasis {
+                    source_block: r.u32()?,
+                    q: read_matrix(&mut r)?,
+                });
+            }
+            let n = r.u32()? as usize;
             let mut entries = Vec::with_capacity(n.min(r.remaining() / 24));
             for _ in 0..n {
                 entries.push(CompactEntry {
@@ -294,21 +316,32 @@ fn decode_main(bytes: &[u8]) -> Result<Main, WireError> {
                     z: read_matrix(&mut r)?,
                 });
             }
-            Some(entries)
+            Some(SourceBases { bases, entries })
         }
         _ => return Err(WireError::Invalid("compact flag".into())),
     };
-    let mut counters = [0usize; 5];
+    let mut counters = [0usize; 8];
     for c in &mut counters {
         *c = r.u64()? as usize;
     }
+    let mut usizes = || -> Result<Vec<usize>, WireError> {
+        Ok(r.u32s()?.into_iter().map(|x| x as usize).collect())
+    };
+    let compact_ranks = usizes()?;
+    let basis_ranks = usizes()?;
     let stats = TransportStats {
         steps: counters[0],
         cut: counters[1],
         max_hops: counters[2],
         pairs_kept: counters[3],
         pairs_dropped: counters[4],
-        compact_ranks: r.u32s()?.into_iter().map(|x| x as usize).collect(),
+        compact_ranks,
+        factoring: FactoringStats {
+            basis_ranks,
+            sources: counters[5],
+            values_before: counters[6],
+            values_after: counters[7],
+        },
     };
     if r.remaining() != 0 {
         return Err(WireError::Invalid("trailing bytes".into()));
@@ -336,7 +369,7 @@ fn decode_matrices<T: CachedValue>(bytes: &[u8], count: usize) -> Result<Vec<Mat
 /// What a cache hit hands out: the compaction and statistics read, the f64 transport left on
 /// disk until someone asks for the blocks it needs.
 pub struct CachedHit {
-    pub compact: Option<Vec<CompactEntry>>,
+    pub compact: Option<SourceBases>,
     pub stats: TransportStats,
     pub transport: LazyTransport,
 }
@@ -533,7 +566,7 @@ impl TransportWriter {
     /// hands back the stored transport as a hit would read it, without reading it back.
     pub fn finish(
         self,
-        compact: Option<&[CompactEntry]>,
+        compact: Option<&SourceBases>,
         stats: &TransportStats,
     ) -> std::io::Result<LazyTransport> {
         self.store.put(
@@ -556,7 +589,7 @@ mod tests {
     /// A transport as a bake stores it: the operators, the compaction, the statistics.
     struct CachedTransport {
         mrt: MrtTransport,
-        compact: Option<Vec<CompactEntry>>,
+        compact: Option<SourceBases>,
         stats: TransportStats,
     }
 
@@ -566,7 +599,7 @@ mod tests {
             let writer = self.writer(key, &transport.mrt);
             writer.all(&transport.mrt)?;
             writer
-                .finish(transport.compact.as_deref(), &transport.stats)
+                .finish(transport.compact.as_ref(), &transport.stats)
                 .map(|_| ())
         }
     }
@@ -584,6 +617,12 @@ mod tests {
             pairs_kept: 4,
             pairs_dropped: 2,
             compact_ranks: vec![3, 0],
+            factoring: FactoringStats {
+                basis_ranks: vec![1],
+                sources: 2,
+                values_before: 10,
+                values_after: 9,
+            },
         }
     }
 
@@ -645,12 +684,19 @@ mod tests {
                 source_block: 1,
                 matrix: mat(4, 3, 0.2),
             }]),
-            compact: Some(vec![CompactEntry {
-                target_block: 0,
-                sources: vec![0, 1],
-                y: to_matrix(&mat(4, 2, 0.3)),
-                z: to_matrix(&mat(2, 5, 0.4)),
-            }]),
+            // Source 1 (r = 3) through a 1 × 3 basis: z is 2 × (2 + 1).
+            compact: Some(SourceBases {
+                bases: vec![SourceBasis {
+                    source_block: 1,
+                    q: to_matrix(&mat(1, 3, 0.5)),
+                }],
+                entries: vec![CompactEntry {
+                    target_block: 0,
+                    sources: vec![0, 1],
+                    y: to_matrix(&mat(4, 2, 0.3)),
+                    z: to_matrix(&mat(2, 3, 0.4)),
+                }],
+            }),
             stats: stats(),
         };
         assert!(cache.get("k").is_none());
@@ -714,7 +760,7 @@ mod tests {
         let mut main = encode_main(
             false,
             &headers(&lightfield.mrt),
-            lightfield.compact.as_deref(),
+            lightfield.compact.as_ref(),
             &lightfield.stats,
         );
         main.push(0);

@@ -11,6 +11,12 @@ pub fn widen(m: &Mat<f32>) -> Mat<f64> {
     Mat::from_fn(m.nrows(), m.ncols(), |i, j| f64::from(m[(i, j)]))
 }
 
+/// A bundle matrix (f32, row-major) in f64 (exact), for products that read what a bundle ships.
+pub fn from_matrix(m: &Matrix) -> Mat<f64> {
+    let c = m.cols as usize;
+    Mat::from_fn(m.rows as usize, c, |i, j| f64::from(m.data[i * c + j]))
+}
+
 /// `m` rounded to f32, to be held where memory decides.
 pub fn narrow(m: &Mat<f64>) -> Mat<f32> {
     Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32)

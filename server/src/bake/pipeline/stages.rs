@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
 
-use lightfarm_proto::bundle::CompactEntry;
+use lightfarm_proto::bundle::SourceBases;
 use lightfarm_proto::scene::{ProbeVolumeMode, Scene, Transform, Transport};
 
 use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
@@ -38,6 +38,7 @@ use crate::bake::transport::build::{
 };
 use crate::bake::transport::compaction::compact_consuming;
 use crate::bake::transport::source::TransportSource;
+use crate::bake::transport::source_bases::factor_sources;
 
 use super::plan::ShapePlan;
 use super::{BakeError, BakeReport};
@@ -215,8 +216,9 @@ impl HeldTransport {
 /// What the transport stage hands on.
 pub struct BlockTransport {
     pub held: HeldTransport,
-    /// Present when the scene ships compact transport: as the bundle ships it (f32).
-    pub compact: Option<Vec<CompactEntry>>,
+    /// Present when the scene ships compact transport: as the bundle ships it (f32, with the
+    /// sources' shared bases).
+    pub compact: Option<SourceBases>,
     pub stats: TransportStats,
     /// Per block, the operators it applies, when computing the transport made them (after the
     /// propagation, so that they and the lightfields are never held at once); None on a cache
@@ -315,8 +317,9 @@ pub struct ComputedTransport {
     pub whole: Option<MrtTransport>,
     /// The transport as stored, read block by block.
     pub stored: LazyTransport,
-    /// Present when the scene ships compact transport: as the bundle ships it (f32).
-    pub compact: Option<Vec<CompactEntry>>,
+    /// Present when the scene ships compact transport: as the bundle ships it (f32, with the
+    /// sources' shared bases).
+    pub compact: Option<SourceBases>,
     pub stats: TransportStats,
     /// Per block, the operators it applies ([`ShapePlan::block_operators`]).
     pub block_operators: Vec<Arc<ShapeOperators>>,
@@ -390,13 +393,16 @@ pub fn mrt_transport(
             |target, part| -> Result<(), BakeError> { Ok(writer.target(target, &part)?) },
         )?;
         stats.compact_ranks = compact.iter().map(|c| c.y.cols as usize).collect();
-        (None, Some(compact))
+        let rank: Vec<usize> = per_block.iter().map(|s| s.rank()).collect();
+        let (factored, factoring) = factor_sources(compact, &rank, settings.tolerance)?;
+        stats.factoring = factoring;
+        (None, Some(factored))
     } else {
         // The bundle ships the transport itself: all of it stays.
         writer.all(&mrt)?;
         (Some(mrt), None)
     };
-    let stored = writer.finish(compact.as_deref(), &stats)?;
+    let stored = writer.finish(compact.as_ref(), &stats)?;
     Ok(ComputedTransport {
         whole,
         stored,

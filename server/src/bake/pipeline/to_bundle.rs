@@ -36,14 +36,16 @@ pub fn compact_entry(c: &CompactTransport) -> bundle::CompactEntry {
     }
 }
 
-/// The bundle's transport section: the compact form when the scene ships it, else the
-/// transport as traced or as lightfields.
-pub fn transport_ops(
-    compact: Option<Vec<bundle::CompactEntry>>,
-    held: &HeldTransport,
-) -> TransportOps {
+/// The bundle's transport section: the compact form when the scene ships it (kind 3 when some
+/// source has a shared basis, else kind 2, which older readers read too), else the transport
+/// as traced or as lightfields.
+pub fn transport_ops(compact: Option<bundle::SourceBases>, held: &HeldTransport) -> TransportOps {
     if let Some(compact) = compact {
-        TransportOps::Compact(compact)
+        if compact.bases.is_empty() {
+            TransportOps::Compact(compact.entries)
+        } else {
+            TransportOps::Factored(compact)
+        }
     } else {
         let HeldTransport::Computed(mrt) = held else {
             unreachable!("a transport without compaction is held whole (stages::block_transport)")

@@ -31,6 +31,7 @@ use crate::bake::mrt::shape::Triplets;
 use crate::bake::mrt::shape_symmetry::InstanceLightfield;
 use crate::bake::scene::geometry::Geometry;
 use crate::bake::tracer::Tracer;
+use crate::bake::transport::source_bases::FactoringStats;
 
 /// Per block, its openings as the propagation reads them: each face with its `Pass` operators
 /// (incoming lightfield at a face → outgoing here), in the order the block's operators list
@@ -71,6 +72,8 @@ pub struct TransportStats {
     pub pairs_dropped: usize,
     /// Compacted transport: rank k of each receiving block's operator.
     pub compact_ranks: Vec<usize>,
+    /// Compacted transport: the sources' shared bases.
+    pub factoring: FactoringStats,
 }
 
 fn energy(m: &Mat<f64>) -> f64 {

@@ -3,6 +3,8 @@
 //! # Layout
 //! - [`build`]: transport by lightfield composition through the openings, or traced.
 //! - [`compaction`]: per target block, the low-rank form the runtime applies (ours).
+//! - [`source_bases`]: per source block, a row basis shared by its receivers (bundle
+//!   transport kind 3, ours).
 //! - [`source`]: where DRT's inpainting reads the transport into a few blocks (held, or
 //!   read from the cache block by block).
 //!
@@ -11,3 +13,4 @@
 pub mod build;
 pub mod compaction;
 pub mod source;
+pub mod source_bases;

@@ -327,7 +327,7 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         let _ = write!(w, " {s} |");
     }
     let _ = writeln!(w, " bytes per block |");
-    let columns = 7 + stage_names.len() + section_names.len();
+    let columns = 8 + stage_names.len() + section_names.len();
     let _ = writeln!(w, "|{}", "---|".repeat(columns));
     for p in points {
         let _ = write!(
