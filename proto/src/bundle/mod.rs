@@ -107,6 +107,14 @@ impl Matrix {
             data: vec![0.0; rows * cols],
         }
     }
+    /// The matrix with `value(i, j)` at row i, column j.
+    pub fn from_fn(rows: u32, cols: u32, value: impl Fn(u32, u32) -> f32) -> Matrix {
+        let data = (0..rows)
+            .flat_map(|i| (0..cols).map(move |j| (i, j)))
+            .map(|(i, j)| value(i, j))
+            .collect();
+        Matrix { rows, cols, data }
+    }
     pub fn row(&self, i: usize) -> &[f32] {
         let c = self.cols as usize;
         &self.data[i * c..(i + 1) * c]

@@ -122,21 +122,11 @@ impl Bundle {
 mod tests {
     use super::*;
 
-    fn matrix(rows: u32, cols: u32, f: impl Fn(u32, u32) -> f32) -> Matrix {
-        let mut data = Vec::new();
-        for i in 0..rows {
-            for j in 0..cols {
-                data.push(f(i, j));
-            }
-        }
-        Matrix { rows, cols, data }
-    }
-
     #[test]
     fn unfolding_multiplies_the_basis_in_and_copies_unfactored_sources() {
         // Two sources: block 1 (rank 3) with a 2 × 3 basis, block 2 (rank 2) without.
-        let q = matrix(2, 3, |i, j| (1 + i + 2 * j) as f32);
-        let z = matrix(2, 4, |i, j| (10 * i + j) as f32 - 1.5);
+        let q = Matrix::from_fn(2, 3, |i, j| (1 + i + 2 * j) as f32);
+        let z = Matrix::from_fn(2, 4, |i, j| (10 * i + j) as f32 - 1.5);
         let f = SourceBases {
             bases: vec![SourceBasis {
                 source_block: 1,
@@ -145,7 +135,7 @@ mod tests {
             entries: vec![CompactEntry {
                 target_block: 0,
                 sources: vec![1, 2],
-                y: matrix(5, 2, |i, j| (i * j) as f32),
+                y: Matrix::from_fn(5, 2, |i, j| (i * j) as f32),
                 z: z.clone(),
             }],
         };

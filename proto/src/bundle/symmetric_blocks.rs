@@ -202,24 +202,14 @@ impl Bundle {
 mod tests {
     use super::*;
 
-    fn matrix(rows: u32, cols: u32, f: impl Fn(u32, u32) -> f32) -> Matrix {
-        let mut data = Vec::new();
-        for i in 0..rows {
-            for j in 0..cols {
-                data.push(f(i, j));
-            }
-        }
-        Matrix { rows, cols, data }
-    }
-
     #[test]
     fn instancing_permutes_rows_of_u_and_columns_of_t_alike() {
         // Closed faces -x, -y, +y, +z at T = 2: 16 texels, rank 3.
         let closed = [Face::NegX, Face::NegY, Face::PosY, Face::PosZ];
         let shape = ShapeOps {
             key: "k".into(),
-            u_b: matrix(16, 3, |i, j| (i * 10 + j) as f32),
-            t_db: matrix(3, 16, |i, j| (j * 10 + i) as f32),
+            u_b: Matrix::from_fn(16, 3, |i, j| (i * 10 + j) as f32),
+            t_db: Matrix::from_fn(3, 16, |i, j| (j * 10 + i) as f32),
             openings: vec![],
         };
         for g in BoxSymmetry::all() {
@@ -262,8 +252,8 @@ mod tests {
     fn symmetries_that_do_not_tile_the_shape_are_refused() {
         let shape = ShapeOps {
             key: "k".into(),
-            u_b: matrix(12, 1, |_, _| 0.0),
-            t_db: matrix(1, 12, |_, _| 0.0),
+            u_b: Matrix::from_fn(12, 1, |_, _| 0.0),
+            t_db: Matrix::from_fn(1, 12, |_, _| 0.0),
             openings: vec![],
         };
         let s = |closed: u8| BlockSymmetry {

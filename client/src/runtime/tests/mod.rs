@@ -236,6 +236,21 @@ fn times_albedo(bundle: &Bundle, mut out: Vec<[f64; 3]>) -> Vec<[f64; 3]> {
     out
 }
 
+/// `m · x` in f64, x three channels per column of `m`.
+fn product(m: &Matrix, x: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    (0..m.rows as usize)
+        .map(|k| {
+            let mut v = [0.0; 3];
+            for (j, x) in x.iter().enumerate() {
+                for c in 0..3 {
+                    v[c] += get(m, k, j) * x[c];
+                }
+            }
+            v
+        })
+        .collect()
+}
+
 /// Straightforward dense MRT, in f64.
 fn reference_mrt(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
     times_albedo(bundle, reference_mrt_albedo_free(bundle, ld))
@@ -293,18 +308,7 @@ fn reference_mrt_albedo_free(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> 
                     .iter()
                     .flat_map(|s| coefs[*s as usize].iter().copied())
                     .collect();
-                let z: Vec<[f64; 3]> = (0..e.z.rows as usize)
-                    .map(|k| {
-                        let mut v = [0.0; 3];
-                        for (j, x) in stacked.iter().enumerate() {
-                            for c in 0..3 {
-                                v[c] += get(&e.z, k, j) * x[c];
-                            }
-                        }
-                        v
-                    })
-                    .collect();
-                add(e.target_block, &e.y, &z);
+                add(e.target_block, &e.y, &product(&e.z, &stacked));
             }
         }
         Some(TransportOps::Factored(f)) => {
@@ -316,33 +320,12 @@ fn reference_mrt_albedo_free(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> 
                     .flat_map(|&s| {
                         let b = &coefs[s as usize];
                         match f.basis(s) {
-                            Some(q) => (0..q.rows as usize)
-                                .map(|m| {
-                                    let mut v = [0.0; 3];
-                                    for (j, x) in b.iter().enumerate() {
-                                        for c in 0..3 {
-                                            v[c] += get(q, m, j) * x[c];
-                                        }
-                                    }
-                                    v
-                                })
-                                .collect::<Vec<_>>(),
+                            Some(q) => product(q, b),
                             None => b.clone(),
                         }
                     })
                     .collect();
-                let z: Vec<[f64; 3]> = (0..e.z.rows as usize)
-                    .map(|k| {
-                        let mut v = [0.0; 3];
-                        for (j, x) in stacked.iter().enumerate() {
-                            for c in 0..3 {
-                                v[c] += get(&e.z, k, j) * x[c];
-                            }
-                        }
-                        v
-                    })
-                    .collect();
-                add(e.target_block, &e.y, &z);
+                add(e.target_block, &e.y, &product(&e.z, &stacked));
             }
         }
         None => {}
