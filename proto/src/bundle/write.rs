@@ -23,8 +23,9 @@ use super::{
 /// Share of the transport codec budget a source basis of transport kind 3 is coded within, and
 /// the share its receivers' `Z'` are: with both, the maze's all-bounce DRT error is the one of
 /// kind 2 at the full budget (0.0398 over four light sets), where the full budget for both gave
-/// 0.0403 and the bases alone at a quarter 0.0401.
-const BASIS_BUDGET: f64 = 0.25;
+/// 0.0403. Bases at a quarter gave the same error in f16 (an orthonormal row of ~120 values
+/// needs ~0.75% on an 8-bit grid), at half they are 8-bit: grid1000 transport 23.2 → 21.5 MB.
+const BASIS_BUDGET: f64 = 0.5;
 const FACTORED_Z_BUDGET: f64 = 0.75;
 
 /// Compact transport entries (kinds 2 and 3): count, then per entry target, sources, y, z.
@@ -216,8 +217,8 @@ impl Bundle {
                     w.u8(3);
                     w.u32(f.bases.len() as u32);
                     // The factoring spends some of the error the codec would; its matrices get
-                    // a tighter share of the transport's budget, a basis the least: it carries
-                    // its source's light to every receiver, so its error repeats in each.
+                    // a tighter share of the transport's budget, a basis the tightest: it
+                    // carries its source's light to every receiver, so its error repeats in each.
                     enc.with_budget_scaled(BASIS_BUDGET, |enc| {
                         for b in &f.bases {
                             w.u32(b.source_block);
