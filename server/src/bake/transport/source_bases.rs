@@ -53,8 +53,28 @@ fn columns_by_source(entries: &[CompactEntry], rank: &[usize]) -> Vec<Vec<(usize
 }
 
 /// Source `a`'s row basis `Q_a` (j × r), or None when factoring it saves nothing.
+/// Column norms of each entry's `Y` (they weigh the rows of its `Z`; the columns are
+/// orthogonal), once per entry for every source it reads.
+fn y_column_norms(entries: &[CompactEntry]) -> Vec<Vec<f64>> {
+    entries
+        .par_iter()
+        .map(|e| {
+            let k = e.y.cols as usize;
+            (0..k)
+                .map(|c| {
+                    (0..e.y.rows as usize)
+                        .map(|t| f64::from(e.y.data[t * k + c]).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .collect()
+        })
+        .collect()
+}
+
 fn source_basis(
     entries: &[CompactEntry],
+    y_norms: &[Vec<f64>],
     columns: &[(usize, usize)],
     r: usize,
     tolerance: f64,
@@ -71,12 +91,7 @@ fn source_basis(
     for &(i, at) in columns {
         let e = &entries[i];
         let k = e.z.rows as usize;
-        for c in 0..k {
-            // Column c of Y: its norm weighs row c of Z (Y's columns are orthogonal).
-            let norm = (0..e.y.rows as usize)
-                .map(|t| f64::from(e.y.data[t * k + c]).powi(2))
-                .sum::<f64>()
-                .sqrt();
+        for (c, &norm) in y_norms[i].iter().enumerate().take(k) {
             let z = e.z.row(c);
             for j in 0..r {
                 stack[(row, j)] = norm * f64::from(z[at + j]);
@@ -107,10 +122,11 @@ pub fn factor_sources(
     tolerance: f64,
 ) -> Result<(SourceBases, FactoringStats), LowRankError> {
     let by_source = columns_by_source(&entries, rank);
+    let y_norms = y_column_norms(&entries);
     let bases: Vec<Option<Mat<f64>>> = by_source
         .par_iter()
         .enumerate()
-        .map(|(a, cols)| source_basis(&entries, cols, rank[a], tolerance))
+        .map(|(a, cols)| source_basis(&entries, &y_norms, cols, rank[a], tolerance))
         .collect::<Result<_, _>>()?;
     let values_before = entries.iter().map(|e| e.z.data.len()).sum();
     let entries: Vec<CompactEntry> = entries
