@@ -54,8 +54,12 @@ pub struct Scene {
 #[serde(rename_all = "lowercase")]
 pub enum Transport {
     /// MRT's scene-independent way: reduced lightfields on openings composed over the graph.
+    /// Cheaper to bake, but light crossing an opening is binned into `lightfield_cells² ×
+    /// lightfield_directions²` bins, which blurs it where it lands close to the opening.
     Lightfield,
-    /// Ray-traced cross-block operators through the real geometry (accurate).
+    /// The default: per receiving block, rays from its texels through its openings into the
+    /// level's blocks. On the maze at 16 texels per face DRT's all-bounce error is 0.0233
+    /// against 0.0398 through lightfields, in a smaller bundle (5.4 against 6.1 MB).
     Traced,
 }
 
@@ -246,7 +250,7 @@ impl Default for Settings {
             texels_per_face: 16,
             rays_per_texel: 1024,
             tolerance: 0.001,
-            transport: Transport::Lightfield,
+            transport: Transport::Traced,
             lightfield_cells: 4,
             lightfield_directions: 6,
             prior_lights: 768,

@@ -105,15 +105,15 @@ fn a_bake_without_a_cache_gives_the_bytes_of_a_bake_through_one() {
     let _ = std::fs::remove_dir_all(&cache_dir);
 }
 
-/// A shape's lightfields are an entry of their own, read only when the transport is computed:
-/// a rebake whose transport is cached bakes no shape without them; a transport computed later
-/// reads them, or bakes again the shapes whose lightfield entry is gone or corrupt. Every bake
-/// is the same bytes.
+/// A shape's lightfields are an entry of their own, read only when a lightfield transport is
+/// computed: a rebake whose transport is cached bakes no shape without them; a transport
+/// computed later reads them, or bakes again the shapes whose lightfield entry is gone or
+/// corrupt. Every bake is the same bytes. A traced transport reads none.
 #[test]
 fn lightfields_are_read_only_for_a_transport_that_is_computed() {
     let scene = small_corridor();
     let dir = scene_dir("corridor");
-    let (cache_dir, options) = cached("lf-lightfields", None);
+    let (cache_dir, options) = cached("lf-lightfields", Some(Transport::Lightfield));
     let with_ext = |ext: &str| -> Vec<std::path::PathBuf> {
         std::fs::read_dir(&cache_dir)
             .unwrap()
@@ -155,6 +155,19 @@ fn lightfields_are_read_only_for_a_transport_that_is_computed() {
     let (fourth, r4) = bake(&scene, &dir, &options, &NoProgress).unwrap();
     assert_eq!((r4.corrupt_cache_entries, r4.shapes_computed), (1, 1));
     assert!(fourth.encode() == fresh);
+
+    // A traced transport computed with no lightfield entry at all: no shape baked again.
+    for p in with_ext("lflight") {
+        std::fs::remove_file(p).unwrap();
+    }
+    let traced = BakeOptions {
+        transport: Some(Transport::Traced),
+        ..options.clone()
+    };
+    let (_, r5) = bake(&scene, &dir, &traced, &NoProgress).unwrap();
+    assert!(!r5.transport_from_cache);
+    assert_eq!((r5.shapes_from_cache, r5.shapes_computed), (shapes, 0));
+    assert!(with_ext("lflight").is_empty());
     let _ = std::fs::remove_dir_all(&cache_dir);
 }
 

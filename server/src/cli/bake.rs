@@ -135,10 +135,19 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
             list(&report.ranks)
         );
         let t = &report.transport;
-        eprintln!(
-            "transport: {} propagation steps ({} cut, max {} hops), {} traced pairs kept, {} dropped; compact ranks {}",
-            t.steps, t.cut, t.max_hops, t.pairs_kept, t.pairs_dropped, list(&t.compact_ranks)
-        );
+        if args.transport.unwrap_or(scene.settings.transport) == Transport::Lightfield {
+            eprintln!(
+                "transport (lightfield): {} propagation steps ({} cut, max {} hops); compact ranks {}",
+                t.steps, t.cut, t.max_hops, list(&t.compact_ranks)
+            );
+        } else {
+            eprintln!(
+                "transport (traced): {} (source, target) pairs kept, {} dropped; compact ranks {}",
+                t.pairs_kept,
+                t.pairs_dropped,
+                list(&t.compact_ranks)
+            );
+        }
         let f = &t.factoring;
         if f.sources > 0 {
             eprintln!(

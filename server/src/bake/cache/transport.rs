@@ -508,19 +508,20 @@ impl TransportCache {
 
     /// A writer of the transport `mrt` (whose operators' headers it notes) under `key`, target
     /// block by target block ([`TransportWriter`]).
-    pub fn writer(&self, key: &str, mrt: &MrtTransport) -> TransportWriter {
+    pub fn writer(&self, key: &str, traced: bool) -> TransportWriter {
         TransportWriter {
             store: self.store.clone(),
             key: key.to_string(),
-            traced: matches!(mrt, MrtTransport::Traced(_)),
-            headers: headers(mrt),
+            traced,
+            headers: Vec::new(),
         }
     }
 }
 
-/// Stores a transport while the bake lets go of it: each target block's operators as they
-/// come ([`TransportWriter::target`]), then the main entry ([`TransportWriter::finish`]), which
-/// lists every operator noted when the writer was made. Until `finish` the transport is not
+/// Stores a transport while the bake makes it or lets go of it: each target block's operators
+/// as they come ([`TransportWriter::target`], targets ascending) or all at once
+/// ([`TransportWriter::all`]), then the main entry ([`TransportWriter::finish`]), which lists
+/// every operator stored, in transport order. Until `finish` the transport is not
 /// in the cache (a bake that stops half way leaves block entries no main entry points to, which
 /// the trim removes like any other).
 pub struct TransportWriter {
@@ -532,14 +533,17 @@ pub struct TransportWriter {
 
 impl TransportWriter {
     /// Stores the operators into `target` (`part`: the transport into that block alone, in
-    /// transport order).
-    pub fn target(&self, target: usize, part: &MrtTransport) -> std::io::Result<()> {
-        self.put_operators(target, part, 0..headers_len(part))
+    /// transport order; targets come ascending, after every earlier one's).
+    pub fn target(&mut self, target: usize, part: &MrtTransport) -> std::io::Result<()> {
+        self.put_operators(target, part, 0..headers_len(part))?;
+        self.headers.extend(headers(part));
+        Ok(())
     }
 
-    /// Stores every target's operators of `mrt`, the transport the writer was made from
-    /// (grouped by target in one pass over its headers).
-    pub fn all(&self, mrt: &MrtTransport) -> std::io::Result<()> {
+    /// Stores every target's operators of the whole transport `mrt` (grouped by target in one
+    /// pass over its headers).
+    pub fn all(&mut self, mrt: &MrtTransport) -> std::io::Result<()> {
+        self.headers = headers(mrt);
         let mut by_target: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
         for (i, h) in self.headers.iter().enumerate() {
             by_target.entry(h.target).or_default().push(i);
@@ -596,7 +600,7 @@ mod tests {
     impl TransportCache {
         /// Stores `transport` whole: each target block's operators, then the main entry.
         fn put(&self, key: &str, transport: &CachedTransport) -> std::io::Result<()> {
-            let writer = self.writer(key, &transport.mrt);
+            let mut writer = self.writer(key, matches!(transport.mrt, MrtTransport::Traced(_)));
             writer.all(&transport.mrt)?;
             writer
                 .finish(transport.compact.as_ref(), &transport.stats)

@@ -382,7 +382,7 @@ pub enum ShapeError {
 }
 
 /// The box face a ray from inside leaves through, and where.
-fn box_exit(o: [f64; 3], d: [f64; 3], extent: [f64; 3]) -> (Face, [f64; 3]) {
+pub fn box_exit(o: [f64; 3], d: [f64; 3], extent: [f64; 3]) -> (Face, [f64; 3]) {
     let mut best = (f64::INFINITY, Face::PosX);
     for face in Face::ALL {
         let a = face.axis();

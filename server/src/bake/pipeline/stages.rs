@@ -9,6 +9,7 @@
 
 use faer::Mat;
 use rayon::prelude::*;
+use std::cell::Cell;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -34,9 +35,9 @@ use crate::bake::sh::probe_volume::{build_probe_volume, ProbeVolumeOps};
 use crate::bake::sh::responses::{build_sh_responses, ShResponseOps};
 use crate::bake::tracer::Tracer;
 use crate::bake::transport::build::{
-    lightfield_transport, traced_transport, MrtTransport, TransportStats,
+    lightfield_transport, BlockBox, MrtTransport, TracedTransport, TransportStats,
 };
-use crate::bake::transport::compaction::compact_consuming;
+use crate::bake::transport::compaction::{compact_consuming, TargetPart};
 use crate::bake::transport::source::TransportSource;
 use crate::bake::transport::source_bases::factor_sources;
 
@@ -270,7 +271,13 @@ pub fn block_transport(
             block_operators: None,
         });
     }
-    let lightfields = load_lightfields(plan, unique, lightfields, cache, progress, report)?;
+    // Only the lightfield propagation reads the openings' lightfields.
+    let lightfields = match transport_kind {
+        Transport::Lightfield => {
+            load_lightfields(plan, unique, lightfields, cache, progress, report)?
+        }
+        Transport::Traced => Vec::new(),
+    };
     let (store, scratch) = match transport_cache {
         Some(c) => (c, None),
         None => {
@@ -346,7 +353,9 @@ pub fn mrt_transport(
     progress: &dyn Progress,
 ) -> Result<ComputedTransport, BakeError> {
     let settings = &scene.settings;
-    let (mrt, mut stats, block_operators) = match transport_kind {
+    // The lightfield transport is composed whole; the traced one is made target by target
+    // below, as the compaction consumes it.
+    let (lightfield, mut stats, block_operators) = match transport_kind {
         Transport::Lightfield => {
             progress.stage("lightfield transport", 1);
             let instances = plan.instance_passes(unique);
@@ -361,33 +370,78 @@ pub fn mrt_transport(
             crate::bake::memory::release_freed();
             progress.advance(1);
             let block_operators = plan.block_operators(unique);
-            (MrtTransport::Lightfield(blocks), stats, block_operators)
+            (
+                Some(MrtTransport::Lightfield(blocks)),
+                stats,
+                block_operators,
+            )
         }
         Transport::Traced => {
             drop(lightfields);
             let block_operators = plan.block_operators(unique);
-            let per_block: Vec<&ShapeOperators> =
-                block_operators.iter().map(|s| s.as_ref()).collect();
-            progress.stage("traced transport", block_geometry.texels.len() as u64);
-            let tracer = Tracer::new(block_geometry.primitives.clone(), block_geometry.scale());
-            let (blocks, stats) = traced_transport(
-                block_geometry,
-                &tracer,
-                &per_block,
-                settings.rays_per_texel,
-                settings.seed,
-                settings.tolerance,
-                &|n| progress.advance(n),
-            );
-            (MrtTransport::Traced(blocks), stats, block_operators)
+            (None, TransportStats::default(), block_operators)
         }
     };
     let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
-    let writer = store.0.writer(store.1, &mrt);
+    let boxes: Vec<BlockBox> = scene
+        .blocks
+        .iter()
+        .map(|b| {
+            let mut open = [false; 6];
+            for f in &b.open {
+                open[f.index()] = true;
+            }
+            BlockBox {
+                aabb: b.aabb(),
+                open,
+            }
+        })
+        .collect();
+    let tracer = lightfield.is_none().then(|| {
+        progress.stage("traced transport", block_geometry.texels.len() as u64);
+        Tracer::new(block_geometry.primitives.clone(), block_geometry.scale())
+    });
+    let traced = tracer.as_ref().map(|tracer| {
+        TracedTransport::new(
+            block_geometry,
+            tracer,
+            &boxes,
+            &per_block,
+            settings.rays_per_texel,
+            settings.seed,
+            settings.tolerance,
+        )
+    });
+    let (kept, dropped) = (Cell::new(0), Cell::new(0));
+    let parts: Box<dyn Iterator<Item = TargetPart> + '_> = match (lightfield, &traced) {
+        (Some(mrt), _) => {
+            Box::new(
+                mrt.split_by_target()
+                    .into_iter()
+                    .map(|(target, part)| TargetPart {
+                        target,
+                        transport: part,
+                        noise: 0.0,
+                    }),
+            )
+        }
+        (None, Some(traced)) => Box::new((0..traced.blocks()).filter_map(|target| {
+            let part = traced.into_target(target, &|n| progress.advance(n));
+            kept.set(kept.get() + part.blocks.len());
+            dropped.set(dropped.get() + part.dropped);
+            (!part.blocks.is_empty()).then_some(TargetPart {
+                target,
+                transport: MrtTransport::Traced(part.blocks),
+                noise: part.noise,
+            })
+        })),
+        (None, None) => unreachable!("a traced transport without a tracer"),
+    };
+    let mut writer = store.0.writer(store.1, transport_kind == Transport::Traced);
     let (whole, compact) = if settings.compact_transport {
         let compact = compact_consuming(
             &per_block,
-            mrt,
+            parts,
             settings.tolerance,
             |c| super::to_bundle::compact_entry(&c),
             |target, part| -> Result<(), BakeError> { Ok(writer.target(target, &part)?) },
@@ -399,9 +453,12 @@ pub fn mrt_transport(
         (None, Some(factored))
     } else {
         // The bundle ships the transport itself: all of it stays.
+        let mrt = MrtTransport::concat(transport_kind, parts.map(|part| part.transport));
         writer.all(&mrt)?;
         (Some(mrt), None)
     };
+    stats.pairs_kept += kept.get();
+    stats.pairs_dropped += dropped.get();
     let stored = writer.finish(compact.as_ref(), &stats)?;
     Ok(ComputedTransport {
         whole,

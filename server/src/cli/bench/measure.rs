@@ -39,7 +39,7 @@ pub enum BenchMethod {
     Full,
     MrtLightfield,
     MrtTraced,
-    /// DRT on the lightfield bake (clutter scenes).
+    /// DRT on the default (traced) bake (clutter scenes).
     Drt,
     /// MRT plus the DNRT grids of the posed dynamic objects (scenes with dynamic objects).
     Dnrt,
@@ -72,10 +72,12 @@ impl BenchMethod {
         }
     }
 
+    /// The transport of the bake this method reads: DRT and DNRT on the default (traced), the
+    /// dense operator on the lightfield bake (it reads no transport).
     fn transport(self) -> Transport {
         match self {
-            BenchMethod::MrtTraced => Transport::Traced,
-            _ => Transport::Lightfield,
+            BenchMethod::MrtTraced | BenchMethod::Drt | BenchMethod::Dnrt => Transport::Traced,
+            BenchMethod::Full | BenchMethod::MrtLightfield => Transport::Lightfield,
         }
     }
 
