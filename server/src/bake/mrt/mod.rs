@@ -5,8 +5,8 @@
 //! - [`lightfield`]: radiance crossing a block opening, discretised in space and direction.
 //! - [`shape`]: a shape's operators `U_b`, `T_d→b` and its openings' `U_r` (content-keyed).
 //! - [`shape_symmetry`]: a block's operators from its canonical shape's (rotation, mirror).
-//! - [`one_bounce`]: sparse one-bounce gather rows over a whole scene (traced transport and the
-//!   dense `--full` operator use them too).
+//! - [`one_bounce`]: sparse one-bounce gather rows over a whole scene (the dense `--full`
+//!   operator).
 
 pub mod lightfield;
 pub mod lighting_prior;

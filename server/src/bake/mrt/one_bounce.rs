@@ -2,8 +2,9 @@
 //! cosine-weighted rays hit (DRT §3.1, `l_ind = ρ ⊙ F l_d`, albedo-free F).
 //!
 //! Rows come back sparse: `(hit texel, weight)` with weights summing to at most 1 (rays that
-//! miss, leave the level or hit unlit geometry carry nothing). Used for the traced inter-block
-//! operators and for the dense Hašan-style `full` operator.
+//! miss, leave the level or hit unlit geometry carry nothing). Used for the dense Hašan-style
+//! `full` operator (the traced inter-block transport traces its own rays, only those leaving a
+//! block through its openings, and its tests check it against these rows).
 //!
 //! Invariant: row `x` depends only on (seed, purpose, x) and the geometry, never on threads.
 

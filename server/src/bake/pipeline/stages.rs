@@ -383,20 +383,10 @@ pub fn mrt_transport(
         }
     };
     let per_block: Vec<&ShapeOperators> = block_operators.iter().map(|s| s.as_ref()).collect();
-    let boxes: Vec<BlockBox> = scene
-        .blocks
-        .iter()
-        .map(|b| {
-            let mut open = [false; 6];
-            for f in &b.open {
-                open[f.index()] = true;
-            }
-            BlockBox {
-                aabb: b.aabb(),
-                open,
-            }
-        })
-        .collect();
+    let boxes: Vec<BlockBox> = match lightfield {
+        Some(_) => Vec::new(),
+        None => scene.blocks.iter().map(BlockBox::of).collect(),
+    };
     let tracer = lightfield.is_none().then(|| {
         progress.stage("traced transport", block_geometry.texels.len() as u64);
         Tracer::new(block_geometry.primitives.clone(), block_geometry.scale())

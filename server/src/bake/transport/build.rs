@@ -25,7 +25,7 @@ use std::collections::{BTreeMap, VecDeque};
 use faer::Mat;
 use rayon::prelude::*;
 
-use lightfarm_proto::scene::{Aabb, Opening, Transport};
+use lightfarm_proto::scene::{Aabb, Block, Opening, Transport};
 use lightfarm_proto::Face;
 
 use crate::bake::math::matrix::narrow;
@@ -227,6 +227,20 @@ pub struct BlockBox {
     pub aabb: Aabb,
     /// By `Face::index`.
     pub open: [bool; 6],
+}
+
+impl BlockBox {
+    /// The box of a scene's block.
+    pub fn of(block: &Block) -> BlockBox {
+        let mut open = [false; 6];
+        for f in &block.open {
+            open[f.index()] = true;
+        }
+        BlockBox {
+            aabb: block.aabb(),
+            open,
+        }
+    }
 }
 
 /// Traced inter-block transport, made one target block at a time

@@ -1,7 +1,8 @@
 //! Inter-block transport (MRT §3.3): how light leaving one block reaches the others.
 //!
 //! # Layout
-//! - [`build`]: transport by lightfield composition through the openings, or traced.
+//! - [`build`]: transport traced per target block through its openings (the default), or by
+//!   lightfield composition.
 //! - [`compaction`]: per target block, the low-rank form the runtime applies (ours).
 //! - [`source_bases`]: per source block, a row basis shared by its receivers (bundle
 //!   transport kind 3, ours).
