@@ -134,6 +134,18 @@ fn bake_once(
     progress: &dyn Progress,
 ) -> Result<(Bundle, BakeReport), BakeError> {
     scene.validate()?;
+    // An overridden transport is the scene's from here on: the shapes' specs depend on it
+    // (`ShapeSpec::lightfield_rows`).
+    let overridden;
+    let scene = match options.transport {
+        Some(t) if t != scene.settings.transport => {
+            let mut s = scene.clone();
+            s.settings.transport = t;
+            overridden = s;
+            &overridden
+        }
+        _ => scene,
+    };
     let mut report = BakeReport::default();
     let mut timer = Instant::now();
     let mut lap = |report: &mut BakeReport, name: &str| {

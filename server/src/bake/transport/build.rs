@@ -14,7 +14,7 @@
 //!   `tolerance` of what the target receives. Made target by target ([`TracedTransport`]), with
 //!   the noise of its rays estimated for the compaction. Where light crosses an opening close to
 //!   the texels it lights, the lightfield's `cells² × dirs²` bins blur it and the traced rays do
-//!   not: on the maze at 16 texels per face DRT's all-bounce error is 0.0250 traced against
+//!   not: on the maze at 16 texels per face DRT's all-bounce error is 0.0235 traced against
 //!   0.0398 through lightfields (`tests/data/multibounce_accuracy.md`).
 //!
 //! Invariant: clutter is ignored here (MRT transport is of the empty level); results are
