@@ -200,7 +200,7 @@ impl ShapeSpec {
     pub fn key(&self) -> String {
         let mut h = blake3::Hasher::new();
         let text = format!(
-"{SHAPE_CODE_VERSION}|extent={:?}|open={:?}|t={}|rays={}|tol={:?}|lf={}x{}|prior={}|seed={}|region={:?}|dark={}|lfrows={}",
+            "{SHAPE_CODE_VERSION}|extent={:?}|open={:?}|t={}|rays={}|tol={:?}|lf={}x{}|prior={}|seed={}|region={:?}|dark={}|lfrows={}",
             self.extent.map(f64::to_bits),
             self.open.iter().map(|f| f.name()).collect::<Vec<_>>(),
             self.texels_per_face,
