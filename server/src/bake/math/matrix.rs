@@ -17,6 +17,17 @@ pub fn from_matrix(m: &Matrix) -> Mat<f64> {
     Mat::from_fn(m.rows as usize, c, |i, j| f64::from(m.data[i * c + j]))
 }
 
+/// `‖m‖_F²`, summed column by column (the order every truncation by energy here uses).
+pub fn energy(m: &Mat<f64>) -> f64 {
+    let mut e = 0.0;
+    for j in 0..m.ncols() {
+        for i in 0..m.nrows() {
+            e += m[(i, j)] * m[(i, j)];
+        }
+    }
+    e
+}
+
 /// `m` rounded to f32, to be held where memory decides.
 pub fn narrow(m: &Mat<f64>) -> Mat<f32> {
     Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32)

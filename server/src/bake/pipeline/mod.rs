@@ -175,7 +175,7 @@ fn bake_once(
     } = stages::shape_operators(&plan, cache, progress, &mut report)?;
     lap(&mut report, "shape operators");
 
-    let transport_kind = options.transport.unwrap_or(scene.settings.transport);
+    let transport_kind = scene.settings.transport;
     let stages::BlockTransport {
         mut held,
         compact,

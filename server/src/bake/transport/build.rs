@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use lightfarm_proto::scene::{Aabb, Block, Opening, Transport};
 use lightfarm_proto::Face;
 
-use crate::bake::math::matrix::narrow;
+use crate::bake::math::matrix::{energy, narrow};
 use crate::bake::math::sampling::{
     sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose,
 };
@@ -80,16 +80,6 @@ pub struct TransportStats {
     pub compact_ranks: Vec<usize>,
     /// Compacted transport: the sources' shared bases.
     pub factoring: FactoringStats,
-}
-
-fn energy(m: &Mat<f64>) -> f64 {
-    let mut e = 0.0;
-    for j in 0..m.ncols() {
-        for i in 0..m.nrows() {
-            e += m[(i, j)] * m[(i, j)];
-        }
-    }
-    e
 }
 
 /// Composes lightfield transport over the connectivity graph. Per block, `passes` gives its
@@ -390,12 +380,11 @@ impl<'a> TracedTransport<'a> {
                 )
             })
             .collect();
-        let energies: Vec<(f64, usize)> = per_source
+        let mut weakest: Vec<(f64, usize)> = per_source
             .iter()
             .map(|(source, (m, _))| (energy(m), *source))
             .collect();
-        let total: f64 = energies.iter().map(|(e, _)| e).sum();
-        let mut weakest = energies.clone();
+        let total: f64 = weakest.iter().map(|(e, _)| e).sum();
         weakest.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut dropped_energy = 0.0;
         let mut dropped = std::collections::BTreeSet::new();

@@ -30,7 +30,7 @@ use faer::Mat;
 use rayon::prelude::*;
 
 use crate::bake::math::low_rank::{truncated_svd, LowRankError};
-use crate::bake::math::matrix::widen;
+use crate::bake::math::matrix::{energy, widen};
 use crate::bake::mrt::shape::ShapeOperators;
 use crate::bake::transport::build::MrtTransport;
 
@@ -157,9 +157,7 @@ fn compact_block(
     // The noise's share of the energy on top of the tolerance, at most half of it (an
     // estimate that large says the rays saw little of this block's light; its strongest
     // modes are still kept).
-    let total: f64 = (0..g.ncols())
-        .map(|j| (0..n).map(|i| g[(i, j)] * g[(i, j)]).sum::<f64>())
-        .sum();
+    let total = energy(&g);
     let tolerance = if total > 0.0 {
         (tolerance + noise / total).min(0.5)
     } else {

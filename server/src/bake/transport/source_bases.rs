@@ -52,7 +52,6 @@ fn columns_by_source(entries: &[CompactEntry], rank: &[usize]) -> Vec<Vec<(usize
     by_source
 }
 
-/// Source `a`'s row basis `Q_a` (j × r), or None when factoring it saves nothing.
 /// Column norms of each entry's `Y` (they weigh the rows of its `Z`; the columns are
 /// orthogonal), once per entry for every source it reads.
 fn y_column_norms(entries: &[CompactEntry]) -> Vec<Vec<f64>> {
@@ -72,6 +71,7 @@ fn y_column_norms(entries: &[CompactEntry]) -> Vec<Vec<f64>> {
         .collect()
 }
 
+/// Source `a`'s row basis `Q_a` (j × r), or None when factoring it saves nothing.
 fn source_basis(
     entries: &[CompactEntry],
     y_norms: &[Vec<f64>],
@@ -90,8 +90,7 @@ fn source_basis(
     let mut row = 0;
     for &(i, at) in columns {
         let e = &entries[i];
-        let k = e.z.rows as usize;
-        for (c, &norm) in y_norms[i].iter().enumerate().take(k) {
+        for (c, &norm) in y_norms[i].iter().enumerate() {
             let z = e.z.row(c);
             for j in 0..r {
                 stack[(row, j)] = norm * f64::from(z[at + j]);
