@@ -13,7 +13,9 @@
 
 use lightfarm_proto::bundle::DeltaSource;
 
-use crate::packed_gather::{pad_direct, GatherIndex};
+use std::ops::Range;
+
+use crate::packed_gather::{pad_direct, texel_units, GatherColumns};
 
 use super::kernels::{group, planar, scatter_matvec, set_matvec};
 use super::Runtime;
@@ -168,9 +170,9 @@ impl Runtime {
     }
 
     /// DRT exact clutter gather: sparse rows over the direct light (albedo-free). Relighting by
-    /// the change ([`Runtime::apply_delta`]), only the rows reading a reached block's or
-    /// clutter object's texels run, over a four-lane copy of those texels alone (every other
-    /// row would sum zeros): the gather's cost follows the change, not the level.
+    /// the change ([`Runtime::apply_delta`]), only the entries reading a texel of a reached
+    /// block or clutter object whose light is not zero run, by column ([`GatherColumns`]):
+    /// the gather's cost follows the changed texels, not the level nor the rows they feed.
     pub(super) fn add_direct_gather(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
         let Some(g) = &self.ops.gather else { return };
         let Some(reach) = &self.reach else {
@@ -179,8 +181,13 @@ impl Runtime {
             return;
         };
         if self.gather_by_change.is_none() {
-            let index = g.index_by_units(&self.texel_units(), self.n_texels);
-            self.gather_by_change = Some(GatherByChange::new(index, g.n_rows(), self.n_texels));
+            let units = self.texel_units();
+            self.gather_by_change = Some(GatherByChange::new(
+                g.by_columns(self.n_texels),
+                &units,
+                g.n_rows(),
+                self.n_texels,
+            ));
         }
         let Some(by_change) = self.gather_by_change.as_mut() else {
             return;
@@ -193,12 +200,22 @@ impl Runtime {
                     .filter(|&j| reach.clutter[j])
                     .map(|j| n_blocks + j),
             )
-            .chain(by_change.index.always());
-        by_change.rows_of(reached, direct);
-        g.add_rows_to_padded(&by_change.rows, &by_change.padded, out);
-        if let Some(sparse) = self.sparse.as_mut().filter(|s| s.active) {
-            sparse.mark_texels(by_change.rows.iter().map(|&i| g.row_texel(i as usize)));
+            .chain(by_change.units..by_change.ranges.len());
+        let GatherByChange {
+            columns,
+            ranges,
+            sums,
+            touched,
+            marked,
+            ..
+        } = by_change;
+        for u in reached {
+            columns.scatter(ranges[u].clone(), direct, sums, touched, marked);
         }
+        if let Some(sparse) = self.sparse.as_mut().filter(|s| s.active) {
+            sparse.mark_texels(touched.iter().map(|&i| g.row_texel(i as usize)));
+        }
+        columns.finish(g, sums, touched, marked, out);
     }
 }
 
@@ -213,52 +230,35 @@ pub(super) enum Deltas {
     OfLight,
 }
 
-/// The exact gather's state when relighting by the change: which rows read each unit (block,
-/// clutter object, or texels in neither), the four-lane direct light of the last reached
-/// units (zero everywhere else), and the rows of one application.
+/// The exact gather's state when relighting by the change: its entries by column, the texel
+/// ranges of the units (blocks, clutter objects, then the runs of texels in neither, which
+/// every call scans) and one application's per-row sums (zero between calls).
 #[derive(Clone, Debug)]
 pub(super) struct GatherByChange {
-    index: GatherIndex,
-    /// Four-lane direct light, non-zero only on the units in `padded_units`.
-    padded: Vec<[f32; 4]>,
-    padded_units: Vec<usize>,
-    /// The rows of this application, each once (`marked` while listed).
-    rows: Vec<u32>,
+    columns: GatherColumns,
+    ranges: Vec<Range<usize>>,
+    /// Units given (blocks and clutter objects); `ranges[units..]` are the texels in neither.
+    units: usize,
+    sums: Vec<[f32; 4]>,
+    touched: Vec<u32>,
     marked: Vec<bool>,
 }
 
 impl GatherByChange {
-    fn new(index: GatherIndex, n_rows: usize, n_texels: usize) -> GatherByChange {
+    fn new(
+        columns: GatherColumns,
+        units: &[Range<usize>],
+        n_rows: usize,
+        n_texels: usize,
+    ) -> GatherByChange {
+        let (ranges, _) = texel_units(units, n_texels);
         GatherByChange {
-            index,
-            padded: vec![[0.0; 4]; n_texels],
-            padded_units: Vec::new(),
-            rows: Vec::new(),
+            columns,
+            ranges,
+            units: units.len(),
+            sums: vec![[0.0; 4]; n_rows],
+            touched: Vec::new(),
             marked: vec![false; n_rows],
-        }
-    }
-
-    /// Clears the last application's copy, copies `direct` on the `reached` units and lists
-    /// the rows reading them, each once.
-    fn rows_of(&mut self, reached: impl Iterator<Item = usize>, direct: &[[f32; 3]]) {
-        for &u in &self.padded_units {
-            self.padded[self.index.range(u)].fill([0.0; 4]);
-        }
-        self.padded_units.clear();
-        for &r in &self.rows {
-            self.marked[r as usize] = false;
-        }
-        self.rows.clear();
-        for u in reached {
-            let range = self.index.range(u);
-            pad_direct(&direct[range.clone()], &mut self.padded[range]);
-            self.padded_units.push(u);
-            for &r in self.index.rows_of(u) {
-                if !self.marked[r as usize] {
-                    self.marked[r as usize] = true;
-                    self.rows.push(r);
-                }
-            }
         }
     }
 }

@@ -12,19 +12,18 @@
 //! - every bounce after the first starts from the previous bounce's output, so the reach grows
 //!   by one transport hop a bounce, as the light does (`Converged` with MRT, and with DRT where
 //!   its coefficient space is kept, instead projects the reached blocks and clutter once and
-//!   runs the bounces in coefficient space, modules `reduced` and `reduced_drt`).
+//!   runs the bounces in coefficient space, modules `reduced` and `reduced_drt`);
+//! - the exact gather runs by column (`drt::GatherByChange`, made on the first call): only the
+//!   entries reading a texel of a reached block or clutter object whose input is not zero,
+//!   each row's terms summed in that order (the whole gather sums them row by row).
 //!
 //! Skipped work would have multiplied exact zeros, so an application under a reach equals the
-//! full application bit for bit (up to the sign of zeros); `apply_delta` then adds `A(Δ)`
+//! full application bit for bit (up to the sign of zeros), but for the exact gather's rows,
+//! which agree to float rounding (their terms in another order); `apply_delta` then adds `A(Δ)`
 //! (summed over bounces) to the old indirect light, which equals applying the new direct light
 //! within float rounding for `One` and `Fixed(n)`, and within the tolerance (relative to the
 //! change's own indirect light) for `Converged` (and `Warm`, which here is `Converged`: the
 //! change's light has no previous answer; the answer `Warm` starts from moves by the change).
-//!
-//! - the exact gather runs only the rows that read a reached block's or clutter object's
-//!   texels, over a four-lane copy of those texels alone (`drt::GatherByChange`, indexed on the
-//!   first call): every other row would sum zeros.
-//!
 //!
 //! At one bounce (`One`, `Fixed(1)`) nothing else passes over the level either ([`Sparse`]):
 //! the planar copy of the input covers the reached blocks and clutter objects only (the last

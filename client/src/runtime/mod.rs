@@ -69,7 +69,7 @@
 //! - `mrt`: MRT steps 1–4 (`project_blocks`, `mrt_albedo_free`, `multiply_albedo`).
 //! - `drt`: DRT steps 1–3 beyond MRT (`project_clutter`, `source_coefficients`,
 //!   `add_drt_deltas` or `add_deltas_of` a kind of entry, `drop_replaced`, `add_direct_gather`) and `GatherByChange`, the
-//!   gather's rows by the texels they read, for relighting by the change.
+//!   gather's entries by the texel they read, for relighting by the change.
 //! - `full`: [`Method::Full`], the sparse dense-bounce operator.
 //! - `probes`: [`Runtime::apply_probes`], the probe volume's SH radiance.
 //! - `sh_apply`: [`Runtime::apply_sh`] and [`ShLight`], SH incident radiance per texel.
