@@ -110,25 +110,15 @@ impl PackedGather {
     /// each entry is a load, a broadcast weight, a multiply and an add on four lanes (the
     /// fourth unused) instead of three scalar multiply-adds.
     pub fn add_to_padded(&self, direct: &[[f32; 4]], out: &mut [[f32; 3]]) {
-        self.add_rows(0..self.rows.len(), direct, out);
-    }
-
-    /// The rows `rows` of the gather, whatever its storage.
-    fn add_rows(
-        &self,
-        rows: impl Iterator<Item = usize>,
-        direct: &[[f32; 4]],
-        out: &mut [[f32; 3]],
-    ) {
         match (&self.cols, &self.weights) {
             (Columns::U16(c), Weights::Counts { unit, counts }) => {
-                self.accumulate(rows, c, counts, *unit, direct, out)
+                self.accumulate(c, counts, *unit, direct, out)
             }
             (Columns::U32(c), Weights::Counts { unit, counts }) => {
-                self.accumulate(rows, c, counts, *unit, direct, out)
+                self.accumulate(c, counts, *unit, direct, out)
             }
-            (Columns::U16(c), Weights::F32(v)) => self.accumulate(rows, c, v, 1.0, direct, out),
-            (Columns::U32(c), Weights::F32(v)) => self.accumulate(rows, c, v, 1.0, direct, out),
+            (Columns::U16(c), Weights::F32(v)) => self.accumulate(c, v, 1.0, direct, out),
+            (Columns::U32(c), Weights::F32(v)) => self.accumulate(c, v, 1.0, direct, out),
         }
     }
 
@@ -178,7 +168,7 @@ impl PackedGather {
         }
     }
 
-    /// `out[row] += scale · Σ w · direct[col]` for the listed rows; one loop for every storage. Entry `k`
+    /// `out[row] += scale · Σ w · direct[col]` for every row; one loop for every storage. Entry `k`
     /// of a row goes to partial sum `k mod 4` and the partials are added as `(p0 + p1) + (p2 +
     /// p3)`: four independent chains instead of one hide the adder's latency (one chain bound
     /// the loop at one entry per 4 cycles), and the order is still fixed by the code. Each lane
@@ -186,7 +176,6 @@ impl PackedGather {
     /// bit.
     fn accumulate<C, W>(
         &self,
-        rows: impl Iterator<Item = usize>,
         cols: &[C],
         weights: &[W],
         scale: f32,
@@ -196,7 +185,7 @@ impl PackedGather {
         C: Copy + Into<u32>,
         W: Copy + Into<f32>,
     {
-        for i in rows {
+        for i in 0..self.rows.len() {
             let (start, end) = (self.row_start[i] as usize, self.row_start[i + 1] as usize);
             let q = row_sum(&cols[start..end], &weights[start..end], direct);
             let o = &mut out[self.rows[i] as usize];

@@ -11,9 +11,9 @@
 //! applied in the bundle's order, so the result is deterministic; nothing allocates (scratch is
 //! taken from the runtime and given back).
 
-use lightfarm_proto::bundle::DeltaSource;
-
 use std::ops::Range;
+
+use lightfarm_proto::bundle::DeltaSource;
 
 use crate::packed_gather::{pad_direct, texel_units, GatherColumns};
 
