@@ -193,7 +193,7 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
     let _ = writeln!(w, "## Machine and command\n");
     let _ = writeln!(
         w,
-        "- CPU: {} (`nproc` = {}), shared with other builds while it ran\n\
+        "- CPU: {} (`nproc` = {}), a machine shared with other work (times vary 5-30% between runs)\n\
          - command: `{}`\n\
          - preset: {:?}; wall time {:.1} min, not counting {:.1} min of reference runs read \
          from the cache (a cold run takes about {:.1} min)\n\
