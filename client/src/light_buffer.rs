@@ -354,13 +354,20 @@ mod tests {
         );
     }
 
-    /// A subset of the primitives: the buffer answers for those alone.
-    #[test]
-    fn a_subset_answers_for_its_primitives() {
-        let mut rng = Lcg(77);
+    /// A random scene of 60 primitives, every third of them kept, and the hierarchy over those:
+    /// (the generator, the scene, the kept indices, their hierarchy).
+    fn subset_case(seed: u64) -> (Lcg, Occluders, Vec<u32>, Occluders) {
+        let mut rng = Lcg(seed);
         let occ = scene(&mut rng, 60, 20);
         let keep: Vec<u32> = (0..occ.len() as u32).filter(|i| i % 3 == 0).collect();
         let sub = occ.subset(&keep);
+        (rng, occ, keep, sub)
+    }
+
+    /// A subset of the primitives: the buffer answers for those alone.
+    #[test]
+    fn a_subset_answers_for_its_primitives() {
+        let (mut rng, occ, keep, sub) = subset_case(77);
         let mut buffer = LightBuffer::new();
         for _ in 0..10 {
             let light = rng.point(-4.0, 4.0);
@@ -378,10 +385,7 @@ mod tests {
     /// whatever the query before the rebuild found.
     #[test]
     fn the_last_blocker_is_forgotten_by_a_rebuild() {
-        let mut rng = Lcg(78);
-        let occ = scene(&mut rng, 60, 20);
-        let keep: Vec<u32> = (0..occ.len() as u32).filter(|i| i % 3 == 0).collect();
-        let sub = occ.subset(&keep);
+        let (mut rng, occ, keep, sub) = subset_case(78);
         let mut buffer = LightBuffer::new();
         let mut checked = 0;
         for _ in 0..400 {
