@@ -135,7 +135,7 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
             list(&report.ranks)
         );
         let t = &report.transport;
-        if args.transport.unwrap_or(scene.settings.transport) == Transport::Lightfield {
+        if report.transport_kind == Some(Transport::Lightfield) {
             eprintln!(
                 "transport (lightfield): {} propagation steps ({} cut, max {} hops); compact ranks {}",
                 t.steps, t.cut, t.max_hops, list(&t.compact_ranks)

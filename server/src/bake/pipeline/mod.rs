@@ -62,6 +62,9 @@ pub struct BakeReport {
     pub corrupt_cache_entries: usize,
     pub ranks: Vec<usize>,
     pub transport: TransportStats,
+    /// The kind of inter-block transport the bake used (the scene's setting or the override);
+    /// None only before the transport stage has run.
+    pub transport_kind: Option<Transport>,
     /// The inter-block transport came from the cache (nothing about the blocks changed).
     pub transport_from_cache: bool,
     pub stage_seconds: Vec<(String, f64)>,
@@ -194,6 +197,7 @@ fn bake_once(
         &mut report,
     )?;
     report.transport = stats;
+    report.transport_kind = Some(transport_kind);
     let mut block_operators = block_operators.unwrap_or_else(|| plan.block_operators(&shapes));
     // DRT reads a block's L_imp a row per hit: row-major, one copy per distinct operator.
     let l_imp_rows = if LateStage::ClutterOperators.runs(scene, options.full) {
