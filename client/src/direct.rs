@@ -10,7 +10,10 @@
 //! [`WHOLE_LEVEL_MAX_OCCLUDERS`] occluders and at most `LIGHT_BUFFERS_MAX` occluders × lights
 //! (a few microseconds to build, then a handful of primitive tests per ray), else to the
 //! occluders' hierarchy: both give the same answers, so the values do not depend on which was
-//! used.
+//! used. With one light over a buffer (a light's reach, one light's term), texels go by runs of
+//! a few on one face ([`crate::box_shadows`]): a run the light sees whole traces no ray, one an
+//! occluder hides whole neither, and the rest test only the occluders that may cross their
+//! segments, all with the buffer's answers.
 //!
 //! Invariants:
 //! - [`DirectLight::radiance`] has one entry per layout texel, in layout order.
@@ -18,9 +21,12 @@
 //!   below at `(1e-4 · scene scale)²` (scene scale: the diagonal of the box around texel centres
 //!   and occluders), and a light exactly at a texel centre (no direction) contributes nothing.
 
+use std::borrow::Cow;
+
 use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::lights::{Light, LightKind};
 
+use crate::box_shadows::{run_bounds, runs, BoxShadow, BoxShadows};
 use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
 use crate::occluders::Occluders;
 pub use crate::texel_samples::ADAPTIVE_MAX_SAMPLES_PER_EDGE;
@@ -76,13 +82,18 @@ pub(crate) enum Shadows<'a> {
     Occluders(&'a Occluders),
     /// One [`LightBuffer`] per light, in the lighting's light order, over these occluders.
     Buffers(&'a Occluders, &'a [LightBuffer]),
+    /// Only these primitives of the occluders can cross the segments at hand (a run of texels
+    /// after [`BoxShadow::Listed`]).
+    Listed(&'a Occluders, &'a [u32]),
+    /// Every segment at hand is crossed (a run after [`BoxShadow::Dark`]).
+    Dark,
 }
 
 /// The lights and what every texel's direct light shares: their positions in f32 (the
 /// occluders' precision), the shadow queries and the `r²` clamp.
 struct Lighting<'a> {
     lights: &'a [Light],
-    positions: Vec<[f32; 3]>,
+    positions: Cow<'a, [[f32; 3]]>,
     shadows: Shadows<'a>,
     r2_min: f64,
 }
@@ -105,9 +116,20 @@ impl<'a> Lighting<'a> {
         }
         Lighting {
             lights,
-            positions,
+            positions: Cow::Owned(positions),
             shadows,
             r2_min: (R_MIN_REL * scale).powi(2),
+        }
+    }
+
+    /// The same lights with other shadow queries (for the segments those queries are
+    /// about: a run of texels, or texels known to be in sight).
+    fn with_shadows<'b>(&'b self, shadows: Shadows<'b>) -> Lighting<'b> {
+        Lighting {
+            lights: self.lights,
+            positions: Cow::Borrowed(&self.positions),
+            shadows,
+            r2_min: self.r2_min,
         }
     }
 
@@ -118,6 +140,14 @@ impl<'a> Lighting<'a> {
             Shadows::Clear => false,
             Shadows::Occluders(occluders) => occluders.occluded(x, self.positions[li]),
             Shadows::Buffers(occluders, buffers) => buffers[li].occluded(occluders, x),
+            Shadows::Listed(occluders, prims) => occluders
+                .shadow_segment(x, self.positions[li])
+                .is_some_and(|seg| {
+                    prims
+                        .iter()
+                        .any(|&p| occluders.prim_crosses(p as usize, &seg))
+                }),
+            Shadows::Dark => true,
         }
     }
 
@@ -360,20 +390,62 @@ pub(crate) fn adaptive_in_with(
 ) {
     let m = samples_per_edge.max(1) as usize;
     let lighting = Lighting::new(lights, shadows, scale);
-    // The same lights with nothing in the way, for spans in sight.
-    let in_sight = spans.iter().any(|s| s.in_sight).then(|| Lighting {
-        shadows: Shadows::Clear,
-        ..Lighting::new(lights, shadows, scale)
-    });
     let n = out.len().min(layout.n_texels());
     let mut samples = TexelSamples::new();
+    for_each_shadowed(&lighting, layout, spans, (n, m), |lighting, t| {
+        out[t] = texel_direct(lighting, TexelAt::of(layout, t), m, Some(&mut samples));
+    });
+}
+
+/// Calls `each(queries, t)` for every texel `t < n` of `spans` (`m × m` samples each), with shadow queries that give
+/// the texel's samples what `lighting`'s give them, bit for bit: none in spans in sight, and
+/// with one light over a [`LightBuffer`], per run of texels what a box query found
+/// ([`crate::box_shadows`]: nothing in the way, one occluder in the way of every sample, or
+/// the few occluders that may be), so that most runs trace no ray or test a handful of
+/// occluders. Runs whose texels all face away from the light are not queried.
+fn for_each_shadowed(
+    lighting: &Lighting,
+    layout: &Layout,
+    spans: &[TexelSpan],
+    (n, m): (usize, usize),
+    mut each: impl FnMut(&Lighting, usize),
+) {
+    let clear = lighting.with_shadows(Shadows::Clear);
+    let dark = lighting.with_shadows(Shadows::Dark);
+    let boxed = match lighting.shadows {
+        Shadows::Buffers(occluders, [buffer]) => Some((occluders, buffer)),
+        _ => None,
+    };
+    let mut query = BoxShadows::new();
     for span in spans {
-        let lighting = match &in_sight {
-            Some(clear) if span.in_sight => clear,
-            _ => &lighting,
+        let texels = span.texels.start.min(n)..span.texels.end.min(n);
+        if span.in_sight {
+            texels.for_each(|t| each(&clear, t));
+            continue;
+        }
+        let Some((occluders, buffer)) = boxed else {
+            texels.for_each(|t| each(lighting, t));
+            continue;
         };
-        for t in span.texels.start.min(n)..span.texels.end.min(n) {
-            out[t] = texel_direct(lighting, TexelAt::of(layout, t), m, Some(&mut samples));
+        let light = &lighting.lights[0];
+        for run in runs(layout, texels) {
+            if run
+                .clone()
+                .all(|t| faces_away(layout.positions[t], layout.normals[t], light))
+            {
+                run.for_each(|t| each(lighting, t));
+                continue;
+            }
+            let (lo, hi) = run_bounds(layout, run.clone(), m);
+            match query.query(buffer, occluders, lo, hi) {
+                BoxShadow::Clear => run.for_each(|t| each(&clear, t)),
+                BoxShadow::Dark => run.for_each(|t| each(&dark, t)),
+                BoxShadow::Listed => {
+                    let listed = lighting.with_shadows(Shadows::Listed(occluders, query.listed()));
+                    run.for_each(|t| each(&listed, t));
+                }
+                BoxShadow::Unknown => run.for_each(|t| each(lighting, t)),
+            }
         }
     }
 }
@@ -403,8 +475,8 @@ fn adaptive_texel(
 
 /// Adds light `li`'s term of a texel's adaptive average into `irr`: `I` times the mean over
 /// the texel's `m × m` samples of `cosθ / r² · V`, with `V` traced at the four corner samples
-/// and at every sample only where the corners disagree. `samples` has been started on the
-/// texel ([`TexelSamples::start`]).
+/// and at every sample only where the corners disagree (no ray where the shadows are
+/// `Clear` or `Dark`). `samples` has been started on the texel ([`TexelSamples::start`]).
 fn add_adaptive(
     lighting: &Lighting,
     li: usize,
@@ -414,7 +486,8 @@ fn add_adaptive(
     irr: &mut [f64; 3],
 ) {
     let light = &lighting.lights[li];
-    if light.intensity.iter().all(|&i| i == 0.0) {
+    // Every sample shadowed, or no intensity: the term is zero (adding it leaves `irr`).
+    if matches!(lighting.shadows, Shadows::Dark) || light.intensity.iter().all(|&i| i == 0.0) {
         return;
     }
     let corners = corner_indices(m);
@@ -423,7 +496,13 @@ fn add_adaptive(
     if samples.g[..m * m].iter().all(|&v| v == 0.0) {
         return;
     }
-    let corner_seen = corners.map(|k| !lighting.occluded(li, samples.points[k]));
+    let corner_seen = if matches!(lighting.shadows, Shadows::Clear) {
+        // What the corners' rays would say, without making the corner points.
+        [true; 4]
+    } else {
+        samples.corners(t, m);
+        corners.map(|k| !lighting.occluded(li, samples.points[k]))
+    };
     if corner_seen.iter().any(|&v| v != corner_seen[0]) {
         samples.fill_points(t, m);
     }
@@ -486,33 +565,24 @@ pub(crate) fn add_light_term_in(
     debug_assert!(m <= ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize);
     let lights = std::slice::from_ref(light);
     let lighting = Lighting::new(lights, shadows, scale);
-    let clear = spans.iter().any(|s| s.in_sight).then(|| Lighting {
-        shadows: Shadows::Clear,
-        ..Lighting::new(lights, shadows, scale)
-    });
     let n = irr.len().min(layout.n_texels());
     let mut samples = TexelSamples::new();
-    for span in spans {
-        let lighting = match &clear {
-            Some(clear) if span.in_sight => clear,
-            _ => &lighting,
-        };
-        for t in span.texels.start.min(n)..span.texels.end.min(n) {
-            let at = TexelAt::of(layout, t);
-            if faces_away(at.x, at.n, light) {
-                // Every sample's term is zero (`faces_away`): what the samples would add.
-                continue;
-            }
-            if m == 1 || at.size == [0.0, 0.0] {
-                lighting.add_point(0, at.x, at.n, &mut irr[t]);
-            } else if every_sample {
-                add_every_sample(lighting, 0, &at, m, &mut samples, &mut irr[t]);
-            } else {
-                samples.start(&at, m);
-                add_adaptive(lighting, 0, &at, m, &mut samples, &mut irr[t]);
-            }
+    for_each_shadowed(&lighting, layout, spans, (n, m), |lighting, t| {
+        let at = TexelAt::of(layout, t);
+        // Every sample's term is zero when the light faces away (`faces_away`) or every
+        // sample is shadowed: what the samples would add.
+        if faces_away(at.x, at.n, light) || matches!(lighting.shadows, Shadows::Dark) {
+            return;
         }
-    }
+        if m == 1 || at.size == [0.0, 0.0] {
+            lighting.add_point(0, at.x, at.n, &mut irr[t]);
+        } else if every_sample {
+            add_every_sample(lighting, 0, &at, m, &mut samples, &mut irr[t]);
+        } else {
+            samples.start(&at, m);
+            add_adaptive(lighting, 0, &at, m, &mut samples, &mut irr[t]);
+        }
+    });
 }
 
 /// Adds light `li`'s term of a texel's full average into `irr`: `I` times the mean over the

@@ -31,6 +31,8 @@
 //! - [`light_buffer`]: one point light's shadow rays answered from a cube of direction cells
 //!   listing the occluders nearest first (rebuilt per frame for a moving light; the same
 //!   answers as the BVH).
+//! - `box_shadows` (private): one light's shadows on a run of texels at once (seen whole,
+//!   hidden whole, or the few occluders that may cross its segments), from a light buffer.
 //! - [`light_reach`]: which texels a point light can reach, by a portal walk over the bundle's
 //!   rooms (block boxes and openings), so one light's direct light is recomputed where it
 //!   reaches only.
@@ -67,6 +69,7 @@
 //! in layout order with one RGB value per layout texel; operators are albedo-free and the
 //! receiving texel's albedo is multiplied in last.
 
+mod box_shadows;
 pub mod compare;
 pub mod direct;
 pub mod dnrt;

@@ -44,11 +44,13 @@ const UV_MARGIN: f64 = 1e-9;
 /// Relative margin of the distance cut.
 const DIST_MARGIN: f64 = 1e-9;
 
-/// One listed occluder: its padded bounds' distance from the light and its index.
+/// One listed occluder: its padded bounds' distance from the light, its index and its rank
+/// among the buffer's occluders (nearest first; it fills the padding of the struct).
 #[derive(Clone, Copy, Debug)]
 struct Entry {
     dmin: f64,
     prim: u32,
+    rank: u32,
 }
 
 /// The occluders around one point light, by direction cell (see the module doc). Reusable:
@@ -155,7 +157,14 @@ impl LightBuffer {
         }
         let total = self.offsets[6 * n * n] as usize;
         self.entries.clear();
-        self.entries.resize(total, Entry { dmin: 0.0, prim: 0 });
+        self.entries.resize(
+            total,
+            Entry {
+                dmin: 0.0,
+                prim: 0,
+                rank: 0,
+            },
+        );
         // Filled in rank order, so each cell's list comes out nearest first.
         let mut cursor = std::mem::take(&mut self.offsets);
         for &(rank, face, [i0, i1, j0, j1]) in &self.rects {
@@ -164,7 +173,7 @@ impl LightBuffer {
                 let row = (face as usize * n + j as usize) * n;
                 for i in i0..=i1 {
                     let c = &mut cursor[row + i as usize];
-                    self.entries[*c as usize] = Entry { dmin, prim };
+                    self.entries[*c as usize] = Entry { dmin, prim, rank };
                     *c += 1;
                 }
             }
@@ -236,6 +245,63 @@ impl LightBuffer {
             }
         }
         false
+    }
+}
+
+impl LightBuffer {
+    /// Calls `f(prim, rank)` on every primitive listed in a cell that the direction from the light to
+    /// some point of the box `[lo, hi]` (world frame) picks, up to the first entry farther than
+    /// `reach` in each cell: every primitive [`LightBuffer::occluded`] can test for an origin in
+    /// the box whose segment is at most `reach` long (a primitive listed in several cells comes
+    /// once per cell; `rank < self.len()` numbers them). `f` returns false to stop. `None` (and no call) when the box covers
+    /// more than `max_cells` cells; else whether every entry was visited.
+    pub(crate) fn entries_toward_box(
+        &self,
+        lo: [f64; 3],
+        hi: [f64; 3],
+        reach: f64,
+        max_cells: usize,
+        mut f: impl FnMut(u32, u32) -> bool,
+    ) -> Option<bool> {
+        if self.entries.is_empty() {
+            return Some(true);
+        }
+        let p = self.light.map(f64::from);
+        let rlo = [0, 1, 2].map(|k| lo[k] - p[k]);
+        let rhi = [0, 1, 2].map(|k| hi[k] - p[k]);
+        let rects = [0u8, 1, 2, 3, 4, 5].map(|face| face_cells(face, rlo, rhi));
+        let cells: usize = rects
+            .iter()
+            .flatten()
+            .map(|&[i0, i1, j0, j1]| (i1 - i0 + 1) as usize * (j1 - j0 + 1) as usize)
+            .sum();
+        if cells > max_cells {
+            return None;
+        }
+        let n = CELLS_PER_EDGE;
+        let reach = reach * (1.0 + DIST_MARGIN);
+        for (face, rect) in rects.iter().enumerate() {
+            let Some([i0, i1, j0, j1]) = *rect else {
+                continue;
+            };
+            for j in j0..=j1 {
+                let row = (face * n + j as usize) * n;
+                for i in i0..=i1 {
+                    let c = row + i as usize;
+                    let list =
+                        &self.entries[self.offsets[c] as usize..self.offsets[c + 1] as usize];
+                    for e in list {
+                        if e.dmin > reach {
+                            break;
+                        }
+                        if !f(e.prim, e.rank) {
+                            return Some(false);
+                        }
+                    }
+                }
+            }
+        }
+        Some(true)
     }
 }
 

@@ -35,6 +35,34 @@ const T_EPS_REL: f32 = 1e-4;
 const EPS_SCALE: f32 = 1e-4;
 /// Node-box padding, relative to the scene scale.
 const BOX_PAD: f32 = 1e-5;
+/// [`Occluders::prim_crosses_from_box`]'s slack on positions, relative to the largest
+/// coordinate or the scale: a hundred times the f32 test's rounding.
+const BOX_SLACK_REL: f64 = 1e-5;
+/// [`Occluders::prim_crosses_from_box`]'s slack on segment parameters (the f32 test rounds `t`
+/// to a few 1e-7).
+const BOX_T_SLACK: f64 = 1e-5;
+
+/// What one primitive does to a box's shadow segments ([`Occluders::prim_crosses_from_box`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum BoxCross {
+    /// It crosses none of them.
+    Never,
+    /// It crosses every one.
+    Every,
+    /// Some, or it cannot tell.
+    Maybe,
+}
+
+/// Distance from `p` to the closed box `[lo, hi]` (0 inside).
+fn box_distance(p: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    (0..3)
+        .map(|k| {
+            let gap = (lo[k] - p[k]).max(p[k] - hi[k]).max(0.0);
+            gap * gap
+        })
+        .sum::<f64>()
+        .sqrt()
+}
 
 /// One occluding primitive.
 #[derive(Clone, Copy, Debug)]
@@ -407,6 +435,117 @@ impl Occluders {
         self.prims[i].hit(seg.o, seg.d, seg.tmin, seg.tmax)
     }
 
+    /// What primitive `i` does to every segment [`Occluders::occluded`] tests from a point of
+    /// the box `[lo, hi]` to `light` (module [`crate::box_shadows`] says why each answer is
+    /// exact to the f32 test): [`BoxCross::Never`] when it crosses none, [`BoxCross::Every`]
+    /// when it crosses each one, else [`BoxCross::Maybe`]. Conservative: `Maybe` is always a
+    /// correct answer, and a non-finite box or light gets it.
+    pub(crate) fn prim_crosses_from_box(
+        &self,
+        i: usize,
+        light: [f32; 3],
+        lo: [f64; 3],
+        hi: [f64; 3],
+    ) -> BoxCross {
+        let l = light.map(f64::from);
+        if !(l.iter().chain(&lo).chain(&hi).all(|x| x.is_finite())) {
+            return BoxCross::Maybe;
+        }
+        // Slack for the f32 test's rounding: coordinates and the scale set its size.
+        let mag = (0..3).fold(self.scale as f64, |m, k| {
+            m.max(l[k].abs()).max(lo[k].abs()).max(hi[k].abs())
+        });
+        let slack = BOX_SLACK_REL * mag;
+        match self.prims[i] {
+            Prim::Rect {
+                axis,
+                coord,
+                min,
+                max,
+            } => {
+                let a = axis as usize;
+                let c = coord as f64;
+                // The plane is not strictly between the light and any point: the f32 test's
+                // `t = (c − o_a) / (l_a − o_a)` is ≤ 0, ≥ 1 or not taken (`d_a = 0`), for a
+                // difference of f32 values keeps its sign and rounding keeps their order.
+                if (l[a] >= c && lo[a] >= c) || (l[a] <= c && hi[a] <= c) {
+                    return BoxCross::Never;
+                }
+                if !((l[a] < c && lo[a] > c) || (l[a] > c && hi[a] < c)) {
+                    return BoxCross::Maybe;
+                }
+                // Every segment crosses the plane: where, is the central projection from the
+                // light of the box onto it, inside the box around its corners' projections.
+                let (u, v) = tangent_axes(axis);
+                let (mut plo, mut phi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+                for corner in 0..8 {
+                    let p = [0, 1, 2].map(|k| if corner >> k & 1 == 0 { lo[k] } else { hi[k] });
+                    let s = (c - l[a]) / (p[a] - l[a]);
+                    for (j, k) in [u, v].into_iter().enumerate() {
+                        let x = l[k] + s * (p[k] - l[k]);
+                        plo[j] = plo[j].min(x);
+                        phi[j] = phi[j].max(x);
+                    }
+                }
+                let (rmin, rmax) = (min.map(f64::from), max.map(f64::from));
+                if (0..2).any(|j| phi[j] < rmin[j] - slack || plo[j] > rmax[j] + slack) {
+                    return BoxCross::Never;
+                }
+                if !(0..2).all(|j| plo[j] > rmin[j] + slack && phi[j] < rmax[j] - slack) {
+                    return BoxCross::Maybe;
+                }
+                // Inside the rect everywhere: a hit when `t` is inside the segment's open
+                // interval, whose margin is widest for the shortest segment.
+                let t_at = |oa: f64| (c - oa) / (l[a] - oa);
+                let (t0, t1) = (t_at(lo[a]), t_at(hi[a]));
+                let len_min = box_distance(l, lo, hi);
+                if len_min.is_nan() || len_min <= 0.0 {
+                    return BoxCross::Maybe;
+                }
+                let eps = T_EPS_REL as f64 + EPS_SCALE as f64 * self.scale as f64 / len_min;
+                let margin = eps * (1.0 + BOX_T_SLACK) + BOX_T_SLACK;
+                if t0.min(t1) > margin && t0.max(t1) < 1.0 - margin {
+                    BoxCross::Every
+                } else {
+                    BoxCross::Maybe
+                }
+            }
+            Prim::Tri(p) => {
+                // Only the plane: the light and the whole box strictly on one side of it, by
+                // more than the test's rounding, put the line's crossing outside the segment.
+                let p = p.map(|q| q.map(f64::from));
+                let e1 = [0, 1, 2].map(|k| p[1][k] - p[0][k]);
+                let e2 = [0, 1, 2].map(|k| p[2][k] - p[0][k]);
+                let n = [
+                    e1[1] * e2[2] - e1[2] * e2[1],
+                    e1[2] * e2[0] - e1[0] * e2[2],
+                    e1[0] * e2[1] - e1[1] * e2[0],
+                ];
+                let norm = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                if !norm.is_finite() || norm <= 0.0 {
+                    return BoxCross::Maybe;
+                }
+                let side = |q: [f64; 3]| {
+                    ((q[0] - p[0][0]) * n[0] + (q[1] - p[0][1]) * n[1] + (q[2] - p[0][2]) * n[2])
+                        / norm
+                };
+                let sl = side(l);
+                if sl.is_nan() || sl.abs() <= slack {
+                    return BoxCross::Maybe;
+                }
+                let all_with_light = (0..8).all(|corner| {
+                    let q = [0, 1, 2].map(|k| if corner >> k & 1 == 0 { lo[k] } else { hi[k] });
+                    side(q) * sl.signum() > slack
+                });
+                if all_with_light {
+                    BoxCross::Never
+                } else {
+                    BoxCross::Maybe
+                }
+            }
+        }
+    }
+
     /// Segment direction and the open parameter interval a hit must fall in; `None` when the
     /// segment is too short (or not finite) to be occluded.
     fn segment(&self, origin: Vec3, target: Vec3) -> Option<(Vec3, f32, f32)> {
@@ -506,6 +645,104 @@ pub(crate) mod tests {
             })
             .collect();
         (rects, tris)
+    }
+
+    /// A random box with f32 corners (so its corners are points a texel can have): half of
+    /// them flat on a rect's plane, inside it or across its edge (a texel on a wall), the rest
+    /// solid, from a centimetre to a metre.
+    pub(crate) fn random_box(rng: &mut Lcg, rects: &[Rect]) -> ([f32; 3], [f32; 3]) {
+        let size = rng.range(0.01, 1.0);
+        let mut lo = rng.point(-5.0, 5.0);
+        let mut hi = [0.0; 3];
+        for k in 0..3 {
+            hi[k] = lo[k] + rng.range(0.0, size);
+        }
+        if rng.next_u32() % 2 == 0 && !rects.is_empty() {
+            let r = &rects[rng.next_u32() as usize % rects.len()];
+            let (u, v) = tangent_axes(r.axis);
+            let a = r.axis as usize;
+            lo[a] = r.coord;
+            hi[a] = r.coord;
+            lo[u] = rng.range(r.min[0] - 0.2, r.max[0]);
+            lo[v] = rng.range(r.min[1] - 0.2, r.max[1]);
+            hi[u] = lo[u] + rng.range(0.0, size);
+            hi[v] = lo[v] + rng.range(0.0, size);
+        }
+        (lo, hi)
+    }
+
+    /// Points of the f32 box `[lo, hi]`: its eight corners and random ones inside.
+    pub(crate) fn points_in(rng: &mut Lcg, lo: [f32; 3], hi: [f32; 3], n: usize) -> Vec<[f32; 3]> {
+        let corners =
+            (0..8).map(|c: u32| [0, 1, 2].map(|k| if c >> k & 1 == 0 { lo[k] } else { hi[k] }));
+        let inside = (0..n).map(|_| {
+            [0, 1, 2].map(|k| (lo[k] + rng.range(0.0, 1.0) * (hi[k] - lo[k])).clamp(lo[k], hi[k]))
+        });
+        corners.chain(inside).collect()
+    }
+
+    /// Where `prim_crosses_from_box` says a primitive crosses no segment from the box to the
+    /// light, or every one, the per-segment test agrees at every point tried (the corners and
+    /// random points), with lights anywhere, on rects' planes and on boxes' faces; and both
+    /// answers occur often.
+    #[test]
+    fn box_answers_hold_at_every_point_of_the_box() {
+        let mut rng = Lcg(0xb0c5_5eed);
+        let (mut never, mut every, mut maybe) = (0usize, 0usize, 0usize);
+        for case in 0..40 {
+            let (mut rects, tris) = random_scene(&mut rng, 30, 10);
+            // Some walls across the scene, which hide whole boxes.
+            for r in rects.iter_mut().step_by(4) {
+                r.max = [
+                    r.min[0] + rng.range(3.0, 8.0),
+                    r.min[1] + rng.range(3.0, 8.0),
+                ];
+            }
+            let occ = Occluders::new(&rects, &tris);
+            for round in 0..25 {
+                let (lo, hi) = random_box(&mut rng, &rects);
+                let mut light = rng.point(-6.0, 6.0);
+                match round % 5 {
+                    // On a rect's plane, and on the box's own plane.
+                    0 => {
+                        let r = &rects[rng.next_u32() as usize % rects.len()];
+                        light[r.axis as usize] = r.coord;
+                    }
+                    1 => {
+                        let k = rng.next_u32() as usize % 3;
+                        light[k] = lo[k];
+                    }
+                    _ => {}
+                }
+                let points = points_in(&mut rng, lo, hi, 24);
+                let (blo, bhi) = (lo.map(f64::from), hi.map(f64::from));
+                for i in 0..occ.len() {
+                    let verdict = occ.prim_crosses_from_box(i, light, blo, bhi);
+                    match verdict {
+                        BoxCross::Never => never += 1,
+                        BoxCross::Every => every += 1,
+                        BoxCross::Maybe => {
+                            maybe += 1;
+                            continue;
+                        }
+                    }
+                    for p in &points {
+                        let hit = occ
+                            .shadow_segment(*p, light)
+                            .is_some_and(|seg| occ.prim_crosses(i, &seg));
+                        assert_eq!(
+                            hit,
+                            verdict == BoxCross::Every,
+                            "case {case}.{round}: prim {i} {verdict:?}, point {p:?}, light {light:?}"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(
+            never > 10 * every && every > 100 && maybe > 100,
+            "{never} {every} {maybe}"
+        );
     }
 
     #[test]

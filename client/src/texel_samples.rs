@@ -45,8 +45,10 @@ impl TexelAt {
 pub(crate) struct TexelSamples {
     pub(crate) g: [f64; MAX_ADAPTIVE_SAMPLES],
     pub(crate) points: [[f32; 3]; MAX_ADAPTIVE_SAMPLES],
-    /// `points` holds every sample of the current texel (else its four corners only).
+    /// `points` holds every sample of the current texel.
     pub(crate) all_points: bool,
+    /// `points` holds the current texel's four corners ([`TexelSamples::corners`]).
+    corner_points: bool,
     /// Samples per edge `offsets` are for (0: none yet), and the samples' offsets along an
     /// edge ([`sample_offset`], made once per `m` rather than per texel).
     m: usize,
@@ -63,29 +65,39 @@ impl TexelSamples {
             g: [0.0; MAX_ADAPTIVE_SAMPLES],
             points: [[0.0; 3]; MAX_ADAPTIVE_SAMPLES],
             all_points: false,
+            corner_points: false,
             m: 0,
             offsets: [0.0; ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize],
         }
     }
 
-    /// Starts texel `t` (`m × m` samples): its corner points, and every point when it is
-    /// slanted (its unshadowed terms are then taken per point).
+    /// Starts texel `t` (`m × m` samples): every point when it is slanted (its unshadowed
+    /// terms are then taken per point); an axis-aligned texel's corner points wait for
+    /// [`TexelSamples::corners`].
     pub(crate) fn start(&mut self, t: &TexelAt, m: usize) {
         self.all_points = false;
+        self.corner_points = false;
         if self.m != m {
             self.m = m;
             for (i, o) in self.offsets.iter_mut().enumerate().take(m) {
                 *o = sample_offset(i, m);
             }
         }
-        if is_axis_aligned(t.n) {
-            for k in corner_indices(m) {
-                let (ou, ov) = (self.offsets[k % m], self.offsets[k / m]);
-                self.points[k] = sample_point(t.x, t.n, t.size, ou, ov);
-            }
-        } else {
+        if !is_axis_aligned(t.n) {
             self.fill_points(t, m);
         }
+    }
+
+    /// Makes the started texel's four corner points (the first shadow rays), if not made.
+    pub(crate) fn corners(&mut self, t: &TexelAt, m: usize) {
+        if self.all_points || self.corner_points {
+            return;
+        }
+        for k in corner_indices(m) {
+            let (ou, ov) = (self.offsets[k % m], self.offsets[k / m]);
+            self.points[k] = sample_point(t.x, t.n, t.size, ou, ov);
+        }
+        self.corner_points = true;
     }
 
     pub(crate) fn fill_points(&mut self, t: &TexelAt, m: usize) {
@@ -213,6 +225,47 @@ pub(crate) fn sample_point(x: [f32; 3], n: [f32; 3], size: [f32; 2], ou: f32, ov
         0 => [lifted, x[1] + du, x[2] + dv],
         1 => [x[0] + du, lifted, x[2] + dv],
         _ => [x[0] + du, x[1] + dv, lifted],
+    }
+}
+
+/// A box holding every one of the `m × m` sample points of texel `t` ([`sample_point`] at
+/// offsets ±(0.5 − 0.5/m) at most; the centre when `m` is 1): the centre ± the samples' reach
+/// along the tangent axes and, on a slanted texel, ± the lift those offsets give along the
+/// dominant axis, padded well above f32 rounding. On an axis-aligned texel every sample has
+/// the centre's coordinate along the normal, exactly, and so has the box. The whole space
+/// when anything is not finite.
+pub(crate) fn sample_bounds(t: &TexelAt, m: usize) -> ([f64; 3], [f64; 3]) {
+    let axis = dominant_axis(t.n);
+    let (u, v) = tangent_axes(axis as u8);
+    let x = t.x.map(f64::from);
+    let reach = 0.5 - 0.5 / m.max(1) as f64;
+    let (hu, hv) = (
+        reach * (t.size[0] as f64).abs(),
+        reach * (t.size[1] as f64).abs(),
+    );
+    let n = t.n.map(f64::from);
+    let slanted = n[u] != 0.0 || n[v] != 0.0;
+    let lift = if slanted {
+        (n[u].abs() * hu + n[v].abs() * hv) / n[axis].abs()
+    } else {
+        0.0
+    };
+    let mag = x.iter().fold(hu + hv + lift, |m, c| m.max(c.abs()));
+    let pad = 1e-6 * mag + f64::MIN_POSITIVE;
+    let mut half = [0.0; 3];
+    half[u] = hu * (1.0 + 1e-6) + pad;
+    half[v] = hv * (1.0 + 1e-6) + pad;
+    half[axis] = if slanted {
+        lift * (1.0 + 1e-6) + pad
+    } else {
+        0.0
+    };
+    let lo = [0, 1, 2].map(|k| x[k] - half[k]);
+    let hi = [0, 1, 2].map(|k| x[k] + half[k]);
+    if lo.iter().chain(&hi).all(|c| c.is_finite()) {
+        (lo, hi)
+    } else {
+        ([f64::NEG_INFINITY; 3], [f64::INFINITY; 3])
     }
 }
 
