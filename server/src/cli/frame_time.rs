@@ -35,7 +35,7 @@ use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, Runtim
 use lightfarm_proto::lights::LightSet;
 
 use super::frame_moving::{time_moving, MOVING_FRAMES, MOVING_RADIUS};
-use super::frame_update::time_update;
+use super::frame_update::{time_update, Ways};
 use super::read_text;
 use crate::evaluate::operator_direct;
 
@@ -226,6 +226,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             method,
             mode,
             frames,
+            Ways::Both,
         )?;
         println!(
             "update=one-light direct light: lights={} texels={} every_sample_ms={:.4} \

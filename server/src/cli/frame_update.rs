@@ -165,8 +165,20 @@ fn moved_direct(
     }
 }
 
+/// Which ways [`time_update`] times.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ways {
+    /// Relighting everything and relighting by the change, frame by frame, and tracing every
+    /// sample once.
+    Both,
+    /// Relighting by the change alone: relighting everything runs once, after the last frame,
+    /// for the drift; `full`, `direct_error` and `direct_every_sample_ms` are NaN.
+    UpdateOnly,
+}
+
 /// Times `frames` frames of light `moved` of `lights` moving along the path (module doc),
-/// relit both ways with `method` and `bounces`.
+/// relit both ways with `method` and `bounces` (or by the change only, see [`Ways`]).
+#[allow(clippy::too_many_arguments)]
 pub fn time_update(
     runtime: &mut Runtime,
     occluders: &Occluders,
@@ -175,6 +187,7 @@ pub fn time_update(
     method: Method,
     bounces: Bounces,
     frames: usize,
+    ways: Ways,
 ) -> anyhow::Result<UpdateTimes> {
     anyhow::ensure!(
         moved < lights.len(),
@@ -197,19 +210,30 @@ pub fn time_update(
     let scale = direct_scale(&layout, occluders);
     // Each way walks its lights' reaches with scratch of its own.
     let mut full_reach = ReachDirect::new(runtime.bundle(), occluders);
-    // Every sample traced (each light where it reaches, with rooms).
-    let start = Instant::now();
-    let every_sample = match full_reach.as_mut() {
-        Some(r) => {
-            r.all_lights_every_sample(&layout, occluders, &lights, DIRECT_SAMPLES_PER_EDGE, scale)
-        }
-        None => {
-            direct_from_point_lights_averaged(&layout, occluders, &lights, DIRECT_SAMPLES_PER_EDGE)
-        }
-    };
-    let direct_every_sample_ms = start.elapsed().as_secs_f64() * 1e3;
+    let both = ways == Ways::Both;
     let direct0 = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
-    let direct_error = relative_l2(&direct0.radiance, &every_sample.radiance);
+    let (mut direct_error, mut direct_every_sample_ms) = (f64::NAN, f64::NAN);
+    if both {
+        // Every sample traced (each light where it reaches, with rooms).
+        let start = Instant::now();
+        let every_sample = match full_reach.as_mut() {
+            Some(r) => r.all_lights_every_sample(
+                &layout,
+                occluders,
+                &lights,
+                DIRECT_SAMPLES_PER_EDGE,
+                scale,
+            ),
+            None => direct_from_point_lights_averaged(
+                &layout,
+                occluders,
+                &lights,
+                DIRECT_SAMPLES_PER_EDGE,
+            ),
+        };
+        direct_every_sample_ms = start.elapsed().as_secs_f64() * 1e3;
+        direct_error = relative_l2(&direct0.radiance, &every_sample.radiance);
+    }
     let mut full_out = IndirectLight::default();
     runtime.apply(method, bounces, &direct0, &mut full_out)?;
     let mut update_out = full_out.clone();
@@ -256,13 +280,15 @@ pub fn time_update(
     let mut total = 0;
     for frame in 1..=frames {
         lights[moved].position = at(frame);
-        // Full: every light's direct light, then apply.
-        let start = Instant::now();
-        let direct = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
-        let mid = Instant::now();
-        runtime.apply(method, bounces, &direct, &mut full_out)?;
-        full[0].push((mid - start).as_secs_f64() * 1e3);
-        full[1].push(mid.elapsed().as_secs_f64() * 1e3);
+        // Full: every light's direct light, then apply (every frame, or after the last).
+        if both || frame == frames {
+            let start = Instant::now();
+            let direct = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
+            let mid = Instant::now();
+            runtime.apply(method, bounces, &direct, &mut full_out)?;
+            full[0].push((mid - start).as_secs_f64() * 1e3);
+            full[1].push(mid.elapsed().as_secs_f64() * 1e3);
+        }
         // Update: where the moved light reaches, its direct light there and the change from
         // the previous frame, then apply_delta.
         let start = Instant::now();
@@ -317,8 +343,17 @@ pub fn time_update(
             total_ms: median(sums),
         }
     };
+    let full = if both {
+        way(full)
+    } else {
+        Way {
+            direct_ms: f64::NAN,
+            operator_ms: f64::NAN,
+            total_ms: f64::NAN,
+        }
+    };
     Ok(UpdateTimes {
-        full: way(full),
+        full,
         update: way(update),
         drift: relative_l2(&update_out.radiance, &full_out.radiance),
         direct_error,

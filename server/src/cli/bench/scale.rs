@@ -49,7 +49,7 @@ use crate::bake::scene::geometry::Geometry;
 use crate::bake::{bake, BakeOptions};
 use crate::cli::bake::load_scene;
 use crate::cli::frame_time::time_frames;
-use crate::cli::frame_update::time_update;
+use crate::cli::frame_update::{time_update, Ways};
 use crate::evaluate::{evaluate, DIRECT_SAMPLES_PER_EDGE};
 
 /// Lights of the level the error is measured with (spread evenly over its light list).
@@ -126,6 +126,10 @@ pub struct ScalePoint {
     pub one_light_drift: f64,
     /// Texels the moved light reaches (median over frames).
     pub one_light_texels: usize,
+    /// Up to [`MOVED_LIGHTS`] lights spread over the level's list, each moved alone and
+    /// relit by its change (absent in sweeps from before it was measured).
+    #[serde(default)]
+    pub moved_lights: Option<MovedLights>,
     /// Texels sampled for the error, DRT all bounces against the reference at all bounces
     /// there, and the reference's noise (two seeds' relative L2 over √2).
     pub error_texels: usize,
@@ -133,6 +137,23 @@ pub struct ScalePoint {
     pub reference_noise: f64,
     pub reference_seconds: f64,
 }
+
+/// Lights moved one at a time, each relit by its change (one bounce, direct light included):
+/// how the cost of moving a light spreads over a level's lights.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+pub struct MovedLights {
+    pub lights: usize,
+    /// Median and largest of the lights' median frame (ms).
+    pub median_ms: f64,
+    pub max_ms: f64,
+    /// Median of the texels each light reaches.
+    pub median_texels: usize,
+    /// Median over the lights of their frame per texel reached (µs).
+    pub us_per_texel: f64,
+}
+
+/// Lights [`MovedLights`] moves at most (spread over the level's light list).
+pub const MOVED_LIGHTS: usize = 8;
 
 /// A whole sweep, as `OUT/scale.json` holds it.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -201,6 +222,26 @@ fn spread(lights: &LightSet, count: usize) -> LightSet {
         lights: picked.collect(),
         poses: Vec::new(),
     }
+}
+
+/// [`MovedLights`] of each light's (median frame ms, texels reached); `None` without lights.
+fn moved_lights(moved: &[(f64, usize)]) -> Option<MovedLights> {
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    (!moved.is_empty()).then(|| MovedLights {
+        lights: moved.len(),
+        median_ms: median(moved.iter().map(|m| m.0).collect()),
+        max_ms: moved.iter().map(|m| m.0).fold(0.0, f64::max),
+        median_texels: median(moved.iter().map(|m| m.1 as f64).collect()) as usize,
+        us_per_texel: median(
+            moved
+                .iter()
+                .map(|&(ms, texels)| 1e3 * ms / texels.max(1) as f64)
+                .collect(),
+        ),
+    })
 }
 
 /// Texels of `g` within `radius` of a light, every k-th so at most `most` remain.
@@ -314,7 +355,27 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         method,
         Bounces::One,
         args.settings.frames,
+        Ways::Both,
     )?;
+    step(&format!(
+        "{blocks} blocks: moving each of {MOVED_LIGHTS} lights"
+    ));
+    let n_lights = client_lights.len();
+    let mut moved = Vec::new();
+    for k in 0..MOVED_LIGHTS.min(n_lights) {
+        let t = time_update(
+            &mut runtime,
+            &occluders,
+            client_lights,
+            k * n_lights / MOVED_LIGHTS.min(n_lights),
+            method,
+            Bounces::One,
+            args.settings.frames,
+            Ways::UpdateOnly,
+        )?;
+        moved.push((t.update.total_ms, t.texels_reached));
+    }
+    let moved_lights = moved_lights(&moved);
     drop(runtime);
     let way = |w: crate::cli::frame_update::Way| WayMs {
         direct_ms: w.direct_ms,
@@ -369,6 +430,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         one_light: way(update.update),
         one_light_drift: update.drift,
         one_light_texels: update.texels_reached,
+        moved_lights,
         error_texels: error.matched,
         relative_l2: error.relative_l2,
         reference_noise: compare(&second, &reference).relative_l2 / std::f64::consts::SQRT_2,
@@ -396,4 +458,20 @@ pub fn measure_scale(args: &ScaleArgs, step: &dyn Fn(&str)) -> anyhow::Result<Sc
         settings: args.settings,
         points,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn moved_lights_take_medians_and_the_slowest() {
+        assert!(moved_lights(&[]).is_none());
+        let m = moved_lights(&[(1.0, 1000), (3.0, 1000), (2.0, 4000)]).expect("three lights");
+        assert_eq!(m.lights, 3);
+        assert_eq!((m.median_ms, m.max_ms), (2.0, 3.0));
+        assert_eq!(m.median_texels, 1000);
+        // 1.0, 3.0 and 0.5 µs per texel.
+        assert_eq!(m.us_per_texel, 1.0);
+    }
 }

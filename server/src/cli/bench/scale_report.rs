@@ -278,7 +278,7 @@ fn megabytes(b: f64) -> String {
 
 /// "∝ N^1.02" for a series, or "" when it has no slope.
 fn grows(points: &[(f64, f64)]) -> String {
-    growth_exponent(points).map_or(String::new(), |e| format!("∝ N^{e:.2}"))
+    growth_exponent(points).map_or("(not measured)".to_string(), |e| format!("∝ N^{e:.2}"))
 }
 
 /// The markdown section; image links are relative to `base` (the markdown's directory).
@@ -381,6 +381,28 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         );
     }
     let _ = writeln!(w);
+    let moved: Vec<_> = points
+        .iter()
+        .filter_map(|p| p.moved_lights.map(|m| (p.blocks, m)))
+        .collect();
+    if !moved.is_empty() {
+        let _ = writeln!(
+            w,
+            "Moving each of up to {} lights spread over the level's list, one at a time, relit by              its change (one bounce, direct light included; each light's median frame):
+
+             | blocks | lights moved | median light | slowest light | texels reached (median) | per texel reached (median) |
+             |---|---|---|---|---|---|",
+            super::scale::MOVED_LIGHTS
+        );
+        for (blocks, m) in &moved {
+            let _ = writeln!(
+                w,
+                "| {blocks} | {} | {:.3} ms | {:.3} ms | {} | {:.3} µs |",
+                m.lights, m.median_ms, m.max_ms, m.median_texels, m.us_per_texel
+            );
+        }
+        let _ = writeln!(w);
+    }
     let series = |f: &dyn Fn(&ScalePoint) -> f64| -> Vec<(f64, f64)> {
         points.iter().map(|p| (p.blocks as f64, f(p))).collect()
     };
@@ -388,7 +410,8 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         w,
         "Growth with the block count N (least-squares slope on the log–log points): bake {}, \
          peak memory {}, bundle bytes {}, apply at one bounce {}, at all bounces {}, relighting \
-         everything {}, moving one light {}. Relighting everything lights each of the level's \
+         everything {}, moving light 0 {}, moving a light (the median light) {}, per texel it \
+         reaches {}. Relighting everything lights each of the level's \
          lights (which grow with it) where that light reaches and applies every operator: it \
          grows with the lights times what each one reaches, not with the lights times the \
          level's texels; moving one light lights only the texels it reaches, which depend on \
@@ -400,6 +423,12 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         grows(&series(&|p| p.apply_converged_ms)),
         grows(&series(&|p| p.relight_all.total_ms)),
         grows(&series(&|p| p.one_light.total_ms)),
+        grows(&series(&|p| p
+            .moved_lights
+            .map_or(f64::NAN, |m| m.median_ms))),
+        grows(&series(&|p| p
+            .moved_lights
+            .map_or(f64::NAN, |m| m.us_per_texel))),
     );
     md
 }
