@@ -388,9 +388,9 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
     if !moved.is_empty() {
         let _ = writeln!(
             w,
-            "Moving each of up to {} lights spread over the level's list, one at a time, relit by              its change (one bounce, direct light included; each light's median frame):
-
-             | blocks | lights moved | median light | slowest light | texels reached (median) | per texel reached (median) |
+            "Moving each of up to {} lights spread over the level's list, one at a time, relit \
+             by its change (one bounce, direct light included; each light's median frame):\n\n\
+             | blocks | lights moved | median light | slowest light | texels reached (median) | per texel reached (median) |\n\
              |---|---|---|---|---|---|",
             super::scale::MOVED_LIGHTS
         );
