@@ -204,7 +204,7 @@ pub(crate) fn run_bounds(layout: &Layout, run: Range<usize>, m: usize) -> ([f64;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::occluders::tests::{points_in, random_box, random_scene, Lcg};
+    use crate::occluders::tests::{points_in, random_box, scene_with_walls, Lcg};
     use crate::texel_samples::{sample_points, ADAPTIVE_MAX_SAMPLES_PER_EDGE};
     use lightfarm_proto::bundle::Layout;
 
@@ -285,13 +285,7 @@ mod tests {
         let mut query = BoxShadows::new();
         let mut buffer = LightBuffer::new();
         for case in 0..30 {
-            let (mut rects, tris) = random_scene(&mut rng, 40, 10);
-            for r in rects.iter_mut().step_by(4) {
-                r.max = [
-                    r.min[0] + rng.range(3.0, 8.0),
-                    r.min[1] + rng.range(3.0, 8.0),
-                ];
-            }
+            let (rects, tris) = scene_with_walls(&mut rng, 40, 10);
             let occ = Occluders::new(&rects, &tris);
             let keep: Vec<u32> = (0..occ.len() as u32).filter(|i| i % 3 != 1).collect();
             for round in 0..20 {

@@ -397,12 +397,12 @@ pub(crate) fn adaptive_in_with(
     });
 }
 
-/// Calls `each(queries, t)` for every texel `t < n` of `spans` (`m × m` samples each), with shadow queries that give
-/// the texel's samples what `lighting`'s give them, bit for bit: none in spans in sight, and
-/// with one light over a [`LightBuffer`], per run of texels what a box query found
-/// ([`crate::box_shadows`]: nothing in the way, one occluder in the way of every sample, or
-/// the few occluders that may be), so that most runs trace no ray or test a handful of
-/// occluders. Runs whose texels all face away from the light are not queried.
+/// Calls `each(queries, t)` for every texel `t < n` of `spans` (`m × m` samples each), with
+/// shadow queries that give the texel's samples what `lighting`'s give them, bit for bit: none
+/// in spans in sight, and with one light over a [`LightBuffer`], per run of texels what a box
+/// query found ([`crate::box_shadows`]: nothing in the way, one occluder in the way of every
+/// sample, or the few occluders that may be), so that most runs trace no ray or test a
+/// handful of occluders. Runs whose texels all face away from the light are not queried.
 fn for_each_shadowed(
     lighting: &Lighting,
     layout: &Layout,

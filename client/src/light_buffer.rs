@@ -249,12 +249,13 @@ impl LightBuffer {
 }
 
 impl LightBuffer {
-    /// Calls `f(prim, rank)` on every primitive listed in a cell that the direction from the light to
-    /// some point of the box `[lo, hi]` (world frame) picks, up to the first entry farther than
-    /// `reach` in each cell: every primitive [`LightBuffer::occluded`] can test for an origin in
-    /// the box whose segment is at most `reach` long (a primitive listed in several cells comes
-    /// once per cell; `rank < self.len()` numbers them). `f` returns false to stop. `None` (and no call) when the box covers
-    /// more than `max_cells` cells; else whether every entry was visited.
+    /// Calls `f(prim, rank)` on every primitive listed in a cell that the direction from the
+    /// light to some point of the box `[lo, hi]` (world frame) picks, up to the first entry
+    /// farther than `reach` in each cell: every primitive [`LightBuffer::occluded`] can test
+    /// for an origin in the box whose segment is at most `reach` long (a primitive listed in
+    /// several cells comes once per cell; `rank < self.len()` numbers them). `f` returns false
+    /// to stop. `None` (and no call) when the box covers more than `max_cells` cells; else
+    /// whether every entry was visited.
     pub(crate) fn entries_toward_box(
         &self,
         lo: [f64; 3],

@@ -647,6 +647,22 @@ pub(crate) mod tests {
         (rects, tris)
     }
 
+    /// [`random_scene`] with every fourth rect a wall 3-8 m across, which hides whole boxes.
+    pub(crate) fn scene_with_walls(
+        rng: &mut Lcg,
+        n_rects: usize,
+        n_tris: usize,
+    ) -> (Vec<Rect>, Vec<[[f32; 3]; 3]>) {
+        let (mut rects, tris) = random_scene(rng, n_rects, n_tris);
+        for r in rects.iter_mut().step_by(4) {
+            r.max = [
+                r.min[0] + rng.range(3.0, 8.0),
+                r.min[1] + rng.range(3.0, 8.0),
+            ];
+        }
+        (rects, tris)
+    }
+
     /// A random box with f32 corners (so its corners are points a texel can have): half of
     /// them flat on a rect's plane, inside it or across its edge (a texel on a wall), the rest
     /// solid, from a centimetre to a metre.
@@ -690,14 +706,7 @@ pub(crate) mod tests {
         let mut rng = Lcg(0xb0c5_5eed);
         let (mut never, mut every, mut maybe) = (0usize, 0usize, 0usize);
         for case in 0..40 {
-            let (mut rects, tris) = random_scene(&mut rng, 30, 10);
-            // Some walls across the scene, which hide whole boxes.
-            for r in rects.iter_mut().step_by(4) {
-                r.max = [
-                    r.min[0] + rng.range(3.0, 8.0),
-                    r.min[1] + rng.range(3.0, 8.0),
-                ];
-            }
+            let (rects, tris) = scene_with_walls(&mut rng, 30, 10);
             let occ = Occluders::new(&rects, &tris);
             for round in 0..25 {
                 let (lo, hi) = random_box(&mut rng, &rects);
