@@ -316,6 +316,8 @@ int main(int argc, char **argv) {
     rt = lf_runtime_new(bytes, len);
     free(bytes); /* the runtime keeps its own copy */
     if (!rt) return fail();
+    /* At load: what relighting by the change needs, so the first moved light is not slow. */
+    if (lf_runtime_prepare_delta(rt) != LF_STATUS_OK) return fail();
 
     n_floats = 3 * lf_runtime_texel_count(rt);
     direct = malloc(n_floats * sizeof *direct);

@@ -24,6 +24,8 @@
 //! lf_runtime_set_bounces(rt, LF_BOUNCES_FEEDBACK, 0.0f);  /* optional: all bounces (converged)
 //!                                                            is the default */
 //! if (lf_runtime_apply(rt, method, direct, n, indirect, n) != LF_STATUS_OK) { ... }
+//! lf_runtime_prepare_delta(rt);  /* optional, at load: the first light moved then costs a
+//!                                   frame like the later ones */
 //! /* when some lights move: only their change of direct light (new minus old), and only
 //!    what it reaches is computed */
 //! lf_runtime_apply_delta(rt, method, change, n, indirect, n);
@@ -94,7 +96,7 @@ pub use reach::{
 };
 pub use runtime::{
     lf_runtime_apply, lf_runtime_apply_delta, lf_runtime_free, lf_runtime_has_drt,
-    lf_runtime_has_full, lf_runtime_last_bounces, lf_runtime_new, lf_runtime_set_bounces,
-    lf_runtime_texel_count, LfRuntime,
+    lf_runtime_has_full, lf_runtime_last_bounces, lf_runtime_new, lf_runtime_prepare_delta,
+    lf_runtime_set_bounces, lf_runtime_texel_count, LfRuntime,
 };
 pub use status::{CapiError, LfStatus};

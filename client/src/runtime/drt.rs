@@ -169,17 +169,10 @@ impl Runtime {
         }
     }
 
-    /// DRT exact clutter gather: sparse rows over the direct light (albedo-free). Relighting by
-    /// the change ([`Runtime::apply_delta`]), only the entries reading a texel of a reached
-    /// block or clutter object whose light is not zero run, by column ([`GatherColumns`]):
-    /// the gather's cost follows the changed texels, not the level nor the rows they feed.
-    pub(super) fn add_direct_gather(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+    /// Makes the exact gather by column ([`GatherByChange`]) that relighting by the change
+    /// reads, if the bundle has a gather and it is not made yet.
+    pub(super) fn prepare_gather_by_change(&mut self) {
         let Some(g) = &self.ops.gather else { return };
-        let Some(reach) = &self.reach else {
-            pad_direct(direct, &mut self.direct_padded);
-            g.add_to_padded(&self.direct_padded, out);
-            return;
-        };
         if self.gather_by_change.is_none() {
             let units = self.texel_units();
             self.gather_by_change = Some(GatherByChange::new(
@@ -189,6 +182,22 @@ impl Runtime {
                 self.n_texels,
             ));
         }
+    }
+
+    /// DRT exact clutter gather: sparse rows over the direct light (albedo-free). Relighting by
+    /// the change ([`Runtime::apply_delta`]), only the entries reading a texel of a reached
+    /// block or clutter object whose light is not zero run, by column ([`GatherColumns`]):
+    /// the gather's cost follows the changed texels, not the level nor the rows they feed.
+    pub(super) fn add_direct_gather(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        let Some(g) = &self.ops.gather else { return };
+        if self.reach.is_none() {
+            pad_direct(direct, &mut self.direct_padded);
+            g.add_to_padded(&self.direct_padded, out);
+            return;
+        }
+        self.prepare_gather_by_change();
+        let Some(g) = &self.ops.gather else { return };
+        let Some(reach) = &self.reach else { return };
         let Some(by_change) = self.gather_by_change.as_mut() else {
             return;
         };

@@ -242,6 +242,18 @@ impl Runtime {
         reach.is_none_or(|r| r.blocks[k])
     }
 
+    /// Makes now what relighting by the change otherwise makes on its first call (the exact
+    /// gather by column, the scratch of one-bounce updates), so that the first
+    /// [`Runtime::apply_delta`] costs what the later ones do: on grid1000 the first call took
+    /// 91 ms against 0.4 ms after (a game calls this at level load). Changes no result;
+    /// calling it again does nothing.
+    pub fn prepare_delta(&mut self) {
+        self.prepare_gather_by_change();
+        if self.sparse.is_none() {
+            self.sparse = Some(Sparse::new(self));
+        }
+    }
+
     /// Relights after a change of direct light: `out` holds the indirect light `apply(method,
     /// bounces, L)` gave for some direct light L, `delta` is the change `L_new − L` (zero
     /// wherever the change does not reach); `out` becomes the indirect light of `L_new`,

@@ -247,7 +247,8 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             );
         }
         println!(
-            "update=one-light light={moved} reach={} texels_reached={}/{} rooms_reached={}",
+            "update=one-light light={moved} reach={} texels_reached={}/{} rooms_reached={} \
+             prepare_ms={:.2}",
             if t.has_rooms {
                 "rooms"
             } else {
@@ -255,7 +256,8 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             },
             t.texels_reached,
             runtime.n_texels(),
-            t.rooms_reached
+            t.rooms_reached,
+            t.prepare_ms
         );
         println!(
             "update=one-light light={moved} method={method:?} bounces={} frames={frames} \

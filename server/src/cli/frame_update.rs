@@ -15,7 +15,9 @@
 //!   occluders for a bundle without rooms), its change from the previous frame, and
 //!   `Runtime::apply_delta_in` adding that change's indirect light to the previous frame's
 //!   (told the spans the change lies in, so it reads nothing else), on a
-//!   runtime of its own (a game relighting by the change does nothing else with it). Both
+//!   runtime of its own (a game relighting by the change does nothing else with it), made
+//!   ready by `Runtime::prepare_delta` before the first frame and timed apart (`prepare_ms`,
+//!   what a game pays at load instead of on the first light it moves). Both
 //!   the walk and the direct light's bookkeeping touch the reached texels only. With `warm`
 //!   (all bounces, which reach most of a level anyway) the change's direct light updates the
 //!   level's direct light on the reached texels only and `Runtime::apply` relights it whole
@@ -80,6 +82,8 @@ pub struct UpdateTimes {
     pub rooms_reached: usize,
     /// Whether the bundle has rooms (else the update lights every texel).
     pub has_rooms: bool,
+    /// [`Runtime::prepare_delta`] before the first frame (ms).
+    pub prepare_ms: f64,
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -240,6 +244,12 @@ pub fn time_update(
     // The update way relights on a runtime of its own, as a game relighting by the change
     // would: the full way's passes over the level leave nothing for it to clear.
     let mut by_change = (!matches!(bounces, Bounces::Warm { .. })).then(|| runtime.clone());
+    // What the first relight by the change would make (a game does it at load), timed apart.
+    let start = Instant::now();
+    if let Some(rt) = by_change.as_mut() {
+        rt.prepare_delta();
+    }
+    let prepare_ms = start.elapsed().as_secs_f64() * 1e3;
     // The update's direct light of the moved light: `previous` and `now` hold it on the spans
     // it reached (zero elsewhere); `change` is non-zero on `change_spans` only.
     let n = layout.n_texels();
@@ -363,6 +373,7 @@ pub fn time_update(
         texels_reached: median(reached) as usize,
         rooms_reached: median(rooms) as usize,
         has_rooms,
+        prepare_ms,
     })
 }
 

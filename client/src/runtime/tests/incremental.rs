@@ -3,7 +3,8 @@
 //! the tolerance for `Converged`), for MRT with every transport kind and DRT with every kind of
 //! delta entry; an application under a reach equals the full application of the same input (the
 //! exact gather's rows to float rounding);
-//! the reach follows the change; `Feedback` is refused and leaves `out` alone.
+//! the reach follows the change; `Feedback` is refused and leaves `out` alone; a runtime made
+//! ready by [`Runtime::prepare_delta`] relights with the same bits.
 
 use super::*;
 
@@ -159,10 +160,15 @@ fn consecutive_changes_relight_like_the_new_light() {
         let mut rt = Runtime::new(b);
         let mut fresh = rt.clone();
         let mut by_spans = rt.clone();
+        // Made ready at load (twice: the second call does nothing): the same bits.
+        let mut prepared = rt.clone();
+        prepared.prepare_delta();
+        prepared.prepare_delta();
         let mut ld = direct(&mut rng, n);
         let mut out = IndirectLight::default();
         rt.apply(method, Bounces::One, &ld, &mut out).unwrap();
         let mut out_spans = out.clone();
+        let mut out_prepared = out.clone();
         for (step, range) in ranges.into_iter().enumerate() {
             let (new, delta) = changed(&ld, range.clone(), &mut rng);
             rt.apply_delta(method, Bounces::One, &delta, &mut out)
@@ -181,6 +187,14 @@ fn consecutive_changes_relight_like_the_new_light() {
                 l.radiance.iter().map(|v| v.map(f32::to_bits)).collect()
             };
             assert_eq!(bits(&out_spans), bits(&out), "{name} step {step} {range:?}");
+            prepared
+                .apply_delta(method, Bounces::One, &delta, &mut out_prepared)
+                .unwrap();
+            assert_eq!(
+                bits(&out_prepared),
+                bits(&out),
+                "{name} step {step}: prepared"
+            );
             ld = new;
         }
     }
