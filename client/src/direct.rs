@@ -21,8 +21,6 @@
 //!   below at `(1e-4 · scene scale)²` (scene scale: the diagonal of the box around texel centres
 //!   and occluders), and a light exactly at a texel centre (no direction) contributes nothing.
 
-use std::borrow::Cow;
-
 use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::lights::{Light, LightKind};
 
@@ -89,34 +87,55 @@ pub(crate) enum Shadows<'a> {
     Dark,
 }
 
+/// The lights' positions in f32: one light's inline (so lighting one light allocates
+/// nothing), several lights' in a vector, or another [`Lighting`]'s borrowed.
+enum Positions<'a> {
+    One([f32; 3]),
+    Many(Vec<[f32; 3]>),
+    Borrowed(&'a [[f32; 3]]),
+}
+
+impl std::ops::Deref for Positions<'_> {
+    type Target = [[f32; 3]];
+
+    fn deref(&self) -> &[[f32; 3]] {
+        match self {
+            Positions::One(p) => std::slice::from_ref(p),
+            Positions::Many(v) => v,
+            Positions::Borrowed(s) => s,
+        }
+    }
+}
+
 /// The lights and what every texel's direct light shares: their positions in f32 (the
 /// occluders' precision), the shadow queries and the `r²` clamp.
 struct Lighting<'a> {
     lights: &'a [Light],
-    positions: Cow<'a, [[f32; 3]]>,
+    positions: Positions<'a>,
     shadows: Shadows<'a>,
     r2_min: f64,
 }
 
 impl<'a> Lighting<'a> {
     fn new(lights: &'a [Light], shadows: Shadows<'a>, scale: f64) -> Lighting<'a> {
-        let positions: Vec<[f32; 3]> = lights
-            .iter()
-            .map(|l| l.position.map(|x| x as f32))
-            .collect();
+        let f32_position = |l: &Light| l.position.map(|x| x as f32);
+        let positions = match lights {
+            [one] => Positions::One(f32_position(one)),
+            _ => Positions::Many(lights.iter().map(f32_position).collect()),
+        };
         if let Shadows::Buffers(_, buffers) = shadows {
             assert!(
                 buffers.len() == positions.len()
                     && buffers
                         .iter()
-                        .zip(&positions)
+                        .zip(positions.iter())
                         .all(|(b, p)| b.light().map(f32::to_bits) == p.map(f32::to_bits)),
                 "one light buffer per light, built at the light"
             );
         }
         Lighting {
             lights,
-            positions: Cow::Owned(positions),
+            positions,
             shadows,
             r2_min: (R_MIN_REL * scale).powi(2),
         }
@@ -127,7 +146,7 @@ impl<'a> Lighting<'a> {
     fn with_shadows<'b>(&'b self, shadows: Shadows<'b>) -> Lighting<'b> {
         Lighting {
             lights: self.lights,
-            positions: Cow::Borrowed(&self.positions),
+            positions: Positions::Borrowed(&self.positions),
             shadows,
             r2_min: self.r2_min,
         }
@@ -374,11 +393,13 @@ pub fn direct_from_point_lights_adaptive_in(
         samples_per_edge,
         scale,
         spans,
+        &mut BoxShadows::new(),
         out,
     );
 }
 
 /// [`direct_from_point_lights_adaptive_in`] with its shadow rays tested against `shadows`.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn adaptive_in_with(
     layout: &Layout,
     shadows: Shadows,
@@ -386,13 +407,14 @@ pub(crate) fn adaptive_in_with(
     samples_per_edge: u32,
     scale: f64,
     spans: &[TexelSpan],
+    boxes: &mut BoxShadows,
     out: &mut [[f32; 3]],
 ) {
     let m = samples_per_edge.max(1) as usize;
     let lighting = Lighting::new(lights, shadows, scale);
     let n = out.len().min(layout.n_texels());
     let mut samples = TexelSamples::new();
-    for_each_shadowed(&lighting, layout, spans, (n, m), |lighting, t| {
+    for_each_shadowed(&lighting, layout, spans, (n, m), boxes, |lighting, t| {
         out[t] = texel_direct(lighting, TexelAt::of(layout, t), m, Some(&mut samples));
     });
 }
@@ -408,6 +430,7 @@ fn for_each_shadowed(
     layout: &Layout,
     spans: &[TexelSpan],
     (n, m): (usize, usize),
+    query: &mut BoxShadows,
     mut each: impl FnMut(&Lighting, usize),
 ) {
     let clear = lighting.with_shadows(Shadows::Clear);
@@ -416,7 +439,6 @@ fn for_each_shadowed(
         Shadows::Buffers(occluders, [buffer]) => Some((occluders, buffer)),
         _ => None,
     };
-    let mut query = BoxShadows::new();
     for span in spans {
         let texels = span.texels.start.min(n)..span.texels.end.min(n);
         if span.in_sight {
@@ -559,6 +581,7 @@ pub(crate) fn add_light_term_in(
     scale: f64,
     spans: &[TexelSpan],
     every_sample: bool,
+    boxes: &mut BoxShadows,
     irr: &mut [[f64; 3]],
 ) {
     let m = samples_per_edge.max(1) as usize;
@@ -567,7 +590,7 @@ pub(crate) fn add_light_term_in(
     let lighting = Lighting::new(lights, shadows, scale);
     let n = irr.len().min(layout.n_texels());
     let mut samples = TexelSamples::new();
-    for_each_shadowed(&lighting, layout, spans, (n, m), |lighting, t| {
+    for_each_shadowed(&lighting, layout, spans, (n, m), boxes, |lighting, t| {
         let at = TexelAt::of(layout, t);
         // Every sample's term is zero when the light faces away (`faces_away`) or every
         // sample is shadowed: what the samples would add.
@@ -857,6 +880,7 @@ mod tests {
                 4,
                 scale,
                 &all,
+                &mut BoxShadows::new(),
                 &mut by_tree,
             );
             assert_eq!(by_buffers.radiance, by_tree, "case {case}, adaptive");

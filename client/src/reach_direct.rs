@@ -31,6 +31,7 @@
 
 use lightfarm_proto::bundle::{Bundle, Layout};
 
+use crate::box_shadows::BoxShadows;
 use crate::direct::{
     adaptive_in_with, add_light_term_in, direct_from_point_lights_adaptive,
     direct_from_point_lights_averaged, finish_irradiance, DirectLight, Shadows, TexelSpan,
@@ -56,6 +57,9 @@ pub struct ReachDirect {
     picked: Vec<bool>,
     list: Vec<u32>,
     buffer: LightBuffer,
+    /// The box queries' scratch ([`crate::box_shadows`]), kept so that a call allocates
+    /// nothing once it has seen as many occluders.
+    boxes: BoxShadows,
     /// Occluders the last call traced against (the level's count when it used them whole).
     last_occluders: usize,
 }
@@ -84,6 +88,7 @@ impl ReachDirect {
             picked: vec![false; level.len()],
             list: Vec::new(),
             buffer: LightBuffer::new(),
+            boxes: BoxShadows::new(),
             last_occluders: 0,
         })
     }
@@ -104,6 +109,7 @@ impl ReachDirect {
         spans: &mut Vec<TexelSpan>,
         out: &mut [[f32; 3]],
     ) {
+        let mut boxes = std::mem::take(&mut self.boxes);
         let shadows = self.walk(layout, level, light, spans);
         adaptive_in_with(
             layout,
@@ -112,8 +118,10 @@ impl ReachDirect {
             samples_per_edge,
             scale,
             spans,
+            &mut boxes,
             out,
         );
+        self.boxes = boxes;
     }
 
     /// Every light's direct light at every texel, bit-identical to
@@ -168,6 +176,7 @@ impl ReachDirect {
     ) -> DirectLight {
         let mut irr = vec![[0.0f64; 3]; layout.n_texels()];
         let mut spans = Vec::new();
+        let mut boxes = std::mem::take(&mut self.boxes);
         for light in lights {
             let shadows = self.walk(layout, level, light, &mut spans);
             add_light_term_in(
@@ -178,9 +187,11 @@ impl ReachDirect {
                 scale,
                 &spans,
                 every_sample,
+                &mut boxes,
                 &mut irr,
             );
         }
+        self.boxes = boxes;
         finish_irradiance(layout, &irr)
     }
 
@@ -316,6 +327,7 @@ mod tests {
             4,
             scale,
             &all,
+            &mut BoxShadows::new(),
             &mut radiance,
         );
         DirectLight { radiance }
