@@ -189,15 +189,15 @@ impl Runtime {
     /// block or clutter object whose light is not zero run, by column ([`GatherColumns`]):
     /// the gather's cost follows the changed texels, not the level nor the rows they feed.
     pub(super) fn add_direct_gather(&mut self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        if self.reach.is_some() {
+            self.prepare_gather_by_change();
+        }
         let Some(g) = &self.ops.gather else { return };
-        if self.reach.is_none() {
+        let Some(reach) = &self.reach else {
             pad_direct(direct, &mut self.direct_padded);
             g.add_to_padded(&self.direct_padded, out);
             return;
-        }
-        self.prepare_gather_by_change();
-        let Some(g) = &self.ops.gather else { return };
-        let Some(reach) = &self.reach else { return };
+        };
         let Some(by_change) = self.gather_by_change.as_mut() else {
             return;
         };

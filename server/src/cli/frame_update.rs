@@ -86,7 +86,9 @@ pub struct UpdateTimes {
     pub prepare_ms: f64,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+/// The middle value of `v` (the upper of the two middle ones for an even count); `v` must not
+/// be empty.
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
 }

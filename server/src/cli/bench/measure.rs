@@ -29,6 +29,7 @@ use crate::bake::pipeline::encoding::encode_options;
 use crate::bake::progress::NoProgress;
 use crate::bake::{bake, BakeOptions, BakeReport};
 use crate::cli::frame_time::time_frames;
+use crate::cli::frame_update::median;
 use crate::evaluate::{dnrt_delta, evaluate, is_bounced, leaving_light, operator_direct};
 
 /// A method as the bench names it.
@@ -241,11 +242,6 @@ pub fn scene_at(scene: &Scene, setting: &BakeSetting) -> Scene {
     s.settings.rays_per_texel = setting.rays_per_texel;
     s.settings.tolerance = setting.tolerance;
     s
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// Measures every method of `bench` at `setting` against each yardstick (one point per method,

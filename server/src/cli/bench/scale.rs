@@ -49,7 +49,7 @@ use crate::bake::scene::geometry::Geometry;
 use crate::bake::{bake, BakeOptions};
 use crate::cli::bake::load_scene;
 use crate::cli::frame_time::time_frames;
-use crate::cli::frame_update::{time_update, Ways};
+use crate::cli::frame_update::{median, time_update, Ways};
 use crate::evaluate::{evaluate, DIRECT_SAMPLES_PER_EDGE};
 
 /// Lights of the level the error is measured with (spread evenly over its light list).
@@ -226,10 +226,6 @@ fn spread(lights: &LightSet, count: usize) -> LightSet {
 
 /// [`MovedLights`] of each light's (median frame ms, texels reached); `None` without lights.
 fn moved_lights(moved: &[(f64, usize)]) -> Option<MovedLights> {
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
     (!moved.is_empty()).then(|| MovedLights {
         lights: moved.len(),
         median_ms: median(moved.iter().map(|m| m.0).collect()),
