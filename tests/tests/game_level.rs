@@ -5,8 +5,9 @@
 //! 947 s bake at 1,000 blocks) makes this test take hours instead of seconds, so it cannot come
 //! back unnoticed. A light's reach there (`LightReach`) is a neighbourhood, not the level, and
 //! lights exactly what lighting every texel lights, and the blocks the bake keeps the f64
-//! transport into for inpainting hold every buried texel. Also checks that the generator is
-//! deterministic.
+//! transport into for inpainting hold every buried texel. A lamp's change relit at all bounces
+//! by the change writes a neighbourhood, within the tolerance. Also checks that the generator
+//! is deterministic.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -178,6 +179,62 @@ fn a_generated_thousand_block_level_bakes_and_relights() {
         (e_all - e_sum).abs() <= 3e-3 * e_sum,
         "Converged {e_all} vs 80 bounces {e_sum}"
     );
+
+    // One lamp's change at all bounces, relit by the change bounce by bounce where its light
+    // goes (`delta_bounces`): within the tolerance of the change's own light (80 exact bounces
+    // of it), writing a neighbourhood of the level, not the level.
+    let lamp = &lights.lights[lights.lights.len() / 2];
+    let layout = runtime.bundle().layout.clone();
+    let occluders = lightfarm_client::Occluders::from_layout(&layout);
+    let change = lightfarm_client::direct_from_point_lights_adaptive(
+        &layout,
+        &occluders,
+        std::slice::from_ref(lamp),
+        2,
+    );
+    let mut exact = IndirectLight::default();
+    runtime
+        .apply(Method::Drt, Bounces::Fixed(80), &change, &mut exact)
+        .unwrap();
+    let l1 = |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.abs() as f64).sum::<f64>();
+    for tolerance in [1e-2, 1e-3] {
+        let mut by_change = IndirectLight {
+            radiance: vec![[0.0; 3]; n],
+        };
+        let d = runtime
+            .apply_delta(
+                Method::Drt,
+                Bounces::Converged { tolerance },
+                &change,
+                &mut by_change,
+            )
+            .unwrap();
+        let written: usize = runtime
+            .delta_written()
+            .expect("answered bounce by bounce")
+            .map(|r| r.len())
+            .sum();
+        let diff: Vec<[f32; 3]> = by_change
+            .radiance
+            .iter()
+            .zip(&exact.radiance)
+            .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+            .collect();
+        let err = l1(&diff) / l1(&exact.radiance);
+        eprintln!(
+            "1,000 blocks: a lamp's change at all bounces (tolerance {tolerance}): {} bounces, \
+             {} of {} block projections, {written} of {n} texels written, L1 error {err:.2e}",
+            d.applied.bounces, d.blocks_projected, d.blocks_total
+        );
+        assert!(err <= 2.0 * tolerance as f64, "error {err}");
+        assert!(written * 10 < n, "{written} of {n} texels written");
+        assert!(
+            d.blocks_projected * 20 < d.blocks_total,
+            "{} of {} block projections",
+            d.blocks_projected,
+            d.blocks_total
+        );
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

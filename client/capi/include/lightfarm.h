@@ -431,10 +431,11 @@ int32_t lf_runtime_direct_in_spans(const LfRuntime *rt,
  * `lf_runtime_apply_delta` for a change of direct light that is zero outside `spans` (e.g.
  * one moved light: the spans of `lf_runtime_light_reach` where it was and where it is now,
  * its direct light before and after from `lf_runtime_direct_in_spans`): `delta_rgb` is read
- * on the spans' texels only (whatever it holds elsewhere is taken as zero), and at one bounce
- * (`LF_BOUNCES_ONE`) `indirect_rgb` is read and written only on the blocks and clutter
- * objects the change's light reaches, so the call costs what the change reaches, not the
- * level (with more bounces every texel is updated). The same values as `lf_runtime_apply_delta`
+ * on the spans' texels only (whatever it holds elsewhere is taken as zero), and
+ * `indirect_rgb` is read and written only on the blocks and clutter objects the change's
+ * light reaches (at one bounce; with more, those its bounces reach while their light
+ * matters), so the call costs what the change reaches, not the level (every texel is updated
+ * when whole-level applications cost less, for a change whose light fills the level). The same values as `lf_runtime_apply_delta`
  * with that change (up to the sign of zeros). Allocates only on its first call and when it is
  * given more spans than before.
  *

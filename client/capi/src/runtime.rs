@@ -91,8 +91,9 @@ impl LfRuntime {
 
     /// `lf_runtime_apply_delta_in_spans` once its pointers are slices: `delta` and `indirect`
     /// hold `3 x texels` floats (checked), the change is read on `spans` only and its indirect
-    /// light added to `indirect` only where the runtime wrote it (everywhere unless the bounce
-    /// mode is one bounce). On an error `indirect` is unchanged.
+    /// light added to `indirect` only where the runtime wrote it (`Runtime::delta_written`;
+    /// everywhere when it answered by whole-level applications). On an error `indirect` is
+    /// unchanged.
     pub(crate) fn apply_delta_in_spans(
         &mut self,
         method: i32,

@@ -33,8 +33,16 @@
 //! read. What stays proportional to the level there is finding the reach (one read of the
 //! input, per unit until its first non-zero value; none when the caller names the spans the
 //! change lies in, [`Runtime::apply_delta_in`]) and loops over blocks and entries without
-//! products. With more bounces (and `Converged`) each application is the full-size one under
-//! a reach, since GMRES works on whole vectors anyway.
+//! products. More bounces (`Fixed(n ≥ 2)`, `Converged`, `Warm`) chain those one-bounce
+//! applications, each on the light of the bounce before, where the change's light goes and,
+//! for `Converged`, while it matters (module `delta_bounces`); a change whose light fills the
+//! level takes whole-level applications under a reach (GMRES, or the coefficient-space
+//! solves).
+//!
+//! grid1000, one light moving, all bounces (`Converged`, 1e-3), one thread: the operators'
+//! part of a frame went from 40–42 ms (GMRES over whole vectors) to 4.5–5.9 ms (16 bounces over
+//! about 4,000 texels each); the maze's change fills most of it and keeps the
+//! coefficient-space solve (5.2–5.8 ms).
 //!
 //! grid1000 (269,440 texels, 1,000 blocks), one light moving, one bounce, one thread: the
 //! operators' part of a frame went from 10.9 ms (whole-level passes and the whole gather) to
@@ -181,6 +189,42 @@ impl Sparse {
     pub(super) fn writes_block(&self, k: usize) -> bool {
         self.marked[k]
     }
+
+    /// The units' texel ranges: the blocks, the clutter objects, then the runs of texels in
+    /// neither.
+    pub(super) fn ranges(&self) -> &[Range<usize>] {
+        &self.ranges
+    }
+
+    /// The units the last call wrote (its output may be non-zero there only), each once.
+    pub(super) fn written(&self) -> &[usize] {
+        &self.written
+    }
+
+    /// The texels of the blocks a one-bounce call with input on `spans` writes at the least
+    /// (the blocks the spans touch and the blocks transport carries their light into), without
+    /// reading the input.
+    pub(super) fn spread_texels(&mut self, spans: &[Range<usize>]) -> usize {
+        let mut listed = std::mem::take(&mut self.blocks_written);
+        listed.clear();
+        let n = self.unit_of.len();
+        for span in spans {
+            let (mut t, end) = (span.start.min(n), span.end.min(n));
+            while t < end {
+                let u = self.unit_of[t] as usize;
+                if u < self.n_blocks {
+                    listed.push(u as u32);
+                    listed.extend_from_slice(self.targets_of(u));
+                }
+                t = self.ranges[u].end.min(end);
+            }
+        }
+        listed.sort_unstable();
+        listed.dedup();
+        let texels = listed.iter().map(|&k| self.ranges[k as usize].len()).sum();
+        self.blocks_written = listed;
+        texels
+    }
 }
 
 /// What one [`Runtime::apply_delta`] did, beyond [`Applied`]: how far the change reached.
@@ -188,7 +232,8 @@ impl Sparse {
 pub struct DeltaApplied {
     pub applied: Applied,
     /// Block projections made, summed over the applications (a full application makes one
-    /// per block).
+    /// per block), by the path that answered (not counting a bounce-by-bounce start that
+    /// gave up).
     pub blocks_projected: usize,
     /// Blocks in the level, times the applications: what full applications would have made.
     pub blocks_total: usize,
@@ -226,14 +271,27 @@ impl Runtime {
     }
 
     /// The texel ranges in which the last successful [`Runtime::apply_delta`] (or
-    /// [`Runtime::apply_delta_in`]) may have changed its `out`: `Some` after a call at one
-    /// bounce that worked by the change (the blocks, clutter objects and other texel runs it
-    /// wrote, each once), `None` when it may have changed every texel (more bounces,
-    /// [`Method::Full`], or no such call yet). A caller keeping its own copy of the indirect
+    /// [`Runtime::apply_delta_in`]) may have changed its `out`: `Some` after a call that
+    /// worked by the change (the blocks, clutter objects and other texel runs it wrote, each
+    /// once: at one bounce, or bounce by bounce), `None` when it may have changed every texel
+    /// (whole-level applications, [`Method::Full`], or no such call yet). A caller keeping its own copy of the indirect
     /// light can pass zeros as `out` and add them to its copy on these ranges alone.
     pub fn delta_written(&self) -> Option<impl Iterator<Item = Range<usize>> + '_> {
-        let s = self.sparse.as_ref().filter(|s| !s.change_everywhere)?;
-        Some(s.written.iter().map(|&u| s.ranges[u].clone()))
+        let s = self.sparse.as_ref()?;
+        let units = match self.chain.as_ref().filter(|c| c.answered) {
+            Some(chain) => chain.sum_units(),
+            None if !s.change_everywhere => &s.written,
+            None => return None,
+        };
+        Some(units.iter().map(|&u| s.ranges[u].clone()))
+    }
+
+    /// The sparse state's unit ranges (made by [`Runtime::prepare_delta`]).
+    pub(super) fn sparse_ranges(&self) -> &[Range<usize>] {
+        self.sparse
+            .as_ref()
+            .expect("prepare_delta made it")
+            .ranges()
     }
 
     /// Whether block `k` is reached (always, outside [`Runtime::apply_delta`]).
@@ -259,7 +317,9 @@ impl Runtime {
     /// wherever the change does not reach); `out` becomes the indirect light of `L_new`,
     /// computing only what `delta` reaches (module doc). `Feedback` is refused (its state is
     /// the previous frame's output, not a function of the direct light); `Warm` solves the
-    /// change like `Converged`; `Full` does the full work on `delta`.
+    /// change like `Converged`; `Full` does the full work on `delta`. More bounces than one go
+    /// bounce by bounce where the change's light goes (module `delta_bounces`), or by
+    /// whole-level applications when it fills the level.
     ///
     /// On an error `out` is unchanged.
     pub fn apply_delta(
@@ -332,7 +392,14 @@ impl Runtime {
             self.reach = Some(reach);
         }
         self.blocks_projected = 0;
+        if let Some(chain) = self.chain.as_mut() {
+            chain.answered = false;
+        }
         let sparse = matches!(bounces, Bounces::One | Bounces::Fixed(1)) && method != Method::Full;
+        let chained = method != Method::Full
+            && matches!(bounces, Bounces::Fixed(2..) | Bounces::Converged { .. })
+            && self.check_arguments(method, bounces, delta).is_ok();
+        let mut by_chain = false;
         let result = if sparse {
             self.check_arguments(method, bounces, delta).map(|()| {
                 self.apply_once_sparse(method, &delta.radiance, spans, &mut change.radiance);
@@ -342,35 +409,82 @@ impl Runtime {
                 }
             })
         } else {
-            if let Some(s) = self.sparse.as_mut() {
-                s.change_everywhere = true;
+            let answer = if chained {
+                // Bounce by bounce where the change's light goes (module `delta_bounces`).
+                self.apply_chain(
+                    method,
+                    bounces,
+                    &delta.radiance,
+                    spans,
+                    &mut change.radiance,
+                )
+            } else {
+                None
+            };
+            match answer {
+                Some(result) => {
+                    by_chain = true;
+                    if result.is_err() {
+                        // The last bounce's light may be anywhere in `change`.
+                        self.sparse
+                            .as_mut()
+                            .expect("made by the chain")
+                            .change_everywhere = true;
+                    }
+                    result
+                }
+                None => {
+                    // The chain gave up (or was not tried): whole vectors, under a reach.
+                    self.blocks_projected = 0;
+                    if let Some(s) = self.sparse.as_mut() {
+                        s.change_everywhere = true;
+                    }
+                    self.by_change = true;
+                    let result = self.apply(method, bounces, delta, &mut change);
+                    self.by_change = false;
+                    result
+                }
             }
-            self.by_change = true;
-            let result = self.apply(method, bounces, delta, &mut change);
-            self.by_change = false;
-            result
         };
         self.spare_reach = self.reach.take();
+        let add = |o: &mut [[f32; 3]], d: &[[f32; 3]]| {
+            for (o, d) in o.iter_mut().zip(d) {
+                o[0] += d[0];
+                o[1] += d[1];
+                o[2] += d[2];
+            }
+        };
+        // The change's indirect light and the units it lies on (None: anywhere).
+        let (light, units): (&[[f32; 3]], Option<&[usize]>) = match &self.chain {
+            Some(chain) if by_chain => (chain.sum(), Some(chain.sum_units())),
+            _ => (
+                &change.radiance,
+                self.sparse
+                    .as_ref()
+                    .filter(|_| sparse)
+                    .map(|s| &s.written[..]),
+            ),
+        };
+        let ranges = self.sparse.as_ref().map_or(&[][..], |s| &s.ranges[..]);
         if matches!(bounces, Bounces::Converged { .. }) && result.is_ok() {
             // The answer `Warm` starts from moves with the light.
-            self.warm.add_change(method, &change.radiance);
+            match units {
+                Some(units) => {
+                    let spans = units.iter().map(|&u| ranges[u].clone());
+                    self.warm.add_change_in(method, light, spans);
+                }
+                None => self.warm.add_change(method, light),
+            }
         }
         let result = result.map(|applied| {
-            let add = |o: &mut [[f32; 3]], d: &[[f32; 3]]| {
-                for (o, d) in o.iter_mut().zip(d) {
-                    o[0] += d[0];
-                    o[1] += d[1];
-                    o[2] += d[2];
-                }
-            };
-            match self.sparse.as_ref().filter(|_| sparse) {
-                Some(s) => {
-                    for &u in &s.written {
-                        let r = s.ranges[u].clone();
-                        add(&mut out.radiance[r.clone()], &change.radiance[r]);
+            match units {
+                Some(units) => {
+                    for &u in units {
+                        let r = ranges[u].clone();
+                        add(&mut out.radiance[r.clone()], &light[r]);
                     }
                 }
-                None => add(&mut out.radiance, &change.radiance),
+                None => add(&mut out.radiance, light),
             }
             let total = self.blocks.len() * applied.bounces as usize;
             DeltaApplied {
@@ -394,7 +508,7 @@ impl Runtime {
     /// (up to the sign of zeros): what is skipped multiplies, copies or scales zeros.
     /// With `spans`, the input is zero outside them and only their texels are read for the
     /// reach (units listed in ascending order either way).
-    fn apply_once_sparse(
+    pub(super) fn apply_once_sparse(
         &mut self,
         method: Method,
         delta: &[[f32; 3]],

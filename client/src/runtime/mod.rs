@@ -84,6 +84,9 @@
 //! - `warm`: [`Bounces::Warm`], the solve that starts from the previous answer.
 //! - `incremental`: [`Runtime::apply_delta`], relighting by the change of direct light: only
 //!   the blocks, clutter objects and entries the change reaches do work, bounce by bounce.
+//! - `delta_bounces`: more bounces of a change, each the sparse one-bounce application of the
+//!   last, for `Converged` while its light matters (dropping the faintest units within the
+//!   tolerance).
 //! - `tests` (`tests/`): hand-built bundles against dense references, per concept.
 //!
 //! Invariants:
@@ -113,6 +116,7 @@ use crate::direct::DirectLight;
 use crate::packed::PackedMatrix;
 use crate::packed_gather::PackedGather;
 
+mod delta_bounces;
 mod drt;
 mod full;
 mod incremental;
@@ -307,6 +311,9 @@ pub struct Runtime {
     /// non-zero (made on the first such call); `ld_everywhere`: a full copy filled `ld`.
     sparse: Option<incremental::Sparse>,
     ld_everywhere: bool,
+    /// [`Runtime::apply_delta`] over more bounces: the bounce-by-bounce sum's state (module
+    /// `delta_bounces`, made on the first such call).
+    chain: Option<delta_bounces::Chain>,
     /// [`Bounces::Converged`] with [`Method::Mrt`] in coefficient space (module `reduced`):
     /// whether it is used, and its operators (made with the runtime for a bundle without DRT,
     /// else on the first such solve; `reduced_tried` once made, None for a lightfield
@@ -497,6 +504,7 @@ impl Runtime {
             gather_by_change: None,
             sparse: None,
             ld_everywhere: true,
+            chain: None,
             reduced_enabled: true,
             reduced_tried: false,
             reduced: None,

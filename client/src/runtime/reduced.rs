@@ -22,9 +22,10 @@
 //! error in the same applications (maze: 3.3e-4 against 2.9e-4 at 1e-3, 8 applications each;
 //! unweighted, 2.4e-3).
 //!
-//! [`Runtime::apply_delta`](super::Runtime::apply_delta) with `Converged` takes the same path:
-//! only the blocks the change reaches project (`R ΔL_d`), then the solve and the expansion run
-//! over every block, since the bounces spread the change through the transport.
+//! [`Runtime::apply_delta`](super::Runtime::apply_delta) with `Converged` takes the same path
+//! when the change's light fills the level (module `delta_bounces` otherwise): only the blocks
+//! the change reaches project (`R ΔL_d`), then the solve and the expansion run over every
+//! block, since the bounces spread the change through the transport.
 //!
 //! Units: coefficients as in `mrt` (`b`); the pieces map coefficients of light leaving a block
 //! to coefficients of the next bounce's light leaving it.

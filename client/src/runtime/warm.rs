@@ -110,13 +110,31 @@ impl WarmStart {
 
     /// Adds a change of indirect light to the guess (`apply_delta` moved the answer; the
     /// motion before it is forgotten).
+    /// The operator's gain (spectral radius) estimated by the last cold solve (0 before one).
+    pub(super) fn solved_gain(&self) -> f64 {
+        self.solved_gain
+    }
+
     pub(super) fn add_change(&mut self, method: Method, change: &[[f32; 3]]) {
+        let n = change.len();
+        self.add_change_in(method, change, std::iter::once(0..n));
+    }
+
+    /// [`WarmStart::add_change`] of a change that is zero outside `spans`.
+    pub(super) fn add_change_in(
+        &mut self,
+        method: Method,
+        change: &[[f32; 3]],
+        spans: impl Iterator<Item = std::ops::Range<usize>>,
+    ) {
         if self.method == Some(method) {
             self.has_previous = false;
-            for (a, d) in self.answer.iter_mut().zip(change) {
-                a[0] += d[0];
-                a[1] += d[1];
-                a[2] += d[2];
+            for r in spans {
+                for (a, d) in self.answer[r.clone()].iter_mut().zip(&change[r]) {
+                    a[0] += d[0];
+                    a[1] += d[1];
+                    a[2] += d[2];
+                }
             }
         }
     }

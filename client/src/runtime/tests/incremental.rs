@@ -320,6 +320,97 @@ fn converged_by_the_change_is_within_its_tolerance() {
     }
 }
 
+/// L1 norm of `a − b` over the L1 norm of `b`.
+fn rel_l1(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    let diff: f64 = a
+        .iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .map(|(x, y)| (x - y).abs() as f64)
+        .sum();
+    let norm: f64 = b.iter().flatten().map(|y| y.abs() as f64).sum();
+    diff / norm.max(1e-30)
+}
+
+/// More bounces by the change, bounce by bounce where its light goes (module
+/// `delta_bounces`, let run on bundles this small): `Fixed(n)` sums what `apply` sums to
+/// rounding, and `Converged` is within its tolerance of the change's own indirect light (the
+/// light of many exact bounces of the change); changes one after another, with one-bounce
+/// changes between them, leave nothing behind. Albedo scaled down so every operator's bounces
+/// lose energy.
+#[test]
+fn more_bounces_by_the_change_follow_it_bounce_by_bounce() {
+    let mut rng = Lcg(76);
+    for (b, method, name) in cases(&mut rng, 0.2) {
+        let n = b.layout.n_texels();
+        let mut rt = Runtime::new(b);
+        rt.let_the_chain_run();
+        let mut reference = Runtime::new(rt.bundle().clone());
+        let ld = direct(&mut rng, n);
+        let mut out = IndirectLight::default();
+        rt.apply(method, Bounces::Fixed(3), &ld, &mut out).unwrap();
+        let mut light = ld.clone();
+        for (step, range) in [0..4, 2..9, 5..6, 0..n].into_iter().enumerate() {
+            let (new, delta) = changed(&light, range.clone(), &mut rng);
+            // Fixed(3): the same sums as applying the new light.
+            let mut want = IndirectLight::default();
+            reference
+                .apply(method, Bounces::Fixed(3), &new, &mut want)
+                .unwrap();
+            let d = rt
+                .apply_delta(method, Bounces::Fixed(3), &delta, &mut out)
+                .unwrap();
+            assert!(rt.answered_by_chain(), "{name} {step}: gave up");
+            assert_eq!(d.applied.bounces, 3);
+            let err = max_rel(&out.radiance, &want.radiance);
+            assert!(err < 1e-5, "{name} {step} Fixed(3): {err}");
+            // The change's own indirect light: 200 exact bounces.
+            let mut exact = IndirectLight::default();
+            reference
+                .apply(method, Bounces::Fixed(200), &delta, &mut exact)
+                .unwrap();
+            for tolerance in [1e-2, 1e-3, 1e-4] {
+                let bounces = Bounces::Converged { tolerance };
+                let mut alone = IndirectLight {
+                    radiance: vec![[0.0; 3]; n],
+                };
+                let d = rt.apply_delta(method, bounces, &delta, &mut alone).unwrap();
+                assert!(rt.answered_by_chain(), "{name} {step}: gave up");
+                let err = rel_l1(&alone.radiance, &exact.radiance);
+                assert!(
+                    err <= 2.0 * tolerance as f64,
+                    "{name} {step} {tolerance}: {err} in {} bounces",
+                    d.applied.bounces
+                );
+                assert!(d.applied.remaining_fraction <= tolerance, "{d:?}");
+                // What it says it wrote holds all of it.
+                let mut inside = vec![false; n];
+                for r in rt.delta_written().unwrap() {
+                    inside[r].fill(true);
+                }
+                assert!(alone
+                    .radiance
+                    .iter()
+                    .zip(&inside)
+                    .all(|(v, &i)| i || *v == [0.0; 3]));
+            }
+            // A one-bounce change in between.
+            let mut one = IndirectLight {
+                radiance: vec![[0.0; 3]; n],
+            };
+            rt.apply_delta(method, Bounces::One, &delta, &mut one)
+                .unwrap();
+            let mut want_one = IndirectLight::default();
+            reference
+                .apply(method, Bounces::One, &delta, &mut want_one)
+                .unwrap();
+            let err = max_rel(&one.radiance, &want_one.radiance);
+            assert!(err < 1e-5, "{name} {step} One: {err}");
+            light = new;
+        }
+    }
+}
+
 #[test]
 fn feedback_is_refused_and_out_is_unchanged() {
     let mut rng = Lcg(75);

@@ -130,6 +130,10 @@ pub struct ScalePoint {
     /// relit by its change (absent in sweeps from before it was measured).
     #[serde(default)]
     pub moved_lights: Option<MovedLights>,
+    /// The same lights moved at all bounces (`Converged`), relit by their change (absent in
+    /// sweeps from before it was measured).
+    #[serde(default)]
+    pub moved_lights_all: Option<MovedLights>,
     /// Texels sampled for the error, DRT all bounces against the reference at all bounces
     /// there, and the reference's noise (two seeds' relative L2 over √2).
     pub error_texels: usize,
@@ -138,8 +142,8 @@ pub struct ScalePoint {
     pub reference_seconds: f64,
 }
 
-/// Lights moved one at a time, each relit by its change (one bounce, direct light included):
-/// how the cost of moving a light spreads over a level's lights.
+/// Lights moved one at a time, each relit by its change (direct light included): how the cost
+/// of moving a light spreads over a level's lights.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct MovedLights {
     pub lights: usize,
@@ -357,21 +361,23 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         "{blocks} blocks: moving each of {MOVED_LIGHTS} lights"
     ));
     let n_lights = client_lights.len();
-    let mut moved = Vec::new();
+    let (mut moved, mut moved_all) = (Vec::new(), Vec::new());
     for k in 0..MOVED_LIGHTS.min(n_lights) {
-        let t = time_update(
-            &mut runtime,
-            &occluders,
-            client_lights,
-            k * n_lights / MOVED_LIGHTS.min(n_lights),
-            method,
-            Bounces::One,
-            args.settings.frames,
-            Ways::UpdateOnly,
-        )?;
-        moved.push((t.update.total_ms, t.texels_reached));
+        for (bounces, times) in [(Bounces::One, &mut moved), (converged, &mut moved_all)] {
+            let t = time_update(
+                &mut runtime,
+                &occluders,
+                client_lights,
+                k * n_lights / MOVED_LIGHTS.min(n_lights),
+                method,
+                bounces,
+                args.settings.frames,
+                Ways::UpdateOnly,
+            )?;
+            times.push((t.update.total_ms, t.texels_reached));
+        }
     }
-    let moved_lights = moved_lights(&moved);
+    let (moved_lights, moved_lights_all) = (moved_lights(&moved), moved_lights(&moved_all));
     drop(runtime);
     let way = |w: crate::cli::frame_update::Way| WayMs {
         direct_ms: w.direct_ms,
@@ -427,6 +433,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         one_light_drift: update.drift,
         one_light_texels: update.texels_reached,
         moved_lights,
+        moved_lights_all,
         error_texels: error.matched,
         relative_l2: error.relative_l2,
         reference_noise: compare(&second, &reference).relative_l2 / std::f64::consts::SQRT_2,

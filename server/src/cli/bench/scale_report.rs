@@ -383,22 +383,30 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
     let _ = writeln!(w);
     let moved: Vec<_> = points
         .iter()
-        .filter_map(|p| p.moved_lights.map(|m| (p.blocks, m)))
+        .filter_map(|p| p.moved_lights.map(|m| (p.blocks, m, p.moved_lights_all)))
         .collect();
     if !moved.is_empty() {
         let _ = writeln!(
             w,
             "Moving each of up to {} lights spread over the level's list, one at a time, relit \
-             by its change (one bounce, direct light included; each light's median frame):\n\n\
-             | blocks | lights moved | median light | slowest light | texels reached (median) | per texel reached (median) |\n\
-             |---|---|---|---|---|---|",
+             by its change (direct light included; each light's median frame; one bounce, and \
+             all bounces: `Converged` to 0.001, bounce by bounce where the change's light goes):\n\n\
+             | blocks | lights moved | median light | slowest light | median light, all bounces | slowest light, all bounces | texels reached (median) | per texel reached (median) |\n\
+             |---|---|---|---|---|---|---|---|",
             super::scale::MOVED_LIGHTS
         );
-        for (blocks, m) in &moved {
+        for (blocks, m, all) in &moved {
+            let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3} ms"));
             let _ = writeln!(
                 w,
-                "| {blocks} | {} | {:.3} ms | {:.3} ms | {} | {:.3} µs |",
-                m.lights, m.median_ms, m.max_ms, m.median_texels, m.us_per_texel
+                "| {blocks} | {} | {:.3} ms | {:.3} ms | {} | {} | {} | {:.3} µs |",
+                m.lights,
+                m.median_ms,
+                m.max_ms,
+                ms(all.map(|a| a.median_ms)),
+                ms(all.map(|a| a.max_ms)),
+                m.median_texels,
+                m.us_per_texel
             );
         }
         let _ = writeln!(w);
@@ -410,8 +418,8 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         w,
         "Growth with the block count N (least-squares slope on the log–log points): bake {}, \
          peak memory {}, bundle bytes {}, apply at one bounce {}, at all bounces {}, relighting \
-         everything {}, moving light 0 {}, moving a light (the median light) {}, per texel it \
-         reaches {}. Relighting everything lights each of the level's \
+         everything {}, moving light 0 {}, moving a light (the median light) {}, at all bounces \
+         {}, per texel it reaches {}. Relighting everything lights each of the level's \
          lights (which grow with it) where that light reaches and applies every operator: it \
          grows with the lights times what each one reaches, not with the lights times the \
          level's texels; moving one light lights only the texels it reaches, which depend on \
@@ -425,6 +433,9 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         grows(&series(&|p| p.one_light.total_ms)),
         grows(&series(&|p| p
             .moved_lights
+            .map_or(f64::NAN, |m| m.median_ms))),
+        grows(&series(&|p| p
+            .moved_lights_all
             .map_or(f64::NAN, |m| m.median_ms))),
         grows(&series(&|p| p
             .moved_lights
