@@ -274,8 +274,9 @@ impl Runtime {
     /// [`Runtime::apply_delta_in`]) may have changed its `out`: `Some` after a call that
     /// worked by the change (the blocks, clutter objects and other texel runs it wrote, each
     /// once: at one bounce, or bounce by bounce), `None` when it may have changed every texel
-    /// (whole-level applications, [`Method::Full`], or no such call yet). A caller keeping its own copy of the indirect
-    /// light can pass zeros as `out` and add them to its copy on these ranges alone.
+    /// (whole-level applications, [`Method::Full`], or no such call yet). A caller keeping its
+    /// own copy of the indirect light can pass zeros as `out` and add them to its copy on these
+    /// ranges alone.
     pub fn delta_written(&self) -> Option<impl Iterator<Item = Range<usize>> + '_> {
         let s = self.sparse.as_ref()?;
         let units = match self.chain.as_ref().filter(|c| c.answered) {
