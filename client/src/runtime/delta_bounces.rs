@@ -19,15 +19,17 @@
 //!   `e g / (1 − g)` over all the bounces after it. Like GMRES's, this is an estimate: the
 //!   tolerance bounds the error relative to the change's indirect light, not the new light's.
 //! - The chain gives up, and the caller runs the whole-level path, when it would cost more:
-//!   before the first bounce (from the blocks the change touches and their transport targets)
-//!   and after every bounce (from the bounces made and the texels the last one wrote, times the
+//!   before the first bounce (from the blocks the change touches and their transport targets,
+//!   under [`START_MARGIN`] of the whole-level cost) and after every bounce (from the bounces made and the texels the last one wrote, times the
 //!   bounces still to make), in full one-bounce applications. A chain bounce costs
 //!   [`CHAIN_TEXEL_COST`] times the share of the level it writes; the bounces still to make
 //!   follow from the tail estimate (before the second bounce, from the gain of the last
 //!   whole-level solve). The whole-level path costs `Fixed(n)`'s n applications, or for
-//!   `Converged` [`COEFFICIENT_SOLVE_COST`] applications where its coefficient-space solve is
-//!   made (modules `reduced`, `reduced_drt`), else GMRES: [`GMRES_COST_PER_BOUNCE`] times the
-//!   chain's expected bounces. It also gives up when the gain reaches the refusal gain (the
+//!   `Converged` where its coefficient-space solve is made [`COEFFICIENT_SOLVE_COST`]
+//!   applications (MRT, module `reduced`) or [`COEFFICIENT_EXPANSION_COST`] plus half the
+//!   chain's expected bounces at the share of a texel application's values each reads (DRT,
+//!   module `reduced_drt`), else GMRES: [`GMRES_COST_PER_BOUNCE`] times the chain's expected
+//!   bounces. It also gives up when the gain reaches the refusal gain (the
 //!   whole-level path then refuses) or after [`MAX_BOUNCES`] bounces. Only time is lost: `out`
 //!   is untouched until the end.
 //!
@@ -52,14 +54,24 @@ use super::{Applied, ApplyError, Bounces, Method, Runtime, MAX_BOUNCES, MAX_CONV
 /// by side (light 3: 10.6 ms against 17.5 ms; light 5 fills the level and is not tried).
 pub(super) const CHAIN_TEXEL_COST: f64 = 2.0;
 
-/// `Converged` by its coefficient-space solve, in full one-bounce applications (the
-/// projection, the solve and one expansion; the maze: 5.5 ms against 3.4 ms for one).
+/// MRT's `Converged` by its coefficient-space solve, in full one-bounce applications (the
+/// projection, the solve and one expansion).
 pub(super) const COEFFICIENT_SOLVE_COST: f64 = 2.0;
+
+/// DRT's coefficient-space solve's projection and expansion, in full one-bounce applications
+/// (its GMRES applications are counted by the values they read). The maze: 5.5 ms in all
+/// against 3.4 ms for one application; a generated 320-block level: 35 ms against 7.3 ms.
+pub(super) const COEFFICIENT_EXPANSION_COST: f64 = 1.2;
 
 /// `Converged` by GMRES over texels, in full one-bounce applications per bounce the chain
 /// would make (GMRES needs about half the applications, each with its vector work; 80 blocks:
 /// 16.7 ms against 1.3 ms for one application).
 pub(super) const GMRES_COST_PER_BOUNCE: f64 = 0.75;
+
+/// The chain starts only when its predicted cost is under this share of the whole-level
+/// path's: a chain that gives up late has cost up to that path's time on top of it (a
+/// generated 320-block level's light 19: 49 ms against 35 ms, started at a predicted 88%).
+pub(super) const START_MARGIN: f64 = 0.75;
 
 /// The gain the chain assumes before it has measured one, when no whole-level solve has.
 pub(super) const ASSUMED_GAIN: f64 = 0.65;
@@ -227,27 +239,32 @@ impl Runtime {
             None => (limit as f64, limit as f64),
             Some(tolerance) => {
                 let expected = ((0.5 * tolerance).ln() / assumed.ln()).clamp(2.0, 100.0);
+                // DRT's coefficient solve: the projection and the expansion, then GMRES's
+                // applications (about half the chain's bounces) at the share of a texel
+                // application's values each reads.
                 let coefficients = match method {
-                    Method::Mrt => self.reduced.is_some(),
-                    Method::Drt => self.reduced_drt.is_some(),
-                    Method::Full => false,
+                    Method::Mrt => self.reduced.is_some().then_some(COEFFICIENT_SOLVE_COST),
+                    Method::Drt => self
+                        .reduced_drt
+                        .as_ref()
+                        .map(|r| COEFFICIENT_EXPANSION_COST + 0.5 * expected * r.read_share),
+                    Method::Full => None,
                 };
-                let cost = if coefficients {
-                    COEFFICIENT_SOLVE_COST
-                } else {
-                    GMRES_COST_PER_BOUNCE * expected
-                };
-                (expected, cost)
+                (
+                    expected,
+                    coefficients.unwrap_or(GMRES_COST_PER_BOUNCE * expected),
+                )
             }
         };
         let unlimited = chain.unlimited;
-        let too_dear = |made: f64, written: f64, to_make: f64| {
-            !unlimited && made + CHAIN_TEXEL_COST * written / n * to_make > whole_level
+        let too_dear = |made: f64, written: f64, to_make: f64, margin: f64| {
+            !unlimited && made + CHAIN_TEXEL_COST * written / n * to_make > margin * whole_level
         };
         if let Some(spans) = spans {
             // What the first bounce will write, known from the spans alone.
             let sparse = self.sparse.as_mut().expect("prepare_delta made it");
-            if too_dear(0.0, sparse.spread_texels(spans) as f64, expected) {
+            let first = sparse.spread_texels(spans) as f64;
+            if too_dear(0.0, first, expected, START_MARGIN) {
                 return None;
             }
         }
@@ -335,7 +352,7 @@ impl Runtime {
                     (fits.ln() / g.ln()).max(1.0)
                 }
             };
-            if too_dear(made, written as f64, to_make) {
+            if too_dear(made, written as f64, to_make, 1.0) {
                 return None;
             }
             // The next bounce's input: this bounce's light on the units kept, ascending.

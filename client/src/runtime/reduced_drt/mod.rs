@@ -101,6 +101,8 @@ struct Term {
 /// `M`'s pieces and the reduced solve's workspace.
 #[derive(Clone, Debug)]
 pub(super) struct ReducedDrt {
+    /// The values an application of `M` reads over those a texel application reads.
+    pub(super) read_share: f64,
     mids: Vec<Mid>,
     /// `M`'s pieces from the operators' light.
     terms: Vec<Term>,

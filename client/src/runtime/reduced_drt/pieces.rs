@@ -755,7 +755,8 @@ impl ReducedDrt {
                 .sum::<usize>();
             pairs.push(candidates);
         }
-        if gated && 2 * cost > texel_application_values(bundle) {
+        let texel_values = texel_application_values(bundle);
+        if gated && 2 * cost > texel_values {
             return None;
         }
         let (mut terms, mut implied, mut energy) = (Vec::new(), Vec::new(), Vec::new());
@@ -834,6 +835,7 @@ impl ReducedDrt {
             .unwrap_or(0);
         let widest_clutter = drt.clutter.iter().map(|c| c.t_dc.cols as usize).max();
         Some(ReducedDrt {
+            read_share: cost as f64 / texel_values.max(1) as f64,
             mids,
             terms,
             implied,
