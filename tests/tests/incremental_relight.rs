@@ -67,6 +67,14 @@ fn moving_one_light_relit_by_its_change_equals_relighting_everything() {
                 .unwrap();
             let err = relative_l2(&out.radiance, &want.radiance);
             assert!(err < tol, "{method:?} {bounces:?}: relative L2 {err}");
+            if matches!(bounces, Bounces::Converged { .. }) {
+                // The change's light fills the maze: the whole-level solve costs less than
+                // bounces by the change (`delta_bounces`), which gives up after its first.
+                assert!(
+                    runtime.delta_written().is_none(),
+                    "{method:?}: answered bounce by bounce"
+                );
+            }
             if bounces == Bounces::One {
                 // The light's own room and what it sees through openings, not the level.
                 assert!(

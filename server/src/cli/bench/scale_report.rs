@@ -390,7 +390,8 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
             w,
             "Moving each of up to {} lights spread over the level's list, one at a time, relit \
              by its change (direct light included; each light's median frame; one bounce, and \
-             all bounces: `Converged` to 0.001, bounce by bounce where the change's light goes):\n\n\
+             all bounces: `Converged` to 0.001, bounce by bounce where the change's light goes, \
+             or the whole-level solve where that costs less):\n\n\
              | blocks | lights moved | median light | slowest light | median light, all bounces | slowest light, all bounces | texels reached (median) | per texel reached (median) |\n\
              |---|---|---|---|---|---|---|---|",
             super::scale::MOVED_LIGHTS
