@@ -303,7 +303,8 @@ impl Runtime {
             if tolerance.is_some() && gain >= MAX_CONVERGING_GAIN {
                 return None;
             }
-            let later = gain.max(MIN_GAIN) / (1.0 - gain.max(MIN_GAIN));
+            let g = gain.max(MIN_GAIN);
+            let later = g / (1.0 - g);
             let mut keep_above = (f64::NEG_INFINITY, 0usize);
             if let Some(tolerance) = tolerance {
                 let allowed = tolerance * sum_light;
@@ -348,7 +349,6 @@ impl Runtime {
                 None => (limit - bounce) as f64,
                 Some(_) if bounce == 1 => expected - 1.0,
                 Some(tolerance) => {
-                    let g = gain.max(MIN_GAIN);
                     let fits = 0.5 * tolerance * sum_light / (light * later);
                     (fits.ln() / g.ln()).max(1.0)
                 }

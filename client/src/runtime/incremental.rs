@@ -208,17 +208,12 @@ impl Sparse {
         let mut listed = std::mem::take(&mut self.blocks_written);
         listed.clear();
         let n = self.unit_of.len();
-        for span in spans {
-            let (mut t, end) = (span.start.min(n), span.end.min(n));
-            while t < end {
-                let u = self.unit_of[t] as usize;
-                if u < self.n_blocks {
-                    listed.push(u as u32);
-                    listed.extend_from_slice(self.targets_of(u));
-                }
-                t = self.ranges[u].end.min(end);
+        for_each_unit_in(&self.unit_of, &self.ranges, spans, n, |u, _| {
+            if u < self.n_blocks {
+                listed.push(u as u32);
+                listed.extend_from_slice(self.targets_of(u));
             }
-        }
+        });
         listed.sort_unstable();
         listed.dedup();
         let texels = listed.iter().map(|&k| self.ranges[k as usize].len()).sum();
@@ -553,18 +548,13 @@ impl Runtime {
                 reach.blocks.fill(false);
                 reach.clutter.fill(false);
                 let n = delta.len().min(sparse.unit_of.len());
-                for span in spans {
-                    let (mut t, end) = (span.start.min(n), span.end.min(n));
-                    while t < end {
-                        let u = sparse.unit_of[t] as usize;
-                        let stop = sparse.ranges[u].end.min(end);
-                        if !sparse.listed[u] && Reach::any_light(delta, t..stop) {
-                            sparse.listed[u] = true;
-                            sparse.reached.push(u);
-                        }
-                        t = stop;
+                let (listed, reached) = (&mut sparse.listed, &mut sparse.reached);
+                for_each_unit_in(&sparse.unit_of, &sparse.ranges, spans, n, |u, texels| {
+                    if !listed[u] && Reach::any_light(delta, texels) {
+                        listed[u] = true;
+                        reached.push(u);
                     }
-                }
+                });
                 sparse.reached.sort_unstable();
                 for &u in &sparse.reached {
                     sparse.listed[u] = false;
@@ -648,6 +638,26 @@ impl Runtime {
             }
         }
         self.sparse = Some(sparse);
+    }
+}
+
+/// Calls `f(unit, texels)` for each piece of `spans` (clipped to the first `n` texels) within
+/// one unit, in span order: the units of `unit_of`, their texel `ranges`.
+fn for_each_unit_in(
+    unit_of: &[u32],
+    ranges: &[Range<usize>],
+    spans: &[Range<usize>],
+    n: usize,
+    mut f: impl FnMut(usize, Range<usize>),
+) {
+    for span in spans {
+        let (mut t, end) = (span.start.min(n), span.end.min(n));
+        while t < end {
+            let u = unit_of[t] as usize;
+            let stop = ranges[u].end.min(end);
+            f(u, t..stop);
+            t = stop;
+        }
     }
 }
 
