@@ -6,8 +6,9 @@
 //! back unnoticed. A light's reach there (`LightReach`) is a neighbourhood, not the level, and
 //! lights exactly what lighting every texel lights, and the blocks the bake keeps the f64
 //! transport into for inpainting hold every buried texel. A lamp's change relit at all bounces
-//! by the change writes a neighbourhood, within the tolerance. Also checks that the generator
-//! is deterministic.
+//! by the change writes a neighbourhood, within the tolerance; switched on by feedback it
+//! settles within the tolerance, no call writing a tenth of the level. Also checks that the
+//! generator is deterministic.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -235,6 +236,74 @@ fn a_generated_thousand_block_level_bakes_and_relights() {
             d.blocks_total
         );
     }
+
+    // The same lamp switched on by feedback (`delta_feedback`): every call one sparse bounce
+    // of the change and of the light due, then calls with no change until nothing is due;
+    // the answer then holds all bounces of the new light within the tolerance (relative to
+    // the level's light, as `Converged`'s), and no call wrote a tenth of the level.
+    let lit = DirectLight {
+        radiance: direct
+            .radiance
+            .iter()
+            .zip(&change.radiance)
+            .map(|(a, b)| [a[0] + b[0], a[1] + b[1], a[2] + b[2]])
+            .collect(),
+    };
+    let mut want = IndirectLight::default();
+    runtime
+        .apply(Method::Drt, Bounces::Fixed(80), &lit, &mut want)
+        .unwrap();
+    // The level's light before the lamp, as a game has it at load (the runtime's last
+    // `apply` is the level's light feedback is judged against).
+    let mut reference = IndirectLight::default();
+    runtime
+        .apply(Method::Drt, Bounces::Fixed(80), &direct, &mut reference)
+        .unwrap();
+    let tolerance = 1e-3;
+    runtime.set_feedback_tolerance(tolerance).unwrap();
+    let mut answer = reference.clone();
+    let no_change = DirectLight {
+        radiance: vec![[0.0; 3]; n],
+    };
+    let (mut calls, mut most) = (0, 0);
+    loop {
+        let delta = if calls == 0 { &change } else { &no_change };
+        runtime
+            .apply_delta(Method::Drt, Bounces::Feedback, delta, &mut answer)
+            .unwrap();
+        calls += 1;
+        let written: usize = runtime.delta_written().unwrap().map(|r| r.len()).sum();
+        most = most.max(written);
+        if runtime.feedback_due() == 0 {
+            break;
+        }
+        assert!(calls < 200, "still due after 200 calls");
+    }
+    let diff: Vec<[f32; 3]> = answer
+        .radiance
+        .iter()
+        .zip(&want.radiance)
+        .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+        .collect();
+    let err = l1(&diff) / l1(&want.radiance);
+    // The change's share of the level's light: the error against the change's own light.
+    let change_light = l1(&exact.radiance) / l1(&want.radiance);
+    eprintln!(
+        "1,000 blocks: a lamp switched on by feedback settles in {calls} calls, at most {most} \
+         of {n} texels written a call, L1 error {err:.2e} of the level's light ({:.2e} of \
+         the lamp's; the lamp is {change_light:.2e} of the level's)",
+        err / change_light
+    );
+    assert!(err <= 2.0 * tolerance as f64, "error {err}");
+    // And near the tolerance of the lamp's own light (measured 2.9e-3 of it), where the
+    // lamp's first bounce alone would miss about two thirds of it.
+    assert!(
+        err / change_light <= 10.0 * tolerance as f64,
+        "error {} of the lamp's light",
+        err / change_light
+    );
+    assert!(most * 10 < n, "{most} of {n} texels written in one call");
+    assert!(calls >= 2, "settled in {calls} call");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

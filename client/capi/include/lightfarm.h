@@ -127,6 +127,9 @@ enum LfBounces
   /**
    * One application per call of the direct light plus the previous call's indirect light:
    * all bounces for the cost of one once lights hold still (a moving light lags a few frames).
+   * Relighting by the change (`lf_runtime_apply_delta`, `lf_runtime_apply_delta_in_spans`):
+   * one bounce of the change and of the light not yet bounced where it matters, settling to
+   * all bounces within the tolerance (`lf_runtime_feedback_due` says when).
    */
   LF_BOUNCES_FEEDBACK = 2,
   /**
@@ -510,7 +513,9 @@ bool lf_runtime_has_full(const LfRuntime *rt);
 /**
  * Picks how many bounces `lf_runtime_apply` sums: `mode` is an `LfBounces`; `tolerance` is
  * `LF_BOUNCES_CONVERGED`'s and `LF_BOUNCES_WARM`'s (stop when a bounce adds less than this
- * fraction of the light so far; 0 for the default 1e-3) and ignored otherwise. A new runtime
+ * fraction of the light so far; 0 for the default 1e-3), for `LF_BOUNCES_FEEDBACK` the one
+ * relighting by the change settles to (relative to the level's light), and ignored by
+ * `LF_BOUNCES_ONE`. A new runtime
  * starts at `LF_BOUNCES_CONVERGED` with the default. Choosing a mode (again) starts
  * `LF_BOUNCES_FEEDBACK`'s feedback from zero and `LF_BOUNCES_WARM` from a cold solve.
  *
@@ -522,6 +527,18 @@ bool lf_runtime_has_full(const LfRuntime *rt);
  * the call.
  */
 int32_t lf_runtime_set_bounces(LfRuntime *rt, int32_t mode, float tolerance);
+
+/**
+ * Units (blocks, clutter objects, other texel runs) whose light is due to bounce on the next
+ * `lf_runtime_apply_delta` or `lf_runtime_apply_delta_in_spans` in `LF_BOUNCES_FEEDBACK`: 0
+ * once the light relit by the change holds all bounces within the tolerance (a game calls
+ * with a zero change, or an empty span list, until then; such a call costs the due units
+ * alone). 0 for NULL.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`.
+ */
+size_t lf_runtime_feedback_due(const LfRuntime *rt);
 
 /**
  * One-bounce operator applications the last successful `lf_runtime_apply` on `rt` made (the
@@ -582,13 +599,17 @@ int32_t lf_runtime_prepare_delta(LfRuntime *rt);
  * changed). On success `indirect_rgb` holds the indirect light of L + delta: the same as
  * `lf_runtime_apply` on the new light within float rounding (`LF_BOUNCES_ONE`) or within the
  * tolerance (`LF_BOUNCES_CONVERGED`), while only the blocks and clutter objects the change
- * lights, and what their light reaches bounce by bounce, are computed. Allocates nothing after
+ * lights, and what their light reaches bounce by bounce, are computed. In
+ * `LF_BOUNCES_FEEDBACK` it adds one bounce of the change and of the light earlier calls added
+ * but did not bounce yet (where that matters): all bounces arrive over the next calls, each
+ * costing one bounce where the light is (`lf_runtime_feedback_due`). Allocates nothing after
  * its first call.
  *
  * Both buffers hold `3 x texels` floats, texel-major RGB in layout order, and must not
  * overlap. Returns `LF_STATUS_OK`, or the statuses of `lf_runtime_apply`, or
- * `LF_STATUS_BAD_BOUNCES` in `LF_BOUNCES_FEEDBACK` (its light is the previous frame's, not a
- * function of the direct light). `indirect_rgb` is changed only on success.
+ * `LF_STATUS_BAD_BOUNCES` in `LF_BOUNCES_FEEDBACK` with `LF_METHOD_FULL` (feedback by the
+ * change shoots the light of blocks and clutter objects). `indirect_rgb` is changed only on
+ * success.
  *
  * # Safety
  * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during

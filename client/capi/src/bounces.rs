@@ -19,6 +19,9 @@ pub enum LfBounces {
     Converged = 1,
     /// One application per call of the direct light plus the previous call's indirect light:
     /// all bounces for the cost of one once lights hold still (a moving light lags a few frames).
+    /// Relighting by the change (`lf_runtime_apply_delta`, `lf_runtime_apply_delta_in_spans`):
+    /// one bounce of the change and of the light not yet bounced where it matters, settling to
+    /// all bounces within the tolerance (`lf_runtime_feedback_due` says when).
     Feedback = 2,
     /// All bounces to the tolerance like `Converged`, starting from the previous call's answer:
     /// one application a frame while lights hold still, a few while they move, as accurate as
@@ -40,20 +43,23 @@ impl LfBounces {
         .ok_or(CapiError::BadBounces(raw))
     }
 
-    /// The client's mode; `tolerance` is used by `Converged` and `Warm` only, where 0 means
-    /// the default and anything outside `[0, 1)` (or NaN) is refused.
-    pub fn bounces(self, tolerance: f32) -> Result<Bounces, CapiError> {
+    /// The client's mode and its tolerance (`Converged`'s and `Warm`'s, or for `Feedback` the
+    /// one relighting by the change settles to, `Runtime::set_feedback_tolerance`; None for
+    /// `One`, which ignores it): 0 means the default and anything outside `[0, 1)` (or NaN)
+    /// is refused.
+    pub fn bounces(self, tolerance: f32) -> Result<(Bounces, Option<f32>), CapiError> {
         let tolerance = match self {
-            LfBounces::One => return Ok(Bounces::One),
-            LfBounces::Feedback => return Ok(Bounces::Feedback),
+            LfBounces::One => return Ok((Bounces::One, None)),
             _ if tolerance == 0.0 => DEFAULT_TOLERANCE,
             _ if tolerance > 0.0 && tolerance < 1.0 => tolerance,
             _ => return Err(CapiError::BadTolerance(tolerance)),
         };
-        Ok(match self {
+        let bounces = match self {
             LfBounces::Warm => Bounces::Warm { tolerance },
+            LfBounces::Feedback => Bounces::Feedback,
             _ => Bounces::Converged { tolerance },
-        })
+        };
+        Ok((bounces, Some(tolerance)))
     }
 }
 
@@ -67,32 +73,44 @@ mod tests {
         assert_eq!(LfBounces::from_raw(2).unwrap(), LfBounces::Feedback);
         assert_eq!(LfBounces::from_raw(3).unwrap(), LfBounces::Warm);
         assert_eq!(
-            LfBounces::Warm.bounces(0.0).unwrap(),
+            LfBounces::Warm.bounces(0.0).unwrap().0,
             Bounces::Warm {
                 tolerance: DEFAULT_TOLERANCE
             }
         );
         assert_eq!(
-            LfBounces::Warm.bounces(0.01).unwrap(),
+            LfBounces::Warm.bounces(0.01).unwrap().0,
             Bounces::Warm { tolerance: 0.01 }
         );
+        assert_eq!(
+            LfBounces::Feedback.bounces(0.0).unwrap(),
+            (Bounces::Feedback, Some(DEFAULT_TOLERANCE))
+        );
+        assert_eq!(
+            LfBounces::Feedback.bounces(0.01).unwrap(),
+            (Bounces::Feedback, Some(0.01))
+        );
+        assert!(LfBounces::Feedback.bounces(2.0).is_err());
         assert!(LfBounces::Warm.bounces(1.5).is_err());
         assert!(matches!(
             LfBounces::from_raw(7),
             Err(CapiError::BadBounces(7))
         ));
         assert_eq!(
-            LfBounces::Converged.bounces(0.0).unwrap(),
+            LfBounces::Converged.bounces(0.0).unwrap().0,
             Bounces::default()
         );
         assert_eq!(
-            LfBounces::Converged.bounces(0.01).unwrap(),
+            LfBounces::Converged.bounces(0.01).unwrap().0,
             Bounces::Converged { tolerance: 0.01 }
         );
         for bad in [-0.1, 1.0, f32::NAN, f32::INFINITY] {
             assert!(LfBounces::Converged.bounces(bad).is_err(), "{bad}");
         }
         // The tolerance is ignored where it means nothing.
-        assert_eq!(LfBounces::One.bounces(f32::NAN).unwrap(), Bounces::One);
+        assert_eq!(
+            LfBounces::One.bounces(f32::NAN).unwrap(),
+            (Bounces::One, None)
+        );
     }
 }

@@ -339,7 +339,9 @@ pub unsafe extern "C" fn lf_runtime_has_full(rt: *const LfRuntime) -> bool {
 
 /// Picks how many bounces `lf_runtime_apply` sums: `mode` is an `LfBounces`; `tolerance` is
 /// `LF_BOUNCES_CONVERGED`'s and `LF_BOUNCES_WARM`'s (stop when a bounce adds less than this
-/// fraction of the light so far; 0 for the default 1e-3) and ignored otherwise. A new runtime
+/// fraction of the light so far; 0 for the default 1e-3), for `LF_BOUNCES_FEEDBACK` the one
+/// relighting by the change settles to (relative to the level's light), and ignored by
+/// `LF_BOUNCES_ONE`. A new runtime
 /// starts at `LF_BOUNCES_CONVERGED` with the default. Choosing a mode (again) starts
 /// `LF_BOUNCES_FEEDBACK`'s feedback from zero and `LF_BOUNCES_WARM` from a cold solve.
 ///
@@ -358,9 +360,30 @@ pub unsafe extern "C" fn lf_runtime_set_bounces(
     status_call("lf_runtime_set_bounces", || {
         // SAFETY: NULL or live and unshared, per the contract.
         let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
-        rt.bounces = LfBounces::from_raw(mode)?.bounces(tolerance)?;
+        let mode = LfBounces::from_raw(mode)?;
+        let (bounces, tolerance) = mode.bounces(tolerance)?;
+        if let (LfBounces::Feedback, Some(tolerance)) = (mode, tolerance) {
+            rt.runtime.set_feedback_tolerance(tolerance)?;
+        }
+        rt.bounces = bounces;
         rt.runtime.reset_feedback();
         Ok(())
+    })
+}
+
+/// Units (blocks, clutter objects, other texel runs) whose light is due to bounce on the next
+/// `lf_runtime_apply_delta` or `lf_runtime_apply_delta_in_spans` in `LF_BOUNCES_FEEDBACK`: 0
+/// once the light relit by the change holds all bounces within the tolerance (a game calls
+/// with a zero change, or an empty span list, until then; such a call costs the due units
+/// alone). 0 for NULL.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_feedback_due(rt: *const LfRuntime) -> usize {
+    value_call("lf_runtime_feedback_due", 0, || {
+        // SAFETY: NULL or live, per the contract.
+        unsafe { rt.as_ref() }.map_or(0, |rt| rt.runtime.feedback_due())
     })
 }
 
@@ -464,13 +487,17 @@ pub unsafe extern "C" fn lf_runtime_prepare_delta(rt: *mut LfRuntime) -> i32 {
 /// changed). On success `indirect_rgb` holds the indirect light of L + delta: the same as
 /// `lf_runtime_apply` on the new light within float rounding (`LF_BOUNCES_ONE`) or within the
 /// tolerance (`LF_BOUNCES_CONVERGED`), while only the blocks and clutter objects the change
-/// lights, and what their light reaches bounce by bounce, are computed. Allocates nothing after
+/// lights, and what their light reaches bounce by bounce, are computed. In
+/// `LF_BOUNCES_FEEDBACK` it adds one bounce of the change and of the light earlier calls added
+/// but did not bounce yet (where that matters): all bounces arrive over the next calls, each
+/// costing one bounce where the light is (`lf_runtime_feedback_due`). Allocates nothing after
 /// its first call.
 ///
 /// Both buffers hold `3 x texels` floats, texel-major RGB in layout order, and must not
 /// overlap. Returns `LF_STATUS_OK`, or the statuses of `lf_runtime_apply`, or
-/// `LF_STATUS_BAD_BOUNCES` in `LF_BOUNCES_FEEDBACK` (its light is the previous frame's, not a
-/// function of the direct light). `indirect_rgb` is changed only on success.
+/// `LF_STATUS_BAD_BOUNCES` in `LF_BOUNCES_FEEDBACK` with `LF_METHOD_FULL` (feedback by the
+/// change shoots the light of blocks and clutter objects). `indirect_rgb` is changed only on
+/// success.
 ///
 /// # Safety
 /// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during

@@ -1009,7 +1009,12 @@ fn apply_delta_in_spans_is_apply_delta_on_the_spans() {
     };
     // Changes one after another: block a's texels, then the lamp's and block b's.
     let steps = [vec![span(1, 3)], vec![span(14, 17), span(5, 9)]];
-    for (mode, tolerance) in [(LfBounces::One, 0.0), (LfBounces::Converged, 1e-6)] {
+    let modes = [
+        (LfBounces::One, 0.0),
+        (LfBounces::Converged, 1e-6),
+        (LfBounces::Feedback, 1e-3),
+    ];
+    for (mode, tolerance) in modes {
         for method in [LfMethod::Mrt as i32, LfMethod::Drt as i32] {
             let (whole, by_spans) = (load(), load());
             for rt in [&whole, &by_spans] {
@@ -1019,13 +1024,28 @@ fn apply_delta_in_spans_is_apply_delta_on_the_spans() {
             }
             let direct: Vec<f32> = (0..3 * n).map(|_| rng.range(0.1, 1.0)).collect();
             let mut a = vec![0.0f32; 3 * n];
+            // Feedback by the change goes on from all bounces (a game's answer at load),
+            // without an apply on the runtimes relighting (their light is then what their
+            // feedback adds).
+            let all_bounces = load();
+            let start = if mode == LfBounces::Feedback {
+                // SAFETY: live runtime.
+                let set = unsafe {
+                    lf_runtime_set_bounces(all_bounces.0, LfBounces::Converged as i32, 1e-6)
+                };
+                assert_eq!(set, OK);
+                &all_bounces
+            } else {
+                &whole
+            };
             assert_eq!(
-                whole.apply(method, &direct, &mut a),
+                start.apply(method, &direct, &mut a),
                 OK,
                 "{mode:?} method {method}: {}",
                 last_error()
             );
             let mut b = a.clone();
+            let mut light = direct.clone();
             for spans in &steps {
                 let mut delta = vec![0.0f32; 3 * n];
                 let mut outside = vec![f32::NAN; 3 * n];
@@ -1045,7 +1065,40 @@ fn apply_delta_in_spans_is_apply_delta_on_the_spans() {
                 // Equal as values (a zero's sign may differ).
                 assert_eq!(a, b, "{mode:?} method {method} spans {spans:?}");
                 assert!(b.iter().all(|v| v.is_finite()));
+                for (l, d) in light.iter_mut().zip(&delta) {
+                    *l += d;
+                }
             }
+            if mode != LfBounces::Feedback {
+                continue;
+            }
+            // Feedback settles: calls with no span until nothing is due, then all bounces of
+            // the last light within the tolerance (×2; L1, relative).
+            let zero = vec![0.0f32; 3 * n];
+            let mut calls = 0;
+            // SAFETY: live runtime.
+            while unsafe { lf_runtime_feedback_due(by_spans.0) } > 0 {
+                calls += 1;
+                assert!(calls < 100, "method {method}: still due after 100 calls");
+                assert_eq!(
+                    by_spans.apply_delta_in_spans(method, &zero, &[], &mut b),
+                    OK
+                );
+            }
+            assert!(calls > 0, "method {method}: nothing was due");
+            let all = load();
+            let mut want = vec![0.0f32; 3 * n];
+            // SAFETY: live runtime.
+            let set = unsafe { lf_runtime_set_bounces(all.0, LfBounces::Converged as i32, 1e-6) };
+            assert_eq!(set, OK);
+            assert_eq!(all.apply(method, &light, &mut want), OK);
+            let diff: f64 = b.iter().zip(&want).map(|(x, y)| (x - y).abs() as f64).sum();
+            let norm: f64 = want.iter().map(|y| y.abs() as f64).sum();
+            assert!(
+                diff <= 2e-3 * norm,
+                "method {method}: {} after {calls} calls",
+                diff / norm
+            );
         }
     }
     let rt = load();
@@ -1060,7 +1113,7 @@ fn apply_delta_in_spans_is_apply_delta_on_the_spans() {
 }
 
 #[test]
-fn apply_delta_refuses_feedback_bad_lengths_and_nulls_and_leaves_the_light_alone() {
+fn apply_delta_refuses_feedback_of_full_bad_lengths_and_nulls_and_leaves_the_light_alone() {
     let rt = Rt::load();
     let mrt = LfMethod::Mrt as i32;
     let mut indirect = MRT;
@@ -1070,7 +1123,7 @@ fn apply_delta_refuses_feedback_bad_lengths_and_nulls_and_leaves_the_light_alone
         OK
     );
     assert_eq!(
-        rt.apply_delta(mrt, &DIRECT, &mut indirect),
+        rt.apply_delta(LfMethod::Full as i32, &DIRECT, &mut indirect),
         LfStatus::BadBounces as i32
     );
     assert!(last_error().contains("Feedback"), "{}", last_error());

@@ -201,6 +201,13 @@ impl Sparse {
         &self.written
     }
 
+    /// Calls `f(unit)` for each unit `spans` touch, in span order (a unit may come more
+    /// than once).
+    pub(super) fn units_in(&self, spans: &[Range<usize>], mut f: impl FnMut(usize)) {
+        let n = self.unit_of.len();
+        for_each_unit_in(&self.unit_of, &self.ranges, spans, n, |u, _| f(u));
+    }
+
     /// The texels of the blocks a one-bounce call with input on `spans` writes at the least
     /// (the blocks the spans touch and the blocks transport carries their light into), without
     /// reading the input.
@@ -311,11 +318,12 @@ impl Runtime {
     /// Relights after a change of direct light: `out` holds the indirect light `apply(method,
     /// bounces, L)` gave for some direct light L, `delta` is the change `L_new − L` (zero
     /// wherever the change does not reach); `out` becomes the indirect light of `L_new`,
-    /// computing only what `delta` reaches (module doc). `Feedback` is refused (its state is
-    /// the previous frame's output, not a function of the direct light); `Warm` solves the
-    /// change like `Converged`; `Full` does the full work on `delta`. More bounces than one go
-    /// bounce by bounce where the change's light goes (module `delta_bounces`), or by
-    /// whole-level applications when it fills the level.
+    /// computing only what `delta` reaches (module doc). `Feedback` makes one bounce of the
+    /// change and of the light earlier calls added but did not bounce yet, where that light
+    /// is due (module `delta_feedback`: all bounces over frames; refused with `Full`); `Warm`
+    /// solves the change like `Converged`; `Full` does the full work on `delta`. More bounces
+    /// than one go bounce by bounce where the change's light goes (module `delta_bounces`),
+    /// or by whole-level applications when it fills the level.
     ///
     /// On an error `out` is unchanged.
     pub fn apply_delta(
@@ -368,7 +376,7 @@ impl Runtime {
         out: &mut IndirectLight,
     ) -> Result<DeltaApplied, ApplyError> {
         let bounces = match bounces {
-            Bounces::Feedback => return Err(ApplyError::DeltaFeedback),
+            Bounces::Feedback if method == Method::Full => return Err(ApplyError::DeltaFeedback),
             // The change's own light has no previous answer to start from.
             Bounces::Warm { tolerance } => Bounces::Converged { tolerance },
             b => b,
@@ -391,12 +399,20 @@ impl Runtime {
         if let Some(chain) = self.chain.as_mut() {
             chain.answered = false;
         }
-        let sparse = matches!(bounces, Bounces::One | Bounces::Fixed(1)) && method != Method::Full;
+        let progressive = bounces == Bounces::Feedback;
+        let sparse = matches!(
+            bounces,
+            Bounces::One | Bounces::Fixed(1) | Bounces::Feedback
+        ) && method != Method::Full;
         let chained = method != Method::Full
             && matches!(bounces, Bounces::Fixed(2..) | Bounces::Converged { .. })
             && self.check_arguments(method, bounces, delta).is_ok();
         let mut by_chain = false;
-        let result = if sparse {
+        let result = if progressive {
+            // One bounce of the change and of the light due (module `delta_feedback`).
+            self.check_arguments(method, bounces, delta)
+                .map(|()| self.shoot_unshot(method, &delta.radiance, spans, &mut change.radiance))
+        } else if sparse {
             self.check_arguments(method, bounces, delta).map(|()| {
                 self.apply_once_sparse(method, &delta.radiance, spans, &mut change.radiance);
                 Applied {
@@ -493,6 +509,9 @@ impl Runtime {
                 blocks_total: total,
             }
         });
+        if progressive && result.is_ok() {
+            self.judge_unshot(&change.radiance);
+        }
         self.delta_out = change;
         result
     }

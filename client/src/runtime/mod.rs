@@ -87,6 +87,9 @@
 //! - `delta_bounces`: more bounces of a change, each the sparse one-bounce application of the
 //!   last, for `Converged` while its light matters (dropping the faintest units within the
 //!   tolerance).
+//! - `delta_feedback`: [`Bounces::Feedback`] by the change, one sparse bounce a call of the
+//!   change and of the light added earlier and not yet bounced, where it is due (all bounces
+//!   over the next calls, settling within [`Runtime::set_feedback_tolerance`]).
 //! - `tests` (`tests/`): hand-built bundles against dense references, per concept.
 //!
 //! Invariants:
@@ -117,6 +120,7 @@ use crate::packed::PackedMatrix;
 use crate::packed_gather::PackedGather;
 
 mod delta_bounces;
+mod delta_feedback;
 mod drt;
 mod full;
 mod incremental;
@@ -157,7 +161,10 @@ pub enum Bounces {
     /// [`Applied::remaining_fraction`]). The default, with [`DEFAULT_TOLERANCE`].
     Converged { tolerance: f32 },
     /// One application per call of the direct light plus the previous call's indirect light
-    /// (zero after [`Runtime::reset_feedback`], a method change or a new runtime).
+    /// (zero after [`Runtime::reset_feedback`], a method change or a new runtime). With
+    /// [`Runtime::apply_delta`]: one sparse application per call of the change plus the light
+    /// not yet bounced where it is due (module `delta_feedback`), settling to all bounces
+    /// within [`Runtime::set_feedback_tolerance`] while the lights hold still.
     Feedback,
     /// All bounces to `tolerance` like [`Bounces::Converged`], starting from the last answer
     /// of `Converged` or `Warm` with the same method (the previous frame's): one application
@@ -241,8 +248,8 @@ pub enum ApplyError {
     )]
     NonFinite { bounce: u32 },
     #[error(
-        "bounces: apply_delta cannot follow Feedback (its light is the previous frame's, not a \
-         function of the direct light); use One, Fixed(n), Converged or Warm"
+        "bounces: apply_delta with Feedback needs Mrt or Drt (the Full operator has no units to \
+         shoot by); use One, Fixed(n), Converged or Warm with Full"
     )]
     DeltaFeedback,
 }
@@ -314,6 +321,15 @@ pub struct Runtime {
     /// [`Runtime::apply_delta`] over more bounces: the bounce-by-bounce sum's state (module
     /// `delta_bounces`, made on the first such call).
     chain: Option<delta_bounces::Chain>,
+    /// [`Runtime::apply_delta`] with [`Bounces::Feedback`]: the unshot light and the units
+    /// due (module `delta_feedback`, made on the first such call).
+    progress: Option<delta_feedback::Progress>,
+    /// L1 light (over texels and channels) of the last [`Runtime::apply`]'s answer, and per
+    /// texel (`light_applied`); before any `apply`, of the light feedback by the change has
+    /// added: the light that feedback is judged against (module `delta_feedback`).
+    level_light: f64,
+    texel_light: Vec<f32>,
+    light_applied: bool,
     /// [`Bounces::Converged`] with [`Method::Mrt`] in coefficient space (module `reduced`):
     /// whether it is used, and its operators (made with the runtime for a bundle without DRT,
     /// else on the first such solve; `reduced_tried` once made, None for a lightfield
@@ -505,6 +521,10 @@ impl Runtime {
             sparse: None,
             ld_everywhere: true,
             chain: None,
+            progress: None,
+            level_light: 0.0,
+            texel_light: vec![0.0; n_texels],
+            light_applied: false,
             reduced_enabled: true,
             reduced_tried: false,
             reduced: None,
@@ -519,12 +539,21 @@ impl Runtime {
     }
 
     /// Forgets the light [`Bounces::Feedback`] feeds back (the next call starts from one
-    /// bounce, as after a cut to another level) and the answer [`Bounces::Warm`] starts from
-    /// (its next call is a cold `Converged` solve).
+    /// bounce, as after a cut to another level), the unshot light of
+    /// [`Runtime::apply_delta`] with `Feedback` (the answer is taken as converged) and the
+    /// answer [`Bounces::Warm`] starts from (its next call is a cold `Converged` solve).
     pub fn reset_feedback(&mut self) {
         self.feedback.fill([0.0; 3]);
         self.feedback_method = None;
         self.warm.forget();
+        if let Some(p) = self.progress.as_mut() {
+            p.forget();
+        }
+        if !self.light_applied {
+            // The light feedback by the change had added (module `delta_feedback`).
+            self.texel_light.fill(0.0);
+            self.level_light = 0.0;
+        }
     }
 
     /// Runs the per-block work of [`Runtime::apply`] on the current rayon thread pool
@@ -637,6 +666,12 @@ impl Runtime {
         };
         if result.is_err() {
             out.radiance.fill([0.0; 3]);
+        } else if !self.by_change {
+            for (l, v) in self.texel_light.iter_mut().zip(&out.radiance) {
+                *l = v[0].abs() + v[1].abs() + v[2].abs();
+            }
+            self.level_light = self.texel_light.iter().map(|&x| x as f64).sum();
+            self.light_applied = true;
         }
         result
     }

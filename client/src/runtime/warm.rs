@@ -108,13 +108,13 @@ impl WarmStart {
         self.solved_gain = gain;
     }
 
-    /// Adds a change of indirect light to the guess (`apply_delta` moved the answer; the
-    /// motion before it is forgotten).
     /// The operator's gain (spectral radius) estimated by the last cold solve (0 before one).
     pub(super) fn solved_gain(&self) -> f64 {
         self.solved_gain
     }
 
+    /// Adds a change of indirect light to the guess (`apply_delta` moved the answer; the
+    /// motion before it is forgotten).
     pub(super) fn add_change(&mut self, method: Method, change: &[[f32; 3]]) {
         let n = change.len();
         self.add_change_in(method, change, std::iter::once(0..n));

@@ -259,6 +259,20 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             t.rooms_reached,
             t.prepare_ms
         );
+        if let Some(s) = t.settling {
+            println!(
+                "update=one-light light={moved} bounces=feedback lag_rel_l2: update={:.2e} \
+                 full={:.2e}; settled after {} calls (median {:.4} ms) to rel_l2={:.2e}, \
+                 per lit surface rel_l1 p99={:.2e} max={:.2e}",
+                s.update_lag,
+                s.full_lag,
+                s.frames,
+                s.median_ms,
+                s.settled,
+                s.surface_p99,
+                s.surface_max
+            );
+        }
         println!(
             "update=one-light light={moved} method={method:?} bounces={} frames={frames} \
              blocks_projected={}/{} drift_rel_l2={:.2e} speedup={:.1} median_ms={:.4}",

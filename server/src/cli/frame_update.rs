@@ -32,6 +32,15 @@
 //! two agree: within float rounding for one or a fixed number of bounces, within the tolerance
 //! per frame for `all`.
 //!
+//! With `feedback` both ways start from all bounces (the full way after [`FEEDBACK_WARM_UP`]
+//! frames of whole-level feedback on the first frame's lights) and lag behind them while the
+//! light moves: the update relights by the change with `Feedback` (one sparse bounce of the
+//! change and of the light due, module `delta_feedback` of the client). After the last frame
+//! both ways' lag against the all-bounce answer is printed, then the update settles (calls
+//! with no change until nothing is due, timed) and its drift is against the all-bounce answer
+//! ([`Settling`]), over the level and per lit surface. The all-bounce answers here are
+//! `Converged` at [`FEEDBACK_REFERENCE_TOLERANCE`].
+//!
 //! Units: milliseconds of wall time on this thread (the runtime single-threaded).
 
 use std::time::Instant;
@@ -84,7 +93,78 @@ pub struct UpdateTimes {
     pub has_rooms: bool,
     /// [`Runtime::prepare_delta`] before the first frame (ms).
     pub prepare_ms: f64,
+    /// `feedback` only ([`Settling`]): how far each way lagged behind all bounces after the
+    /// last frame, and the update's settling once the light stops.
+    pub settling: Option<Settling>,
 }
+
+/// With [`Bounces::Feedback`] both ways lag behind all bounces while the light moves (the
+/// light of a frame's change arrives bounce by bounce over the next frames); after the last
+/// frame the update keeps calling with no change until nothing is due
+/// ([`Runtime::feedback_due`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Settling {
+    /// Relative L2 against the all-bounce answer (`Converged` at the default tolerance) of
+    /// the last frame's lights: the update's and the full way's (whole-level feedback; NaN
+    /// with [`Ways::UpdateOnly`]).
+    pub update_lag: f64,
+    pub full_lag: f64,
+    /// Calls with no change until nothing was due, their median time (ms), and the update's
+    /// relative L2 against the all-bounce answer then.
+    pub frames: usize,
+    pub median_ms: f64,
+    pub settled: f64,
+    /// Settled, per surface of the layout (relative L1 against the surface's all-bounce
+    /// light; surfaces lit at least [`LIT_SURFACE`] of the mean texel's light): the 99th
+    /// percentile and the largest.
+    pub surface_p99: f64,
+    pub surface_max: f64,
+}
+
+/// The least light per texel, relative to the level's mean, of the surfaces whose error
+/// [`Settling`] reports.
+const LIT_SURFACE: f64 = 1e-2;
+
+/// Tolerance of the all-bounce answers the feedback is compared with (and starts from): well
+/// under the feedback's own (the default, 1e-3), so the drift is the feedback's.
+const FEEDBACK_REFERENCE_TOLERANCE: f32 = 1e-5;
+
+/// Relative L1 error of each lit surface of `layout` (module doc of [`Settling`]): (99th
+/// percentile, largest).
+fn surface_errors(layout: &Layout, got: &[[f32; 3]], want: &[[f32; 3]]) -> (f64, f64) {
+    let l1 = |v: &[[f32; 3]]| -> f64 { v.iter().flatten().map(|x| x.abs() as f64).sum() };
+    let mean = l1(want) / want.len().max(1) as f64;
+    let mut errors: Vec<f64> = layout
+        .surfaces
+        .iter()
+        .filter_map(|s| {
+            let r = s.texel_offset as usize..(s.texel_offset + s.texel_count) as usize;
+            let light = l1(&want[r.clone()]);
+            (s.texel_count > 0 && light >= LIT_SURFACE * mean * r.len() as f64).then(|| {
+                let diff: f64 = got[r.clone()]
+                    .iter()
+                    .flatten()
+                    .zip(want[r].iter().flatten())
+                    .map(|(a, b)| (a - b).abs() as f64)
+                    .sum();
+                diff / light
+            })
+        })
+        .collect();
+    if errors.is_empty() {
+        return (0.0, 0.0);
+    }
+    errors.sort_by(f64::total_cmp);
+    let p99 = errors[(errors.len() * 99 / 100).min(errors.len() - 1)];
+    (p99, errors[errors.len() - 1])
+}
+
+/// Frames of whole-level feedback the full way makes on the first frame's lights before the
+/// timed frames (so it starts from all bounces, as the update does: 0.65⁴⁰ ≈ 3e-8).
+const FEEDBACK_WARM_UP: usize = 40;
+
+/// Calls with no change the update makes at most to settle.
+const MAX_SETTLE: usize = 1000;
 
 /// The middle value of `v` (the upper of the two middle ones for an even count); `v` must not
 /// be empty.
@@ -241,7 +321,21 @@ pub fn time_update(
         direct_error = relative_l2(&direct0.radiance, &every_sample.radiance);
     }
     let mut full_out = IndirectLight::default();
-    runtime.apply(method, bounces, &direct0, &mut full_out)?;
+    let feedback = bounces == Bounces::Feedback;
+    if feedback {
+        // Both ways start from all bounces: the update from the converged answer, the full
+        // way's feedback after as many frames on the same light.
+        let reference = Bounces::Converged {
+            tolerance: FEEDBACK_REFERENCE_TOLERANCE,
+        };
+        runtime.apply(method, reference, &direct0, &mut full_out)?;
+        let mut warming = IndirectLight::default();
+        for _ in 0..if both { FEEDBACK_WARM_UP } else { 0 } {
+            runtime.apply(method, bounces, &direct0, &mut warming)?;
+        }
+    } else {
+        runtime.apply(method, bounces, &direct0, &mut full_out)?;
+    }
     let mut update_out = full_out.clone();
     // The update way relights on a runtime of its own, as a game relighting by the change
     // would: the full way's passes over the level leave nothing for it to clear.
@@ -347,6 +441,46 @@ pub fn time_update(
         rooms.push(reach.as_ref().map_or(0, |r| r.rooms_reached()) as f64);
         total = total.max(d.blocks_total);
     }
+    // Feedback: how far both lag behind all bounces, then the update settling.
+    let mut settling = None;
+    let mut drift = relative_l2(&update_out.radiance, &full_out.radiance);
+    if let (true, Some(rt)) = (feedback, by_change.as_mut()) {
+        let direct = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
+        let mut all = IndirectLight::default();
+        let reference = Bounces::Converged {
+            tolerance: FEEDBACK_REFERENCE_TOLERANCE,
+        };
+        runtime
+            .clone()
+            .apply(method, reference, &direct, &mut all)?;
+        for span in &change_spans {
+            change.radiance[span.clone()].fill([0.0; 3]);
+        }
+        let update_lag = relative_l2(&update_out.radiance, &all.radiance);
+        let mut times = Vec::new();
+        while rt.feedback_due() > 0 && times.len() < MAX_SETTLE {
+            let start = Instant::now();
+            rt.apply_delta_in(method, bounces, &change, &[], &mut update_out)?;
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        let settled = relative_l2(&update_out.radiance, &all.radiance);
+        let (surface_p99, surface_max) =
+            surface_errors(&layout, &update_out.radiance, &all.radiance);
+        settling = Some(Settling {
+            update_lag,
+            full_lag: if both {
+                relative_l2(&full_out.radiance, &all.radiance)
+            } else {
+                f64::NAN
+            },
+            frames: times.len(),
+            median_ms: if times.is_empty() { 0.0 } else { median(times) },
+            settled,
+            surface_p99,
+            surface_max,
+        });
+        drift = settled;
+    }
     let way = |[direct, operators]: [Vec<f64>; 2]| {
         let sums: Vec<f64> = direct.iter().zip(&operators).map(|(a, b)| a + b).collect();
         Way {
@@ -367,7 +501,7 @@ pub fn time_update(
     Ok(UpdateTimes {
         full,
         update: way(update),
-        drift: relative_l2(&update_out.radiance, &full_out.radiance),
+        drift,
         direct_error,
         direct_every_sample_ms,
         blocks_projected: median(projected) as usize,
@@ -376,6 +510,7 @@ pub fn time_update(
         rooms_reached: median(rooms) as usize,
         has_rooms,
         prepare_ms,
+        settling,
     })
 }
 

@@ -3,7 +3,8 @@
 //! the tolerance for `Converged`), for MRT with every transport kind and DRT with every kind of
 //! delta entry; an application under a reach equals the full application of the same input (the
 //! exact gather's rows to float rounding);
-//! the reach follows the change; `Feedback` is refused and leaves `out` alone; a runtime made
+//! the reach follows the change; `Feedback` by the change is the whole-level `Feedback` when
+//! every unit is due and settles within its tolerance (refused for `Full`); a runtime made
 //! ready by [`Runtime::prepare_delta`] relights with the same bits.
 
 use super::*;
@@ -411,25 +412,115 @@ fn more_bounces_by_the_change_follow_it_bounce_by_bounce() {
     }
 }
 
+/// Feedback by the change (module `delta_feedback`) with every unit due on every call (a
+/// tolerance of 1e-30) is the whole-level `Feedback` to rounding: each call adds `A(Δ +
+/// the light added last call)`, so the answers agree call by call while lights move.
 #[test]
-fn feedback_is_refused_and_out_is_unchanged() {
+fn feedback_by_the_change_with_every_unit_due_is_whole_level_feedback() {
+    let mut rng = Lcg(77);
+    for (b, method, name) in cases(&mut rng, 0.5) {
+        let n = b.layout.n_texels();
+        let mut rt = Runtime::new(b);
+        rt.set_feedback_tolerance(1e-30).unwrap();
+        let mut whole = Runtime::new(rt.bundle().clone());
+        let mut light = direct(&mut rng, n);
+        let mut out = IndirectLight {
+            radiance: vec![[0.0; 3]; n],
+        };
+        let mut want = IndirectLight::default();
+        // From nothing: the first call's change is the whole light.
+        rt.apply_delta(method, Bounces::Feedback, &light, &mut out)
+            .unwrap();
+        whole
+            .apply(method, Bounces::Feedback, &light, &mut want)
+            .unwrap();
+        for (step, range) in [0..4, 2..9, 5..6, 0..n, 0..0, 0..0].into_iter().enumerate() {
+            let (new, delta) = changed(&light, range, &mut rng);
+            let d = rt
+                .apply_delta(method, Bounces::Feedback, &delta, &mut out)
+                .unwrap();
+            assert_eq!(d.applied.bounces, 1);
+            whole
+                .apply(method, Bounces::Feedback, &new, &mut want)
+                .unwrap();
+            let err = max_rel(&out.radiance, &want.radiance);
+            assert!(err < 1e-5, "{name} {step}: {err}");
+            light = new;
+        }
+    }
+}
+
+/// Feedback by the change settles to all bounces: lights move for some calls, then calls with
+/// no change shoot what is due until nothing is (`feedback_due` is 0), and the answer is then
+/// within the tolerance (×2, as `Converged`'s) of the converged light, in L1 relative to it;
+/// every call answers with one bounce, and a settled runtime's calls write nothing.
+#[test]
+fn feedback_by_the_change_settles_to_all_bounces_within_its_tolerance() {
+    let mut rng = Lcg(78);
+    for (b, method, name) in cases(&mut rng, 0.2) {
+        let n = b.layout.n_texels();
+        for tolerance in [1e-2f32, 1e-3, 1e-4] {
+            let mut rt = Runtime::new(b.clone());
+            rt.set_feedback_tolerance(tolerance).unwrap();
+            let mut reference = Runtime::new(b.clone());
+            let mut light = direct(&mut rng, n);
+            let mut out = IndirectLight::default();
+            // All bounces to rounding (the scaled albedo loses 80% a bounce at most).
+            rt.apply(method, Bounces::Fixed(300), &light, &mut out)
+                .unwrap();
+            for range in [0..4, 2..9, 5..6, 3..n] {
+                let (new, delta) = changed(&light, range, &mut rng);
+                rt.apply_delta(method, Bounces::Feedback, &delta, &mut out)
+                    .unwrap();
+                light = new;
+            }
+            let zero = DirectLight {
+                radiance: vec![[0.0; 3]; n],
+            };
+            let mut calls = 0;
+            while rt.feedback_due() > 0 {
+                calls += 1;
+                assert!(calls < 200, "{name} {tolerance}: still due after 200 calls");
+                rt.apply_delta(method, Bounces::Feedback, &zero, &mut out)
+                    .unwrap();
+            }
+            let mut want = IndirectLight::default();
+            reference
+                .apply(method, Bounces::Fixed(300), &light, &mut want)
+                .unwrap();
+            let err = rel_l1(&out.radiance, &want.radiance);
+            assert!(
+                err <= 2.0 * tolerance as f64,
+                "{name} {tolerance}: {err} after {calls} calls"
+            );
+            // Settled: a call with no change writes nothing and changes nothing.
+            let before = out.clone();
+            rt.apply_delta(method, Bounces::Feedback, &zero, &mut out)
+                .unwrap();
+            assert_eq!(out, before, "{name} {tolerance}");
+            assert_eq!(rt.delta_written().unwrap().count(), 0, "{name}");
+        }
+    }
+}
+
+/// `Feedback` by the change needs units to shoot by: refused for `Full`, leaving `out` alone;
+/// a tolerance outside (0, 1) is refused.
+#[test]
+fn feedback_by_the_change_is_refused_for_the_full_operator() {
     let mut rng = Lcg(75);
-    let t = traced(&mut rng);
-    let b = bundle(&mut rng, Some(t), false);
+    let b = bundle(&mut rng, None, true);
     let n = b.layout.n_texels();
     let mut rt = Runtime::new(b);
     let ld = direct(&mut rng, n);
     let mut out = IndirectLight::default();
-    rt.apply(Method::Mrt, Bounces::One, &ld, &mut out).unwrap();
+    rt.apply(Method::Full, Bounces::One, &ld, &mut out).unwrap();
     let before = out.clone();
     let err = rt
-        .apply_delta(Method::Mrt, Bounces::Feedback, &ld, &mut out)
+        .apply_delta(Method::Full, Bounces::Feedback, &ld, &mut out)
         .unwrap_err();
     assert_eq!(err, ApplyError::DeltaFeedback);
     assert_eq!(out, before);
-    // And the full apply afterwards still does the full work.
-    let mut again = IndirectLight::default();
-    rt.apply(Method::Mrt, Bounces::One, &ld, &mut again)
-        .unwrap();
-    assert_eq!(again, before);
+    for bad in [0.0, 1.0, -1.0, f32::NAN] {
+        assert!(rt.set_feedback_tolerance(bad).is_err(), "{bad}");
+    }
 }

@@ -134,6 +134,16 @@ pub struct ScalePoint {
     /// sweeps from before it was measured).
     #[serde(default)]
     pub moved_lights_all: Option<MovedLights>,
+    /// The same lights moved with `Feedback` by the change (all bounces over the next frames,
+    /// module `delta_feedback` of the client), and the largest over them of the lag behind all
+    /// bounces after the last frame and of the error once settled (relative L2); absent in
+    /// sweeps from before it was measured.
+    #[serde(default)]
+    pub moved_lights_feedback: Option<MovedLights>,
+    #[serde(default)]
+    pub feedback_lag: Option<f64>,
+    #[serde(default)]
+    pub feedback_settled: Option<f64>,
     /// Texels sampled for the error, DRT all bounces against the reference at all bounces
     /// there, and the reference's noise (two seeds' relative L2 over √2).
     pub error_texels: usize,
@@ -361,9 +371,14 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         "{blocks} blocks: moving each of {MOVED_LIGHTS} lights"
     ));
     let n_lights = client_lights.len();
-    let (mut moved, mut moved_all) = (Vec::new(), Vec::new());
+    let (mut moved, mut moved_all, mut moved_feedback) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut feedback_lag, mut feedback_settled) = (None::<f64>, None::<f64>);
     for k in 0..MOVED_LIGHTS.min(n_lights) {
-        for (bounces, times) in [(Bounces::One, &mut moved), (converged, &mut moved_all)] {
+        for (bounces, times) in [
+            (Bounces::One, &mut moved),
+            (converged, &mut moved_all),
+            (Bounces::Feedback, &mut moved_feedback),
+        ] {
             let t = time_update(
                 &mut runtime,
                 &occluders,
@@ -375,9 +390,17 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
                 Ways::UpdateOnly,
             )?;
             times.push((t.update.total_ms, t.texels_reached));
+            if let Some(s) = t.settling {
+                feedback_lag = Some(feedback_lag.map_or(s.update_lag, |m| m.max(s.update_lag)));
+                feedback_settled = Some(feedback_settled.map_or(s.settled, |m| m.max(s.settled)));
+            }
         }
     }
-    let (moved_lights, moved_lights_all) = (moved_lights(&moved), moved_lights(&moved_all));
+    let (moved_lights, moved_lights_all, moved_lights_feedback) = (
+        moved_lights(&moved),
+        moved_lights(&moved_all),
+        moved_lights(&moved_feedback),
+    );
     drop(runtime);
     let way = |w: crate::cli::frame_update::Way| WayMs {
         direct_ms: w.direct_ms,
@@ -434,6 +457,9 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         one_light_texels: update.texels_reached,
         moved_lights,
         moved_lights_all,
+        moved_lights_feedback,
+        feedback_lag,
+        feedback_settled,
         error_texels: error.matched,
         relative_l2: error.relative_l2,
         reference_noise: compare(&second, &reference).relative_l2 / std::f64::consts::SQRT_2,

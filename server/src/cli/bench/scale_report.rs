@@ -383,29 +383,41 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
     let _ = writeln!(w);
     let moved: Vec<_> = points
         .iter()
-        .filter_map(|p| p.moved_lights.map(|m| (p.blocks, m, p.moved_lights_all)))
+        .filter_map(|p| p.moved_lights.map(|m| (p, m)))
         .collect();
     if !moved.is_empty() {
         let _ = writeln!(
             w,
             "Moving each of up to {} lights spread over the level's list, one at a time, relit \
-             by its change (direct light included; each light's median frame; one bounce, and \
-             all bounces: `Converged` to 0.001, bounce by bounce where the change's light goes, \
-             or the whole-level solve where that costs less):\n\n\
-             | blocks | lights moved | median light | slowest light | median light, all bounces | slowest light, all bounces | texels reached (median) | per texel reached (median) |\n\
-             |---|---|---|---|---|---|---|---|",
+             by its change (direct light included; each light's median frame; one bounce; all \
+             bounces: `Converged` to 0.001, bounce by bounce where the change's light goes, or \
+             the whole-level solve where that costs less; and `Feedback` by the change: one \
+             sparse bounce a frame of the change and of the light not yet bounced where it is \
+             due, all bounces arriving over the next frames, its largest lag behind all \
+             bounces after the last frame and its largest error once settled, relative L2 over \
+             the level):\n\n\
+             | blocks | lights moved | median light | slowest light | median light, all bounces | slowest light, all bounces | median light, feedback | slowest light, feedback | feedback lag / settled | texels reached (median) | per texel reached (median) |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|",
             super::scale::MOVED_LIGHTS
         );
-        for (blocks, m, all) in &moved {
+        for (p, m) in &moved {
             let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3} ms"));
+            let (all, feedback) = (p.moved_lights_all, p.moved_lights_feedback);
+            let errors = match (p.feedback_lag, p.feedback_settled) {
+                (Some(lag), Some(settled)) => format!("{lag:.1e} / {settled:.1e}"),
+                _ => "—".to_string(),
+            };
             let _ = writeln!(
                 w,
-                "| {blocks} | {} | {:.3} ms | {:.3} ms | {} | {} | {} | {:.3} µs |",
+                "| {} | {} | {:.3} ms | {:.3} ms | {} | {} | {} | {} | {errors} | {} | {:.3} µs |",
+                p.blocks,
                 m.lights,
                 m.median_ms,
                 m.max_ms,
                 ms(all.map(|a| a.median_ms)),
                 ms(all.map(|a| a.max_ms)),
+                ms(feedback.map(|a| a.median_ms)),
+                ms(feedback.map(|a| a.max_ms)),
                 m.median_texels,
                 m.us_per_texel
             );
@@ -420,7 +432,7 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         "Growth with the block count N (least-squares slope on the log–log points): bake {}, \
          peak memory {}, bundle bytes {}, apply at one bounce {}, at all bounces {}, relighting \
          everything {}, moving light 0 {}, moving a light (the median light) {}, at all bounces \
-         {}, per texel it reaches {}. Relighting everything lights each of the level's \
+         {}, by feedback {}, per texel it reaches {}. Relighting everything lights each of the level's \
          lights (which grow with it) where that light reaches and applies every operator: it \
          grows with the lights times what each one reaches, not with the lights times the \
          level's texels; moving one light lights only the texels it reaches, which depend on \
@@ -437,6 +449,9 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
             .map_or(f64::NAN, |m| m.median_ms))),
         grows(&series(&|p| p
             .moved_lights_all
+            .map_or(f64::NAN, |m| m.median_ms))),
+        grows(&series(&|p| p
+            .moved_lights_feedback
             .map_or(f64::NAN, |m| m.median_ms))),
         grows(&series(&|p| p
             .moved_lights
