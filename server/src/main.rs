@@ -145,6 +145,10 @@ enum Command {
         /// set).
         #[arg(long, default_value_t = 0)]
         light: usize,
+        /// Radius (m) of the circle `--update one-light` moves the light on, one turn every
+        /// 120 frames (0.1: 5 mm a frame; 1: 5 cm a frame, a walking torch at 60 Hz).
+        #[arg(long, default_value_t = cli::frame_update::PATH_RADIUS)]
+        radius: f64,
         /// Also time every `all` mode with its bounces over texels (`converged(…)-texels`
         /// lines), side by side with the coefficient-space paths MRT and DRT use by default.
         #[arg(long)]
@@ -341,6 +345,7 @@ fn main() -> anyhow::Result<()> {
             threads,
             update,
             light,
+            radius,
             texel_bounces,
         } => cli::frame_time::run(cli::frame_time::FrameTimeArgs {
             bundle,
@@ -351,6 +356,7 @@ fn main() -> anyhow::Result<()> {
             threads,
             update_light: update.map(|UpdateArg::OneLight| light),
             moving_light: light,
+            radius,
             texel_bounces,
         }),
         Command::Bake {

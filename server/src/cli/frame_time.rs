@@ -53,6 +53,8 @@ pub struct FrameTimeArgs {
     pub update_light: Option<usize>,
     /// The light the moving-light lines move ([`super::frame_moving`]).
     pub moving_light: usize,
+    /// Radius (m) of the `--update one-light` light's circle ([`super::frame_update`]).
+    pub radius: f64,
     /// Also time every `Converged` mode with its bounces over texels (`…-texels` lines), side
     /// by side with the coefficient-space paths MRT and DRT use by default.
     pub texel_bounces: bool,
@@ -227,6 +229,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             mode,
             frames,
             Ways::Both,
+            args.radius,
         )?;
         println!(
             "update=one-light direct light: lights={} texels={} every_sample_ms={:.4} \

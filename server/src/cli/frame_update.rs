@@ -1,8 +1,8 @@
 //! `lightfarm frame-time BUNDLE --lights LIGHTS.json --update one-light`: the cost of relighting
 //! when one light moves, against relighting everything.
 //!
-//! Light `--light K` (default 0) moves on a horizontal circle of radius [`PATH_RADIUS`] m
-//! around its position, one turn every [`PATH_FRAMES`] frames. Every frame both ways relight the
+//! Light `--light K` (default 0) moves on a horizontal circle of radius `--radius` m (default
+//! [`PATH_RADIUS`]) around its position, one turn every [`PATH_FRAMES`] frames. Every frame both ways relight the
 //! level for the light's new position, interleaved so the machine's noise falls on both alike:
 //! - **full**: every light's direct light (texel-averaged over the 4 × 4 samples `eval` feeds the
 //!   operators, with shadow rays only where visibility changes across a texel:
@@ -56,7 +56,7 @@ use lightfarm_proto::bundle::Layout;
 
 use crate::evaluate::DIRECT_SAMPLES_PER_EDGE;
 
-/// Radius of the moving light's path, metres.
+/// Radius of the moving light's path by default, metres (5 mm a frame).
 pub const PATH_RADIUS: f64 = 0.1;
 /// Frames of one turn of the path.
 pub const PATH_FRAMES: usize = 120;
@@ -262,7 +262,8 @@ pub enum Ways {
     UpdateOnly,
 }
 
-/// Times `frames` frames of light `moved` of `lights` moving along the path (module doc),
+/// Times `frames` frames of light `moved` of `lights` moving along the path of `radius` m
+/// (module doc),
 /// relit both ways with `method` and `bounces` (or by the change only, see [`Ways`]).
 #[allow(clippy::too_many_arguments)]
 pub fn time_update(
@@ -274,6 +275,7 @@ pub fn time_update(
     bounces: Bounces,
     frames: usize,
     ways: Ways,
+    radius: f64,
 ) -> anyhow::Result<UpdateTimes> {
     anyhow::ensure!(
         moved < lights.len(),
@@ -286,9 +288,9 @@ pub fn time_update(
     let at = |frame: usize| {
         let a = std::f64::consts::TAU * frame as f64 / PATH_FRAMES as f64;
         [
-            centre[0] + PATH_RADIUS * a.cos(),
+            centre[0] + radius * a.cos(),
             centre[1],
-            centre[2] + PATH_RADIUS * a.sin(),
+            centre[2] + radius * a.sin(),
         ]
     };
     // Frame 0: both ways start from the same light.

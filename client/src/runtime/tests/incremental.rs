@@ -503,6 +503,63 @@ fn feedback_by_the_change_settles_to_all_bounces_within_its_tolerance() {
     }
 }
 
+/// Feedback by the change forgets its unshot light on `reset_feedback` and on a method
+/// change (nothing is due then, and the next call is one bounce of its change alone, as
+/// `One` by the change), and a refused call leaves what is due alone.
+#[test]
+fn feedback_by_the_change_forgets_on_reset_and_method_change() {
+    let mut rng = Lcg(79);
+    let b = drt_bundle(&mut rng, false, true, false);
+    let n = b.layout.n_texels();
+    let mut rt = Runtime::new(b);
+    let mut one = Runtime::new(rt.bundle().clone());
+    let ld = direct(&mut rng, n);
+    let (_, delta) = changed(&ld, 0..n, &mut rng);
+    let mut out = IndirectLight {
+        radiance: vec![[0.0; 3]; n],
+    };
+    for method in [Method::Drt, Method::Mrt] {
+        rt.apply_delta(method, Bounces::Feedback, &ld, &mut out)
+            .unwrap();
+        assert!(rt.feedback_due() > 0, "{method:?}: the first bounce is due");
+        let due = rt.feedback_due();
+        // A refused call (bad length) changes nothing that is due.
+        let short = DirectLight {
+            radiance: vec![[0.0; 3]; n - 1],
+        };
+        assert!(rt
+            .apply_delta(method, Bounces::Feedback, &short, &mut out)
+            .is_err());
+        assert_eq!(rt.feedback_due(), due);
+    }
+    // The method changed back to DRT above: forgotten; now reset as well.
+    rt.reset_feedback();
+    assert_eq!(rt.feedback_due(), 0);
+    let mut got = IndirectLight {
+        radiance: vec![[0.0; 3]; n],
+    };
+    rt.apply_delta(Method::Drt, Bounces::Feedback, &delta, &mut got)
+        .unwrap();
+    let mut want = IndirectLight {
+        radiance: vec![[0.0; 3]; n],
+    };
+    one.apply_delta(Method::Drt, Bounces::One, &delta, &mut want)
+        .unwrap();
+    assert!(max_rel(&got.radiance, &want.radiance) < 1e-6);
+    // Switching method forgets too: DRT's unshot light is not shot by MRT.
+    let mut mrt = IndirectLight {
+        radiance: vec![[0.0; 3]; n],
+    };
+    rt.apply_delta(Method::Mrt, Bounces::Feedback, &delta, &mut mrt)
+        .unwrap();
+    let mut want = IndirectLight {
+        radiance: vec![[0.0; 3]; n],
+    };
+    one.apply_delta(Method::Mrt, Bounces::One, &delta, &mut want)
+        .unwrap();
+    assert!(max_rel(&mrt.radiance, &want.radiance) < 1e-6);
+}
+
 /// `Feedback` by the change needs units to shoot by: refused for `Full`, leaving `out` alone;
 /// a tolerance outside (0, 1) is refused.
 #[test]

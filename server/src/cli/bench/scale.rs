@@ -49,7 +49,7 @@ use crate::bake::scene::geometry::Geometry;
 use crate::bake::{bake, BakeOptions};
 use crate::cli::bake::load_scene;
 use crate::cli::frame_time::time_frames;
-use crate::cli::frame_update::{median, time_update, Ways};
+use crate::cli::frame_update::{median, time_update, Ways, PATH_RADIUS};
 use crate::evaluate::{evaluate, DIRECT_SAMPLES_PER_EDGE};
 
 /// Lights of the level the error is measured with (spread evenly over its light list).
@@ -366,6 +366,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
         Bounces::One,
         args.settings.frames,
         Ways::Both,
+        PATH_RADIUS,
     )?;
     step(&format!(
         "{blocks} blocks: moving each of {MOVED_LIGHTS} lights"
@@ -388,6 +389,7 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
                 bounces,
                 args.settings.frames,
                 Ways::UpdateOnly,
+                PATH_RADIUS,
             )?;
             times.push((t.update.total_ms, t.texels_reached));
             if let Some(s) = t.settling {
