@@ -7,7 +7,8 @@
 //! without occluders, applied the same way, and that its surfaces and atlas are the bundle's;
 //! and that its moved light, relit through the one-light path (reach and direct light there,
 //! `lf_runtime_light_direct`, bit-identical to `lf_runtime_direct_in_spans` on its spans; then
-//! `lf_runtime_apply_delta_in_spans`), agrees with relighting everything.
+//! `lf_runtime_apply_delta_in_spans`), agrees with relighting everything, and moved back in
+//! `LF_BOUNCES_FEEDBACK` settles (`lf_runtime_feedback_due`) to the first answer.
 //!
 //! The library is found beside this test binary: `lightfarm-client-capi` is a dev-dependency
 //! of this crate, so cargo builds its cdylib into `target/<profile>/deps/` (and, when the capi
@@ -255,6 +256,16 @@ fn c_example_matches_the_rust_client() {
     // The one-call reach and direct light (shadow rays against the reached room's occluders
     // only) gave what direct light on the same spans against the whole level gives.
     assert_eq!(field(line, "light_direct_same"), "1", "{line}");
+    // Moved back in LF_BOUNCES_FEEDBACK: one call with the change, then calls with no span
+    // until nothing is due; all bounces of the first lights within the tolerance's reach
+    // (both ends are `Converged` to 1e-3).
+    let calls: usize = field(line, "feedback_calls").parse().unwrap();
+    assert!((1..1000).contains(&calls), "{calls} calls to settle");
+    let feedback_error = number(line, "feedback_error");
+    assert!(
+        feedback_error < 3e-3,
+        "moved back by feedback: {feedback_error:.2e} after {calls} calls"
+    );
 
     // A file that is not a bundle: exit status 1 and the library's reason on stderr.
     let garbage = dir.join("garbage.lfb");

@@ -14,13 +14,15 @@
  *
  *   texels=N method=drt|mrt applications=A checksum=S max=M direct_checksum=D surfaces=K
  *   first_surface=NAME atlas=WxH engine_direct_checksum=ED engine_checksum=E
- *   moved_spans=MS moved_error=ME
+ *   moved_spans=MS moved_error=ME light_direct_same=B feedback_calls=FC feedback_error=FE
  *
  * with S the sum of every output float, M the largest, D the sum of the direct light, ED the
  * sum of the engine's direct light and E the sum of the engine path's indirect-light atlas
  * (sums in double, in buffer or row order); then moves light 0 by 0.25 m and relights by the
- * change (MS: the spans it reaches, ME: relative L2 against relighting everything). Exit status
- * 0 on success, 1 on any error (message on stderr).
+ * change (MS: the spans it reaches, ME: relative L2 against relighting everything, B: 1 when
+ * the one-call direct light of a light's reach is the two-call one), and moves it back in
+ * LF_BOUNCES_FEEDBACK until nothing is due (FC: the calls after the change, FE: relative L2
+ * against the first answer). Exit status 0 on success, 1 on any error (message on stderr).
  *
  * Build (from the repository root, after `cargo build --release -p lightfarm-client-capi`):
  *   cc -std=c99 -Wall -Wextra -I client/capi/include client/capi/examples/apply.c \
@@ -235,59 +237,108 @@ static LfTexelSpan *light_direct_of(LfRuntime *rt, const LfPointLight *light, si
     return spans;
 }
 
+/* Moves light 0 by `dx` m along x: its direct light where it reaches before and after
+ * (lf_runtime_light_direct) and the change into `change` (`n_floats` floats, zero elsewhere).
+ * Returns the spans the change lies in (malloc'd, `*n_spans` of them; those where the light
+ * reaches now are the last `*n_new`), or NULL on error. */
+static LfTexelSpan *light_change(LfRuntime *rt, LfPointLight *lights, float dx, float *change,
+                                 size_t n_floats, size_t *n_spans, size_t *n_new, int *same) {
+    size_t i, k, n_old = 0;
+    LfTexelSpan *old_spans, *new_spans, *both;
+    float *light0 = calloc(n_floats, sizeof *light0);
+    if (!light0) { fprintf(stderr, "out of memory\n"); return NULL; }
+    /* Light 0's direct light alone, on its reach (zero elsewhere, as it is). */
+    old_spans = light_direct_of(rt, lights, &n_old, light0, n_floats, same);
+    if (!old_spans) return NULL;
+    for (i = 0; i < n_floats; i++) change[i] = -light0[i];
+    lights[0].position[0] += dx;
+    for (k = 0; k < n_old; k++)
+        for (i = 3 * (size_t)old_spans[k].start; i < 3 * (size_t)old_spans[k].end; i++)
+            light0[i] = 0.0f;
+    new_spans = light_direct_of(rt, lights, n_new, light0, n_floats, same);
+    if (!new_spans) return NULL;
+    for (i = 0; i < n_floats; i++) change[i] += light0[i];
+    /* The change lies where the light reached before and after. */
+    both = malloc((n_old + *n_new + 1) * sizeof *both);
+    if (!both) { fprintf(stderr, "out of memory\n"); return NULL; }
+    memcpy(both, old_spans, n_old * sizeof *both);
+    memcpy(both + n_old, new_spans, *n_new * sizeof *both);
+    *n_spans = n_old + *n_new;
+    free(old_spans);
+    free(new_spans);
+    free(light0);
+    return both;
+}
+
+/* Relative L2 between `a` and `b` (`n` floats). */
+static double relative_l2(const float *a, const float *b, size_t n) {
+    double diff = 0.0, norm = 0.0;
+    size_t i;
+    for (i = 0; i < n; i++) {
+        diff += ((double)a[i] - b[i]) * ((double)a[i] - b[i]);
+        norm += (double)b[i] * b[i];
+    }
+    return norm > 0.0 ? sqrt(diff / norm) : 0.0;
+}
+
 /* Moves light 0 by 0.25 m along x the way a game relights one moving light: where it reaches
  * before and after and its direct light there only (lf_runtime_light_direct), the change, and
  * lf_runtime_apply_delta_in_spans on `indirect` (which holds the indirect light of `direct`),
  * told the change lies in those spans. Then relights everything for the moved lights and
  * prints "moved_spans=S moved_error=R light_direct_same=B": the spans the moved light reaches,
  * the relative L2 between the two answers, and 1 when lf_runtime_light_direct gave what
- * lf_runtime_direct_in_spans gives on its spans. Returns 0, or 1 on error. */
+ * lf_runtime_direct_in_spans gives on its spans.
+ *
+ * Then moves it back in LF_BOUNCES_FEEDBACK, as a game letting the later bounces arrive over
+ * the next frames does: one lf_runtime_apply_delta_in_spans with the change, then calls with no
+ * span until lf_runtime_feedback_due says nothing is due, and prints "feedback_calls=N
+ * feedback_error=R": the calls after the change and the relative L2 against `at_load`, all
+ * bounces of the lights back where they were. Returns 0, or 1 on error. */
 static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long n_lights,
-                      const float *direct, float *indirect, size_t n_floats) {
-    size_t i, k, n_old = 0, n_new = 0;
-    LfTexelSpan *old_spans, *new_spans, *both;
-    float *light0, *change, *moved, *want;
-    double diff = 0.0, norm = 0.0;
-    int same = 1;
-    if (n_lights < 1) { printf(" moved_spans=0 moved_error=0 light_direct_same=1"); return 0; }
-    light0 = calloc(n_floats, sizeof *light0);
+                      const float *direct, float *indirect, const float *at_load,
+                      size_t n_floats) {
+    size_t i, n_spans = 0, n_new = 0;
+    LfTexelSpan *spans;
+    float *change, *moved, *want;
+    int same = 1, calls = 0;
+    if (n_lights < 1) {
+        printf(" moved_spans=0 moved_error=0 light_direct_same=1 feedback_calls=0"
+               " feedback_error=0");
+        return 0;
+    }
     change = malloc(n_floats * sizeof *change);
     moved = malloc(n_floats * sizeof *moved);
     want = malloc(n_floats * sizeof *want);
-    if (!light0 || !change || !moved || !want) { fprintf(stderr, "out of memory\n"); return 1; }
-    /* Light 0's direct light alone, on its reach (zero elsewhere, as it is). */
-    old_spans = light_direct_of(rt, lights, &n_old, light0, n_floats, &same);
-    if (!old_spans) return fail();
-    for (i = 0; i < n_floats; i++) change[i] = -light0[i];
-    lights[0].position[0] += 0.25f;
-    for (k = 0; k < n_old; k++)
-        for (i = 3 * (size_t)old_spans[k].start; i < 3 * (size_t)old_spans[k].end; i++)
-            light0[i] = 0.0f;
-    new_spans = light_direct_of(rt, lights, &n_new, light0, n_floats, &same);
-    if (!new_spans) return fail();
-    for (i = 0; i < n_floats; i++) change[i] += light0[i];
-    /* The change lies where the light reached before and after: relight by it there only. */
-    both = malloc((n_old + n_new + 1) * sizeof *both);
-    if (!both) { fprintf(stderr, "out of memory\n"); return 1; }
-    memcpy(both, old_spans, n_old * sizeof *both);
-    memcpy(both + n_old, new_spans, n_new * sizeof *both);
-    if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, both, n_old + n_new,
-                                        indirect, n_floats) != LF_STATUS_OK)
+    if (!change || !moved || !want) { fprintf(stderr, "out of memory\n"); return 1; }
+    spans = light_change(rt, lights, 0.25f, change, n_floats, &n_spans, &n_new, &same);
+    if (!spans) return fail();
+    if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, spans, n_spans, indirect,
+                                        n_floats) != LF_STATUS_OK)
         return fail();
-    free(both);
+    free(spans);
     /* Everything again, for the moved lights. */
     for (i = 0; i < n_floats; i++) moved[i] = direct[i] + change[i];
     if (lf_runtime_apply(rt, method, moved, n_floats, want, n_floats) != LF_STATUS_OK)
         return fail();
-    for (i = 0; i < n_floats; i++) {
-        diff += ((double)indirect[i] - want[i]) * ((double)indirect[i] - want[i]);
-        norm += (double)want[i] * want[i];
-    }
     printf(" moved_spans=%zu moved_error=%.3e light_direct_same=%d", n_new,
-           norm > 0.0 ? sqrt(diff / norm) : 0.0, same);
-    free(old_spans);
-    free(new_spans);
-    free(light0);
+           relative_l2(indirect, want, n_floats), same);
+    /* Back, by feedback: the answer of the moved lights is where it starts. */
+    if (lf_runtime_set_bounces(rt, LF_BOUNCES_FEEDBACK, 0.0f) != LF_STATUS_OK) return fail();
+    spans = light_change(rt, lights, -0.25f, change, n_floats, &n_spans, &n_new, &same);
+    if (!spans) return fail();
+    if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, spans, n_spans, want,
+                                        n_floats) != LF_STATUS_OK)
+        return fail();
+    for (i = 0; i < n_floats; i++) change[i] = 0.0f;
+    while (lf_runtime_feedback_due(rt) > 0 && calls < 1000) {
+        if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, NULL, 0, want,
+                                            n_floats) != LF_STATUS_OK)
+            return fail();
+        calls++;
+    }
+    printf(" feedback_calls=%d feedback_error=%.3e", calls, relative_l2(want, at_load, n_floats));
+    if (lf_runtime_set_bounces(rt, LF_BOUNCES_CONVERGED, 0.0f) != LF_STATUS_OK) return fail();
+    free(spans);
     free(change);
     free(moved);
     free(want);
@@ -300,7 +351,7 @@ int main(int argc, char **argv) {
     LfPointLight *lights = NULL;
     long n_lights;
     LfRuntime *rt;
-    float *direct, *indirect;
+    float *direct, *indirect, *at_load;
     int32_t method, status;
     double checksum = 0.0, direct_checksum = 0.0, max = 0.0;
 
@@ -341,12 +392,16 @@ int main(int argc, char **argv) {
            n_floats / 3, method == LF_METHOD_DRT ? "drt" : "mrt",
            (unsigned)lf_runtime_last_bounces(rt), checksum, max, direct_checksum);
     if (check_surfaces(rt) || engine_path(rt, method, lights, n_lights)) return 1;
-    if (move_light(rt, method, lights, n_lights, direct, indirect, n_floats)) return 1;
+    at_load = malloc(n_floats * sizeof *at_load);
+    if (!at_load) { fprintf(stderr, "out of memory\n"); return 1; }
+    memcpy(at_load, indirect, n_floats * sizeof *at_load);
+    if (move_light(rt, method, lights, n_lights, direct, indirect, at_load, n_floats)) return 1;
     printf("\n");
 
     lf_runtime_free(rt);
     free(direct);
     free(indirect);
+    free(at_load);
     free(lights);
     return 0;
 }
