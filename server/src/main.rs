@@ -149,6 +149,10 @@ enum Command {
         /// 120 frames (0.1: 5 mm a frame; 1: 5 cm a frame, a walking torch at 60 Hz).
         #[arg(long, default_value_t = cli::frame_update::PATH_RADIUS)]
         radius: f64,
+        /// With `--bounces feedback`: texels of due blocks and clutter objects a frame shoots
+        /// at most besides the change's (`Runtime::set_feedback_budget`; default: all due).
+        #[arg(long)]
+        feedback_budget: Option<usize>,
         /// Also time every `all` mode with its bounces over texels (`converged(…)-texels`
         /// lines), side by side with the coefficient-space paths MRT and DRT use by default.
         #[arg(long)]
@@ -346,6 +350,7 @@ fn main() -> anyhow::Result<()> {
             update,
             light,
             radius,
+            feedback_budget,
             texel_bounces,
         } => cli::frame_time::run(cli::frame_time::FrameTimeArgs {
             bundle,
@@ -357,6 +362,7 @@ fn main() -> anyhow::Result<()> {
             update_light: update.map(|UpdateArg::OneLight| light),
             moving_light: light,
             radius,
+            feedback_budget,
             texel_bounces,
         }),
         Command::Bake {

@@ -387,6 +387,28 @@ pub unsafe extern "C" fn lf_runtime_feedback_due(rt: *const LfRuntime) -> usize 
     })
 }
 
+/// Caps the texels of due blocks and clutter objects one `lf_runtime_apply_delta` or
+/// `lf_runtime_apply_delta_in_spans` in `LF_BOUNCES_FEEDBACK` shoots besides the change's: the
+/// most urgent first, at least one a call, the rest on the next calls. A frame then costs about
+/// one bounce of its change while the later bounces arrive over more frames (the maze, a light
+/// moving 5 cm a frame: 1.1 ms of operators at 0 against 2.0 ms with every due unit, lagging
+/// 6e-3 behind all bounces against 9e-4). `SIZE_MAX` (the default) shoots every due unit.
+/// Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER` or `LF_STATUS_PANIC`.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+/// the call.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_set_feedback_budget(rt: *mut LfRuntime, texels: usize) -> i32 {
+    status_call("lf_runtime_set_feedback_budget", || {
+        // SAFETY: NULL or live and unshared, per the contract.
+        let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
+        rt.runtime
+            .set_feedback_budget((texels != usize::MAX).then_some(texels));
+        Ok(())
+    })
+}
+
 /// One-bounce operator applications the last successful `lf_runtime_apply` on `rt` made (the
 /// bounces `LF_BOUNCES_CONVERGED` or `LF_BOUNCES_WARM` needed; 1 for the other modes); 0 before
 /// any, or for NULL.

@@ -1112,6 +1112,72 @@ fn apply_delta_in_spans_is_apply_delta_on_the_spans() {
     assert_eq!(indirect, vec![0.5f32; 3 * n]);
 }
 
+/// `lf_runtime_set_feedback_budget`: `SIZE_MAX` shoots every due unit, 0 one a call, so the
+/// same light settles in more calls to the same tolerance; NULL is refused.
+#[test]
+fn the_feedback_budget_is_set_through_c() {
+    let mut rng = Lcg(0x0b0d_9e7);
+    let mut bundle = drt_bundle(&mut rng, false, true, false);
+    for a in &mut bundle.layout.albedo {
+        *a = a.map(|x| x * 0.2);
+    }
+    let bytes = bundle.encode();
+    let n = bundle.layout.n_texels();
+    let direct: Vec<f32> = (0..3 * n).map(|_| rng.range(0.1, 1.0)).collect();
+    let drt = LfMethod::Drt as i32;
+    let mut settled = Vec::new();
+    for budget in [usize::MAX, 0] {
+        // SAFETY: `bytes` is live for the call.
+        let rt = Rt(unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) });
+        // SAFETY: live runtime.
+        unsafe {
+            assert_eq!(
+                lf_runtime_set_bounces(rt.0, LfBounces::Feedback as i32, 1e-3),
+                OK
+            );
+            assert_eq!(lf_runtime_set_feedback_budget(rt.0, budget), OK);
+        }
+        // From darkness: the first call's change is all the light.
+        let mut light = vec![0.0f32; 3 * n];
+        assert_eq!(rt.apply_delta(drt, &direct, &mut light), OK);
+        let zero = vec![0.0f32; 3 * n];
+        let mut calls = 0;
+        // SAFETY: live runtime.
+        while unsafe { lf_runtime_feedback_due(rt.0) } > 0 {
+            calls += 1;
+            assert!(calls < 1000, "budget {budget}: still due after 1000 calls");
+            assert_eq!(rt.apply_delta(drt, &zero, &mut light), OK);
+        }
+        settled.push((calls, light));
+    }
+    // SAFETY: live runtime for the reference.
+    let all = Rt(unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) });
+    let set = unsafe { lf_runtime_set_bounces(all.0, LfBounces::Converged as i32, 1e-6) };
+    assert_eq!(set, OK);
+    let mut want = vec![0.0f32; 3 * n];
+    assert_eq!(all.apply(drt, &direct, &mut want), OK);
+    let norm: f64 = want.iter().map(|y| y.abs() as f64).sum();
+    for (calls, light) in &settled {
+        let diff: f64 = light
+            .iter()
+            .zip(&want)
+            .map(|(x, y)| (x - y).abs() as f64)
+            .sum();
+        assert!(diff <= 2e-3 * norm, "{} after {calls} calls", diff / norm);
+    }
+    assert!(
+        settled[1].0 > settled[0].0,
+        "one unit a call: {} calls, every due unit: {}",
+        settled[1].0,
+        settled[0].0
+    );
+    // SAFETY: NULL is refused, never read.
+    assert_eq!(
+        unsafe { lf_runtime_set_feedback_budget(null_mut(), 0) },
+        LfStatus::NullPointer as i32
+    );
+}
+
 #[test]
 fn apply_delta_refuses_feedback_of_full_bad_lengths_and_nulls_and_leaves_the_light_alone() {
     let rt = Rt::load();

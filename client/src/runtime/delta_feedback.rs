@@ -4,8 +4,11 @@
 //! units: light added to the answer is "unshot" until it has been bounced once itself.
 //!
 //! A call with the change of direct light `Δ`:
-//! 1. the input is `Δ` plus the unshot light of the units that are due (and of every unit `Δ`
-//!    touches); those units' unshot light is then zero;
+//! 1. the input is `Δ` plus the unshot light of the units that are due; those units' unshot
+//!    light is then zero. With a budget
+//!    ([`Runtime::set_feedback_budget`]) the due units go most urgent first (by how far their
+//!    unshot light passes their share of the tolerance) until their texels fill it, and the
+//!    rest stay due;
 //! 2. `y = A(input)` by the one-bounce sparse application (module `incremental`), added to the
 //!    answer and to the unshot light where it was written;
 //! 3. each unit written is due on the next call when its unshot light, over all the bounces it
@@ -64,9 +67,18 @@ const DIM_UNIT: f64 = 0.01;
 pub(super) struct Progress {
     /// Per texel: light added to the answer and not yet bounced.
     unshot: Vec<[f32; 3]>,
-    /// Units to shoot on the next call, each once (`is_due` while listed).
+    /// Units to shoot on the next call, each once (`is_due` while listed), and per unit how
+    /// far its unshot light passed its share of the tolerance when last judged (`e g / (1 −
+    /// g)` over `tol · s_u`; a listed unit judged since at 1 or under is no longer due).
     due: Vec<usize>,
     is_due: Vec<bool>,
+    urgency: Vec<f64>,
+    /// Scratch: (urgency, unit) of the due units, most urgent first, and the units whose
+    /// unshot light this call shoots.
+    order: Vec<(f64, usize)>,
+    chosen: Vec<bool>,
+    /// Texels of due units a call shoots at most besides the change's (None: every due unit).
+    pub(super) budget: Option<usize>,
     /// This call's input (zero outside `input_units`), its units ascending and their texels.
     input: Vec<[f32; 3]>,
     input_units: Vec<usize>,
@@ -84,6 +96,10 @@ impl Progress {
             unshot: vec![[0.0; 3]; n_texels],
             due: Vec::new(),
             is_due: vec![false; n_units],
+            urgency: vec![0.0; n_units],
+            order: Vec::new(),
+            chosen: vec![false; n_units],
+            budget: None,
             input: vec![[0.0; 3]; n_texels],
             input_units: Vec::new(),
             in_input: vec![false; n_units],
@@ -105,7 +121,7 @@ impl Progress {
 
     /// Units due on the next call.
     pub(super) fn due(&self) -> usize {
-        self.due.len()
+        self.due.iter().filter(|&&u| self.urgency[u] > 1.0).count()
     }
 
     fn push_input(&mut self, u: usize) {
@@ -163,21 +179,48 @@ impl Runtime {
                 }
             }
         }
+        // The due units, most urgent first within the budget; the rest stay due.
+        p.order.clear();
         for i in 0..p.due.len() {
             let u = p.due[i];
             p.is_due[u] = false;
-            p.push_input(u);
+            if p.urgency[u] > 1.0 {
+                p.order.push((p.urgency[u], u));
+            }
         }
         p.due.clear();
+        if p.budget.is_some() {
+            p.order
+                .sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        }
+        let mut left = p.budget.unwrap_or(usize::MAX);
+        for i in 0..p.order.len() {
+            let u = p.order[i].1;
+            let texels = ranges[u].len();
+            // At least one unit a call, so the answer settles whatever the budget.
+            if texels <= left || i == 0 {
+                left = left.saturating_sub(texels);
+                p.chosen[u] = true;
+                p.push_input(u);
+            } else {
+                p.is_due[u] = true;
+                p.due.push(u);
+            }
+        }
         p.input_units.sort_unstable();
         p.spans.clear();
         for &u in &p.input_units {
             let r = ranges[u].clone();
-            for t in r.clone() {
-                let (d, s) = (delta[t], p.unshot[t]);
-                p.input[t] = [d[0] + s[0], d[1] + s[1], d[2] + s[2]];
+            if p.chosen[u] {
+                p.chosen[u] = false;
+                for t in r.clone() {
+                    let (d, s) = (delta[t], p.unshot[t]);
+                    p.input[t] = [d[0] + s[0], d[1] + s[1], d[2] + s[2]];
+                }
+                p.unshot[r.clone()].fill([0.0; 3]);
+            } else {
+                p.input[r.clone()].copy_from_slice(&delta[r.clone()]);
             }
-            p.unshot[r.clone()].fill([0.0; 3]);
             p.spans.push(r);
         }
         let spans = std::mem::take(&mut p.spans);
@@ -230,7 +273,15 @@ impl Runtime {
             let level = per_texel * r.len() as f64;
             let own: f64 = self.texel_light[r.clone()].iter().map(|&x| x as f64).sum();
             let share = level.min(own.max(DIM_UNIT * level));
-            if l1(&p.unshot[r]) * later > tol * share && !p.is_due[u] {
+            let e = l1(&p.unshot[r]) * later;
+            p.urgency[u] = if share > 0.0 {
+                e / (tol * share)
+            } else if e > 0.0 {
+                f64::INFINITY
+            } else {
+                0.0
+            };
+            if p.urgency[u] > 1.0 && !p.is_due[u] {
                 p.is_due[u] = true;
                 p.due.push(u);
             }
@@ -243,6 +294,19 @@ impl Runtime {
     /// zero change (which costs the due units alone) until then.
     pub fn feedback_due(&self) -> usize {
         self.progress.as_ref().map_or(0, Progress::due)
+    }
+
+    /// Caps the texels of due units one [`Runtime::apply_delta`] with
+    /// [`Bounces::Feedback`](super::Bounces::Feedback) shoots besides the change's (the most
+    /// urgent first, at least one unit a call; the rest wait for the next calls), so a frame's
+    /// cost stays near the change's own while the later bounces arrive over more frames; None
+    /// (the default) shoots every due unit.
+    pub fn set_feedback_budget(&mut self, texels: Option<usize>) {
+        self.prepare_delta();
+        let (n, n_units) = (self.n_texels, self.sparse_ranges().len());
+        self.progress
+            .get_or_insert_with(|| Progress::new(n, n_units))
+            .budget = texels;
     }
 
     /// The tolerance, relative to the level's light, of the answer that

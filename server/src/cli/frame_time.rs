@@ -55,6 +55,9 @@ pub struct FrameTimeArgs {
     pub moving_light: usize,
     /// Radius (m) of the `--update one-light` light's circle ([`super::frame_update`]).
     pub radius: f64,
+    /// Texels of due units a `Feedback` call by the change shoots at most besides the
+    /// change's (`Runtime::set_feedback_budget`; None: all due).
+    pub feedback_budget: Option<usize>,
     /// Also time every `Converged` mode with its bounces over texels (`…-texels` lines), side
     /// by side with the coefficient-space paths MRT and DRT use by default.
     pub texel_bounces: bool,
@@ -207,6 +210,9 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     let direct = operator_direct(&bundle.layout, &occluders, &lights);
     let direct_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut runtime = Runtime::try_new(bundle)?;
+    if args.feedback_budget.is_some() {
+        runtime.set_feedback_budget(args.feedback_budget);
+    }
     let method = if args.method == Method::Drt && !runtime.has_drt() {
         Method::Mrt
     } else {
@@ -264,9 +270,11 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
         );
         if let Some(s) = t.settling {
             println!(
-                "update=one-light light={moved} bounces=feedback lag_rel_l2: update={:.2e} \
+                "update=one-light light={moved} bounces=feedback budget={} lag_rel_l2: update={:.2e} \
                  full={:.2e}; settled after {} calls (median {:.4} ms) to rel_l2={:.2e}, \
                  per lit surface rel_l1 p99={:.2e} max={:.2e}",
+                args.feedback_budget
+                    .map_or("all".to_string(), |b| format!("{b}_texels")),
                 s.update_lag,
                 s.full_lag,
                 s.frames,

@@ -452,16 +452,21 @@ fn feedback_by_the_change_with_every_unit_due_is_whole_level_feedback() {
 
 /// Feedback by the change settles to all bounces: lights move for some calls, then calls with
 /// no change shoot what is due until nothing is (`feedback_due` is 0), and the answer is then
-/// within the tolerance (×2, as `Converged`'s) of the converged light, in L1 relative to it;
-/// every call answers with one bounce, and a settled runtime's calls write nothing.
+/// within the tolerance (×2, as `Converged`'s) of the converged light, in L1 relative to it,
+/// with every due unit shot each call or within a budget (one unit a call at 0); every call
+/// answers with one bounce, and a settled runtime's calls write nothing.
 #[test]
 fn feedback_by_the_change_settles_to_all_bounces_within_its_tolerance() {
     let mut rng = Lcg(78);
     for (b, method, name) in cases(&mut rng, 0.2) {
         let n = b.layout.n_texels();
-        for tolerance in [1e-2f32, 1e-3, 1e-4] {
+        let budgets = [None, None, None, Some(0), Some(5)];
+        let mut every_due_calls = 0;
+        for (tolerance, budget) in [1e-2f32, 1e-3, 1e-4, 1e-3, 1e-3].into_iter().zip(budgets) {
+            let name = format!("{name} budget {budget:?}");
             let mut rt = Runtime::new(b.clone());
             rt.set_feedback_tolerance(tolerance).unwrap();
+            rt.set_feedback_budget(budget);
             let mut reference = Runtime::new(b.clone());
             let mut light = direct(&mut rng, n);
             let mut out = IndirectLight::default();
@@ -480,9 +485,18 @@ fn feedback_by_the_change_settles_to_all_bounces_within_its_tolerance() {
             let mut calls = 0;
             while rt.feedback_due() > 0 {
                 calls += 1;
-                assert!(calls < 200, "{name} {tolerance}: still due after 200 calls");
+                assert!(
+                    calls < 2000,
+                    "{name} {tolerance}: still due after 2000 calls"
+                );
                 rt.apply_delta(method, Bounces::Feedback, &zero, &mut out)
                     .unwrap();
+            }
+            // One due unit a call takes more calls than every due unit a call.
+            match budget {
+                None if tolerance == 1e-3 => every_due_calls = calls,
+                Some(0) => assert!(calls >= every_due_calls, "{name}: {calls} calls"),
+                _ => {}
             }
             let mut want = IndirectLight::default();
             reference
