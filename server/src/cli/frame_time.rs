@@ -270,8 +270,8 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
         );
         if let Some(s) = t.settling {
             println!(
-                "update=one-light light={moved} bounces=feedback budget={} lag_rel_l2: update={:.2e} \
-                 full={:.2e}; settled after {} calls (median {:.4} ms) to rel_l2={:.2e}, \
+                "update=one-light light={moved} bounces=feedback budget={} lag_rel_l2: \
+                 update={:.2e} full={:.2e}; settled after {} calls (median {:.4} ms) to rel_l2={:.2e}, \
                  per lit surface rel_l1 p99={:.2e} max={:.2e}",
                 args.feedback_budget
                     .map_or("all".to_string(), |b| format!("{b}_texels")),

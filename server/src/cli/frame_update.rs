@@ -2,8 +2,9 @@
 //! when one light moves, against relighting everything.
 //!
 //! Light `--light K` (default 0) moves on a horizontal circle of radius `--radius` m (default
-//! [`PATH_RADIUS`]) around its position, one turn every [`PATH_FRAMES`] frames. Every frame both ways relight the
-//! level for the light's new position, interleaved so the machine's noise falls on both alike:
+//! [`PATH_RADIUS`]) around its position, one turn every [`PATH_FRAMES`] frames. Every frame
+//! both ways relight the level for the light's new position, interleaved so the machine's
+//! noise falls on both alike:
 //! - **full**: every light's direct light (texel-averaged over the 4 × 4 samples `eval` feeds the
 //!   operators, with shadow rays only where visibility changes across a texel:
 //!   `direct_from_point_lights_adaptive`; with rooms each light is traced only where it reaches,
@@ -104,8 +105,8 @@ pub struct UpdateTimes {
 /// ([`Runtime::feedback_due`]).
 #[derive(Clone, Copy, Debug)]
 pub struct Settling {
-    /// Relative L2 against the all-bounce answer (`Converged` at the default tolerance) of
-    /// the last frame's lights: the update's and the full way's (whole-level feedback; NaN
+    /// Relative L2 against the all-bounce answer (`Converged` at
+    /// [`FEEDBACK_REFERENCE_TOLERANCE`]) of the last frame's lights: the update's and the full way's (whole-level feedback; NaN
     /// with [`Ways::UpdateOnly`]).
     pub update_lag: f64,
     pub full_lag: f64,
@@ -263,8 +264,8 @@ pub enum Ways {
 }
 
 /// Times `frames` frames of light `moved` of `lights` moving along the path of `radius` m
-/// (module doc),
-/// relit both ways with `method` and `bounces` (or by the change only, see [`Ways`]).
+/// (module doc), relit both ways with `method` and `bounces` (or by the change only, see
+/// [`Ways`]).
 #[allow(clippy::too_many_arguments)]
 pub fn time_update(
     runtime: &mut Runtime,
