@@ -170,6 +170,19 @@ impl Chain {
 }
 
 impl Runtime {
+    /// The gain of light from one bounce to the next assumed before one is measured: the last
+    /// whole-level solve's (`WarmStart::solved_gain`) where it is plausible, else
+    /// [`ASSUMED_GAIN`]. The chain's estimate before its second bounce, and the one feedback
+    /// by the change (module `delta_feedback`) judges unshot light by.
+    pub(super) fn assumed_gain(&self) -> f64 {
+        let solved = self.warm.solved_gain();
+        if solved > 0.05 && solved < MAX_CONVERGING_GAIN {
+            solved
+        } else {
+            ASSUMED_GAIN
+        }
+    }
+
     /// Relights by the change over `bounces` (`Fixed(n ≥ 2)` or `Converged`) bounce by bounce
     /// (module doc): `y` is the one-bounce sparse output's buffer (the runtime's `delta_out`),
     /// and the sum is left in the chain (`Chain::sum` on `Chain::sum_units`). None when the chain
@@ -230,12 +243,7 @@ impl Runtime {
     ) -> Option<Result<Applied, ApplyError>> {
         let n = self.n_texels as f64;
         // The whole-level path's cost and the bounces the chain expects (module doc).
-        let solved = self.warm.solved_gain();
-        let assumed = if solved > 0.05 && solved < MAX_CONVERGING_GAIN {
-            solved
-        } else {
-            ASSUMED_GAIN
-        };
+        let assumed = self.assumed_gain();
         let (expected, whole_level) = match tolerance {
             None => (limit as f64, limit as f64),
             Some(tolerance) => {
@@ -275,9 +283,7 @@ impl Runtime {
             if bounce == 1 {
                 self.apply_once_sparse(method, delta, spans, y);
             } else {
-                let spans = std::mem::take(&mut chain.spans);
-                self.apply_once_sparse(method, &chain.input, Some(&spans), y);
-                chain.spans = spans;
+                self.apply_once_sparse(method, &chain.input, Some(&chain.spans), y);
             }
             let sparse = self
                 .sparse

@@ -37,9 +37,9 @@
 //! light moves.
 //!
 //! Units: the change's light per texel (RGB radiance), as in `apply`; energies are f64 L1 sums
-//! (over texels and channels of `|value|`; a change is signed). The gain `g` is the last
-//! whole-level `Converged` solve's (`WarmStart::solved_gain`), else
-//! `delta_bounces::ASSUMED_GAIN`, at least `delta_bounces::MIN_GAIN`.
+//! (over texels and channels of `|value|`; a change is signed). The gain `g` is the chain's
+//! assumed gain (`Runtime::assumed_gain`: the last whole-level `Converged` solve's, else
+//! `delta_bounces::ASSUMED_GAIN`), at least `delta_bounces::MIN_GAIN`.
 //!
 //! Invariants: units are shot in ascending order and judged in the order written, so results
 //! are deterministic and bit-identical at any thread count; nothing allocates after the first
@@ -49,8 +49,8 @@
 
 use std::ops::Range;
 
-use super::delta_bounces::{ASSUMED_GAIN, MIN_GAIN};
-use super::{Applied, Method, Runtime, DEFAULT_TOLERANCE, MAX_CONVERGING_GAIN};
+use super::delta_bounces::MIN_GAIN;
+use super::{Applied, Method, Runtime, DEFAULT_TOLERANCE};
 
 /// The least share of the tolerance a unit is judged by, relative to its share of the
 /// level's light (a unit lit under this fraction of the level's mean is judged as lit at it).
@@ -151,12 +151,8 @@ impl Runtime {
         spans: Option<&[Range<usize>]>,
         y: &mut [[f32; 3]],
     ) -> Applied {
-        self.prepare_delta();
-        let n_units = self.sparse_ranges().len();
-        let mut p = self
-            .progress
-            .take()
-            .unwrap_or_else(|| Progress::new(self.n_texels, n_units));
+        self.progress_mut();
+        let mut p = self.progress.take().expect("progress_mut made it");
         if p.method != Some(method) {
             p.forget();
             p.method = Some(method);
@@ -223,9 +219,7 @@ impl Runtime {
             }
             p.spans.push(r);
         }
-        let spans = std::mem::take(&mut p.spans);
-        self.apply_once_sparse(method, &p.input, Some(&spans), y);
-        p.spans = spans;
+        self.apply_once_sparse(method, &p.input, Some(&p.spans), y);
         let sparse = self
             .sparse
             .as_ref()
@@ -245,6 +239,7 @@ impl Runtime {
 
     /// Step 3 of the module doc: `y` is this call's light (on the units written).
     pub(super) fn judge_unshot(&mut self, y: &[[f32; 3]]) {
+        let g = self.assumed_gain().max(MIN_GAIN);
         let (Some(p), Some(sparse)) = (self.progress.as_mut(), self.sparse.as_ref()) else {
             return;
         };
@@ -258,13 +253,6 @@ impl Runtime {
                 }
             }
         }
-        let solved = self.warm.solved_gain();
-        let g = if solved > 0.05 && solved < MAX_CONVERGING_GAIN {
-            solved
-        } else {
-            ASSUMED_GAIN
-        }
-        .max(MIN_GAIN);
         let later = g / (1.0 - g);
         let tol = p.tolerance as f64;
         let per_texel = self.level_light / self.n_texels.max(1) as f64;
@@ -288,6 +276,15 @@ impl Runtime {
         }
     }
 
+    /// The feedback state, made (with what relighting by the change needs,
+    /// [`Runtime::prepare_delta`]) on first use.
+    fn progress_mut(&mut self) -> &mut Progress {
+        self.prepare_delta();
+        let (n, n_units) = (self.n_texels, self.sparse_ranges().len());
+        self.progress
+            .get_or_insert_with(|| Progress::new(n, n_units))
+    }
+
     /// Units whose unshot light is due on the next [`Runtime::apply_delta`] with
     /// [`Bounces::Feedback`](super::Bounces::Feedback): 0 when the answer holds all bounces
     /// within the tolerance ([`Runtime::set_feedback_tolerance`]); a game keeps calling with a
@@ -302,11 +299,7 @@ impl Runtime {
     /// cost stays near the change's own while the later bounces arrive over more frames; None
     /// (the default) shoots every due unit.
     pub fn set_feedback_budget(&mut self, texels: Option<usize>) {
-        self.prepare_delta();
-        let (n, n_units) = (self.n_texels, self.sparse_ranges().len());
-        self.progress
-            .get_or_insert_with(|| Progress::new(n, n_units))
-            .budget = texels;
+        self.progress_mut().budget = texels;
     }
 
     /// The tolerance, relative to the level's light, of the answer that
@@ -317,11 +310,7 @@ impl Runtime {
         if !(tolerance > 0.0 && tolerance < 1.0) {
             return Err(super::ApplyError::BadTolerance(tolerance));
         }
-        self.prepare_delta();
-        let (n, n_units) = (self.n_texels, self.sparse_ranges().len());
-        self.progress
-            .get_or_insert_with(|| Progress::new(n, n_units))
-            .tolerance = tolerance;
+        self.progress_mut().tolerance = tolerance;
         Ok(())
     }
 }

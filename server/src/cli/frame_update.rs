@@ -387,6 +387,8 @@ pub fn time_update(
     let (mut full, mut update) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
     let (mut projected, mut reached, mut rooms) = (Vec::new(), Vec::new(), Vec::new());
     let mut total = 0;
+    // The full way's direct light of the last frame's lights.
+    let mut last_direct = DirectLight::default();
     for frame in 1..=frames {
         lights[moved].position = at(frame);
         // Full: every light's direct light, then apply (every frame, or after the last).
@@ -397,6 +399,7 @@ pub fn time_update(
             runtime.apply(method, bounces, &direct, &mut full_out)?;
             full[0].push((mid - start).as_secs_f64() * 1e3);
             full[1].push(mid.elapsed().as_secs_f64() * 1e3);
+            last_direct = direct;
         }
         // Update: where the moved light reaches, its direct light there and the change from
         // the previous frame, then apply_delta.
@@ -448,14 +451,12 @@ pub fn time_update(
     let mut settling = None;
     let mut drift = relative_l2(&update_out.radiance, &full_out.radiance);
     if let (true, Some(rt)) = (feedback, by_change.as_mut()) {
-        let direct = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
+        // The full way is done: its runtime makes the reference of the last frame's lights.
         let mut all = IndirectLight::default();
         let reference = Bounces::Converged {
             tolerance: FEEDBACK_REFERENCE_TOLERANCE,
         };
-        runtime
-            .clone()
-            .apply(method, reference, &direct, &mut all)?;
+        runtime.apply(method, reference, &last_direct, &mut all)?;
         for span in &change_spans {
             change.radiance[span.clone()].fill([0.0; 3]);
         }
