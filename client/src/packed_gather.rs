@@ -229,9 +229,10 @@ pub(crate) fn texel_units(
 /// runs their entries alone. Made by [`PackedGather::by_columns`].
 ///
 /// A call sums into per-row four-lane partials (`sums`, one per gather row, zero between
-/// calls) and lists the rows it touched; [`GatherColumns::finish`] adds `unit · sum` to each
-/// touched row's texel, as [`PackedGather::add_to_padded`] adds its row sums, and clears the
-/// partials. Texels are visited in the order given and each texel's entries by ascending row,
+/// calls); the caller lists the rows it may have touched ([`GatherColumns::rows_reading`] the
+/// same texels, which it can make once per unit of texels) and [`GatherColumns::finish`] adds
+/// `unit · sum` to each listed row's texel, as [`PackedGather::add_to_padded`] adds its row
+/// sums, and clears the partials (a listed row no lit texel fed adds zero). Texels are visited in the order given and each texel's entries by ascending row,
 /// so the result is deterministic; it equals the rows' sums to float rounding only (another
 /// order of the same terms).
 #[derive(Clone, Debug, PartialEq)]
@@ -243,33 +244,28 @@ pub struct GatherColumns {
 
 impl GatherColumns {
     /// Adds `w · direct[c]` for every entry of every texel `c` in `texels` whose light is not
-    /// exactly zero (NaN is not zero, so it propagates) into `sums[row]`, listing each row it
-    /// touches once in `touched` (`marked[row]` set while listed).
+    /// exactly zero (NaN is not zero, so it propagates) into `sums[row]`; whether any texel
+    /// carried light. The rows it may have written are [`GatherColumns::rows_reading`] the
+    /// same texels, listed by the caller (once per unit, not once per entry: a mark per entry
+    /// was a third of this loop).
     pub fn scatter(
         &self,
         texels: Range<usize>,
         direct: &[[f32; 3]],
         sums: &mut [[f32; 4]],
-        touched: &mut Vec<u32>,
-        marked: &mut [bool],
-    ) {
+    ) -> bool {
         match (&self.rows, &self.weights) {
             (Columns::U16(r), Weights::Counts { counts, .. }) => {
-                self.scatter_in(texels, r, counts, direct, sums, touched, marked)
+                self.scatter_in(texels, r, counts, direct, sums)
             }
             (Columns::U32(r), Weights::Counts { counts, .. }) => {
-                self.scatter_in(texels, r, counts, direct, sums, touched, marked)
+                self.scatter_in(texels, r, counts, direct, sums)
             }
-            (Columns::U16(r), Weights::F32(v)) => {
-                self.scatter_in(texels, r, v, direct, sums, touched, marked)
-            }
-            (Columns::U32(r), Weights::F32(v)) => {
-                self.scatter_in(texels, r, v, direct, sums, touched, marked)
-            }
+            (Columns::U16(r), Weights::F32(v)) => self.scatter_in(texels, r, v, direct, sums),
+            (Columns::U32(r), Weights::F32(v)) => self.scatter_in(texels, r, v, direct, sums),
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn scatter_in<R, W>(
         &self,
@@ -278,30 +274,45 @@ impl GatherColumns {
         weights: &[W],
         direct: &[[f32; 3]],
         sums: &mut [[f32; 4]],
-        touched: &mut Vec<u32>,
-        marked: &mut [bool],
-    ) where
+    ) -> bool
+    where
         R: Copy + Into<u32>,
         W: Copy + Into<f32>,
     {
+        let mut lit = false;
         for c in texels {
             let l = direct[c];
             if l == [0.0; 3] {
                 continue;
             }
+            lit = true;
             let l = [l[0], l[1], l[2], 0.0];
             let (start, end) = (self.col_start[c] as usize, self.col_start[c + 1] as usize);
             for (&r, &w) in rows[start..end].iter().zip(&weights[start..end]) {
-                let r = r.into() as usize;
                 let w: f32 = w.into();
-                let s = &mut sums[r];
+                let s = &mut sums[r.into() as usize];
                 for ch in 0..4 {
                     s[ch] += w * l[ch];
                 }
-                if !marked[r] {
-                    marked[r] = true;
-                    touched.push(r as u32);
-                }
+            }
+        }
+        lit
+    }
+
+    /// Appends to `rows` every row reading a texel of `texels` that `marked` does not hold yet,
+    /// and marks it: the rows [`GatherColumns::scatter`] over those texels may write.
+    pub fn rows_reading(&self, texels: Range<usize>, marked: &mut [bool], rows: &mut Vec<u32>) {
+        let (start, end) = (
+            self.col_start[texels.start] as usize,
+            self.col_start[texels.end] as usize,
+        );
+        for k in start..end {
+            let r = match &self.rows {
+                Columns::U16(r) => r[k] as u32,
+                Columns::U32(r) => r[k],
+            };
+            if !std::mem::replace(&mut marked[r as usize], true) {
+                rows.push(r);
             }
         }
     }
@@ -418,8 +429,9 @@ mod tests {
     use crate::occluders::tests::Lcg;
 
     /// The columns hold every entry once; scattering the texels that carry light gives what
-    /// the whole gather gives, to float rounding, touching exactly the rows that read a lit
-    /// texel, and leaves its scratch clean for the next call (8-bit and f32 weights).
+    /// the whole gather gives, to float rounding, the rows reading them are exactly the rows
+    /// that read a lit texel, each listed once, and finishing leaves the scratch clean for the
+    /// next call (8-bit and f32 weights).
     #[test]
     fn the_columns_scatter_what_the_rows_gather() {
         let mut rng = Lcg(11);
@@ -457,8 +469,12 @@ mod tests {
                 let mut whole = vec![[0.0f32; 3]; n];
                 g.add_to(&direct, &mut whole);
                 let mut scattered = vec![[0.0f32; 3]; n];
+                // A range without light adds nothing and says so.
+                assert!(!columns.scatter(250..300, &direct, &mut sums));
+                assert!(sums.iter().all(|s| *s == [0.0; 4]));
                 for r in &lit {
-                    columns.scatter(r.clone(), &direct, &mut sums, &mut touched, &mut marked);
+                    assert!(columns.scatter(r.clone(), &direct, &mut sums));
+                    columns.rows_reading(r.clone(), &mut marked, &mut touched);
                 }
                 let want: Vec<u32> = (0..g.n_rows() as u32)
                     .filter(|&i| {

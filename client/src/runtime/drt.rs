@@ -213,13 +213,20 @@ impl Runtime {
         let GatherByChange {
             columns,
             ranges,
+            unit_rows,
             sums,
             touched,
             marked,
             ..
         } = by_change;
         for u in reached {
-            columns.scatter(ranges[u].clone(), direct, sums, touched, marked);
+            if columns.scatter(ranges[u].clone(), direct, sums) {
+                for &r in unit_rows.get(u) {
+                    if !std::mem::replace(&mut marked[r as usize], true) {
+                        touched.push(r);
+                    }
+                }
+            }
         }
         if let Some(sparse) = self.sparse.as_mut().filter(|s| s.active) {
             sparse.mark_texels(touched.iter().map(|&i| g.row_texel(i as usize)));
@@ -241,13 +248,16 @@ pub(super) enum Deltas {
 
 /// The exact gather's state when relighting by the change: its entries by column, the texel
 /// ranges of the units (blocks, clutter objects, then the runs of texels in neither, which
-/// every call scans) and one application's per-row sums (zero between calls).
+/// every call scans), the rows reading each unit and one application's per-row sums (zero
+/// between calls).
 #[derive(Clone, Debug)]
 pub(super) struct GatherByChange {
     columns: GatherColumns,
     ranges: Vec<Range<usize>>,
     /// Units given (blocks and clutter objects); `ranges[units..]` are the texels in neither.
     units: usize,
+    /// Per unit, the rows reading one of its texels (listed when the unit carries light).
+    unit_rows: Ragged,
     sums: Vec<[f32; 4]>,
     touched: Vec<u32>,
     marked: Vec<bool>,
@@ -261,13 +271,46 @@ impl GatherByChange {
         n_texels: usize,
     ) -> GatherByChange {
         let (ranges, _) = texel_units(units, n_texels);
+        let mut marked = vec![false; n_rows];
+        let mut unit_rows = Ragged::default();
+        for r in &ranges {
+            let first = unit_rows.items.len();
+            columns.rows_reading(r.clone(), &mut marked, &mut unit_rows.items);
+            for &i in &unit_rows.items[first..] {
+                marked[i as usize] = false;
+            }
+            unit_rows.start.push(unit_rows.items.len() as u32);
+        }
         GatherByChange {
             columns,
             ranges,
             units: units.len(),
+            unit_rows,
             sums: vec![[0.0; 4]; n_rows],
             touched: Vec::new(),
-            marked: vec![false; n_rows],
+            marked,
         }
+    }
+}
+
+/// Lists of `u32` stored end to end: list `i` is `items[start[i] .. start[i + 1]]`.
+#[derive(Clone, Debug)]
+struct Ragged {
+    items: Vec<u32>,
+    start: Vec<u32>,
+}
+
+impl Default for Ragged {
+    fn default() -> Ragged {
+        Ragged {
+            items: Vec::new(),
+            start: vec![0],
+        }
+    }
+}
+
+impl Ragged {
+    fn get(&self, i: usize) -> &[u32] {
+        &self.items[self.start[i] as usize..self.start[i + 1] as usize]
     }
 }
