@@ -11,9 +11,17 @@ rooms hold a point light (at least one in the level); `--dynamic K` adds K movin
 pose each in the lights file and its room as the region it moves in (the probe volume is baked
 over those rooms only). The same arguments always write the same bytes.
 
+`--tile B` writes N / B copies of the B-block level side by side along x instead (N a multiple
+of B), each joined to the next through one opening (between the last room of the copy's first
+row and the first room of the next copy's), with the tile's lights in every copy, listed copy by
+copy; dynamic objects stay in the first copy. A light of the first copy then has the same
+neighbourhood in every level of two copies or more, so its relighting cost can be read against
+the level's size alone (`lightfarm bench --scale ... --tile B`).
+
 Usage:
     scripts/gen_level.py OUT_DIR [--blocks 1000] [--seed 1] [--texels 8] [--rays 1024]
         [--tolerance 0.001] [--pillars 0.2] [--lights 0.15] [--loops 0.1] [--dynamic 1]
+        [--tile B]
 
 Writes OUT_DIR/scene.json, OUT_DIR/lights.json and (with dynamic objects) OUT_DIR/ball.obj, and
 prints one line of counts.
@@ -182,6 +190,45 @@ def generate(blocks, seed, texels, rays, tolerance, pillar_fraction, light_fract
     return scene, light_set
 
 
+def tiled(scene, light_set, copies):
+    """`copies` copies of the level side by side along x (module doc)."""
+    blocks = scene["blocks"]
+    width = max(b["max"][0] for b in blocks) - min(b["min"][0] for b in blocks)
+    # The first row's rooms (z from 0) at the low and high x ends: the joins.
+    row0 = [b for b in blocks if b["min"][2] == 0.0]
+    first = min(row0, key=lambda b: b["min"][0])["id"]
+    last = max(row0, key=lambda b: b["max"][0])["id"]
+    face_order = ["-x", "+x", "-y", "+y", "-z", "+z"]
+
+    def shifted(box, dx):
+        return {"min": [round(box["min"][0] + dx, 3)] + box["min"][1:],
+                "max": [round(box["max"][0] + dx, 3)] + box["max"][1:]}
+
+    out_blocks, out_clutter, out_lights = [], [], []
+    for c in range(copies):
+        dx = c * width
+        tag = "" if c == 0 else f"_c{c}"
+        for b in blocks:
+            faces = set(b["open"])
+            if b["id"] == last and c + 1 < copies:
+                faces.add("+x")
+            if b["id"] == first and c > 0:
+                faces.add("-x")
+            out_blocks.append({"id": b["id"] + tag, **shifted(b, dx),
+                               "open": [f for f in face_order if f in faces],
+                               "albedo": b["albedo"]})
+        for o in scene.get("clutter", []):
+            out_clutter.append({"id": o["id"] + tag, "box": shifted(o["box"], dx),
+                                "albedo": o["albedo"]})
+        for light in light_set["lights"]:
+            p = light["position"]
+            out_lights.append({**light, "position": [round(p[0] + dx, 3), p[1], p[2]]})
+    scene = {**scene, "name": f"{scene['name']}_x{copies}", "blocks": out_blocks}
+    if out_clutter:
+        scene["clutter"] = out_clutter
+    return scene, {**light_set, "lights": out_lights}
+
+
 def light_in(rng, lo, hi, keep_out):
     """A point light inside the room [lo, hi], clear of walls and of the boxes in keep_out."""
     for _ in range(100):
@@ -211,11 +258,18 @@ def main():
     ap.add_argument("--loops", type=float, default=0.1,
                     help="fraction of the walls outside the spanning tree that open")
     ap.add_argument("--dynamic", type=int, default=1, help="moving balls")
+    ap.add_argument("--tile", type=int, default=None,
+                    help="copies of a level of this many blocks (module doc)")
     a = ap.parse_args()
     if a.blocks < 1:
         ap.error("--blocks must be at least 1")
-    scene, light_set = generate(a.blocks, a.seed, a.texels, a.rays, a.tolerance, a.pillars,
+    if a.tile is not None and (a.tile < 1 or a.blocks % a.tile != 0):
+        ap.error(f"--tile {a.tile}: --blocks {a.blocks} must be a positive multiple of it")
+    tile = a.tile or a.blocks
+    scene, light_set = generate(tile, a.seed, a.texels, a.rays, a.tolerance, a.pillars,
                                 a.lights, a.loops, a.dynamic)
+    if a.blocks > tile:
+        scene, light_set = tiled(scene, light_set, a.blocks // tile)
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "scene.json").write_text(json.dumps(scene, indent=1) + "\n")
     (a.out / "lights.json").write_text(json.dumps(light_set, indent=1) + "\n")

@@ -283,6 +283,12 @@ enum Command {
         /// 1,024.
         #[arg(long, value_delimiter = ',')]
         scale: Option<Vec<u32>>,
+        /// With --scale: every level is copies of one level of this many blocks, joined in a
+        /// row (`gen_level.py --tile`; each count a multiple of it), and the lights moved are
+        /// the first copy's, the same neighbourhood at every size: how relighting a light
+        /// grows with the level alone. Writes OUT/scale_tiled.json and its own section.
+        #[arg(long, requires = "scale")]
+        tile: Option<u32>,
         /// Measure only the ray throughput against Embree (on the scene and ray count of
         /// OUT/results.json's plan), replace results.json's throughput with it (keeping every
         /// other figure) and rewrite the markdown.
@@ -495,6 +501,7 @@ fn main() -> anyhow::Result<()> {
             replot,
             bounces,
             scale,
+            tile,
             throughput,
             generator,
         } => cli::bench::run(cli::bench::BenchArgs {
@@ -513,6 +520,7 @@ fn main() -> anyhow::Result<()> {
             replot,
             bounces,
             scale,
+            tile,
             throughput_only: throughput,
             python,
             generator,

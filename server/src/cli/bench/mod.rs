@@ -20,8 +20,8 @@
 //! - [`throughput`]: our tracer against Embree on the same rays.
 //! - [`results`]: what a run measured (`results.json`); [`pareto`], [`plots`] and [`report`]
 //!   read it.
-//! - [`scale`]: `--scale`, the sweep over level sizes (`scale.json`); [`scale_report`] draws
-//!   its figure and writes its section of the markdown.
+//! - [`scale`]: `--scale`, the sweep over level sizes (`scale.json`, or `scale_tiled.json`
+//!   with `--tile`); [`scale_report`] draws its figure and writes its sections of the markdown.
 //!
 //! Invariants:
 //! - Everything random is seeded (`--seed`): light sets, the reference, the exported rays.
@@ -89,6 +89,9 @@ pub struct BenchArgs {
     pub bounces: BounceCount,
     /// `--scale`: measure only the sweep over these level sizes (blocks), into OUT/scale.json.
     pub scale: Option<Vec<u32>>,
+    /// `--tile`: the sweep's levels are copies of a level of this many blocks, into
+    /// OUT/scale_tiled.json ([`scale`]).
+    pub tile: Option<u32>,
     /// `--throughput`: measure only the ray throughput against Embree, into OUT/results.json's
     /// `throughput` (its other figures kept).
     pub throughput_only: bool,
@@ -421,6 +424,7 @@ fn run_scale(args: &BenchArgs, sizes: &[u32]) -> anyhow::Result<()> {
             tolerance: 0.001,
             reference_rays: if quick { 256 } else { 1024 },
             frames: if quick { 8 } else { 20 },
+            tile: args.tile,
         },
         levels: std::env::temp_dir().join(format!("lightfarm-bench-levels-{}", std::process::id())),
         command_line: args.command_line.clone(),
@@ -433,7 +437,12 @@ fn run_scale(args: &BenchArgs, sizes: &[u32]) -> anyhow::Result<()> {
     bar.finish();
     let _ = std::fs::remove_dir_all(&scale_args.levels);
     let sweep = sweep?;
-    write_json(&args.out.join("scale.json"), &sweep)?;
+    let name = if args.tile.is_some() {
+        "scale_tiled.json"
+    } else {
+        "scale.json"
+    };
+    write_json(&args.out.join(name), &sweep)?;
     write_outputs(args)
 }
 
@@ -477,12 +486,17 @@ fn write_outputs(args: &BenchArgs) -> anyhow::Result<()> {
     let results: Option<BenchResults> = read("results.json")?
         .map(|t| serde_json::from_str(&t).map_err(|e| parse("results.json", &e.to_string())))
         .transpose()?;
-    let sweep: Option<scale::ScaleSweep> = read("scale.json")?
-        .map(|t| serde_json::from_str(&t).map_err(|e| parse("scale.json", &e.to_string())))
-        .transpose()?;
+    let sweep_in = |name: &str| -> anyhow::Result<Option<scale::ScaleSweep>> {
+        read(name)?
+            .map(|t| serde_json::from_str(&t).map_err(|e| parse(name, &e.to_string())))
+            .transpose()
+    };
+    let sweep = sweep_in("scale.json")?;
+    let tiled = sweep_in("scale_tiled.json")?;
     anyhow::ensure!(
-        results.is_some() || sweep.is_some(),
-        "{}: neither results.json nor scale.json; run `lightfarm bench` (or `--scale`) first",
+        results.is_some() || sweep.is_some() || tiled.is_some(),
+        "{}: none of results.json, scale.json, scale_tiled.json; run `lightfarm bench` (or \
+         `--scale`) first",
         args.out.display()
     );
     let mut markdown = match &results {
@@ -499,6 +513,12 @@ fn write_outputs(args: &BenchArgs) -> anyhow::Result<()> {
             markdown.push('\n');
         }
         markdown.push_str(&scale_report::scale_markdown(sweep, &png, base));
+    }
+    if let Some(tiled) = &tiled {
+        if !markdown.ends_with("\n\n") {
+            markdown.push('\n');
+        }
+        markdown.push_str(&scale_report::tiled_markdown(tiled));
     }
     super::write_atomic(&markdown_path, markdown.as_bytes())?;
     if let Some(results) = &results {
@@ -719,6 +739,7 @@ mod tests {
             replot: false,
             bounces: BounceCount::All,
             scale: None,
+            tile: None,
             throughput_only: false,
             python: "python3".into(),
             generator: PathBuf::from("unused"),
@@ -851,6 +872,7 @@ mod tests {
             command_line: "lightfarm bench --quick --scale 2,6".into(),
             replot,
             scale: Some(vec![2, 6]),
+            tile: None,
             generator: root.join("scripts/gen_level.py"),
             ..quick_args(&out)
         };
@@ -898,6 +920,34 @@ mod tests {
         run(args(true)).unwrap();
         let md = std::fs::read_to_string(out.join("BENCHMARKS.md")).unwrap();
         assert!(md.contains("- **cornell, all bounces**") && md.contains("## Scale: levels"));
+
+        // Tiled: copies of a 2-block level; a count off the tile is refused before any work.
+        let tiled = |sizes: Vec<u32>| BenchArgs {
+            scale: Some(sizes),
+            tile: Some(2),
+            ..args(false)
+        };
+        let refused = run(tiled(vec![2, 3])).unwrap_err().to_string();
+        assert!(refused.contains("--tile 2"), "{refused}");
+        run(tiled(vec![2, 4])).unwrap();
+        let sweep: scale::ScaleSweep =
+            serde_json::from_str(&std::fs::read_to_string(out.join("scale_tiled.json")).unwrap())
+                .unwrap();
+        assert_eq!(sweep.settings.tile, Some(2));
+        let (one, two) = (&sweep.points[0], &sweep.points[1]);
+        // Two copies: twice the lights and, less the two faces of the join, twice the texels.
+        assert_eq!(two.lights, 2 * one.lights);
+        assert!(two.texels < 2 * one.texels && two.texels + 2 * 16 >= 2 * one.texels);
+        // The same lights moved (the first copy's) at both sizes.
+        let moved = |p: &scale::ScalePoint| p.moved_lights.unwrap().lights;
+        assert_eq!(moved(one), one.lights.min(scale::MOVED_LIGHTS));
+        assert_eq!(moved(two), moved(one));
+        let md = std::fs::read_to_string(out.join("BENCHMARKS.md")).unwrap();
+        assert!(
+            md.contains("## Scale: levels of 2, 6 blocks")
+                && md.contains("## Scale, one neighbourhood: copies of a 2-block level, 2, 4"),
+            "{md}"
+        );
         std::fs::remove_dir_all(&out).unwrap();
     }
 

@@ -19,6 +19,11 @@
 //!   bench's other points do). The reference's own noise is measured with a second
 //!   seed, so the error can be read against it.
 //!
+//! With `--tile B` (`ScaleSettings::tile`) every level is copies of one B-block level
+//! (`gen_level.py --tile`), and the lights moved one at a time are spread over the first
+//! copy's instead of the whole list: every size moves the same lights through the same rooms,
+//! so the moved lights' frames grow with the level's size alone.
+//!
 //! Units: seconds, bytes, milliseconds of wall time; errors are relative L2 over the sampled
 //! texels' indirect radiance (every channel).
 //!
@@ -86,6 +91,11 @@ pub struct ScaleSettings {
     /// Timed frames of each apply and of the one-light comparison (whose medians a first
     /// frame's setup, e.g. indexing the exact gather by change, would sway with fewer).
     pub frames: usize,
+    /// Every level is copies of a level of this many blocks (`gen_level.py --tile`), and the
+    /// lights moved are the first copy's (absent: levels of their own, lights spread over the
+    /// whole list).
+    #[serde(default)]
+    pub tile: Option<u32>,
 }
 
 /// Median milliseconds of one way of relighting, direct light and operators apart.
@@ -211,6 +221,12 @@ fn generate(args: &ScaleArgs, blocks: u32, dir: &Path) -> anyhow::Result<()> {
         .args(["--rays", &args.settings.rays_per_texel.to_string()])
         .args(["--tolerance", &args.settings.tolerance.to_string()])
         .args(["--dynamic", "0"])
+        .args(
+            args.settings
+                .tile
+                .iter()
+                .flat_map(|t| ["--tile".to_string(), t.to_string()]),
+        )
         .output()
         .map_err(|e| {
             anyhow::anyhow!(
@@ -371,7 +387,11 @@ fn measure_point(args: &ScaleArgs, blocks: u32, step: &dyn Fn(&str)) -> anyhow::
     step(&format!(
         "{blocks} blocks: moving each of {MOVED_LIGHTS} lights"
     ));
-    let n_lights = client_lights.len();
+    // Tiled, the first copy's lights (the generator lists them copy by copy).
+    let n_lights = match args.settings.tile {
+        Some(tile) => client_lights.len() / (blocks / tile.max(1)).max(1) as usize,
+        None => client_lights.len(),
+    };
     let (mut moved, mut moved_all, mut moved_feedback) = (Vec::new(), Vec::new(), Vec::new());
     let (mut feedback_lag, mut feedback_settled) = (None::<f64>, None::<f64>);
     for k in 0..MOVED_LIGHTS.min(n_lights) {
@@ -476,6 +496,12 @@ pub fn measure_scale(args: &ScaleArgs, step: &dyn Fn(&str)) -> anyhow::Result<Sc
         args.sizes.iter().all(|&n| n >= 1),
         "--scale: a level needs at least one block"
     );
+    if let Some(tile) = args.settings.tile {
+        anyhow::ensure!(
+            tile >= 1 && args.sizes.iter().all(|&n| n % tile == 0),
+            "--tile {tile}: every --scale count must be a positive multiple of it"
+        );
+    }
     let started = Instant::now();
     let points = args
         .sizes

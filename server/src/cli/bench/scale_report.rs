@@ -1,7 +1,9 @@
 //! The scale sweep's figure and markdown section (from `OUT/scale.json`, see [`super::scale`]):
 //! four log–log panels against block count (bake seconds per stage, peak resident memory,
 //! stored bytes per section, frame milliseconds) and two tables, with each quantity's growth
-//! exponent (the least-squares slope of log cost against log blocks) said in words.
+//! exponent (the least-squares slope of log cost against log blocks) said in words; and a tiled
+//! sweep's section (from `OUT/scale_tiled.json`): one table of the same lights moved in levels
+//! of more and more copies, with the growth exponents.
 
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
@@ -456,6 +458,84 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         grows(&series(&|p| p
             .moved_lights
             .map_or(f64::NAN, |m| m.us_per_texel))),
+    );
+    md
+}
+
+/// The markdown section of a tiled sweep (`bench --scale ... --tile B`): the same lights in
+/// the same neighbourhood, moved in levels that differ only in how many copies surround it.
+pub fn tiled_markdown(sweep: &ScaleSweep) -> String {
+    let mut md = String::new();
+    let w = &mut md;
+    let points = &sweep.points;
+    let tile = sweep.settings.tile.unwrap_or(0);
+    let blocks: Vec<String> = points.iter().map(|p| p.blocks.to_string()).collect();
+    let _ = writeln!(
+        w,
+        "## Scale, one neighbourhood: copies of a {tile}-block level, {} blocks\n",
+        blocks.join(", ")
+    );
+    let _ = writeln!(
+        w,
+        "Each level is copies of one generated {tile}-block level joined in a row \
+         (`scripts/gen_level.py --seed {} --dynamic 0 --tile {tile}`), T={}, {} rays, tolerance \
+         {}; measured by `{}` on {} (`nproc` = {}) in {:.1} min. The lights moved are the first \
+         copy's (up to {}), so every level moves the same lights through the same rooms and \
+         only the level around them grows; one thread, direct light included, each light's \
+         median frame as in the sweep above.\n",
+        sweep.settings.seed,
+        sweep.settings.texels_per_face,
+        sweep.settings.rays_per_texel,
+        sweep.settings.tolerance,
+        sweep.command_line,
+        sweep.machine.cpu,
+        sweep.machine.nproc,
+        sweep.wall_seconds / 60.0,
+        super::scale::MOVED_LIGHTS,
+    );
+    let _ = writeln!(
+        w,
+        "| blocks | copies | texels | lights | bake s | apply, 1 bounce | lights moved | median light | slowest light | median light, all bounces | median light, feedback | texels reached (median) | per texel reached |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|"
+    );
+    let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3} ms"));
+    for p in points {
+        let m = p.moved_lights;
+        let _ = writeln!(
+            w,
+            "| {} | {} | {} | {} | {:.1} | {:.2} ms | {} | {} | {} | {} | {} | {} | {} |",
+            p.blocks,
+            p.blocks / tile.max(1) as usize,
+            p.texels,
+            p.lights,
+            p.bake_seconds,
+            p.apply_one_ms,
+            m.map_or(0, |m| m.lights),
+            ms(m.map(|m| m.median_ms)),
+            ms(m.map(|m| m.max_ms)),
+            ms(p.moved_lights_all.map(|m| m.median_ms)),
+            ms(p.moved_lights_feedback.map(|m| m.median_ms)),
+            m.map_or("—".to_string(), |m| m.median_texels.to_string()),
+            m.map_or("—".to_string(), |m| format!("{:.3} µs", m.us_per_texel)),
+        );
+    }
+    let series = |f: &dyn Fn(&ScalePoint) -> f64| -> Vec<(f64, f64)> {
+        points.iter().map(|p| (p.blocks as f64, f(p))).collect()
+    };
+    let _ =
+        writeln!(
+        w,
+        "\nGrowth with the block count N: the full apply {}, the median moved light {}, at all \
+         bounces {}, by feedback {}, per texel reached {}.\n",
+        grows(&series(&|p| p.apply_one_ms)),
+        grows(&series(&|p| p.moved_lights.map_or(f64::NAN, |m| m.median_ms))),
+        grows(&series(&|p| p
+            .moved_lights_all
+            .map_or(f64::NAN, |m| m.median_ms))),
+        grows(&series(&|p| p
+            .moved_lights_feedback
+            .map_or(f64::NAN, |m| m.median_ms))),
+        grows(&series(&|p| p.moved_lights.map_or(f64::NAN, |m| m.us_per_texel))),
     );
     md
 }
