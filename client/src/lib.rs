@@ -56,7 +56,8 @@
 //! - [`packed`], [`packed_gather`]: operator matrices and the DRT exact gather in the form the
 //!   per-frame kernels read (row panels, narrow indices, 8-bit where the bundle stored 8 bits).
 //! - [`lightmap`]: per-texel radiance as an atlas image (8-bit sRGB for PNG, raw f16).
-//! - [`compare`]: [`relative_l2`], how far one per-texel lighting is from another.
+//! - [`compare`]: [`relative_l2`], [`relative_l1`], how far one per-texel lighting is from
+//!   another.
 //! - `fetch` (feature `fetch`, off by default; `fetch-tls` adds https): `BundleFetcher`, a
 //!   blocking HTTP download of a bundle at level load with an on-disk cache (`If-None-Match`),
 //!   resumed downloads (`Range`/`If-Range`) and [`decode`] before anything is cached.
@@ -88,7 +89,7 @@ pub mod runtime;
 pub mod service;
 mod texel_samples;
 
-pub use compare::relative_l2;
+pub use compare::{relative_l1, relative_l2};
 pub use direct::{
     direct_from_point_lights, direct_from_point_lights_adaptive,
     direct_from_point_lights_adaptive_in, direct_from_point_lights_averaged, direct_scale,

@@ -266,6 +266,13 @@ fn c_example_matches_the_rust_client() {
         feedback_error < 3e-3,
         "moved back by feedback: {feedback_error:.2e} after {calls} calls"
     );
+    // The runtime's estimate of the light still to arrive: some after the change, at most the
+    // tolerance (1e-3) once nothing is due.
+    let (lag, left) = (number(line, "feedback_lag"), number(line, "feedback_left"));
+    assert!(
+        lag > 0.0 && left <= 1e-3 && left < lag,
+        "estimated lag {lag:.2e}, left {left:.2e}"
+    );
 
     // A file that is not a bundle: exit status 1 and the library's reason on stderr.
     let garbage = dir.join("garbage.lfb");

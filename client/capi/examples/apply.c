@@ -15,6 +15,7 @@
  *   texels=N method=drt|mrt applications=A checksum=S max=M direct_checksum=D surfaces=K
  *   first_surface=NAME atlas=WxH engine_direct_checksum=ED engine_checksum=E
  *   moved_spans=MS moved_error=ME light_direct_same=B feedback_calls=FC feedback_error=FE
+ *   feedback_lag=FL feedback_left=FR
  *
  * with S the sum of every output float, M the largest, D the sum of the direct light, ED the
  * sum of the engine's direct light and E the sum of the engine path's indirect-light atlas
@@ -292,8 +293,10 @@ static double relative_l2(const float *a, const float *b, size_t n) {
  * Then moves it back in LF_BOUNCES_FEEDBACK, as a game letting the later bounces arrive over
  * the next frames does: one lf_runtime_apply_delta_in_spans with the change, then calls with no
  * span until lf_runtime_feedback_due says nothing is due, and prints "feedback_calls=N
- * feedback_error=R": the calls after the change and the relative L2 against `at_load`, all
- * bounces of the lights back where they were. Returns 0, or 1 on error. */
+ * feedback_error=R feedback_lag=L feedback_left=F": the calls after the change, the relative
+ * L2 against `at_load` (all bounces of the lights back where they were), and the runtime's
+ * estimate of the light still to arrive (lf_runtime_last_remaining) after the change and once
+ * settled. Returns 0, or 1 on error. */
 static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long n_lights,
                       const float *direct, float *indirect, const float *at_load,
                       size_t n_floats) {
@@ -301,9 +304,10 @@ static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long 
     LfTexelSpan *spans;
     float *change, *moved, *want;
     int same = 1, calls = 0;
+    float lag;
     if (n_lights < 1) {
         printf(" moved_spans=0 moved_error=0 light_direct_same=1 feedback_calls=0"
-               " feedback_error=0");
+               " feedback_error=0 feedback_lag=0 feedback_left=0");
         return 0;
     }
     change = malloc(n_floats * sizeof *change);
@@ -329,6 +333,7 @@ static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long 
     if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, spans, n_spans, want,
                                         n_floats) != LF_STATUS_OK)
         return fail();
+    lag = lf_runtime_last_remaining(rt);
     for (i = 0; i < n_floats; i++) change[i] = 0.0f;
     while (lf_runtime_feedback_due(rt) > 0 && calls < 1000) {
         if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, NULL, 0, want,
@@ -336,7 +341,8 @@ static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long 
             return fail();
         calls++;
     }
-    printf(" feedback_calls=%d feedback_error=%.3e", calls, relative_l2(want, at_load, n_floats));
+    printf(" feedback_calls=%d feedback_error=%.3e feedback_lag=%.3e feedback_left=%.3e", calls,
+           relative_l2(want, at_load, n_floats), lag, lf_runtime_last_remaining(rt));
     if (lf_runtime_set_bounces(rt, LF_BOUNCES_CONVERGED, 0.0f) != LF_STATUS_OK) return fail();
     free(spans);
     free(change);

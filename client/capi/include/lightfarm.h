@@ -566,6 +566,20 @@ int32_t lf_runtime_set_feedback_budget(LfRuntime *rt, size_t texels);
 uint32_t lf_runtime_last_bounces(const LfRuntime *rt);
 
 /**
+ * How far the last successful application on `rt` is estimated to be from all bounces,
+ * relative: in `LF_BOUNCES_CONVERGED` and `LF_BOUNCES_WARM`, the solve's remaining error
+ * relative to the light; in `LF_BOUNCES_FEEDBACK` relit by the change
+ * (`lf_runtime_apply_delta`, `lf_runtime_apply_delta_in_spans`), the light still to arrive
+ * over the next calls relative to the level's (at most the tolerance once
+ * `lf_runtime_feedback_due` is 0); 0 for a fixed number of bounces, before any application,
+ * or for NULL. An estimate, as the tolerance is.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`.
+ */
+float lf_runtime_last_remaining(const LfRuntime *rt);
+
+/**
  * Turns direct light into indirect light with `method` (an `LfMethod`), summing the bounces
  * `lf_runtime_set_bounces` chose (all, by default); allocates nothing.
  *

@@ -96,8 +96,8 @@ pub use reach::{
 };
 pub use runtime::{
     lf_runtime_apply, lf_runtime_apply_delta, lf_runtime_feedback_due, lf_runtime_free,
-    lf_runtime_has_drt, lf_runtime_has_full, lf_runtime_last_bounces, lf_runtime_new,
-    lf_runtime_prepare_delta, lf_runtime_set_bounces, lf_runtime_set_feedback_budget,
-    lf_runtime_texel_count, LfRuntime,
+    lf_runtime_has_drt, lf_runtime_has_full, lf_runtime_last_bounces, lf_runtime_last_remaining,
+    lf_runtime_new, lf_runtime_prepare_delta, lf_runtime_set_bounces,
+    lf_runtime_set_feedback_budget, lf_runtime_texel_count, LfRuntime,
 };
 pub use status::{CapiError, LfStatus};

@@ -15,8 +15,8 @@
 //!   [`lf_runtime_free`] is the only place that box is dropped.
 
 use lightfarm_client::{
-    direct_from_point_lights_adaptive_in, direct_scale, Atlas, Bounces, DirectLight, IndirectLight,
-    Light, Occluders, ReachDirect, Runtime, TexelSpan,
+    direct_from_point_lights_adaptive_in, direct_scale, Applied, Atlas, Bounces, DirectLight,
+    IndirectLight, Light, Occluders, ReachDirect, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Bundle;
 use std::ops::Range;
@@ -41,8 +41,8 @@ pub struct LfRuntime {
     indirect: IndirectLight,
     /// The bounce mode of `lf_runtime_apply` (all bounces until `lf_runtime_set_bounces`).
     bounces: Bounces,
-    /// One-bounce applications the last successful `lf_runtime_apply` made.
-    last_bounces: u32,
+    /// What the last successful application (`lf_runtime_apply`, or a delta call) did.
+    last: Applied,
     /// A point light's reach over the bundle's rooms, with the occluders of each room (None:
     /// the bundle has no rooms section).
     reach: Option<ReachDirect>,
@@ -82,7 +82,7 @@ impl LfRuntime {
                 radiance: vec![[0.0; 3]; n],
             },
             bounces: Bounces::default(),
-            last_bounces: 0,
+            last: Applied::default(),
             span_delta: DirectLight::default(),
             span_delta_at: Vec::new(),
             span_change: IndirectLight::default(),
@@ -126,7 +126,7 @@ impl LfRuntime {
             &self.span_delta_at,
             &mut self.span_change,
         )?;
-        self.last_bounces = applied.applied.bounces;
+        self.last = applied.applied;
         let (indirect, _) = indirect.as_chunks_mut::<3>();
         let change = &mut self.span_change.radiance;
         let mut add = |r: Range<usize>| {
@@ -419,7 +419,25 @@ pub unsafe extern "C" fn lf_runtime_set_feedback_budget(rt: *mut LfRuntime, texe
 pub unsafe extern "C" fn lf_runtime_last_bounces(rt: *const LfRuntime) -> u32 {
     value_call("lf_runtime_last_bounces", 0, || {
         // SAFETY: NULL or live, per the contract.
-        unsafe { rt.as_ref() }.map_or(0, |rt| rt.last_bounces)
+        unsafe { rt.as_ref() }.map_or(0, |rt| rt.last.bounces)
+    })
+}
+
+/// How far the last successful application on `rt` is estimated to be from all bounces,
+/// relative: in `LF_BOUNCES_CONVERGED` and `LF_BOUNCES_WARM`, the solve's remaining error
+/// relative to the light; in `LF_BOUNCES_FEEDBACK` relit by the change
+/// (`lf_runtime_apply_delta`, `lf_runtime_apply_delta_in_spans`), the light still to arrive
+/// over the next calls relative to the level's (at most the tolerance once
+/// `lf_runtime_feedback_due` is 0); 0 for a fixed number of bounces, before any application,
+/// or for NULL. An estimate, as the tolerance is.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`.
+#[no_mangle]
+pub unsafe extern "C" fn lf_runtime_last_remaining(rt: *const LfRuntime) -> f32 {
+    value_call("lf_runtime_last_remaining", 0.0, || {
+        // SAFETY: NULL or live, per the contract.
+        unsafe { rt.as_ref() }.map_or(0.0, |rt| rt.last.remaining_fraction)
     })
 }
 
@@ -473,7 +491,7 @@ pub unsafe extern "C" fn lf_runtime_apply(
         let applied = rt
             .runtime
             .apply(method, rt.bounces, &rt.direct, &mut rt.indirect)?;
-        rt.last_bounces = applied.bounces;
+        rt.last = applied;
         // SAFETY: `out_len` writable floats, per the contract; no other slice is alive.
         let out = unsafe { slice_mut(out_rgb, out_len, "out_rgb") }?;
         for (o, v) in out.chunks_exact_mut(3).zip(&rt.indirect.radiance) {
@@ -564,7 +582,7 @@ pub unsafe extern "C" fn lf_runtime_apply_delta(
         let applied = rt
             .runtime
             .apply_delta(method, rt.bounces, &rt.direct, &mut rt.indirect)?;
-        rt.last_bounces = applied.applied.bounces;
+        rt.last = applied.applied;
         for (o, v) in indirect.chunks_exact_mut(3).zip(&rt.indirect.radiance) {
             o.copy_from_slice(v);
         }

@@ -397,6 +397,8 @@ fn a_new_runtime_sums_all_bounces_and_says_how_many() {
     let rt = Rt::load_default();
     // SAFETY: live runtime.
     assert_eq!(unsafe { lf_runtime_last_bounces(rt.0) }, 0);
+    // SAFETY: live runtime.
+    assert_eq!(unsafe { lf_runtime_last_remaining(rt.0) }, 0.0);
     let mut out = [f32::NAN; 6];
     assert_eq!(rt.apply(LfMethod::Mrt as i32, &DIRECT, &mut out), OK);
     let want = all_bounces(&DIRECT);
@@ -406,6 +408,9 @@ fn a_new_runtime_sums_all_bounces_and_says_how_many() {
     }
     // SAFETY: live runtime.
     let bounces = unsafe { lf_runtime_last_bounces(rt.0) };
+    // SAFETY: live runtime.
+    let remaining = unsafe { lf_runtime_last_remaining(rt.0) };
+    assert!((0.0..=1e-3).contains(&remaining), "{remaining}");
     // GMRES: the two-texel operator's Krylov space has two dimensions, so two applications
     // (the first bounce and one iteration) or three solve it.
     assert!((2..60).contains(&bounces), "{bounces}");
@@ -421,7 +426,11 @@ fn a_new_runtime_sums_all_bounces_and_says_how_many() {
     }
     // SAFETY: live runtime.
     assert!(unsafe { lf_runtime_last_bounces(rt.0) } >= bounces);
+    // SAFETY: live runtime.
+    let remaining = unsafe { lf_runtime_last_remaining(rt.0) };
+    assert!((0.0..=1e-6).contains(&remaining), "{remaining}");
     assert_eq!(unsafe { lf_runtime_last_bounces(null()) }, 0);
+    assert_eq!(unsafe { lf_runtime_last_remaining(null()) }, 0.0);
 }
 
 #[test]
@@ -1077,6 +1086,9 @@ fn apply_delta_in_spans_is_apply_delta_on_the_spans() {
             let zero = vec![0.0f32; 3 * n];
             let mut calls = 0;
             // SAFETY: live runtime.
+            let lag = unsafe { lf_runtime_last_remaining(by_spans.0) };
+            assert!(lag > 0.0, "method {method}: light is still to arrive");
+            // SAFETY: live runtime.
             while unsafe { lf_runtime_feedback_due(by_spans.0) } > 0 {
                 calls += 1;
                 assert!(calls < 100, "method {method}: still due after 100 calls");
@@ -1086,6 +1098,14 @@ fn apply_delta_in_spans_is_apply_delta_on_the_spans() {
                 );
             }
             assert!(calls > 0, "method {method}: nothing was due");
+            // Settled: what is left is within the tolerance (the default, 1e-3), by the
+            // runtime's estimate.
+            // SAFETY: live runtime.
+            let left = unsafe { lf_runtime_last_remaining(by_spans.0) };
+            assert!(
+                left <= 1e-3 && left < lag,
+                "method {method}: {left} left of {lag}"
+            );
             let all = load();
             let mut want = vec![0.0f32; 3 * n];
             // SAFETY: live runtime.

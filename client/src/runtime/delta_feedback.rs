@@ -67,6 +67,10 @@ const DIM_UNIT: f64 = 0.01;
 pub(super) struct Progress {
     /// Per texel: light added to the answer and not yet bounced.
     unshot: Vec<[f32; 3]>,
+    /// Per unit, its unshot light's L1 when last written or shot, and their sum: what
+    /// [`Runtime::feedback_lag`] estimates the lag from without a pass over the level.
+    unit_unshot: Vec<f64>,
+    unshot_total: f64,
     /// Units to shoot on the next call, each once (`is_due` while listed), and per unit how
     /// far its unshot light passed its share of the tolerance when last judged (`e g / (1 −
     /// g)` over `tol · s_u`; a listed unit judged since at 1 or under is no longer due).
@@ -94,6 +98,8 @@ impl Progress {
     pub(super) fn new(n_texels: usize, n_units: usize) -> Progress {
         Progress {
             unshot: vec![[0.0; 3]; n_texels],
+            unit_unshot: vec![0.0; n_units],
+            unshot_total: 0.0,
             due: Vec::new(),
             is_due: vec![false; n_units],
             urgency: vec![0.0; n_units],
@@ -112,6 +118,8 @@ impl Progress {
     /// Forgets the unshot light.
     pub(super) fn forget(&mut self) {
         self.unshot.fill([0.0; 3]);
+        self.unit_unshot.fill(0.0);
+        self.unshot_total = 0.0;
         for &u in &self.due {
             self.is_due[u] = false;
         }
@@ -214,6 +222,7 @@ impl Runtime {
                     p.input[t] = [d[0] + s[0], d[1] + s[1], d[2] + s[2]];
                 }
                 p.unshot[r.clone()].fill([0.0; 3]);
+                p.unshot_total -= std::mem::take(&mut p.unit_unshot[u]);
             } else {
                 p.input[r.clone()].copy_from_slice(&delta[r.clone()]);
             }
@@ -231,6 +240,7 @@ impl Runtime {
             }
         }
         self.progress = Some(p);
+        // The lag is known once this call's light is judged (`apply_delta_impl`).
         Applied {
             bounces: 1,
             remaining_fraction: 0.0,
@@ -261,7 +271,9 @@ impl Runtime {
             let level = per_texel * r.len() as f64;
             let own: f64 = self.texel_light[r.clone()].iter().map(|&x| x as f64).sum();
             let share = level.min(own.max(DIM_UNIT * level));
-            let e = l1(&p.unshot[r]) * later;
+            let unshot = l1(&p.unshot[r]);
+            p.unshot_total += unshot - std::mem::replace(&mut p.unit_unshot[u], unshot);
+            let e = unshot * later;
             p.urgency[u] = if share > 0.0 {
                 e / (tol * share)
             } else if e > 0.0 {
@@ -291,6 +303,30 @@ impl Runtime {
     /// zero change (which costs the due units alone) until then.
     pub fn feedback_due(&self) -> usize {
         self.progress.as_ref().map_or(0, Progress::due)
+    }
+
+    /// How far the answer of [`Runtime::apply_delta`] with
+    /// [`Bounces::Feedback`](super::Bounces::Feedback) is estimated to lag behind all bounces,
+    /// relative to the level's light (L1, the light the tolerance is relative to): the light
+    /// not yet bounced, over all the bounces it would still make (`e g / (1 − g)`, `e` its L1
+    /// light), over the level's. It is that call's [`Applied::remaining_fraction`]; 0 before
+    /// any such call and once the lights stay still long enough for every unit to be shot
+    /// (what is never due stays, at most the tolerance). An estimate, as the tolerance is: the
+    /// gain is the assumed one, so on the tests' hand-made operators (gains of their own) it
+    /// is 0.34 to 14 times the lag measured against 300 bounces.
+    pub fn feedback_lag(&self) -> f64 {
+        let Some(p) = self.progress.as_ref() else {
+            return 0.0;
+        };
+        let g = self.assumed_gain().max(MIN_GAIN);
+        let lag = p.unshot_total.max(0.0) * g / (1.0 - g);
+        if lag == 0.0 {
+            0.0
+        } else if self.level_light > 0.0 {
+            lag / self.level_light
+        } else {
+            f64::INFINITY
+        }
     }
 
     /// Caps the texels of due units one [`Runtime::apply_delta`] with

@@ -509,8 +509,10 @@ impl Runtime {
                 blocks_total: total,
             }
         });
-        if progressive && result.is_ok() {
+        let mut result = result;
+        if let (true, Ok(done)) = (progressive, result.as_mut()) {
             self.judge_unshot(&change.radiance);
+            done.applied.remaining_fraction = self.feedback_lag() as f32;
         }
         self.delta_out = change;
         result

@@ -209,7 +209,9 @@ pub struct Applied {
     pub bounces: u32,
     /// `Converged` and `Warm`: the estimated error relative to all bounces (the largest
     /// channel's GMRES residual relative to its first bounce, for `Warm` the residual over
-    /// `(1 − gain) ·` the light); 0 otherwise.
+    /// `(1 − gain) ·` the light); `Feedback` by the change ([`Runtime::apply_delta`]): the
+    /// estimated lag behind all bounces relative to the level's light
+    /// ([`Runtime::feedback_lag`]); 0 otherwise.
     pub remaining_fraction: f32,
 }
 

@@ -271,15 +271,20 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
         if let Some(s) = t.settling {
             println!(
                 "update=one-light light={moved} bounces=feedback budget={} lag_rel_l2: \
-                 update={:.2e} full={:.2e}; settled after {} calls (median {:.4} ms) to rel_l2={:.2e}, \
-                 per lit surface rel_l1 p99={:.2e} max={:.2e}",
+                 update={:.2e} full={:.2e}; update rel_l1={:.2e} estimated={:.2e}; settled \
+                 after {} calls (median {:.4} ms) to rel_l2={:.2e} rel_l1={:.2e} \
+                 estimated={:.2e}, per lit surface rel_l1 p99={:.2e} max={:.2e}",
                 args.feedback_budget
                     .map_or("all".to_string(), |b| format!("{b}_texels")),
                 s.update_lag,
                 s.full_lag,
+                s.update_lag_l1,
+                s.estimated_lag,
                 s.frames,
                 s.median_ms,
                 s.settled,
+                s.settled_l1,
+                s.estimated_settled,
                 s.surface_p99,
                 s.surface_max
             );

@@ -50,8 +50,8 @@ use std::ops::Range;
 
 use lightfarm_client::{
     direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in,
-    direct_from_point_lights_averaged, direct_scale, relative_l2, Bounces, DirectLight,
-    IndirectLight, Light, Method, Occluders, ReachDirect, Runtime, TexelSpan,
+    direct_from_point_lights_averaged, direct_scale, relative_l1, relative_l2, Bounces,
+    DirectLight, IndirectLight, Light, Method, Occluders, ReachDirect, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Layout;
 
@@ -110,11 +110,18 @@ pub struct Settling {
     /// with [`Ways::UpdateOnly`]).
     pub update_lag: f64,
     pub full_lag: f64,
+    /// The update's lag in relative L1 (the norm of the feedback's tolerance) and what the
+    /// runtime estimated it to be ([`Runtime::feedback_lag`], the last frame's
+    /// `Applied::remaining_fraction`).
+    pub update_lag_l1: f64,
+    pub estimated_lag: f64,
     /// Calls with no change until nothing was due, their median time (ms), and the update's
-    /// relative L2 against the all-bounce answer then.
+    /// relative L2 and L1 against the all-bounce answer then, with the runtime's estimate.
     pub frames: usize,
     pub median_ms: f64,
     pub settled: f64,
+    pub settled_l1: f64,
+    pub estimated_settled: f64,
     /// Settled, per surface of the layout (relative L1 against the surface's all-bounce
     /// light; surfaces lit at least [`LIT_SURFACE`] of the mean texel's light): the 99th
     /// percentile and the largest.
@@ -461,6 +468,8 @@ pub fn time_update(
             change.radiance[span.clone()].fill([0.0; 3]);
         }
         let update_lag = relative_l2(&update_out.radiance, &all.radiance);
+        let update_lag_l1 = relative_l1(&update_out.radiance, &all.radiance);
+        let estimated_lag = rt.feedback_lag();
         let mut times = Vec::new();
         while rt.feedback_due() > 0 && times.len() < MAX_SETTLE {
             let start = Instant::now();
@@ -472,6 +481,10 @@ pub fn time_update(
             surface_errors(&layout, &update_out.radiance, &all.radiance);
         settling = Some(Settling {
             update_lag,
+            update_lag_l1,
+            estimated_lag,
+            settled_l1: relative_l1(&update_out.radiance, &all.radiance),
+            estimated_settled: rt.feedback_lag(),
             full_lag: if both {
                 relative_l2(&full_out.radiance, &all.radiance)
             } else {
