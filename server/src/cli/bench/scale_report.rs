@@ -391,7 +391,8 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         let _ = writeln!(
             w,
             "Moving each of up to {} lights spread over the level's list, one at a time, relit \
-             by its change (direct light included; each light's median frame; one bounce; all \
+             by its change (direct light included; each light's median of {} frames; one \
+             bounce; all \
              bounces: `Converged` to 0.001, bounce by bounce where the change's light goes, or \
              the whole-level solve where that costs less; and `Feedback` by the change: one \
              sparse bounce a frame of the change and of the light not yet bounced where it is \
@@ -400,7 +401,8 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
              the level):\n\n\
              | blocks | lights moved | median light | slowest light | median light, all bounces | slowest light, all bounces | median light, feedback | slowest light, feedback | feedback lag / settled | texels reached (median) | per texel reached (median) |\n\
              |---|---|---|---|---|---|---|---|---|---|---|",
-            super::scale::MOVED_LIGHTS
+            super::scale::MOVED_LIGHTS,
+            super::scale::MOVED_FRAMES_FACTOR * sweep.settings.frames,
         );
         for (p, m) in &moved {
             let ms = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3} ms"));
@@ -482,7 +484,7 @@ pub fn tiled_markdown(sweep: &ScaleSweep) -> String {
          {}; measured by `{}` on {} (`nproc` = {}) in {:.1} min. The lights moved are the first \
          copy's (up to {}), so every level moves the same lights through the same rooms and \
          only the level around them grows; one thread, direct light included, each light's \
-         median frame as in the sweep above.\n",
+         median of {} frames.\n",
         sweep.settings.seed,
         sweep.settings.texels_per_face,
         sweep.settings.rays_per_texel,
@@ -492,6 +494,7 @@ pub fn tiled_markdown(sweep: &ScaleSweep) -> String {
         sweep.machine.nproc,
         sweep.wall_seconds / 60.0,
         super::scale::MOVED_LIGHTS,
+        super::scale::MOVED_FRAMES_FACTOR * sweep.settings.frames,
     );
     let _ = writeln!(
         w,
