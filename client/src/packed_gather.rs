@@ -232,9 +232,10 @@ pub(crate) fn texel_units(
 /// calls); the caller lists the rows it may have touched ([`GatherColumns::rows_reading`] the
 /// same texels, which it can make once per unit of texels) and [`GatherColumns::finish`] adds
 /// `unit · sum` to each listed row's texel, as [`PackedGather::add_to_padded`] adds its row
-/// sums, and clears the partials (a listed row no lit texel fed adds zero). Texels are visited in the order given and each texel's entries by ascending row,
-/// so the result is deterministic; it equals the rows' sums to float rounding only (another
-/// order of the same terms).
+/// sums, and clears the partials (a listed row no lit texel fed adds zero). Texels are visited
+/// in the order given and each texel's entries by ascending row, so the result is
+/// deterministic; it equals the rows' sums to float rounding only (another order of the same
+/// terms).
 #[derive(Clone, Debug, PartialEq)]
 pub struct GatherColumns {
     col_start: Vec<u32>,

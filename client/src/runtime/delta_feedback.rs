@@ -30,11 +30,12 @@
 //! change) and the later bounces of earlier changes as far as they have been shot; with the
 //! lights still, calls shoot what is due until nothing is (about `ln(tol)/ln(g)` calls, each
 //! over where the light still matters), and the answer is then the all-bounce answer within
-//! the tolerance: what is never shot is at most each unit's share of it. Nothing is dropped:
-//! unshot light waits in its unit until more light makes it due. A frame's cost is one
-//! sparse bounce over the change and the due units, not the bounces to convergence: the
-//! whole-level [`Bounces::Feedback`] (Enlighten's radiosity feedback) at the cost of where
-//! light moves.
+//! the tolerance: what is never shot is at most each unit's share of it. Each call reports how
+//! far its answer is estimated to lag behind all bounces ([`Runtime::feedback_lag`]: the
+//! unshot light's later bounces over the level's light). Nothing is dropped: unshot light
+//! waits in its unit until more light makes it due. A frame's cost is one sparse bounce over
+//! the change and the due units, not the bounces to convergence: the whole-level
+//! [`Bounces::Feedback`] (Enlighten's radiosity feedback) at the cost of where light moves.
 //!
 //! Units: the change's light per texel (RGB radiance), as in `apply`; energies are f64 L1 sums
 //! (over texels and channels of `|value|`; a change is signed). The gain `g` is the chain's
@@ -310,10 +311,11 @@ impl Runtime {
     /// relative to the level's light (L1, the light the tolerance is relative to): the light
     /// not yet bounced, over all the bounces it would still make (`e g / (1 − g)`, `e` its L1
     /// light), over the level's. It is that call's [`Applied::remaining_fraction`]; 0 before
-    /// any such call and once the lights stay still long enough for every unit to be shot
-    /// (what is never due stays, at most the tolerance). An estimate, as the tolerance is: the
-    /// gain is the assumed one, so on the tests' hand-made operators (gains of their own) it
-    /// is 0.34 to 14 times the lag measured against 300 bounces.
+    /// any such call (and after [`Runtime::reset_feedback`]), at most the tolerance once
+    /// nothing is due (each unit's unshot light is then within its share of it). An
+    /// estimate, as the tolerance is: the gain is the assumed one, so on the tests' hand-made
+    /// operators (gains of their own) it is 0.34 to 14 times the lag measured against 300
+    /// bounces.
     pub fn feedback_lag(&self) -> f64 {
         let Some(p) = self.progress.as_ref() else {
             return 0.0;

@@ -283,6 +283,31 @@ fn grows(points: &[(f64, f64)]) -> String {
     growth_exponent(points).map_or("(not measured)".to_string(), |e| format!("∝ N^{e:.2}"))
 }
 
+/// "∝ N^1.02" for `f` of each point against its block count.
+fn growth(points: &[ScalePoint], f: impl Fn(&ScalePoint) -> f64) -> String {
+    grows(
+        &points
+            .iter()
+            .map(|p| (p.blocks as f64, f(p)))
+            .collect::<Vec<_>>(),
+    )
+}
+
+/// "T=8, 1024 rays, tolerance 0.001; measured by `…` on CPU (`nproc` = 2) in 3.5 min": how a
+/// sweep was baked and where it ran.
+fn baked_and_measured(sweep: &ScaleSweep) -> String {
+    format!(
+        "T={}, {} rays, tolerance {}; measured by `{}` on {} (`nproc` = {}) in {:.1} min",
+        sweep.settings.texels_per_face,
+        sweep.settings.rays_per_texel,
+        sweep.settings.tolerance,
+        sweep.command_line,
+        sweep.machine.cpu,
+        sweep.machine.nproc,
+        sweep.wall_seconds / 60.0,
+    )
+}
+
 /// The markdown section; image links are relative to `base` (the markdown's directory).
 pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
     let mut md = String::new();
@@ -293,8 +318,7 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
     let _ = writeln!(
         w,
         "Generated grid levels (`scripts/gen_level.py --seed {} --dynamic 0`; the 1,000-block \
-         one is `scenes/grid1000`), T={}, {} rays, tolerance {}; measured by `{}` on {} \
-         (`nproc` = {}) in {:.1} min. Bake: cold (no shape cache), peak resident memory of the \
+         one is `scenes/grid1000`), {}. Bake: cold (no shape cache), peak resident memory of the \
          process during the bake and its encoding. Frames: one thread, every light of the \
          level, DRT (MRT in a level without clutter); \"one light\" moves light 0 and relights by its change \
          (`frame-time --update one-light`), \"relight all\" lights every light where it reaches \
@@ -304,13 +328,7 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
          the level's lights (those lights alone); the reference's own noise (two seeds) beside \
          it.\n",
         sweep.settings.seed,
-        sweep.settings.texels_per_face,
-        sweep.settings.rays_per_texel,
-        sweep.settings.tolerance,
-        sweep.command_line,
-        sweep.machine.cpu,
-        sweep.machine.nproc,
-        sweep.wall_seconds / 60.0,
+        baked_and_measured(sweep),
         sweep.settings.reference_rays,
         super::scale::ERROR_TEXELS,
         super::scale::ERROR_RADIUS,
@@ -428,9 +446,6 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         }
         let _ = writeln!(w);
     }
-    let series = |f: &dyn Fn(&ScalePoint) -> f64| -> Vec<(f64, f64)> {
-        points.iter().map(|p| (p.blocks as f64, f(p))).collect()
-    };
     let _ = writeln!(
         w,
         "Growth with the block count N (least-squares slope on the log–log points): bake {}, \
@@ -441,25 +456,25 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
          grows with the lights times what each one reaches, not with the lights times the \
          level's texels; moving one light lights only the texels it reaches, which depend on \
          where the light is, not on the level's size.\n",
-        grows(&series(&|p| p.bake_seconds)),
-        grows(&series(&|p| p.peak_rss_bytes as f64)),
-        grows(&series(&|p| p.bundle_bytes as f64)),
-        grows(&series(&|p| p.apply_one_ms)),
-        grows(&series(&|p| p.apply_converged_ms)),
-        grows(&series(&|p| p.relight_all.total_ms)),
-        grows(&series(&|p| p.one_light.total_ms)),
-        grows(&series(&|p| p
+        growth(points, |p| p.bake_seconds),
+        growth(points, |p| p.peak_rss_bytes as f64),
+        growth(points, |p| p.bundle_bytes as f64),
+        growth(points, |p| p.apply_one_ms),
+        growth(points, |p| p.apply_converged_ms),
+        growth(points, |p| p.relight_all.total_ms),
+        growth(points, |p| p.one_light.total_ms),
+        growth(points, |p| p
             .moved_lights
-            .map_or(f64::NAN, |m| m.median_ms))),
-        grows(&series(&|p| p
+            .map_or(f64::NAN, |m| m.median_ms)),
+        growth(points, |p| p
             .moved_lights_all
-            .map_or(f64::NAN, |m| m.median_ms))),
-        grows(&series(&|p| p
+            .map_or(f64::NAN, |m| m.median_ms)),
+        growth(points, |p| p
             .moved_lights_feedback
-            .map_or(f64::NAN, |m| m.median_ms))),
-        grows(&series(&|p| p
+            .map_or(f64::NAN, |m| m.median_ms)),
+        growth(points, |p| p
             .moved_lights
-            .map_or(f64::NAN, |m| m.us_per_texel))),
+            .map_or(f64::NAN, |m| m.us_per_texel)),
     );
     md
 }
@@ -480,19 +495,12 @@ pub fn tiled_markdown(sweep: &ScaleSweep) -> String {
     let _ = writeln!(
         w,
         "Each level is copies of one generated {tile}-block level joined in a row \
-         (`scripts/gen_level.py --seed {} --dynamic 0 --tile {tile}`), T={}, {} rays, tolerance \
-         {}; measured by `{}` on {} (`nproc` = {}) in {:.1} min. The lights moved are the first \
-         copy's (up to {}), so every level moves the same lights through the same rooms and \
-         only the level around them grows; one thread, direct light included, each light's \
-         median of {} frames.\n",
+         (`scripts/gen_level.py --seed {} --dynamic 0 --tile {tile}`), {}. The lights moved \
+         are the first copy's (up to {}), so every level moves the same lights through the \
+         same rooms and only the level around them grows; one thread, direct light included, \
+         each light's median of {} frames.\n",
         sweep.settings.seed,
-        sweep.settings.texels_per_face,
-        sweep.settings.rays_per_texel,
-        sweep.settings.tolerance,
-        sweep.command_line,
-        sweep.machine.cpu,
-        sweep.machine.nproc,
-        sweep.wall_seconds / 60.0,
+        baked_and_measured(sweep),
         super::scale::MOVED_LIGHTS,
         super::scale::MOVED_FRAMES_FACTOR * sweep.settings.frames,
     );
@@ -522,23 +530,21 @@ pub fn tiled_markdown(sweep: &ScaleSweep) -> String {
             m.map_or("—".to_string(), |m| format!("{:.3} µs", m.us_per_texel)),
         );
     }
-    let series = |f: &dyn Fn(&ScalePoint) -> f64| -> Vec<(f64, f64)> {
-        points.iter().map(|p| (p.blocks as f64, f(p))).collect()
-    };
-    let _ =
-        writeln!(
+    let _ = writeln!(
         w,
-        "\nGrowth with the block count N: the full apply {}, the median moved light {}, at all \
-         bounces {}, by feedback {}, per texel reached {}.\n",
-        grows(&series(&|p| p.apply_one_ms)),
-        grows(&series(&|p| p.moved_lights.map_or(f64::NAN, |m| m.median_ms))),
-        grows(&series(&|p| p
+        "\nGrowth with the block count N: the full apply {}, the median moved light {}, at \
+         all bounces {}, by feedback {}, per texel reached {}.\n",
+        growth(points, |p| p.apply_one_ms),
+        growth(points, |p| p.moved_lights.map_or(f64::NAN, |m| m.median_ms)),
+        growth(points, |p| p
             .moved_lights_all
-            .map_or(f64::NAN, |m| m.median_ms))),
-        grows(&series(&|p| p
+            .map_or(f64::NAN, |m| m.median_ms)),
+        growth(points, |p| p
             .moved_lights_feedback
-            .map_or(f64::NAN, |m| m.median_ms))),
-        grows(&series(&|p| p.moved_lights.map_or(f64::NAN, |m| m.us_per_texel))),
+            .map_or(f64::NAN, |m| m.median_ms)),
+        growth(points, |p| p
+            .moved_lights
+            .map_or(f64::NAN, |m| m.us_per_texel)),
     );
     md
 }
