@@ -11,7 +11,7 @@
 //! (a few microseconds to build, then a handful of primitive tests per ray), else to the
 //! occluders' hierarchy: both give the same answers, so the values do not depend on which was
 //! used. With one light over a buffer (a light's reach, one light's term), texels go by runs of
-//! a few on one face ([`crate::box_shadows`]): a run the light sees whole traces no ray, one an
+//! a few on one face (module `box_shadows`): a run the light sees whole traces no ray, one an
 //! occluder hides whole neither, and the rest test only the occluders that may cross their
 //! segments, all with the buffer's answers.
 //!

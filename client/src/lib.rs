@@ -65,7 +65,7 @@
 //!   plugins and CI (upload assets and scenes, submit and watch bakes, cancel).
 //!
 //! Invariants: without features this crate depends only on `lightfarm-proto`, `thiserror` and
-//! `half` and does no I/O (feature `rayon` adds rayon for [`Runtime::set_parallel`]; `fetch`
+//! `half` and does no I/O (feature `rayon` adds rayon for `Runtime::set_parallel`; `fetch`
 //! adds `ureq`, `serde` and `serde_json`, and HTTP plus its cache directory are its only I/O); every per-texel vector is
 //! in layout order with one RGB value per layout texel; operators are albedo-free and the
 //! receiving texel's albedo is multiplied in last.

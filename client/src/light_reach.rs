@@ -31,6 +31,8 @@
 //!
 //! Units: metres, world frame, f64 (the rooms' own numbers). Invariant: the spans returned are
 //! ascending, disjoint texel ranges of the layout.
+//!
+//! [`Rooms`]: lightfarm_proto::bundle::Rooms
 
 use std::ops::Range;
 

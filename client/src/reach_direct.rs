@@ -28,6 +28,8 @@
 //! Units: metres, world frame. Invariants: `light` writes `out` on its spans only, bit-identical
 //! to [`direct_from_point_lights_adaptive_in`] with the level's occluders on the same spans;
 //! `all_lights` is bit-identical to [`direct_from_point_lights_adaptive`].
+//!
+//! [`direct_from_point_lights_adaptive_in`]: crate::direct_from_point_lights_adaptive_in
 
 use lightfarm_proto::bundle::{Bundle, Layout};
 
@@ -97,7 +99,7 @@ impl ReachDirect {
     /// direct light there into `out` (one entry per layout texel; the adaptive
     /// `samples_per_edge²` texel average, `scale` = [`crate::direct_scale`]), leaving every
     /// other texel of `out` untouched. Bit-identical to
-    /// [`direct_from_point_lights_adaptive_in`] with `level` on the same spans.
+    /// [`crate::direct_from_point_lights_adaptive_in`] with `level` on the same spans.
     #[allow(clippy::too_many_arguments)]
     pub fn light(
         &mut self,

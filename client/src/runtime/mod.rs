@@ -27,7 +27,7 @@
 //!
 //! [`Method::Full`]: `l_ind = ρ ⊙ (F · l_d)` with the bundle's sparse dense-bounce operator F.
 //!
-//! [`Runtime::apply_sh`] (in [`sh_apply`]) turns direct light into SH incident radiance per
+//! [`Runtime::apply_sh`] (in module `sh_apply`) turns direct light into SH incident radiance per
 //! texel of normal-mapped surfaces, from the bundle's `sh` section.
 //!
 //! [`Runtime::apply_probes`] (needs the bundle's probe volume): MRT step 1 and, when the bundle
@@ -46,9 +46,9 @@
 //! `I = Σ_{k≥1} A^k L_d` (the fixed point `I = A (L_d + I)`; Wavelet Radiance Transport §3, the
 //! global transport operator). [`Bounces::One`] is the papers' light; [`Bounces::Fixed`] sums
 //! exactly n bounces, one by one; [`Bounces::Converged`] (the default) solves `(I − A) I = A L_d`
-//! by restarted GMRES ([`krylov`]) to a relative residual of `tolerance`: the Neumann sum to the
-//! same error in fewer applications of `A` (maze with pillars, T=8, at 1e-3: 8 applications and
-//! 4.2e-4 relative L2 from 100 bounces, where the series needs 18 bounces for 7.7e-4); with
+//! by restarted GMRES (module `krylov`) to a relative residual of `tolerance`: the Neumann sum to
+//! the same error in fewer applications of `A` (maze with pillars, T=8, at 1e-3: 8 applications
+//! and 4.2e-4 relative L2 from 100 bounces, where the series needs 18 bounces for 7.7e-4); with
 //! [`Method::Mrt`] the bounces after the first run in the blocks' coefficient space (module
 //! `reduced`), with [`Method::Drt`] in the blocks' and clutter objects' (module `reduced_drt`,
 //! where that reads under half a texel application's values); [`Runtime::set_reduced_bounces`]
@@ -110,7 +110,7 @@
 //!   every matrix row is one contiguous pass accumulating all three channels. Per-block scratch
 //!   (coefficients `b`, opening lightfields) is block-major, so each block's work writes only
 //!   its own ranges: blocks run independently, on one thread by default or on the rayon pool
-//!   with the `rayon` feature and [`Runtime::set_parallel`], with bit-identical results.
+//!   with the `rayon` feature and `Runtime::set_parallel`, with bit-identical results.
 //! - Block texel ranges are ascending and disjoint (checked by `Bundle::validate`).
 
 use lightfarm_proto::bundle::{Bundle, BundleError, ProbeVolume, TransportOps};
