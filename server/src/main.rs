@@ -310,7 +310,7 @@ enum Command {
         /// Data directory [default: ./lightfarm-data, or the config file's `data`].
         #[arg(long)]
         data: Option<PathBuf>,
-        /// TOML file with [[teams]] tokens and [limits].
+        /// TOML file with `[[teams]]` tokens and `[limits]`.
         #[arg(long)]
         config: Option<PathBuf>,
         /// NATS server of a bake farm (`nats://HOST:PORT`): jobs and blobs live in JetStream and

@@ -6,7 +6,7 @@
 //! - Its direct and indirect scratch always hold exactly `texels` entries (sized in
 //!   [`lf_runtime_new`]), so [`lf_runtime_apply`] allocates nothing: it copies the caller's
 //!   direct light in, applies, and copies the indirect light out.
-//! - The scratch of [`LfRuntime::apply_delta_in_spans`] is sized on its first call and holds
+//! - The scratch of `LfRuntime::apply_delta_in_spans` is sized on its first call and holds
 //!   zeros outside the spans of its last call (the change) and everywhere between calls (the
 //!   change's light).
 //! - Its lightmap atlas is computed once, in [`lf_runtime_new`], from the bundle it applies, so

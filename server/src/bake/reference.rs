@@ -116,7 +116,7 @@ pub fn reference(
     reference_at(g, lights, settings, selected, progress)
 }
 
-/// [`reference`] for the texels of `g` listed in `selected` (indices into `g.texels`, in the
+/// [`reference()`] for the texels of `g` listed in `selected` (indices into `g.texels`, in the
 /// order the records come out; `settings.texel_stride` is not applied). Each texel's samples
 /// depend only on the seed and its index in `g`, so a texel's record is the same whichever
 /// others are listed with it.
@@ -273,7 +273,7 @@ fn radiance_along(
 
 /// Brute-force SH incident radiance (`lightfarm_proto::sh`, world frame) at texel `x` of `g`:
 /// `L_lm = (2π/N) Σ Y_lm(ω_i) L_d(hit_i)` over N uniform directions of the texel's geometric
-/// hemisphere, with direct light evaluated exactly at every hit (one bounce, as [`reference`]).
+/// hemisphere, with direct light evaluated exactly at every hit (one bounce, as [`reference()`]).
 /// Returns `[channel][lm]`.
 pub fn reference_incident_sh(
     g: &Geometry,

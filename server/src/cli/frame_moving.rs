@@ -7,7 +7,7 @@
 //! at a run at 60 Hz. Every frame's direct light (every light, texel-averaged as `eval` feeds
 //! the operators) is computed before timing; each mode runs on its own copy of the runtime, so
 //! one mode's state never helps another, and the modes take turns frame by frame so the
-//! machine's noise falls on all alike. Each mode first relights frame 0 [`SETTLE_FRAMES`] times
+//! machine's noise falls on all alike. Each mode first relights frame 0 `SETTLE_FRAMES` times
 //! untimed (a level that has been on screen with the light still, so Feedback has settled),
 //! then the frames are timed.
 //!

@@ -394,7 +394,7 @@ fn fmt_frames(frames: Option<usize>) -> String {
 const FEEDBACK_FRAMES: usize = 500;
 
 /// Feedback frames from dark until the output is within 1% and 0.1% (relative L2 over texels
-/// and channels) of `Converged` at 1e-5 (None: not within [`FEEDBACK_FRAMES`]).
+/// and channels) of `Converged` at 1e-5 (None: not within `FEEDBACK_FRAMES`).
 pub fn feedback_frames(
     runtime: &mut Runtime,
     direct: &lightfarm_client::DirectLight,

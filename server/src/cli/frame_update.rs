@@ -33,14 +33,14 @@
 //! two agree: within float rounding for one or a fixed number of bounces, within the tolerance
 //! per frame for `all`.
 //!
-//! With `feedback` both ways start from all bounces (the full way after [`FEEDBACK_WARM_UP`]
+//! With `feedback` both ways start from all bounces (the full way after `FEEDBACK_WARM_UP`
 //! frames of whole-level feedback on the first frame's lights) and lag behind them while the
 //! light moves: the update relights by the change with `Feedback` (one sparse bounce of the
 //! change and of the light due, module `delta_feedback` of the client). After the last frame
 //! both ways' lag against the all-bounce answer is printed, then the update settles (calls
 //! with no change until nothing is due, timed) and its drift is against the all-bounce answer
 //! ([`Settling`]), over the level and per lit surface. The all-bounce answers here are
-//! `Converged` at [`FEEDBACK_REFERENCE_TOLERANCE`].
+//! `Converged` at `FEEDBACK_REFERENCE_TOLERANCE`.
 //!
 //! Units: milliseconds of wall time on this thread (the runtime single-threaded).
 
@@ -106,8 +106,8 @@ pub struct UpdateTimes {
 #[derive(Clone, Copy, Debug)]
 pub struct Settling {
     /// Relative L2 against the all-bounce answer (`Converged` at
-    /// [`FEEDBACK_REFERENCE_TOLERANCE`]) of the last frame's lights: the update's and the full way's (whole-level feedback; NaN
-    /// with [`Ways::UpdateOnly`]).
+    /// `FEEDBACK_REFERENCE_TOLERANCE`) of the last frame's lights: the update's and the full
+    /// way's (whole-level feedback; NaN with [`Ways::UpdateOnly`]).
     pub update_lag: f64,
     pub full_lag: f64,
     /// The update's lag in relative L1 (the norm of the feedback's tolerance) and what the
@@ -123,7 +123,7 @@ pub struct Settling {
     pub settled_l1: f64,
     pub estimated_settled: f64,
     /// Settled, per surface of the layout (relative L1 against the surface's all-bounce
-    /// light; surfaces lit at least [`LIT_SURFACE`] of the mean texel's light): the 99th
+    /// light; surfaces lit at least `LIT_SURFACE` of the mean texel's light): the 99th
     /// percentile and the largest.
     pub surface_p99: f64,
     pub surface_max: f64,

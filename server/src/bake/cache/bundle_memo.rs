@@ -4,7 +4,7 @@
 //! changed).
 //!
 //! The key ([`MemoKey`], blake3) covers, in order:
-//! - [`CODE_VERSION`] and the engine's build: the running executable's length and modification
+//! - `CODE_VERSION` and the engine's build: the running executable's length and modification
 //!   time (as `ccache`'s default compiler check does), so any rebuild of the engine misses;
 //! - the scene as parsed (its canonical JSON: settings included), and the bake's options (the
 //!   dense operator, the transport and codec overrides);

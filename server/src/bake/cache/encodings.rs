@@ -29,7 +29,7 @@
 //!
 //! Invariant: an encoding is handed back only for a matrix of the same size and value bits
 //! under the same policy, and a compressed section only for the same raw bytes (blake3) at the
-//! same level, kept by this same build ([`super::bundle_memo::build_identity`]), whose writer
+//! same level, kept by this same build (`bundle_memo::build_identity`), whose writer
 //! is a pure function of those: the bundle is the same bytes with or without it.
 
 use std::collections::HashMap;

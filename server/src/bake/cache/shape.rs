@@ -17,6 +17,8 @@
 //! openings and rank), so a bake is the same bytes with or without the cache. A stale entry
 //! (older format or version) is a miss; a corrupt one (checksum, length, or the payload does
 //! not decode) is deleted and reported as [`Lookup::Corrupt`], then recomputed.
+//!
+//! [`SHAPE_CODE_VERSION`]: crate::bake::mrt::shape::SHAPE_CODE_VERSION
 
 use std::path::{Path, PathBuf};
 

@@ -17,8 +17,8 @@
 //!   ([`crate::bake::drt::inpaint`]).
 //!
 //! In data-flow order: [`build_drt`] reads [`DrtInputs`], makes the clutter bases, traces (or
-//! reuses) both ray passes, turns block texels' rays into rows ([`BlockRows`]), inpaints the
-//! buried ones, turns clutter texels' rays into rows ([`ClutterRows`]) and packs the rows into
+//! reuses) both ray passes, turns block texels' rays into rows (`BlockRows`), inpaints the
+//! buried ones, turns clutter texels' rays into rows (`ClutterRows`) and packs the rows into
 //! [`DeltaBlock`]s by (target, source).
 //!
 //! Clutter texels are a box's six faces or a mesh's lightmap atlas (`mesh_atlas`); every

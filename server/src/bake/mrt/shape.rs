@@ -156,7 +156,7 @@ impl ShapeSpec {
     /// once (`crate::bake::mrt::shape_symmetry`).
     ///
     /// The choice depends on the shape's form, never on its size: the orbit member with the
-    /// smallest [`ShapeSpec::form`] (how the extents compare, which faces are open, the light
+    /// smallest `ShapeSpec::form` (how the extents compare, which faces are open, the light
     /// region relative to the extents), the first symmetry in code order on ties. A level
     /// scaled by any factor picks the same orientation, so its operators scale with it.
     pub fn canonical(&self) -> (ShapeSpec, BoxSymmetry) {

@@ -21,7 +21,7 @@
 //!    first sure hit and asks f64 only about unsure ones. An unsure test ends the f32
 //!    traversal at once (the callback's negative distance), as a shadow ray's first hit does.
 //!
-//! `closest` takes a leaf at a time: its triangles go through [`packet`] four at a time (each
+//! `closest` takes a leaf at a time: its triangles go through module `packet` four at a time (each
 //! lane's verdict is the one-triangle test's, bit for bit), its rectangles one by one.
 //!
 //! `closest` and `occluded` are compiled three times ([`InstructionSet`]): for the target's
@@ -36,7 +36,7 @@
 //! on the baseline and 0.94-1.00 : 1 on AVX-512. (An eight-lane AVX box test on top measured
 //! no faster.)
 //!
-//! Layout: [`bvh8`] owns the tree and its traversal; [`packet`] the four-lane triangle test;
+//! Layout: [`bvh8`] owns the tree and its traversal; `packet` the four-lane triangle test;
 //! this file the primitives' tests and the choice among hits.
 //!
 //! Invariant: `closest` only reports hits with `t > epsilon`, where epsilon is relative to the

@@ -294,7 +294,7 @@ impl<'a> TracedTransport<'a> {
     ///
     /// Truncation, relative to what the target receives (as every other truncation here is
     /// relative to the operator it truncates): the weakest sources go while together they carry
-    /// at most [`DROP_SHARE`] of `tolerance` of the energy `Σ_A ‖U_{B←A}‖_F²`. The criterion
+    /// at most `DROP_SHARE` of `tolerance` of the energy `Σ_A ‖U_{B←A}‖_F²`. The criterion
     /// before, relative to each source's own light (`‖U_b^A‖² · tolerance`), dropped blocks that
     /// are all a dim block receives: on the maze at 16 texels per face DRT's all-bounce error
     /// was 0.0361 with it against 0.0211.

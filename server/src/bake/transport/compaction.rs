@@ -65,7 +65,7 @@ const GROUP: usize = 16;
 /// Compacts a transport per target block, consuming it part by part (`parts`: per target,
 /// ascending, the transport into it, in transport order; blocks nothing reaches have no part
 /// and get no entry; a lazy iterator makes each part only when its group is compacted):
-/// targets are compacted in groups of [`GROUP`] (in parallel within a group) and, after each
+/// targets are compacted in groups of `GROUP` (in parallel within a group) and, after each
 /// group, `done(target, part)` takes each of its targets' operators (`part`: the transport into
 /// that target alone, in transport order; targets ascending, every target with operators once)
 /// to store, keep or drop. So the transport can leave memory while its compaction is made,

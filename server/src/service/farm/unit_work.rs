@@ -1,6 +1,6 @@
 //! One bake unit on a worker: the job's scene laid out in a scratch directory, the unit's inputs
 //! fetched from the object store into the worker's cache directory, the engine's
-//! [`run_unit`](crate::bake::units::run_unit) on the worker's rayon pool, the files it wrote
+//! [`run_unit`] on the worker's rayon pool, the files it wrote
 //! uploaded, and its completion recorded in KV before the message is acked.
 //!
 //! Cancellation works as in the embedded service ([`crate::service::job_progress`]): the

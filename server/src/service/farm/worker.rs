@@ -3,7 +3,7 @@
 //! - the **unit lane** takes one unit message at a time and runs it on the worker's rayon pool
 //!   ([`super::unit_work`]): the CPU work;
 //! - the **coordinator lane** takes bake messages, up to [`COORDINATIONS`] at once, each on its
-//!   own task ([`coordinate`]): plan the bake's units, publish those of phase 0, wait (asleep
+//!   own task (`coordinate`): plan the bake's units, publish those of phase 0, wait (asleep
 //!   between looks at the completion records) until all are recorded, then the next phase, then
 //!   assemble the bundle from the units' files (every cache lookup hits), store it and mark the
 //!   job succeeded.
