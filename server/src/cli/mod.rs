@@ -3,12 +3,12 @@
 //! [`crate::bake`] and the client crate.
 //!
 //! # Layout
-//! - [`bake`], [`inspect`], [`eval`] (with [`eval_sh`] and [`lightmap_files`]), [`mod@reference`],
-//!   [`compare`], [`frame_time`] (with [`frame_update`]: `--update one-light`, and
-//!   [`frame_moving`]: the bounce modes while a light moves), [`export`]
-//!   (the lit level as glTF): the offline commands.
+//! - [`bake`], [`inspect`], [`eval`] (with [`eval_sh`] and [`lightmap_files`]),
+//!   [`reference`](mod@reference), [`compare`], [`frame_time`] (with [`frame_update`]:
+//!   `--update one-light`, and [`frame_moving`]: the bounce modes while a light moves),
+//!   [`export`] (the lit level as glTF): the offline commands.
 //! - [`serve`], [`worker`]: the bake service and a farm worker.
-//! - [`mod@bench`] (`bench/`): speed against error, its parts listed in its own module doc.
+//! - [`bench`](mod@bench) (`bench/`): speed against error, its parts listed in its own module doc.
 //! - [`progress_bar`]: the terminal progress bar the long commands share.
 
 pub mod bake;

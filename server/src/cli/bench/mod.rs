@@ -13,7 +13,7 @@
 //! Owns the order of work.
 //!
 //! # Layout
-//! - [`mod@plan`]: the two presets (what is swept, and what is left out and why).
+//! - [`plan`](mod@plan): the two presets (what is swept, and what is left out and why).
 //! - [`lights`]: seeded random light sets; [`reference_cache`]: references on disk by content.
 //! - [`measure`]: one bake setting, every method's bytes, error and apply time.
 //! - [`equal_error`]: the reference path tracer's error/time model at equal error.
