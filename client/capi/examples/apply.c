@@ -23,7 +23,9 @@
  * change (MS: the spans it reaches, ME: relative L2 against relighting everything, B: 1 when
  * the one-call direct light of a light's reach is the two-call one), and moves it back in
  * LF_BOUNCES_FEEDBACK until nothing is due (FC: the calls after the change, FE: relative L2
- * against the first answer). Exit status 0 on success, 1 on any error (message on stderr).
+ * against the first answer, FL and FR: the runtime's estimate of the light still to arrive
+ * after the change and once settled). Exit status 0 on success, 1 on any error (message on
+ * stderr).
  *
  * Build (from the repository root, after `cargo build --release -p lightfarm-client-capi`):
  *   cc -std=c99 -Wall -Wextra -I client/capi/include client/capi/examples/apply.c \

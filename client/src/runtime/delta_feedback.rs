@@ -68,8 +68,9 @@ const DIM_UNIT: f64 = 0.01;
 pub(super) struct Progress {
     /// Per texel: light added to the answer and not yet bounced.
     unshot: Vec<[f32; 3]>,
-    /// Per unit, its unshot light's L1 when last written or shot, and their sum: what
-    /// [`Runtime::feedback_lag`] estimates the lag from without a pass over the level.
+    /// Per unit, its unshot light's L1 when last written or shot (summed as the light is
+    /// added, so judging reads no texel), and their sum: what [`Runtime::feedback_lag`]
+    /// estimates the lag from without a pass over the level.
     unit_unshot: Vec<f64>,
     unshot_total: f64,
     /// Units to shoot on the next call, each once (`is_due` while listed), and per unit how
@@ -139,13 +140,6 @@ impl Progress {
             self.input_units.push(u);
         }
     }
-}
-
-/// L1 light of `v`.
-fn l1(v: &[[f32; 3]]) -> f64 {
-    v.iter()
-        .map(|x| x[0].abs() as f64 + x[1].abs() as f64 + x[2].abs() as f64)
-        .sum()
 }
 
 impl Runtime {
@@ -234,11 +228,15 @@ impl Runtime {
             .sparse
             .as_ref()
             .expect("the sparse application made it");
+        // Adds `y` to the unshot light and keeps each written unit's L1 (what judging reads).
         for &u in sparse.written() {
+            let mut unshot = 0.0f64;
             for t in sparse.ranges()[u].clone() {
                 let (s, v) = (&mut p.unshot[t], y[t]);
                 *s = [s[0] + v[0], s[1] + v[1], s[2] + v[2]];
+                unshot += s[0].abs() as f64 + s[1].abs() as f64 + s[2].abs() as f64;
             }
+            p.unshot_total += unshot - std::mem::replace(&mut p.unit_unshot[u], unshot);
         }
         self.progress = Some(p);
         // The lag is known once this call's light is judged (`apply_delta_impl`).
@@ -272,9 +270,7 @@ impl Runtime {
             let level = per_texel * r.len() as f64;
             let own: f64 = self.texel_light[r.clone()].iter().map(|&x| x as f64).sum();
             let share = level.min(own.max(DIM_UNIT * level));
-            let unshot = l1(&p.unshot[r]);
-            p.unshot_total += unshot - std::mem::replace(&mut p.unit_unshot[u], unshot);
-            let e = unshot * later;
+            let e = p.unit_unshot[u] * later;
             p.urgency[u] = if share > 0.0 {
                 e / (tol * share)
             } else if e > 0.0 {

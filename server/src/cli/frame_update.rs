@@ -148,15 +148,8 @@ fn surface_errors(layout: &Layout, got: &[[f32; 3]], want: &[[f32; 3]]) -> (f64,
         .filter_map(|s| {
             let r = s.texel_offset as usize..(s.texel_offset + s.texel_count) as usize;
             let light = l1(&want[r.clone()]);
-            (s.texel_count > 0 && light >= LIT_SURFACE * mean * r.len() as f64).then(|| {
-                let diff: f64 = got[r.clone()]
-                    .iter()
-                    .flatten()
-                    .zip(want[r].iter().flatten())
-                    .map(|(a, b)| (a - b).abs() as f64)
-                    .sum();
-                diff / light
-            })
+            (s.texel_count > 0 && light >= LIT_SURFACE * mean * r.len() as f64)
+                .then(|| relative_l1(&got[r.clone()], &want[r]))
         })
         .collect();
     if errors.is_empty() {

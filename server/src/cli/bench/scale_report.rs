@@ -13,7 +13,7 @@ use plotters::prelude::*;
 
 use super::plots::{register_font, short};
 use super::report::relative_to;
-use super::scale::{ScalePoint, ScaleSweep};
+use super::scale::{MovedLights, ScalePoint, ScaleSweep};
 
 /// Stages or sections shorter than this share of the largest one are left out of the tables
 /// and panels (they are in `scale.json`).
@@ -293,6 +293,20 @@ fn growth(points: &[ScalePoint], f: impl Fn(&ScalePoint) -> f64) -> String {
     )
 }
 
+/// The growth of the moved lights' figures both sections report: the median light at one
+/// bounce, at all bounces, by feedback, and the median light's time per texel reached.
+fn moved_growth(points: &[ScalePoint]) -> [String; 4] {
+    let median = |m: Option<MovedLights>| m.map_or(f64::NAN, |m| m.median_ms);
+    [
+        growth(points, |p| median(p.moved_lights)),
+        growth(points, |p| median(p.moved_lights_all)),
+        growth(points, |p| median(p.moved_lights_feedback)),
+        growth(points, |p| {
+            p.moved_lights.map_or(f64::NAN, |m| m.us_per_texel)
+        }),
+    ]
+}
+
 /// "T=8, 1024 rays, tolerance 0.001; measured by `…` on CPU (`nproc` = 2) in 3.5 min": how a
 /// sweep was baked and where it ran.
 fn baked_and_measured(sweep: &ScaleSweep) -> String {
@@ -446,6 +460,7 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         }
         let _ = writeln!(w);
     }
+    let growths = moved_growth(points);
     let _ = writeln!(
         w,
         "Growth with the block count N (least-squares slope on the log–log points): bake {}, \
@@ -463,18 +478,10 @@ pub fn scale_markdown(sweep: &ScaleSweep, png: &Path, base: &Path) -> String {
         growth(points, |p| p.apply_converged_ms),
         growth(points, |p| p.relight_all.total_ms),
         growth(points, |p| p.one_light.total_ms),
-        growth(points, |p| p
-            .moved_lights
-            .map_or(f64::NAN, |m| m.median_ms)),
-        growth(points, |p| p
-            .moved_lights_all
-            .map_or(f64::NAN, |m| m.median_ms)),
-        growth(points, |p| p
-            .moved_lights_feedback
-            .map_or(f64::NAN, |m| m.median_ms)),
-        growth(points, |p| p
-            .moved_lights
-            .map_or(f64::NAN, |m| m.us_per_texel)),
+        growths[0],
+        growths[1],
+        growths[2],
+        growths[3],
     );
     md
 }
@@ -530,21 +537,16 @@ pub fn tiled_markdown(sweep: &ScaleSweep) -> String {
             m.map_or("—".to_string(), |m| format!("{:.3} µs", m.us_per_texel)),
         );
     }
+    let growths = moved_growth(points);
     let _ = writeln!(
         w,
         "\nGrowth with the block count N: the full apply {}, the median moved light {}, at \
          all bounces {}, by feedback {}, per texel reached {}.\n",
         growth(points, |p| p.apply_one_ms),
-        growth(points, |p| p.moved_lights.map_or(f64::NAN, |m| m.median_ms)),
-        growth(points, |p| p
-            .moved_lights_all
-            .map_or(f64::NAN, |m| m.median_ms)),
-        growth(points, |p| p
-            .moved_lights_feedback
-            .map_or(f64::NAN, |m| m.median_ms)),
-        growth(points, |p| p
-            .moved_lights
-            .map_or(f64::NAN, |m| m.us_per_texel)),
+        growths[0],
+        growths[1],
+        growths[2],
+        growths[3],
     );
     md
 }
