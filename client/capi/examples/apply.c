@@ -227,7 +227,12 @@ static LfTexelSpan *light_direct_of(LfRuntime *rt, const LfPointLight *light, si
     if (status != LF_STATUS_OK && status != LF_STATUS_BAD_LENGTH) return NULL;
     spans = malloc((*n + 1) * sizeof *spans);
     check = malloc(n_floats * sizeof *check);
-    if (!spans || !check) { fprintf(stderr, "out of memory\n"); return NULL; }
+    if (!spans || !check) {
+        fprintf(stderr, "out of memory\n");
+        free(spans);
+        free(check);
+        return NULL;
+    }
     memcpy(check, out, n_floats * sizeof *check);
     if (lf_runtime_light_direct(rt, light, spans, *n, n, out, n_floats) != LF_STATUS_OK ||
         lf_runtime_direct_in_spans(rt, light, 1, spans, *n, check, n_floats) != LF_STATUS_OK) {
@@ -247,26 +252,27 @@ static LfTexelSpan *light_direct_of(LfRuntime *rt, const LfPointLight *light, si
 static LfTexelSpan *light_change(LfRuntime *rt, LfPointLight *lights, float dx, float *change,
                                  size_t n_floats, size_t *n_spans, size_t *n_new, int *same) {
     size_t i, k, n_old = 0;
-    LfTexelSpan *old_spans, *new_spans, *both;
+    LfTexelSpan *old_spans = NULL, *new_spans = NULL, *both = NULL;
     float *light0 = calloc(n_floats, sizeof *light0);
     if (!light0) { fprintf(stderr, "out of memory\n"); return NULL; }
     /* Light 0's direct light alone, on its reach (zero elsewhere, as it is). */
     old_spans = light_direct_of(rt, lights, &n_old, light0, n_floats, same);
-    if (!old_spans) return NULL;
+    if (!old_spans) goto out;
     for (i = 0; i < n_floats; i++) change[i] = -light0[i];
     lights[0].position[0] += dx;
     for (k = 0; k < n_old; k++)
         for (i = 3 * (size_t)old_spans[k].start; i < 3 * (size_t)old_spans[k].end; i++)
             light0[i] = 0.0f;
     new_spans = light_direct_of(rt, lights, n_new, light0, n_floats, same);
-    if (!new_spans) return NULL;
+    if (!new_spans) goto out;
     for (i = 0; i < n_floats; i++) change[i] += light0[i];
     /* The change lies where the light reached before and after. */
     both = malloc((n_old + *n_new + 1) * sizeof *both);
-    if (!both) { fprintf(stderr, "out of memory\n"); return NULL; }
+    if (!both) { fprintf(stderr, "out of memory\n"); goto out; }
     memcpy(both, old_spans, n_old * sizeof *both);
     memcpy(both + n_old, new_spans, *n_new * sizeof *both);
     *n_spans = n_old + *n_new;
+out: /* Every path frees what it made; `both` is NULL on error. */
     free(old_spans);
     free(new_spans);
     free(light0);
@@ -303,9 +309,9 @@ static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long 
                       const float *direct, float *indirect, const float *at_load,
                       size_t n_floats) {
     size_t i, n_spans = 0, n_new = 0;
-    LfTexelSpan *spans;
+    LfTexelSpan *spans = NULL;
     float *change, *moved, *want;
-    int same = 1, calls = 0;
+    int same = 1, calls = 0, status = 1;
     float lag;
     if (n_lights < 1) {
         printf(" moved_spans=0 moved_error=0 light_direct_same=1 feedback_calls=0"
@@ -315,42 +321,50 @@ static int move_light(LfRuntime *rt, int32_t method, LfPointLight *lights, long 
     change = malloc(n_floats * sizeof *change);
     moved = malloc(n_floats * sizeof *moved);
     want = malloc(n_floats * sizeof *want);
-    if (!change || !moved || !want) { fprintf(stderr, "out of memory\n"); return 1; }
+    if (!change || !moved || !want) { fprintf(stderr, "out of memory\n"); goto out; }
     spans = light_change(rt, lights, 0.25f, change, n_floats, &n_spans, &n_new, &same);
-    if (!spans) return fail();
+    if (!spans) { fail(); goto out; }
     if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, spans, n_spans, indirect,
-                                        n_floats) != LF_STATUS_OK)
-        return fail();
+                                        n_floats) != LF_STATUS_OK) { fail(); goto out; }
     free(spans);
+    spans = NULL;
     /* Everything again, for the moved lights. */
     for (i = 0; i < n_floats; i++) moved[i] = direct[i] + change[i];
-    if (lf_runtime_apply(rt, method, moved, n_floats, want, n_floats) != LF_STATUS_OK)
-        return fail();
+    if (lf_runtime_apply(rt, method, moved, n_floats, want, n_floats) != LF_STATUS_OK) {
+        fail();
+        goto out;
+    }
     printf(" moved_spans=%zu moved_error=%.3e light_direct_same=%d", n_new,
            relative_l2(indirect, want, n_floats), same);
     /* Back, by feedback: the answer of the moved lights is where it starts. */
-    if (lf_runtime_set_bounces(rt, LF_BOUNCES_FEEDBACK, 0.0f) != LF_STATUS_OK) return fail();
+    if (lf_runtime_set_bounces(rt, LF_BOUNCES_FEEDBACK, 0.0f) != LF_STATUS_OK) {
+        fail();
+        goto out;
+    }
     spans = light_change(rt, lights, -0.25f, change, n_floats, &n_spans, &n_new, &same);
-    if (!spans) return fail();
+    if (!spans) { fail(); goto out; }
     if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, spans, n_spans, want,
-                                        n_floats) != LF_STATUS_OK)
-        return fail();
+                                        n_floats) != LF_STATUS_OK) { fail(); goto out; }
     lag = lf_runtime_last_remaining(rt);
     for (i = 0; i < n_floats; i++) change[i] = 0.0f;
     while (lf_runtime_feedback_due(rt) > 0 && calls < 1000) {
         if (lf_runtime_apply_delta_in_spans(rt, method, change, n_floats, NULL, 0, want,
-                                            n_floats) != LF_STATUS_OK)
-            return fail();
+                                            n_floats) != LF_STATUS_OK) { fail(); goto out; }
         calls++;
     }
     printf(" feedback_calls=%d feedback_error=%.3e feedback_lag=%.3e feedback_left=%.3e", calls,
            relative_l2(want, at_load, n_floats), lag, lf_runtime_last_remaining(rt));
-    if (lf_runtime_set_bounces(rt, LF_BOUNCES_CONVERGED, 0.0f) != LF_STATUS_OK) return fail();
+    if (lf_runtime_set_bounces(rt, LF_BOUNCES_CONVERGED, 0.0f) != LF_STATUS_OK) {
+        fail();
+        goto out;
+    }
+    status = 0;
+out: /* Every path frees what it made. */
     free(spans);
     free(change);
     free(moved);
     free(want);
-    return 0;
+    return status;
 }
 
 int main(int argc, char **argv) {
