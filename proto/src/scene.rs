@@ -110,7 +110,8 @@ pub enum ProbeVolumeMode {
     /// When the scene lists dynamic objects (the volume's readers at run time).
     Auto,
     /// Whenever the scene has clutter or dynamic objects (also shades clutter for the MRT
-    /// baseline, `eval --method mrt`).
+    /// baseline, `eval --method mrt`: with dynamic objects' regions, the volume also covers
+    /// every clutter object; under `Auto` it covers the regions only).
     Always,
     Never,
 }
@@ -164,8 +165,9 @@ pub struct Settings {
     /// Ship inter-block transport as one low-rank operator per receiving block (rank from
     /// `tolerance`) instead of the composed per-opening operators.
     pub compact_transport: bool,
-    /// Ship DRT delta operators and the exact clutter gather in low-rank form where that is
-    /// smaller (rank from `tolerance`; bundle minor 2).
+    /// Ship DRT delta operators and the exact clutter gather (bundle minor 2), and the probe
+    /// volume's entries (minor 3), in low-rank form where that is smaller (rank from
+    /// `tolerance`).
     pub compact_deltas: bool,
     /// How operator matrices are stored in the bundle.
     pub bundle_codec: BundleCodec,
@@ -649,8 +651,9 @@ impl Scene {
     /// every one lists [`DynamicObject::regions`] — each region grown by one `probe_spacing` on
     /// every side, so that a lookup anywhere inside a region finds the 8 grid points around it
     /// — and `None` for the whole level (an object that may go anywhere, or no dynamic object:
-    /// the probes then shade clutter). The bake adds each clutter object's bounds, grown the
-    /// same, to the boxes: MRT shades clutter from the probes.
+    /// the probes then shade clutter). With `probe_volume: always` the bake adds each clutter
+    /// object's bounds, grown the same, to the boxes: the MRT baseline shades clutter from the
+    /// probes. By default (`auto`) it does not: only the dynamic objects read the volume.
     pub fn probe_regions(&self) -> Option<Vec<Aabb>> {
         if self.dynamic.is_empty() || self.dynamic.iter().any(|d| d.regions.is_empty()) {
             return None;

@@ -1,11 +1,13 @@
 //! Probes follow where dynamic objects go: a dynamic object that lists the regions it stays in
 //! gets a probe volume over those regions only (grown by one probe spacing), whose probes are
 //! the whole level's probes at the same lattice points, bit for bit; a scene without regions
-//! keeps the whole level's volume.
+//! keeps the whole level's volume. Its entries are stored low-rank where that is smaller
+//! (`compact_deltas`, format 2.3), within the scene's tolerance of the dense ones.
 
 use lightfarm_client::{direct_from_point_lights, irradiance_at, Occluders, ProbeField, Runtime};
-use lightfarm_proto::bundle::{Bundle, ProbeVolume};
-use lightfarm_proto::scene::Aabb;
+use lightfarm_proto::bundle::{section, Bundle, ProbeVolume};
+use lightfarm_proto::container::read_sections;
+use lightfarm_proto::scene::{Aabb, ProbeVolumeMode};
 use lightfarm_server::bake::progress::NoProgress;
 use lightfarm_server::bake::{bake, BakeOptions};
 use lightfarm_tests::*;
@@ -126,9 +128,11 @@ fn probes_are_baked_only_where_dynamic_objects_go() {
     }
 }
 
-/// Clutter is shaded from the probes by MRT (`eval --method mrt`), so a volume narrowed to the
-/// dynamic objects' regions keeps the probes around every clutter object too: a crate in the
-/// hall the ball never enters is lit from its probes as in the whole level's volume.
+/// The MRT baseline shades clutter from the probes (`eval --method mrt`), so with
+/// `probe_volume: always` a volume narrowed to the dynamic objects' regions keeps the probes
+/// around every clutter object too: a crate in the hall the ball never enters is lit from its
+/// probes as in the whole level's volume. By default (`auto`) only the dynamic objects read the
+/// volume, and the crate adds no probe: every probe lies in the ball's grown region.
 #[test]
 fn probes_around_clutter_stay_when_the_volume_follows_dynamic_objects() {
     let (mut scene, lights) = load_scene("ball_corridor", 4, 64);
@@ -145,12 +149,29 @@ fn probes_around_clutter_stay_when_the_volume_follows_dynamic_objects() {
         full: false,
         transport: None,
     };
+    scene.settings.probe_volume = ProbeVolumeMode::Always;
     let (whole, _) = bake(&scene, &dir, &options, &NoProgress).unwrap();
     scene.dynamic[0].regions = vec![Aabb {
         min: [0.2, 0.0, 0.2],
         max: [2.6, 1.2, 1.8],
     }];
     let (part, _) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+
+    // By default the crate adds nothing: every probe lies in the ball's grown region, and there
+    // are fewer of them than with the crate's.
+    let mut auto = scene.clone();
+    auto.settings.probe_volume = ProbeVolumeMode::Auto;
+    let grown = auto.probe_regions().unwrap();
+    let (regions_only, _) = bake(&auto, &dir, &options, &NoProgress).unwrap();
+    let r = regions_only.probes.clone().unwrap();
+    for x in probe_positions(&r) {
+        assert!(
+            grown
+                .iter()
+                .any(|g| (0..3).all(|k| x[k] >= g.min[k] - 1e-5 && x[k] <= g.max[k] + 1e-5)),
+            "auto: probe at {x:?} outside the ball's grown region"
+        );
+    }
     let (w, p) = (whole.probes.clone().unwrap(), part.probes.clone().unwrap());
     eprintln!(
         "ball_corridor with a crate: {} probes over the level, {} over the ball's region and \
@@ -166,6 +187,19 @@ fn probes_around_clutter_stay_when_the_volume_follows_dynamic_objects() {
     // The crate's probes: some lie in the east hall, where the ball never goes.
     let east = probe_positions(&p).iter().filter(|x| x[0] > 3.5).count();
     assert!(east > 0, "no probe around the crate");
+    let in_grown = probe_positions(&p)
+        .iter()
+        .filter(|x| {
+            grown
+                .iter()
+                .any(|g| (0..3).all(|k| x[k] >= g.min[k] - 1e-5 && x[k] <= g.max[k] + 1e-5))
+        })
+        .count();
+    assert_eq!(
+        r.n_probes as usize, in_grown,
+        "auto: the probes in the ball's region, and those alone"
+    );
+    assert!(r.n_probes < p.n_probes);
 
     let layout = whole.layout.clone();
     let crate_surfaces: Vec<_> = layout
@@ -197,4 +231,76 @@ fn probes_around_clutter_stay_when_the_volume_follows_dynamic_objects() {
         }
     }
     assert!(lit > 0, "the crate is dark");
+}
+
+/// With `compact_deltas` (the default) the probe entries are stored low-rank where that is
+/// smaller, as DRT's deltas are: fewer values, and the probe field of the same light within
+/// the tolerance's bound of the dense entries' (both in f32, so the codec adds nothing).
+#[test]
+fn probe_entries_are_low_rank_where_that_is_smaller() {
+    let (mut scene, lights) = load_scene("ball_corridor", 8, 256);
+    let dir = scene_dir("ball_corridor");
+    scene.settings.bundle_codec = lightfarm_proto::scene::BundleCodec::F32;
+    scene.dynamic[0].regions = vec![Aabb {
+        min: [0.2, 0.0, 0.2],
+        max: [2.6, 1.2, 1.8],
+    }];
+    let options = BakeOptions {
+        cache: None,
+        full: false,
+        transport: None,
+    };
+    let (low_rank, report) = bake(&scene, &dir, &options, &NoProgress).unwrap();
+    let mut dense_scene = scene.clone();
+    dense_scene.settings.compact_deltas = false;
+    let (dense, dense_report) = bake(&dense_scene, &dir, &options, &NoProgress).unwrap();
+    assert!(dense_report.probe_compaction.is_none());
+    let stats = report.probe_compaction.clone().expect("compacted");
+    let values = |b: &Bundle| -> usize {
+        b.probes
+            .as_ref()
+            .unwrap()
+            .entries
+            .iter()
+            .map(|e| e.matrix.data.len() + e.mix.as_ref().map_or(0, |m| m.data.len()))
+            .sum()
+    };
+    let (lv, dv) = (values(&low_rank), values(&dense));
+    eprintln!(
+        "ball_corridor probes: {} entries factored, {} dense; values {dv} -> {lv}; ranks {:?}",
+        stats.factored, stats.dense, stats.ranks
+    );
+    assert!(stats.factored > 0);
+    assert_eq!((stats.values_before, stats.values_after), (dv, lv));
+    assert!(lv < dv);
+    // Written as format 2.3's kinds (low-rank probes, and the ball's 8-bit DNRT grid in its
+    // planar form), read back to the same bundle; the dense bake's probes stay kind 7.
+    let kinds = |b: &Bundle| -> Vec<u32> {
+        let bytes = b.encode();
+        let back = Bundle::decode(&bytes).unwrap();
+        assert_eq!(&back, b);
+        read_sections(&bytes, 2..=2, |_| true, false)
+            .unwrap()
+            .sections
+            .iter()
+            .map(|(kind, _)| *kind)
+            .collect()
+    };
+    let (kl, kd) = (kinds(&low_rank), kinds(&dense));
+    assert!(kl.contains(&section::PROBES_LOW_RANK) && !kl.contains(&section::PROBES));
+    assert!(kl.contains(&section::DNRT_PLANAR) && !kl.contains(&section::DNRT));
+    assert!(kd.contains(&section::PROBES) && !kd.contains(&section::PROBES_LOW_RANK));
+    let (fl, fd) = (field(low_rank, &lights), field(dense, &lights));
+    let (mut diff, mut norm) = (0.0f64, 0.0f64);
+    for (a, b) in fl.as_slice().iter().zip(fd.as_slice()) {
+        diff += (*a as f64 - *b as f64).powi(2);
+        norm += (*b as f64).powi(2);
+    }
+    let rel = (diff / norm).sqrt();
+    eprintln!("probe field, low-rank against dense entries: relative L2 {rel:.2e}");
+    // Each entry drops at most √tolerance of itself (Frobenius); the field sums the entries.
+    assert!(
+        norm > 0.0 && rel <= scene.settings.tolerance.sqrt(),
+        "{rel}"
+    );
 }

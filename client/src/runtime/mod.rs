@@ -32,8 +32,9 @@
 //!
 //! [`Runtime::apply_probes`] (needs the bundle's probe volume): MRT step 1 and, when the bundle
 //! has a DRT section, DRT step 2 (the same code as `apply`, so the same `b` and `c`), then for
-//! every probe entry and each of its rows i: `field[rows[i]] += matrix.row(i) · x` per channel,
-//! `x` as in DRT step 3 and `rows[i] = probe · 9 + coefficient`. No albedo: a probe holds
+//! every probe entry and each of its rows i: `field[rows[i]] += matrix.row(i) · x` per channel
+//! (`matrix.row(i) · (mix · x)` for a low-rank entry), `x` as in DRT step 3 and `rows[i] =
+//! probe · 9 + coefficient`. No albedo: a probe holds
 //! incident radiance at a point, not a surface's outgoing radiance (see [`crate::probes`]).
 //!
 //! Relighting by the change ([`Runtime::apply_delta`], in `incremental`): the operators are
@@ -496,9 +497,11 @@ impl Runtime {
                         .chain(&ops.deltas)
                         .chain(ops.delta_mix.iter().flatten())
                         .chain(&ops.probes)
+                        .chain(ops.probe_mix.iter().flatten())
                 ) + 3 * ops
                     .delta_mix
                     .iter()
+                    .chain(&ops.probe_mix)
                     .flatten()
                     .map(PackedMatrix::rows)
                     .max()

@@ -52,8 +52,9 @@ pub(super) struct PackedOps {
     /// Per DRT delta entry: its matrix and, for a low-rank entry, its `mix`.
     pub(super) deltas: Vec<PackedMatrix>,
     pub(super) delta_mix: Vec<Option<PackedMatrix>>,
-    /// Per probe-volume entry.
+    /// Per probe-volume entry: its matrix and, for a low-rank entry (format 2.3), its `mix`.
     pub(super) probes: Vec<PackedMatrix>,
+    pub(super) probe_mix: Vec<Option<PackedMatrix>>,
     /// The exact clutter gather (DRT, `clutter_gather: exact`).
     pub(super) gather: Option<PackedGather>,
     /// Per SH-response entry: `Y` and `Z`, and the scratch their products need.
@@ -108,6 +109,7 @@ impl PackedOps {
         }
         if let Some(p) = &bundle.probes {
             ops.probes = p.entries.iter().map(|e| pack(&e.matrix)).collect();
+            ops.probe_mix = p.entries.iter().map(|e| e.mix.as_ref().map(pack)).collect();
         }
         if let Some(sh) = &bundle.sh {
             ops.sh_y = sh.entries.iter().map(|e| pack(&e.y)).collect();

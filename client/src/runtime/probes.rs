@@ -1,7 +1,8 @@
 //! [`Runtime::apply_probes`](super::Runtime::apply_probes): the SH radiance of every probe of
 //! the bundle's probe volume, from the same `b` and `c` as `apply` (MRT step 1, DRT step 2),
 //! then every probe entry `field[rows[i]] += matrix.row(i) · x` with `rows[i] = probe · 9 +
-//! coefficient`.
+//! coefficient` (for a low-rank entry, format 2.3: `matrix.row(i) · y` with `y = mix · x`
+//! made first, as DRT's low-rank deltas are).
 //!
 //! Units: incident radiance at a point (order-2 SH per channel), no albedo; the field is read
 //! by [`crate::probes::irradiance_at`].
@@ -10,6 +11,7 @@
 //! [`ApplyError::MissingProbes`]; probes no entry feeds stay 0; no allocation once `out` has the
 //! volume's size.
 
+use super::kernels::{planar, set_matvec};
 use super::{ApplyError, Runtime};
 use crate::direct::DirectLight;
 use crate::probes::ProbeField;
@@ -49,9 +51,26 @@ impl Runtime {
             return;
         };
         let mut scratch = std::mem::take(&mut self.scratch);
-        for (e, m) in probes.entries.iter().zip(&self.ops.probes) {
-            let x = self.source_coefficients(e.source, m.cols());
-            m.matvec(x, &mut scratch, |i, v| out.add_row(e.rows[i], v));
+        for ((e, m), mix) in probes
+            .entries
+            .iter()
+            .zip(&self.ops.probes)
+            .zip(&self.ops.probe_mix)
+        {
+            match mix {
+                None => {
+                    let x = self.source_coefficients(e.source, m.cols());
+                    m.matvec(x, &mut scratch, |i, v| out.add_row(e.rows[i], v));
+                }
+                Some(mix) => {
+                    // Low rank: y = mix · x (k values per channel), then rows += matrix · y.
+                    let k = mix.rows();
+                    let (y, rest) = scratch.split_at_mut(3 * k);
+                    let x = self.source_coefficients(e.source, mix.cols());
+                    set_matvec(y, k, mix, x, rest);
+                    m.matvec(planar(y, k, 0, k), rest, |i, v| out.add_row(e.rows[i], v));
+                }
+            }
         }
         self.scratch = scratch;
     }

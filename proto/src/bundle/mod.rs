@@ -74,9 +74,13 @@ pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 /// rooms section (kind 15), which a 2.0 reader skips. Minor 2 adds compact transport with
 /// shared source bases ([`SourceBases`], transport kind 3) in a section of its own (kind 16),
 /// written instead of kind 4 when some source is factored: a 2.0 or 2.1 reader skips it and
-/// lights the level without light between blocks.
+/// lights the level without light between blocks. Minor 3 adds the probe volume with low-rank
+/// entries (kind 17), written instead of kind 7 when some entry is factored, and DNRT grids with
+/// their 8-bit values planar and differenced (kind 18, codec tag 3), written instead of kind 9
+/// when some grid is 8-bit: a 2.2 or older reader skips them and reads the bundle without a
+/// probe volume or without grids.
 pub const BUNDLE_MAJOR: u16 = 2;
-pub const BUNDLE_MINOR: u16 = 2;
+pub const BUNDLE_MINOR: u16 = 3;
 /// The oldest major version this reader decodes.
 pub const OLDEST_READABLE_MAJOR: u16 = 1;
 const READABLE_MAJORS: std::ops::RangeInclusive<u16> = OLDEST_READABLE_MAJOR..=BUNDLE_MAJOR;
@@ -332,7 +336,8 @@ pub struct SurfaceAtlas {
 /// A regular grid of SH radiance probes (`crate::sh` convention, 9 coefficients per channel).
 /// Grid point `(i, j, k)` sits at `origin + spacing · (i, j, k)`; `slot[(k·ny + j)·nx + i]` is
 /// its probe index, or `u32::MAX` where there is no probe (outside the blocks, inside clutter).
-/// `entries` map block `b` / clutter `c` coefficients to rows `probe · 9 + coefficient`.
+/// `entries` map block `b` / clutter `c` coefficients to rows `probe · 9 + coefficient`; an
+/// entry with a `mix` is low-rank, `matrix · (mix · x)` (format 2.3, section kind 17).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ProbeVolume {
     pub origin: [f32; 3],

@@ -176,8 +176,8 @@ impl Bundle {
                     d.replaced = p.u32s()?;
                     drt = Some(d);
                 }
-                section::PROBES => probes = Some(read_probes(&mut p)?),
-                section::DNRT => dnrt = Some(read_dnrt(&mut p)?),
+                section::PROBES | section::PROBES_LOW_RANK => probes = Some(read_probes(&mut p)?),
+                section::DNRT | section::DNRT_PLANAR => dnrt = Some(read_dnrt(&mut p)?),
                 section::SH => sh = Some(sh_responses::read_sh(&mut p)?),
                 section::LIGHTMAP => surface_atlases = read_surface_atlases(&mut p)?,
                 section::ROOMS => rooms = Some(Rooms::read(&mut p)?),

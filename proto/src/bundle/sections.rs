@@ -41,6 +41,16 @@ pub mod section {
     /// [`crate::bundle::SourceBases`]): written instead of [`TRANSPORT`] when some source has a
     /// basis. A 2.0 or 2.1 reader skips it and lights the level without light between blocks.
     pub const TRANSPORT_SOURCE_BASES: u32 = 16;
+    /// The probe volume with low-rank entries (format 2.3, [`crate::bundle::ProbeVolume`]):
+    /// [`PROBES`]' layout, where an entry may carry a `mix` (as DRT entries do). Written
+    /// instead of [`PROBES`] when some entry is low-rank. A 2.2 or older reader skips it and
+    /// reads the bundle without a probe volume (dynamic objects then get no light from it).
+    pub const PROBES_LOW_RANK: u32 = 17;
+    /// DNRT grids with 8-bit values in their planar, differenced form (format 2.3, codec tag 3,
+    /// [`crate::dnrt_grid::DnrtGrid::write_planar`]): [`DNRT`]'s layout otherwise. Written
+    /// instead of [`DNRT`] when some grid is 8-bit. A 2.2 or older reader skips it and reads the
+    /// bundle without grids (dynamic objects then add no DNRT light).
+    pub const DNRT_PLANAR: u32 = 18;
 }
 
 /// Report name of a section kind.
@@ -61,6 +71,8 @@ pub fn section_name(kind: u32) -> &'static str {
         section::BLOCKS_SYMMETRIC => "blocks",
         section::ROOMS => "rooms",
         section::TRANSPORT_SOURCE_BASES => "transport",
+        section::PROBES_LOW_RANK => "probes",
+        section::DNRT_PLANAR => "dnrt",
         _ => "unknown",
     }
 }

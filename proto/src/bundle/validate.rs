@@ -50,6 +50,7 @@ impl Bundle {
         }
         if let Some(p) = &self.probes {
             matrices.extend(p.entries.iter().map(|e| &e.matrix));
+            matrices.extend(p.entries.iter().filter_map(|e| e.mix.as_ref()));
         }
         if matrices
             .iter()
@@ -285,10 +286,11 @@ impl Bundle {
                     }
                     _ => return bad(format!("probes: entry {k} names a missing source")),
                 };
-                if e.matrix.rows as usize != e.rows.len()
-                    || e.matrix.cols != cols
-                    || e.mix.is_some()
-                {
+                let (inner, mix_ok) = match &e.mix {
+                    Some(mix) => (mix.rows, mix.cols == cols),
+                    None => (cols, true),
+                };
+                if e.matrix.rows as usize != e.rows.len() || e.matrix.cols != inner || !mix_ok {
                     return bad(format!("probes: entry {k} matrix has the wrong size"));
                 }
                 if e.rows.iter().any(|r| *r as u64 >= rows_max)

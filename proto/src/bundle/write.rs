@@ -9,6 +9,7 @@
 //! still read ([`super::read`], [`super::legacy_1x`]) and never written.
 
 use crate::container::{compress_section, write_container_with};
+use crate::dnrt_grid::DnrtCodec;
 use crate::wire::Writer;
 
 use super::delta_entries::write_entries;
@@ -262,15 +263,33 @@ impl Bundle {
             w.u32s(&p.slot);
             w.u32(p.n_probes);
             write_entries(&mut w, &p.entries, enc);
-            sections.push((section::PROBES, w.bytes));
+            // A low-rank entry needs kind 17, which a reader that cannot apply it skips.
+            let kind = if p.entries.iter().any(|e| e.mix.is_some()) {
+                section::PROBES_LOW_RANK
+            } else {
+                section::PROBES
+            };
+            sections.push((kind, w.bytes));
         }
         if let Some(grids) = &self.dnrt {
             let mut w = Writer::new();
             w.u32(grids.len() as u32);
+            // 8-bit grids in their planar, differenced form (codec tag 3), which needs kind 18:
+            // a reader that does not know the tag skips the section.
+            let planar = grids.iter().any(|g| g.data.codec() == DnrtCodec::U8);
             for g in grids {
-                g.write(&mut w);
+                if planar {
+                    g.write_planar(&mut w);
+                } else {
+                    g.write(&mut w);
+                }
             }
-            sections.push((section::DNRT, w.bytes));
+            let kind = if planar {
+                section::DNRT_PLANAR
+            } else {
+                section::DNRT
+            };
+            sections.push((kind, w.bytes));
         }
         if let Some(sh) = &self.sh {
             let mut w = Writer::new();

@@ -177,6 +177,16 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
                 c.factored, c.dense, c.values_before, c.values_after, c.gather_sparse_before, c.gather_factor_values, c.gather_sparse_left, list(&c.ranks)
             );
         }
+        if let Some(c) = &report.probe_compaction {
+            eprintln!(
+                "probes low rank: {} entries factored, {} dense, values {} -> {}; ranks {}",
+                c.factored,
+                c.dense,
+                c.values_before,
+                c.values_after,
+                list(&c.ranks)
+            );
+        }
         for (id, seconds, bytes) in &report.dnrt {
             eprintln!("dnrt: \"{id}\" grid {bytes} bytes in {seconds:.3}s (bake or cache lookup)");
         }

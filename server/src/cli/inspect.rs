@@ -110,7 +110,12 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
     }
     if let Some(p) = &bundle.probes {
         let mut probes = Tally::default();
-        p.entries.iter().for_each(|e| probes.add(&e.matrix));
+        p.entries.iter().for_each(|e| {
+            probes.add(&e.matrix);
+            if let Some(mix) = &e.mix {
+                probes.add(mix);
+            }
+        });
         line(&format!("probes ({})", p.n_probes), &probes);
     }
     if let Some(sh) = &bundle.sh {

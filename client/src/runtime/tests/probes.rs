@@ -30,8 +30,20 @@ fn reference_probes(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
             DeltaSource::Direct { .. } => unreachable!("probe entries have no direct source"),
         };
         for (i, &t) in e.rows.iter().enumerate() {
-            for j in 0..e.matrix.cols as usize {
-                dense[t as usize][start + j] += get(&e.matrix, i, j);
+            match &e.mix {
+                None => {
+                    for j in 0..e.matrix.cols as usize {
+                        dense[t as usize][start + j] += get(&e.matrix, i, j);
+                    }
+                }
+                // Low rank: row i of `matrix · mix`.
+                Some(mix) => {
+                    for j in 0..mix.cols as usize {
+                        dense[t as usize][start + j] += (0..mix.rows as usize)
+                            .map(|k| get(&e.matrix, i, k) * get(mix, k, j))
+                            .sum::<f64>();
+                    }
+                }
             }
         }
     }
@@ -116,6 +128,95 @@ fn probes_match_dense_reference() {
             });
             assert_eq!(irradiance_at(&volume, &got, pos, n), want, "probe {s}");
         }
+    }
+}
+
+/// `probe_bundle` with every entry of `ranks.len()` (cycled) made low-rank: `matrix` (rows × k)
+/// times `mix` (k × the source's width), random.
+fn low_rank_probe_bundle(rng: &mut Lcg, drt: bool, ranks: &[usize]) -> Bundle {
+    let mut b = probe_bundle(rng, drt);
+    for (e, &k) in b
+        .probes
+        .as_mut()
+        .unwrap()
+        .entries
+        .iter_mut()
+        .zip(ranks.iter().cycle())
+    {
+        let cols = e.matrix.cols as usize;
+        e.mix = Some(lightfarm_proto::testing::matrix(rng, k, cols));
+        e.matrix = lightfarm_proto::testing::matrix(rng, e.rows.len(), k);
+    }
+    b
+}
+
+/// Low-rank probe entries (format 2.3): the runtime applies `matrix · (mix · x)` as the dense
+/// f64 reference of the product does; such a volume is written as section kind 17 and decodes
+/// to itself, and a dense one is still kind 7; a `mix` whose size does not fit is refused.
+#[test]
+fn low_rank_probe_entries_match_the_dense_reference() {
+    use lightfarm_proto::bundle::section;
+    use lightfarm_proto::container::read_sections;
+    let kinds_of = |bytes: &[u8]| -> Vec<u32> {
+        let sections = read_sections(bytes, 2..=2, |_| true, false)
+            .unwrap()
+            .sections;
+        sections.iter().map(|(kind, _)| *kind).collect()
+    };
+    let mut rng = Lcg(36);
+    for drt in [true, false] {
+        let b = low_rank_probe_bundle(&mut rng, drt, &[1, 3, 2]);
+        let ld = direct(&mut rng, b.layout.n_texels());
+        let want = reference_probes(&b, &ld.radiance);
+        let got = run_probes(b.clone(), &ld);
+        assert_probes_close(&got, &want);
+        assert!(
+            want.iter().any(|w| w[0].abs() > 1e-3),
+            "the entries feed the probes"
+        );
+
+        let bytes = b.encode();
+        let kinds = kinds_of(&bytes);
+        assert!(kinds.contains(&section::PROBES_LOW_RANK) && !kinds.contains(&section::PROBES));
+        let decoded = Bundle::decode(&bytes).expect("low-rank probe bundle decodes");
+        assert_eq!(decoded, b);
+        assert_eq!(run_probes(decoded, &ld), got);
+        let dense = probe_bundle(&mut rng, drt).encode();
+        let kinds = kinds_of(&dense);
+        assert!(kinds.contains(&section::PROBES) && !kinds.contains(&section::PROBES_LOW_RANK));
+    }
+    let good = low_rank_probe_bundle(&mut rng, true, &[2]);
+    type Break = (&'static str, fn(&mut Bundle));
+    let breaks: [Break; 3] = [
+        ("mix narrower than the source", |b| {
+            let e = &mut b.probes.as_mut().unwrap().entries[0];
+            let mix = e.mix.as_mut().unwrap();
+            mix.cols -= 1;
+            mix.data.truncate((mix.rows * mix.cols) as usize);
+        }),
+        ("matrix wider than the mix's rows", |b| {
+            let e = &mut b.probes.as_mut().unwrap().entries[1];
+            e.matrix.cols += 1;
+            e.matrix
+                .data
+                .resize((e.matrix.rows * e.matrix.cols) as usize, 0.0);
+        }),
+        ("short mix", |b| {
+            let e = &mut b.probes.as_mut().unwrap().entries[2];
+            e.mix.as_mut().unwrap().data.pop();
+        }),
+    ];
+    for (what, f) in breaks {
+        let mut b = good.clone();
+        f(&mut b);
+        assert!(
+            Runtime::try_new(b.clone()).is_err(),
+            "runtime accepts: {what}"
+        );
+        assert!(
+            Bundle::decode(&b.encode()).is_err(),
+            "decode accepts: {what}"
+        );
     }
 }
 

@@ -74,6 +74,9 @@ pub struct BakeReport {
     /// `compact_deltas: false`).
     pub delta_compaction: Option<DeltaCompactionStats>,
     pub probes: usize,
+    /// What the low-rank form of the probe volume's entries saved (None without a probe volume
+    /// or with `compact_deltas: false`).
+    pub probe_compaction: Option<DeltaCompactionStats>,
     /// Per dynamic object: (id, seconds to bake its DNRT grid or read it from the cache, grid
     /// data bytes).
     pub dnrt: Vec<(String, f64, usize)>,
@@ -253,7 +256,9 @@ fn bake_once(
 
     if let Some(volume) = stages::probe_volume(scene, &full_geometry, &per_block, drt.as_ref()) {
         report.probes = volume.n_probes;
-        bundle.probes = Some(to_bundle::probe_section(volume));
+        let (section, compaction) = to_bundle::probe_section(volume, &scene.settings)?;
+        report.probe_compaction = compaction;
+        bundle.probes = Some(section);
         if stage_follows(scene, options.full, LateStage::ProbeVolume) {
             announce(&bundle);
         }

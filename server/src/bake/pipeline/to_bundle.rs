@@ -11,7 +11,10 @@ use rayon::prelude::*;
 
 use crate::bake::cache::factors::FactorCache;
 use crate::bake::drt::build::{DeltaBlock, DrtOperators};
-use crate::bake::drt::compaction::{compact_entry_keeping, compact_gather, DeltaCompactionStats};
+use crate::bake::drt::compaction::{
+    compact_entry as compact_delta_entry, compact_entry_keeping, compact_gather,
+    DeltaCompactionStats,
+};
 use crate::bake::math::low_rank::LowRankError;
 use crate::bake::math::matrix::to_matrix;
 use crate::bake::mrt::shape::ShapeOperators;
@@ -241,16 +244,51 @@ fn to_entry(e: &DeltaBlock) -> bundle::DeltaEntry {
     }
 }
 
-/// The bundle's probe volume (`U_dyn`).
-pub fn probe_section(volume: ProbeVolumeOps) -> bundle::ProbeVolume {
-    bundle::ProbeVolume {
+/// The bundle's probe volume (`U_dyn`), its entries in low-rank form where that is smaller when
+/// `compact_deltas` ([`compact_entry`](crate::bake::drt::compaction::compact_entry) at the
+/// scene's tolerance, as DRT's delta entries: both multiply block and clutter coefficients, and
+/// nearby probes' rows are alike), with what that saved.
+pub fn probe_section(
+    volume: ProbeVolumeOps,
+    settings: &Settings,
+) -> Result<(bundle::ProbeVolume, Option<DeltaCompactionStats>), BakeError> {
+    let (entries, stats) = if settings.compact_deltas {
+        let compacted: Vec<(bundle::DeltaEntry, DeltaCompactionStats)> = volume
+            .entries
+            .par_iter()
+            .map(|e| {
+                let mut stats = DeltaCompactionStats::default();
+                let entry = compact_delta_entry(
+                    e.rows.clone(),
+                    e.source,
+                    &e.matrix,
+                    settings.tolerance,
+                    None,
+                    &mut stats,
+                )?;
+                Ok((entry, stats))
+            })
+            .collect::<Result<_, LowRankError>>()
+            .map_err(|e| BakeError::Drt(format!("probe compaction: {e}")))?;
+        let mut stats = DeltaCompactionStats::default();
+        let mut entries = Vec::with_capacity(compacted.len());
+        for (e, s) in compacted {
+            entries.push(e);
+            stats.merge(s);
+        }
+        (entries, Some(stats))
+    } else {
+        (volume.entries.iter().map(to_entry).collect(), None)
+    };
+    let section = bundle::ProbeVolume {
         origin: volume.origin.map(|x| x as f32),
         spacing: volume.spacing as f32,
         dims: volume.dims.map(|d| d as u32),
         slot: volume.slot,
         n_probes: volume.n_probes as u32,
-        entries: volume.entries.iter().map(to_entry).collect(),
-    }
+        entries,
+    };
+    Ok((section, stats))
 }
 
 /// The bundle's SH responses.

@@ -8,9 +8,11 @@
 //! shaded from the probe gets one-bounce light. Grid points outside every block or inside a
 //! clutter box get no probe. When every dynamic object lists the regions it stays in
 //! ([`Scene::probe_regions`]), the grid is laid out over the lattice points in those regions
-//! and around each clutter object's bounds (grown by one spacing: MRT shades clutter from the
-//! probes) only — the same lattice: the blocks' bounds cut every `probe_spacing` — so the
-//! probes follow where moving objects go and what they shade, not the level's size. Units: metres; radiance per unit of the
+//! only — the same lattice: the blocks' bounds cut every `probe_spacing` — so the probes follow
+//! where moving objects go, not the level's size. With `probe_volume: always` (the MRT
+//! baseline shades clutter from the probes, `eval --method mrt`) the lattice points around
+//! each clutter object's bounds, grown by one spacing, are laid out too; by default (`auto`)
+//! the volume's only readers are the dynamic objects, and a level's clutter adds no probe. Units: metres; radiance per unit of the
 //! coefficients.
 //!
 //! Invariant: rows are `probe · 9 + coefficient`, ascending per entry; deterministic per probe.
@@ -20,7 +22,7 @@ use std::collections::BTreeMap;
 use faer::Mat;
 use rayon::prelude::*;
 
-use lightfarm_proto::scene::{Aabb, Scene};
+use lightfarm_proto::scene::{Aabb, ProbeVolumeMode, Scene};
 use lightfarm_proto::sh::{sh_basis, SH_COEFFS};
 
 use crate::bake::drt::build::{ClutterProjection, DeltaBlock};
@@ -95,14 +97,18 @@ pub fn build_probe_volume(
         let used = full[k] as f64 * spacing;
         bounds.min[k] + 0.5 * (bounds.max[k] - bounds.min[k] - used) + 0.5 * spacing
     });
-    // ... laid out whole, or over the lattice points in the dynamic objects' regions and
-    // around every clutter object (MRT shades clutter from the probes), each grown by one
-    // spacing so a lookup inside finds the 8 grid points around it.
+    // ... laid out whole, or over the lattice points in the dynamic objects' regions — and,
+    // with `probe_volume: always`, around every clutter object (the MRT baseline shades
+    // clutter from the probes) — each grown by one spacing so a lookup inside finds the 8
+    // grid points around it.
+    let shade_clutter = scene.settings.probe_volume == ProbeVolumeMode::Always;
     let regions = scene.probe_regions().map(|mut regions| {
-        regions.extend(g.clutter_shapes.iter().map(|c| Aabb {
-            min: c.bounds[0].map(|x| x - spacing),
-            max: c.bounds[1].map(|x| x + spacing),
-        }));
+        if shade_clutter {
+            regions.extend(g.clutter_shapes.iter().map(|c| Aabb {
+                min: c.bounds[0].map(|x| x - spacing),
+                max: c.bounds[1].map(|x| x + spacing),
+            }));
+        }
         regions
     });
     let (lo, hi) = match &regions {
