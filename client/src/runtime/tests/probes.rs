@@ -61,6 +61,25 @@ fn reference_probes(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
         .collect()
 }
 
+/// A way to break a probe bundle, named.
+type Break = (&'static str, fn(&mut Bundle));
+
+/// Every break of `good` is refused by the runtime and by decode.
+fn assert_each_refused(good: &Bundle, breaks: &[Break]) {
+    for (what, f) in breaks {
+        let mut b = good.clone();
+        f(&mut b);
+        assert!(
+            Runtime::try_new(b.clone()).is_err(),
+            "runtime accepts: {what}"
+        );
+        assert!(
+            Bundle::decode(&b.encode()).is_err(),
+            "decode accepts: {what}"
+        );
+    }
+}
+
 fn run_probes(bundle: Bundle, ld: &DirectLight) -> ProbeField {
     let mut rt = Runtime::new(bundle);
     let mut out = ProbeField::default();
@@ -186,7 +205,6 @@ fn low_rank_probe_entries_match_the_dense_reference() {
         assert!(kinds.contains(&section::PROBES) && !kinds.contains(&section::PROBES_LOW_RANK));
     }
     let good = low_rank_probe_bundle(&mut rng, true, &[2]);
-    type Break = (&'static str, fn(&mut Bundle));
     let breaks: [Break; 3] = [
         ("mix narrower than the source", |b| {
             let e = &mut b.probes.as_mut().unwrap().entries[0];
@@ -206,18 +224,7 @@ fn low_rank_probe_entries_match_the_dense_reference() {
             e.mix.as_mut().unwrap().data.pop();
         }),
     ];
-    for (what, f) in breaks {
-        let mut b = good.clone();
-        f(&mut b);
-        assert!(
-            Runtime::try_new(b.clone()).is_err(),
-            "runtime accepts: {what}"
-        );
-        assert!(
-            Bundle::decode(&b.encode()).is_err(),
-            "decode accepts: {what}"
-        );
-    }
+    assert_each_refused(&good, &breaks);
 }
 
 #[test]
@@ -279,7 +286,6 @@ fn inconsistent_probe_sections_are_refused_as_decode_refuses_them() {
     let mut rng = Lcg(34);
     let good = probe_bundle(&mut rng, true);
     assert!(Runtime::try_new(good.clone()).is_ok());
-    type Break = (&'static str, fn(&mut Bundle));
     fn p(b: &mut Bundle) -> &mut ProbeVolume {
         b.probes.as_mut().unwrap()
     }
@@ -315,18 +321,7 @@ fn inconsistent_probe_sections_are_refused_as_decode_refuses_them() {
             p(b).entries[3].matrix.data.pop();
         }),
     ];
-    for (what, f) in breaks {
-        let mut b = good.clone();
-        f(&mut b);
-        assert!(
-            Runtime::try_new(b.clone()).is_err(),
-            "runtime accepts: {what}"
-        );
-        assert!(
-            Bundle::decode(&b.encode()).is_err(),
-            "decode accepts: {what}"
-        );
-    }
+    assert_each_refused(&good, &breaks);
     // Grid sizes whose product overflows u64 (2^66 wraps to 0 = the slot count).
     let mut b = good.clone();
     p(&mut b).dims = [1 << 22; 3];

@@ -12,8 +12,8 @@
 //! where moving objects go, not the level's size. With `probe_volume: always` (the MRT
 //! baseline shades clutter from the probes, `eval --method mrt`) the lattice points around
 //! each clutter object's bounds, grown by one spacing, are laid out too; by default (`auto`)
-//! the volume's only readers are the dynamic objects, and a level's clutter adds no probe. Units: metres; radiance per unit of the
-//! coefficients.
+//! the volume's only readers are the dynamic objects, and a level's clutter adds no probe.
+//! Units: metres; radiance per unit of the coefficients.
 //!
 //! Invariant: rows are `probe · 9 + coefficient`, ascending per entry; deterministic per probe.
 
