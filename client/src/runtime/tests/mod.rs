@@ -596,6 +596,9 @@ fn apply_twice_is_identical_and_does_not_allocate() {
     for drt in [false, true] {
         let methods = if drt { mrt_drt } else { mrt_only };
         cases.push((probe_bundle(&mut rng, drt), methods));
+        // Low-rank probe entries (format 2.3) need scratch for `mix · x`: still none allocated.
+        let low_rank = probes::low_rank_probe_bundle(&mut rng, drt, &[1, 3, 2]);
+        cases.push((low_rank, methods));
     }
     for (b, methods) in cases {
         let n = b.layout.n_texels();

@@ -152,7 +152,7 @@ fn probes_match_dense_reference() {
 
 /// `probe_bundle` with every entry of `ranks.len()` (cycled) made low-rank: `matrix` (rows × k)
 /// times `mix` (k × the source's width), random.
-fn low_rank_probe_bundle(rng: &mut Lcg, drt: bool, ranks: &[usize]) -> Bundle {
+pub(super) fn low_rank_probe_bundle(rng: &mut Lcg, drt: bool, ranks: &[usize]) -> Bundle {
     let mut b = probe_bundle(rng, drt);
     for (e, &k) in b
         .probes
