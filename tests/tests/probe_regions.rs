@@ -8,6 +8,7 @@ use lightfarm_client::{direct_from_point_lights, irradiance_at, Occluders, Probe
 use lightfarm_proto::bundle::{section, Bundle, ProbeVolume};
 use lightfarm_proto::container::read_sections;
 use lightfarm_proto::scene::{Aabb, ProbeVolumeMode};
+use lightfarm_proto::testing::join_sections;
 use lightfarm_server::bake::progress::NoProgress;
 use lightfarm_server::bake::{bake, BakeOptions};
 use lightfarm_tests::*;
@@ -235,7 +236,9 @@ fn probes_around_clutter_stay_when_the_volume_follows_dynamic_objects() {
 
 /// With `compact_deltas` (the default) the probe entries are stored low-rank where that is
 /// smaller, as DRT's deltas are: fewer values, and the probe field of the same light within
-/// the tolerance's bound of the dense entries' (both in f32, so the codec adds nothing).
+/// the tolerance's bound of the dense entries' (both in f32, so the codec adds nothing). They
+/// travel in format 2.3's kinds 17 (and the ball's grid in 18), which a 2.2 reader skips: it
+/// reads the rest and lights the level the same.
 #[test]
 fn probe_entries_are_low_rank_where_that_is_smaller() {
     let (mut scene, lights) = load_scene("ball_corridor", 8, 256);
@@ -290,6 +293,35 @@ fn probe_entries_are_low_rank_where_that_is_smaller() {
     assert!(kl.contains(&section::PROBES_LOW_RANK) && !kl.contains(&section::PROBES));
     assert!(kl.contains(&section::DNRT_PLANAR) && !kl.contains(&section::DNRT));
     assert!(kd.contains(&section::PROBES) && !kd.contains(&section::PROBES_LOW_RANK));
+    // What a 2.2 reader makes of it: it skips the two kinds it does not know and reads the
+    // level without a probe volume or grids, lighting it as the whole bundle does.
+    let older: Vec<(u32, Vec<u8>)> = low_rank
+        .raw_sections()
+        .into_iter()
+        .filter(|(kind, _)| ![section::PROBES_LOW_RANK, section::DNRT_PLANAR].contains(kind))
+        .collect();
+    let seen = Bundle::decode(&join_sections(&older)).unwrap();
+    assert!(seen.probes.is_none() && seen.dnrt.is_none());
+    assert_eq!(
+        (&seen.layout, &seen.shapes, &seen.drt),
+        (&low_rank.layout, &low_rank.shapes, &low_rank.drt)
+    );
+    let lit = |b: &Bundle| {
+        let occluders = Occluders::from_layout(&b.layout);
+        let direct = direct_from_point_lights(&b.layout, &occluders, &lights.lights);
+        let mut out = lightfarm_client::IndirectLight::default();
+        Runtime::try_new(b.clone())
+            .unwrap()
+            .apply(
+                lightfarm_client::Method::Mrt,
+                lightfarm_client::Bounces::One,
+                &direct,
+                &mut out,
+            )
+            .unwrap();
+        out
+    };
+    assert_eq!(lit(&seen), lit(&low_rank));
     let (fl, fd) = (field(low_rank, &lights), field(dense, &lights));
     let (mut diff, mut norm) = (0.0f64, 0.0f64);
     for (a, b) in fl.as_slice().iter().zip(fd.as_slice()) {
