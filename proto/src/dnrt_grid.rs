@@ -516,26 +516,26 @@ impl DnrtGrid {
             3 => {
                 let n = r.u64()?;
                 let bytes = r.take(usize::try_from(n).unwrap_or(usize::MAX))?;
-                // The grid's size, as `validate` checks it, must be the bytes' to undo the form.
-                let per_point = (n_sh as usize)
-                    .checked_mul(match normals {
-                        DnrtNormals::Intermediate => 1,
-                        DnrtNormals::Convolution => n_sh as usize,
-                    })
-                    .and_then(|t| t.checked_mul(SLOTS));
+                // Undoing the form needs the grid's size, which `validate` checks only after:
+                // an SH count it would refuse is refused here (so `terms` cannot overflow), and
+                // the points are counted without overflow.
+                if n_sh != 4 && n_sh != 9 {
+                    return Err(invalid(format!("n_sh {n_sh} is not 4 or 9")));
+                }
+                let per_point = SLOTS * terms(n_sh as usize, normals);
                 let points = (resolution as usize)
                     .checked_mul(resolution as usize)
                     .and_then(|p| p.checked_mul(resolution as usize));
-                match (per_point, points) {
-                    (Some(k), Some(p)) if p.checked_mul(k) == Some(bytes.len()) && k > 0 => {
-                        DnrtData::U8(from_planar_differences(bytes, resolution as usize, k))
-                    }
-                    _ => {
-                        return Err(invalid(
-                            "planar values do not fill resolution³ · 4 · terms".into(),
-                        ))
-                    }
+                if points.and_then(|p| p.checked_mul(per_point)) != Some(bytes.len()) {
+                    return Err(invalid(
+                        "planar values do not fill resolution³ · 4 · terms".into(),
+                    ));
                 }
+                DnrtData::U8(from_planar_differences(
+                    bytes,
+                    resolution as usize,
+                    per_point,
+                ))
             }
             c => return Err(invalid(format!("unknown codec {c}"))),
         };

@@ -760,9 +760,22 @@ fn inconsistent_drt_sections_are_refused_as_decode_refuses_them() {
         ("replaced on a clutter texel", |d| d.replaced = vec![10]),
         ("repeated replaced texel", |d| d.replaced = vec![2, 2]),
     ];
+    fn drt_of(b: &mut Bundle) -> &mut DrtOps {
+        b.drt.as_mut().unwrap()
+    }
+    assert_each_refused(&good, &breaks, drt_of);
+}
+
+/// Every break of `good` (each applied to the part `part` picks) is refused by the runtime and
+/// by decode.
+fn assert_each_refused<T>(
+    good: &Bundle,
+    breaks: &[(&'static str, fn(&mut T))],
+    part: fn(&mut Bundle) -> &mut T,
+) {
     for (what, f) in breaks {
         let mut b = good.clone();
-        f(b.drt.as_mut().unwrap());
+        f(part(&mut b));
         assert!(
             Runtime::try_new(b.clone()).is_err(),
             "runtime accepts: {what}"

@@ -64,20 +64,9 @@ fn reference_probes(bundle: &Bundle, ld: &[[f32; 3]]) -> Vec<[f64; 3]> {
 /// A way to break a probe bundle, named.
 type Break = (&'static str, fn(&mut Bundle));
 
-/// Every break of `good` is refused by the runtime and by decode.
-fn assert_each_refused(good: &Bundle, breaks: &[Break]) {
-    for (what, f) in breaks {
-        let mut b = good.clone();
-        f(&mut b);
-        assert!(
-            Runtime::try_new(b.clone()).is_err(),
-            "runtime accepts: {what}"
-        );
-        assert!(
-            Bundle::decode(&b.encode()).is_err(),
-            "decode accepts: {what}"
-        );
-    }
+/// The whole bundle, the part a probe break changes.
+fn whole(b: &mut Bundle) -> &mut Bundle {
+    b
 }
 
 fn run_probes(bundle: Bundle, ld: &DirectLight) -> ProbeField {
@@ -224,7 +213,7 @@ fn low_rank_probe_entries_match_the_dense_reference() {
             e.mix.as_mut().unwrap().data.pop();
         }),
     ];
-    assert_each_refused(&good, &breaks);
+    assert_each_refused(&good, &breaks, whole);
 }
 
 #[test]
@@ -321,7 +310,7 @@ fn inconsistent_probe_sections_are_refused_as_decode_refuses_them() {
             p(b).entries[3].matrix.data.pop();
         }),
     ];
-    assert_each_refused(&good, &breaks);
+    assert_each_refused(&good, &breaks, whole);
     // Grid sizes whose product overflows u64 (2^66 wraps to 0 = the slot count).
     let mut b = good.clone();
     p(&mut b).dims = [1 << 22; 3];

@@ -183,29 +183,22 @@ pub fn drt_section(
     let mut pending = std::mem::take(&mut ops.entries).into_iter().peekable();
     while pending.peek().is_some() {
         let group: Vec<DeltaBlock> = pending.by_ref().take(DELTA_GROUP).collect();
-        let compacted: Vec<(Vec<bundle::DeltaEntry>, DeltaCompactionStats)> = group
-            .par_iter()
-            .map(|e| {
-                let mut stats = DeltaCompactionStats::default();
-                let out = compact_entry_keeping(
-                    &e.rows,
-                    e.source,
-                    &e.matrix,
-                    &buried,
-                    settings.tolerance,
-                    factors,
-                    &mut stats,
-                )?;
-                Ok((out, stats))
-            })
-            .collect::<Result<_, LowRankError>>()
-            .map_err(low_rank)?;
+        let (out, s) = compact_each(&group, |e, stats| {
+            compact_entry_keeping(
+                &e.rows,
+                e.source,
+                &e.matrix,
+                &buried,
+                settings.tolerance,
+                factors,
+                stats,
+            )
+        })
+        .map_err(low_rank)?;
         drop(group);
         crate::bake::memory::release_freed();
-        for (out, s) in compacted {
-            entries.extend(out);
-            stats.merge(s);
-        }
+        entries.extend(out);
+        stats.merge(s);
     }
     let mut direct_gather = None;
     if let Some(g) = &ops.direct_gather {
@@ -231,6 +224,34 @@ pub fn drt_section(
     Ok((drt, Some(stats)))
 }
 
+/// Every entry of `entries` compacted by `compact` side by side (one worker per entry, each
+/// SVD sequential), the results and statistics taken in the entries' order: the same as one
+/// sequential pass.
+fn compact_each<F>(
+    entries: &[DeltaBlock],
+    compact: F,
+) -> Result<(Vec<bundle::DeltaEntry>, DeltaCompactionStats), LowRankError>
+where
+    F: Fn(&DeltaBlock, &mut DeltaCompactionStats) -> Result<Vec<bundle::DeltaEntry>, LowRankError>
+        + Sync,
+{
+    let compacted: Vec<(Vec<bundle::DeltaEntry>, DeltaCompactionStats)> = entries
+        .par_iter()
+        .map(|e| {
+            let mut stats = DeltaCompactionStats::default();
+            let out = compact(e, &mut stats)?;
+            Ok((out, stats))
+        })
+        .collect::<Result<_, LowRankError>>()?;
+    let mut stats = DeltaCompactionStats::default();
+    let mut out = Vec::with_capacity(compacted.len());
+    for (entries, s) in compacted {
+        out.extend(entries);
+        stats.merge(s);
+    }
+    Ok((out, stats))
+}
+
 /// Delta entries compacted together by [`drt_section`] before their f64 matrices are freed:
 /// enough to keep both cores busy through entries of very different sizes.
 const DELTA_GROUP: usize = 64;
@@ -253,29 +274,18 @@ pub fn probe_section(
     settings: &Settings,
 ) -> Result<(bundle::ProbeVolume, Option<DeltaCompactionStats>), BakeError> {
     let (entries, stats) = if settings.compact_deltas {
-        let compacted: Vec<(bundle::DeltaEntry, DeltaCompactionStats)> = volume
-            .entries
-            .par_iter()
-            .map(|e| {
-                let mut stats = DeltaCompactionStats::default();
-                let entry = compact_delta_entry(
-                    e.rows.clone(),
-                    e.source,
-                    &e.matrix,
-                    settings.tolerance,
-                    None,
-                    &mut stats,
-                )?;
-                Ok((entry, stats))
-            })
-            .collect::<Result<_, LowRankError>>()
-            .map_err(|e| BakeError::Drt(format!("probe compaction: {e}")))?;
-        let mut stats = DeltaCompactionStats::default();
-        let mut entries = Vec::with_capacity(compacted.len());
-        for (e, s) in compacted {
-            entries.push(e);
-            stats.merge(s);
-        }
+        let (entries, stats) = compact_each(&volume.entries, |e, stats| {
+            let entry = compact_delta_entry(
+                e.rows.clone(),
+                e.source,
+                &e.matrix,
+                settings.tolerance,
+                None,
+                stats,
+            )?;
+            Ok(vec![entry])
+        })
+        .map_err(|e| BakeError::Drt(format!("probe compaction: {e}")))?;
         (entries, Some(stats))
     } else {
         (volume.entries.iter().map(to_entry).collect(), None)
