@@ -47,18 +47,21 @@ impl Writer {
     }
     pub fn f32s(&mut self, v: &[f32]) {
         self.u64(v.len() as u64);
+        self.bytes.reserve(4 * v.len());
         for x in v {
             self.f32(*x);
         }
     }
     pub fn f64s(&mut self, v: &[f64]) {
         self.u64(v.len() as u64);
+        self.bytes.reserve(8 * v.len());
         for x in v {
             self.f64(*x);
         }
     }
     pub fn u32s(&mut self, v: &[u32]) {
         self.u64(v.len() as u64);
+        self.bytes.reserve(4 * v.len());
         for x in v {
             self.u32(*x);
         }

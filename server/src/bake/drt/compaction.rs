@@ -356,6 +356,17 @@ pub fn compact_gather(
     // What stays sparse: columns of ranges not factored, and columns in no range.
     let mut rest = TexelGather::default();
     rest.row_start.push(0);
+    // Sized for what stays sparse: without the reallocations of growing it entry by entry
+    // (the whole gather when no range factors, as on the maze).
+    let left: usize = (0..gather.rows.len())
+        .map(|i| {
+            row_entries(i)
+                .filter(|(&c, _)| range_of(c).is_none_or(|ri| !factored_ranges[ri]))
+                .count()
+        })
+        .sum();
+    rest.cols.reserve_exact(left);
+    rest.values.reserve_exact(left);
     for (i, &row) in gather.rows.iter().enumerate() {
         let before = rest.cols.len();
         for (&c, &v) in row_entries(i) {
