@@ -254,7 +254,8 @@ impl ReachDirect {
 mod tests {
     use super::*;
     use crate::direct::{
-        direct_from_point_lights_adaptive, direct_from_point_lights_averaged, direct_scale,
+        direct_from_point_lights, direct_from_point_lights_adaptive,
+        direct_from_point_lights_averaged, direct_scale,
     };
     use crate::light_reach::tests::{bundle_with, level, Rng};
     use lightfarm_proto::bundle::{Rect, Rooms, SurfaceInfo, SurfacePlace};
@@ -428,6 +429,18 @@ mod tests {
                     assert!(
                         (e[c] - a[c]).abs() <= 1e-6 * a[c].abs() + 1e-12,
                         "case {case}: texel {t}, {e:?} against {a:?}"
+                    );
+                }
+            }
+            // The same at texel centres (one sample per texel, as `eval` reports direct
+            // light).
+            let every = reach.all_lights_every_sample(&layout, &occluders, &lights, 1, scale);
+            let centres = direct_from_point_lights(&layout, &occluders, &lights);
+            for (t, (e, a)) in every.radiance.iter().zip(&centres.radiance).enumerate() {
+                for c in 0..3 {
+                    assert!(
+                        (e[c] - a[c]).abs() <= 1e-6 * a[c].abs() + 1e-12,
+                        "case {case}: texel {t} centre, {e:?} against {a:?}"
                     );
                 }
             }

@@ -13,10 +13,13 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use lightfarm_client::{Bounces, DirectLight, IndirectLight, Method, Runtime};
+use lightfarm_client::{
+    direct_from_point_lights, Bounces, DirectLight, IndirectLight, Method, Occluders, Runtime,
+};
 use lightfarm_proto::scene::Scene;
 use lightfarm_server::bake::drt::inpaint::inpainting_targets;
 use lightfarm_server::bake::scene::geometry::Geometry;
+use lightfarm_server::evaluate::evaluate;
 use lightfarm_tests::*;
 
 /// Runs the generator into `dir`; returns the scene text.
@@ -148,6 +151,30 @@ fn a_generated_thousand_block_level_bakes_and_relights() {
         cut == checked,
         "{cut} of {checked} lights cut the level's occluders"
     );
+
+    // What `eval`, `export` and the service's evaluate and preview show: each light traced only
+    // where it reaches, which at texel centres is the whole-level pass over every light and
+    // texel to float rounding (the texel averages the operators read are checked the same way
+    // in the client, `reach_direct`'s tests), and finishes in seconds at this size.
+    let result = evaluate(bundle.clone(), &lights, Method::Drt, Bounces::One).unwrap();
+    let occluders = Occluders::from_layout(&bundle.layout);
+    let whole = direct_from_point_lights(&bundle.layout, &occluders, &lights.lights);
+    let (mut lit, mut records) = (0, 0);
+    for (t, record) in result.by_layout_texel(&bundle.layout).iter().enumerate() {
+        let Some(record) = record else { continue };
+        records += 1;
+        lit += usize::from(whole.radiance[t] != [0.0; 3]);
+        for c in 0..3 {
+            let (got, want) = (record.direct[c], whole.radiance[t][c] as f64);
+            assert!(
+                (got - want).abs() <= 1e-6 * want.abs() + 1e-12,
+                "texel {t}: eval's direct {got} against the whole-level pass's {want}"
+            );
+        }
+    }
+    eprintln!("1,000 blocks: eval's direct light at the centres of {records} texels, {lit} lit");
+    assert_eq!(records, n, "eval reports every texel");
+    assert!(lit * 4 > n, "{lit} of {n} texels lit");
 
     let mut runtime = Runtime::try_new(bundle).unwrap();
     let energy = |v: &IndirectLight| v.radiance.iter().flatten().map(|&x| x as f64).sum::<f64>();

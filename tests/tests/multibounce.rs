@@ -159,7 +159,7 @@ fn feedback_comes_within_one_percent_in_the_frames_the_geometric_series_predicts
     use lightfarm_server::evaluate::operator_direct;
 
     let (bundle, occluders) = baked_closed_box();
-    let direct = operator_direct(&bundle.layout, &occluders, &lights());
+    let direct = operator_direct(&bundle, &occluders, &lights());
     let mut runtime = Runtime::try_new(bundle).expect("runtime");
     let (to_1pct, to_01pct) = feedback_frames(&mut runtime, &direct, Method::Mrt).unwrap();
     eprintln!("feedback: {to_1pct:?} frames to 1%, {to_01pct:?} to 0.1%");

@@ -68,13 +68,12 @@ pub fn time_moving(
         "--light {moved}: the light set has {} lights",
         lights.lights.len()
     );
-    let layout = &runtime.bundle().layout;
     let centre = lights.lights[moved].position;
     let mut set = lights.clone();
     let direct: Vec<DirectLight> = (0..=frames)
         .map(|frame| {
             set.lights[moved].position = path_position(centre, frame);
-            operator_direct(layout, occluders, &set)
+            operator_direct(runtime.bundle(), occluders, &set)
         })
         .collect();
     // Every frame's all-bounce light, the yardstick.

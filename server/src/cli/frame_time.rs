@@ -207,7 +207,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.lights.display()))?;
     let occluders = Occluders::from_layout(&bundle.layout);
     let start = Instant::now();
-    let direct = operator_direct(&bundle.layout, &occluders, &lights);
+    let direct = operator_direct(&bundle, &occluders, &lights);
     let direct_ms = start.elapsed().as_secs_f64() * 1e3;
     let mut runtime = Runtime::try_new(bundle)?;
     if args.feedback_budget.is_some() {

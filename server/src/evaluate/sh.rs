@@ -16,7 +16,7 @@ use super::operator_direct;
 /// The SH incident radiance of every texel for `lights`, carrying `bounces` bounces.
 pub fn sh_incident(bundle: Bundle, lights: &LightSet, bounces: Bounces) -> anyhow::Result<ShLight> {
     let occluders = Occluders::from_layout(&bundle.layout);
-    let mut light = operator_direct(&bundle.layout, &occluders, lights);
+    let mut light = operator_direct(&bundle, &occluders, lights);
     let mut runtime = Runtime::try_new(bundle)?;
     if !matches!(bounces, Bounces::One | Bounces::Fixed(1)) {
         let method = if runtime.has_drt() {

@@ -395,7 +395,7 @@ fn time_apply(
     frames: usize,
 ) -> anyhow::Result<TimedApply> {
     let occluders = Occluders::from_layout(&bundle.layout);
-    let direct = operator_direct(&bundle.layout, &occluders, lights);
+    let direct = operator_direct(bundle, &occluders, lights);
     let mut runtime = Runtime::try_new(bundle.clone())?;
     let apply = time_frames(
         &mut runtime,
