@@ -656,6 +656,27 @@ fn evaluate_endpoint_equals_cli_eval() {
         assert_eq!(cli["texels"].as_array().unwrap().len(), n_texels, "{query}");
         assert_eq!(served, cli, "{query}: the service and the CLI disagree");
     }
+    // Asked for it, the same document comes compressed.
+    let mut r = agent
+        .post(&url)
+        .header("content-type", "application/json")
+        .header("accept-encoding", "zstd")
+        .send(lights.as_bytes())
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    assert_eq!(r.headers()["content-encoding"], "zstd");
+    let packed = r.body_mut().read_to_vec().unwrap();
+    let unpacked = zstd::decode_all(packed.as_slice()).unwrap();
+    assert!(
+        packed.len() * 2 < unpacked.len(),
+        "{} of {}",
+        packed.len(),
+        unpacked.len()
+    );
+    let served: serde_json::Value = serde_json::from_slice(&unpacked).unwrap();
+    let cli: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(data.join("result0.json")).unwrap()).unwrap();
+    assert_eq!(served, cli, "the compressed document is the CLI's");
     // Bad lights name the field; an unknown bake and a bad method are refused.
     let bad = json!({"lights": [
         {"kind": "point", "position": [1.0, 1.0, 1.0], "intensity": [1.0, -2.0, 1.0]}

@@ -5,7 +5,8 @@
 //! in W/(sr·m²)). Editors use it to show baked light, and to relight after a light moved,
 //! without a rebake and without shipping the client library. `bounces` defaults to `all` (as
 //! `eval` does); the headers `lightfarm-bounces` and `lightfarm-remaining-fraction` say how many
-//! bounces the runtime summed and what it estimates the rest to add (as `eval` prints).
+//! bounces the runtime summed and what it estimates the rest to add (as `eval` prints). The
+//! document is compressed (gzip or zstd) when the request's `Accept-Encoding` asks for it.
 //!
 //! Invariants: the evaluation is [`crate::evaluate::evaluate_with_report`], called from this one
 //! place, on a blocking thread; this file does no light transport of its own. Another team's bake, an
