@@ -184,8 +184,8 @@ extern "C" {
  *
  * Writes `out_len` = `3 x texels` floats (texel-major RGB, layout order) to `out_rgb`, ready
  * for `lf_runtime_apply`. Unlike `lf_runtime_apply` it allocates (lights and a
- * result vector) and costs a shadow ray per light and sample; engines that have their own
- * direct light skip it.
+ * result vector) and costs a shadow ray per light and sample where the light reaches;
+ * engines that have their own direct light skip it.
  *
  * Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, or `lights` with
  * `n_lights > 0`, or `out_rgb` with `out_len > 0`, is NULL), `LF_STATUS_BAD_LENGTH`,

@@ -2,11 +2,11 @@
 //! light in their own engine.
 //!
 //! Invariants: the result is exactly what `lightfarm eval` feeds the operators
-//! (`direct_from_point_lights_averaged` with [`LF_DIRECT_SAMPLES_PER_EDGE`] samples per texel
-//! edge, shadow rays against the bundle's occluders); lights are checked before use, so every
-//! output value is finite and non-negative.
+//! (`direct_from_point_lights_by_reach` with [`LF_DIRECT_SAMPLES_PER_EDGE`] samples per texel
+//! edge, shadow rays against the bundle's occluders, each light traced where it reaches);
+//! lights are checked before use, so every output value is finite and non-negative.
 
-use lightfarm_client::direct_from_point_lights_averaged;
+use lightfarm_client::direct_from_point_lights_by_reach;
 use lightfarm_proto::lights::{Light, LightKind};
 
 use crate::boundary::{slice, slice_mut, status_call};
@@ -58,8 +58,8 @@ pub(crate) fn client_lights(lights: &[LfPointLight]) -> Result<Vec<Light>, CapiE
 ///
 /// Writes `out_len` = `3 x texels` floats (texel-major RGB, layout order) to `out_rgb`, ready
 /// for `lf_runtime_apply`. Unlike `lf_runtime_apply` it allocates (lights and a
-/// result vector) and costs a shadow ray per light and sample; engines that have their own
-/// direct light skip it.
+/// result vector) and costs a shadow ray per light and sample where the light reaches;
+/// engines that have their own direct light skip it.
 ///
 /// Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, or `lights` with
 /// `n_lights > 0`, or `out_rgb` with `out_len > 0`, is NULL), `LF_STATUS_BAD_LENGTH`,
@@ -89,8 +89,8 @@ pub unsafe extern "C" fn lf_runtime_direct_from_point_lights(
         }
         check_rgb_len(rt, "out_rgb", out_len)?;
         let lights = client_lights(lights)?;
-        let direct = direct_from_point_lights_averaged(
-            &rt.runtime().bundle().layout,
+        let direct = direct_from_point_lights_by_reach(
+            rt.runtime().bundle(),
             rt.occluders(),
             &lights,
             LF_DIRECT_SAMPLES_PER_EDGE,

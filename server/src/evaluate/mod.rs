@@ -16,8 +16,8 @@
 //! Invariant: no file I/O and no HTTP here; callers read bundles and write results.
 
 use lightfarm_client::{
-    direct_from_point_lights_averaged, direct_scale, irradiance_at, Applied, Bounces, Bundle,
-    DirectLight, IndirectLight, Method, Occluders, ProbeField, ReachDirect, Runtime,
+    direct_from_point_lights_by_reach, irradiance_at, Applied, Bounces, Bundle, DirectLight,
+    IndirectLight, Method, Occluders, ProbeField, Runtime,
 };
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
@@ -32,45 +32,10 @@ pub const DIRECT_SAMPLES_PER_EDGE: u32 = 4;
 
 /// The direct light the operators are fed for `lights`: texel averages over a
 /// [`DIRECT_SAMPLES_PER_EDGE`]² grid, shadowed by the bundle's own geometry (`occluders`, made
-/// from its layout), every sample traced ([`traced_direct`]).
+/// from its layout), every sample traced, each light where it reaches
+/// ([`direct_from_point_lights_by_reach`]).
 pub fn operator_direct(bundle: &Bundle, occluders: &Occluders, lights: &LightSet) -> DirectLight {
-    let mut reach = ReachDirect::new(bundle, occluders);
-    traced_direct(
-        &mut reach,
-        bundle,
-        occluders,
-        lights,
-        DIRECT_SAMPLES_PER_EDGE,
-    )
-}
-
-/// Direct light of `lights` averaged over `samples_per_edge²` samples per texel (1: the texel
-/// centre), a shadow ray at every sample: [`direct_from_point_lights_averaged`]. With rooms
-/// (`reach`, [`ReachDirect::new`] of the bundle) each light is traced only on the texels it
-/// reaches and against the occluders there, which gives that function's values to float
-/// rounding (the lights' terms summed per texel rather than per sample) at a cost that follows
-/// what the lights reach: a generated 1,000-block level's 164 lights took 137 s of `export`
-/// over the whole level, 0.18 s this way.
-fn traced_direct(
-    reach: &mut Option<ReachDirect>,
-    bundle: &Bundle,
-    occluders: &Occluders,
-    lights: &LightSet,
-    samples_per_edge: u32,
-) -> DirectLight {
-    let layout = &bundle.layout;
-    match reach {
-        Some(r) => r.all_lights_every_sample(
-            layout,
-            occluders,
-            &lights.lights,
-            samples_per_edge,
-            direct_scale(layout, occluders),
-        ),
-        None => {
-            direct_from_point_lights_averaged(layout, occluders, &lights.lights, samples_per_edge)
-        }
-    }
+    direct_from_point_lights_by_reach(bundle, occluders, &lights.lights, DIRECT_SAMPLES_PER_EDGE)
 }
 
 /// Applies a bundle to a light set with `bounces` bounces; returns the records the method
@@ -94,15 +59,8 @@ pub fn evaluate_with_report(
     let occluders = Occluders::from_layout(&bundle.layout);
     // RESULT.json reports direct light at texel centres; the operators are fed the texel
     // average, which is what a ray landing in the texel sees.
-    let mut reach = ReachDirect::new(&bundle, &occluders);
-    let direct = traced_direct(&mut reach, &bundle, &occluders, lights, 1);
-    let averaged = traced_direct(
-        &mut reach,
-        &bundle,
-        &occluders,
-        lights,
-        DIRECT_SAMPLES_PER_EDGE,
-    );
+    let direct = direct_from_point_lights_by_reach(&bundle, &occluders, &lights.lights, 1);
+    let averaged = operator_direct(&bundle, &occluders, lights);
     let mut runtime = Runtime::try_new(bundle)?;
     // A scene without clutter has no DRT operators: DRT is MRT there.
     let method = if method == Method::Drt && !runtime.has_drt() {
