@@ -5,11 +5,13 @@
 //!
 //! ```no_run
 //! # fn frame(bytes: &[u8], lights: &[lightfarm_proto::lights::Light]) -> Result<(), Box<dyn std::error::Error>> {
-//! use lightfarm_client::{decode, direct_from_point_lights, irradiance_at, Bounces, IndirectLight,
-//!     Method, Occluders, ProbeField, Runtime};
+//! use lightfarm_client::{decode, direct_from_point_lights_by_reach, irradiance_at, Bounces,
+//!     IndirectLight, Method, Occluders, ProbeField, Runtime};
 //! let bundle = decode(bytes)?;
 //! let occluders = Occluders::from_layout(&bundle.layout);
-//! let direct = direct_from_point_lights(&bundle.layout, &occluders, lights);
+//! // Texel averages over 4 × 4 samples (what `eval` feeds the operators), each light traced
+//! // only on the texels it reaches.
+//! let direct = direct_from_point_lights_by_reach(&bundle, &occluders, lights, 4);
 //! let mut runtime = Runtime::new(bundle);
 //! let mut indirect = IndirectLight::default();
 //! // All bounces (the default Converged mode); `Bounces::Warm` (Converged from the previous
@@ -37,7 +39,8 @@
 //!   rooms (block boxes and openings), so one light's direct light is recomputed where it
 //!   reaches only.
 //! - [`reach_direct`]: one light's direct light on the texels it reaches, shadow rays traced
-//!   against only the occluders of the rooms it reaches (exactly the level's answer there).
+//!   against only the occluders of the rooms it reaches (exactly the level's answer there);
+//!   every light's over a whole bundle the same way (`direct_from_point_lights_by_reach`).
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
 //! - `texel_samples` (private): a texel's sample points and each one's unshadowed term, the
 //!   adaptive average's scratch; what [`direct`] shadows and averages.
