@@ -712,66 +712,118 @@ impl Scene {
 
     /// Where every open face of every block leads, indexed `[block][face]`
     /// (`None` for closed faces). Refuses partial overlaps and open-against-closed faces.
+    ///
+    /// A face can meet only faces of the opposite direction lying on its plane (within the
+    /// tolerance), so each face tests the blocks whose opposite face lies in a window of
+    /// coordinates around its plane, in block order, rather than every block: the same tests in
+    /// the same order as the pairwise loop over every block (tested against it), in
+    /// `O(n log n)` for a level of `n` blocks rather than `O(n²)` (0.16 s per call at 1,000
+    /// blocks, called once per unit by a farm worker).
     pub fn openings(&self) -> Result<Vec<[Option<Opening>; 6]>, SceneError> {
+        // Every pair's tolerance is at most this; the window is twice as wide, far above the
+        // rounding of `ac ± window`.
+        let window = 2e-9
+            * self
+                .blocks
+                .iter()
+                .map(|b| scale_of(&b.aabb()))
+                .fold(1.0f64, f64::max);
+        // Per face direction: (plane coordinate, block), ascending.
+        let planes: Vec<Vec<(f64, usize)>> = Face::ALL
+            .iter()
+            .map(|&f| {
+                let mut v: Vec<(f64, usize)> = self
+                    .blocks
+                    .iter()
+                    .enumerate()
+                    .map(|(j, b)| (b.aabb().face_rect(f).2, j))
+                    .collect();
+                v.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+                v
+            })
+            .collect();
+        let mut near = Vec::new();
         let mut out = vec![[None; 6]; self.blocks.len()];
         for (i, a) in self.blocks.iter().enumerate() {
             for face in Face::ALL {
-                let (amin, amax, ac) = a.aabb().face_rect(face);
-                let mut found = None;
-                for (j, b) in self.blocks.iter().enumerate() {
-                    if i == j {
-                        continue;
-                    }
-                    let other = face.opposite();
-                    let (bmin, bmax, bc) = b.aabb().face_rect(other);
-                    // Symmetric in a and b, so both blocks agree on whether they connect.
-                    let tol = 1e-9 * scale_of(&a.aabb()).max(scale_of(&b.aabb()));
-                    if (ac - bc).abs() > tol {
-                        continue;
-                    }
-                    let overlap = (0..2).all(|k| amin[k].max(bmin[k]) < amax[k].min(bmax[k]) - tol);
-                    if !overlap {
-                        continue;
-                    }
-                    let same = (0..2).all(|k| {
-                        (amin[k] - bmin[k]).abs() <= tol && (amax[k] - bmax[k]).abs() <= tol
-                    });
-                    let a_open = a.is_open(face);
-                    let b_open = b.is_open(other);
-                    let names = || (format!("block \"{}\"", a.id), format!("block \"{}\"", b.id));
-                    if !a_open && !b_open {
-                        continue; // back-to-back walls
-                    }
-                    if !same {
-                        let (na, nb) = names();
-                        return Err(invalid(
-                            na,
-                            format!("face {face} partially overlaps face {other} of {nb}; openings must coincide exactly"),
-                        ));
-                    }
-                    if a_open != b_open {
-                        let (na, nb) = names();
-                        let (open_name, closed_name, open_face, closed_face) = if a_open {
-                            (na, nb, face, other)
-                        } else {
-                            (nb, na, other, face)
-                        };
-                        return Err(invalid(
-                            open_name,
-                            format!("open face {open_face} lies against closed face {closed_face} of {closed_name}"),
-                        ));
-                    }
-                    found = Some(Opening::Neighbour {
-                        block: j,
-                        face: other,
-                    });
-                }
-                if a.is_open(face) {
-                    out[i][face.index()] = Some(found.unwrap_or(Opening::Void));
-                }
+                let (_, _, ac) = a.aabb().face_rect(face);
+                let list = &planes[face.opposite().index()];
+                let first = list.partition_point(|p| p.0 < ac - window);
+                near.clear();
+                near.extend(
+                    list[first..]
+                        .iter()
+                        .take_while(|p| p.0 <= ac + window)
+                        .map(|p| p.1),
+                );
+                near.sort_unstable();
+                out[i][face.index()] = self.opening_of(i, face, &near)?;
             }
         }
         Ok(out)
+    }
+
+    /// Where face `face` of block `i` leads, among the blocks `candidates` (ascending; every
+    /// block whose opposite face can lie on its plane): the last neighbour found, `Void` when
+    /// open onto nothing, `None` when closed.
+    fn opening_of(
+        &self,
+        i: usize,
+        face: Face,
+        candidates: &[usize],
+    ) -> Result<Option<Opening>, SceneError> {
+        let a = &self.blocks[i];
+        let (amin, amax, ac) = a.aabb().face_rect(face);
+        let mut found = None;
+        for &j in candidates {
+            let b = &self.blocks[j];
+            if i == j {
+                continue;
+            }
+            let other = face.opposite();
+            let (bmin, bmax, bc) = b.aabb().face_rect(other);
+            // Symmetric in a and b, so both blocks agree on whether they connect.
+            let tol = 1e-9 * scale_of(&a.aabb()).max(scale_of(&b.aabb()));
+            if (ac - bc).abs() > tol {
+                continue;
+            }
+            let overlap = (0..2).all(|k| amin[k].max(bmin[k]) < amax[k].min(bmax[k]) - tol);
+            if !overlap {
+                continue;
+            }
+            let same = (0..2)
+                .all(|k| (amin[k] - bmin[k]).abs() <= tol && (amax[k] - bmax[k]).abs() <= tol);
+            let a_open = a.is_open(face);
+            let b_open = b.is_open(other);
+            let names = || (format!("block \"{}\"", a.id), format!("block \"{}\"", b.id));
+            if !a_open && !b_open {
+                continue; // back-to-back walls
+            }
+            if !same {
+                let (na, nb) = names();
+                return Err(invalid(
+                    na,
+                    format!("face {face} partially overlaps face {other} of {nb}; openings must coincide exactly"),
+                ));
+            }
+            if a_open != b_open {
+                let (na, nb) = names();
+                let (open_name, closed_name, open_face, closed_face) = if a_open {
+                    (na, nb, face, other)
+                } else {
+                    (nb, na, other, face)
+                };
+                return Err(invalid(
+                    open_name,
+                    format!("open face {open_face} lies against closed face {closed_face} of {closed_name}"),
+                ));
+            }
+            found = Some(Opening::Neighbour {
+                block: j,
+                face: other,
+            });
+        }
+        Ok(a.is_open(face).then(|| found.unwrap_or(Opening::Void)))
     }
 
     /// Every pair of connected blocks once (`block_a < block_b`).

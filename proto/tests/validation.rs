@@ -1312,3 +1312,186 @@ fn dynamic_regions_are_boxes_and_every_object_must_list_them_to_narrow_the_probe
         None
     );
 }
+
+// ---------------------------------------------------------------------------------------------
+// Openings: the windowed search against the pairwise loop it replaced
+// ---------------------------------------------------------------------------------------------
+
+/// The pairwise loop over every block `Scene::openings` once was (`O(n²)`): its answer, or its
+/// first error as text.
+fn openings_by_pairs(scene: &Scene) -> Result<Vec<[Option<Opening>; 6]>, String> {
+    let scale = |b: &Aabb| {
+        b.min
+            .iter()
+            .chain(b.max.iter())
+            .fold(1.0f64, |m, x| m.max(x.abs()))
+    };
+    let mut out = vec![[None; 6]; scene.blocks.len()];
+    for (i, a) in scene.blocks.iter().enumerate() {
+        for face in Face::ALL {
+            let (amin, amax, ac) = a.aabb().face_rect(face);
+            let mut found = None;
+            for (j, b) in scene.blocks.iter().enumerate() {
+                if i == j {
+                    continue;
+                }
+                let other = face.opposite();
+                let (bmin, bmax, bc) = b.aabb().face_rect(other);
+                let tol = 1e-9 * scale(&a.aabb()).max(scale(&b.aabb()));
+                if (ac - bc).abs() > tol {
+                    continue;
+                }
+                if !(0..2).all(|k| amin[k].max(bmin[k]) < amax[k].min(bmax[k]) - tol) {
+                    continue;
+                }
+                let same = (0..2)
+                    .all(|k| (amin[k] - bmin[k]).abs() <= tol && (amax[k] - bmax[k]).abs() <= tol);
+                let (a_open, b_open) = (a.is_open(face), b.is_open(other));
+                if !a_open && !b_open {
+                    continue;
+                }
+                if !same {
+                    return Err(format!(
+                        "block \"{}\": face {face} partially overlaps face {other} of block \"{}\"; \
+                         openings must coincide exactly",
+                        a.id, b.id
+                    ));
+                }
+                if a_open != b_open {
+                    let (open, closed, of, cf) = if a_open {
+                        (&a.id, &b.id, face, other)
+                    } else {
+                        (&b.id, &a.id, other, face)
+                    };
+                    return Err(format!(
+                        "block \"{open}\": open face {of} lies against closed face {cf} of \
+                         block \"{closed}\""
+                    ));
+                }
+                found = Some(Opening::Neighbour {
+                    block: j,
+                    face: other,
+                });
+            }
+            if a.is_open(face) {
+                out[i][face.index()] = Some(found.unwrap_or(Opening::Void));
+            }
+        }
+    }
+    Ok(out)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 200, ..ProptestConfig::default() })]
+
+    /// Grid levels (cells of random widths, some empty, random open faces, some blocks shifted
+    /// or stretched off the grid, and stacked storeys): `openings` answers what the pairwise
+    /// loop answers, errors included.
+    #[test]
+    fn openings_equal_the_pairwise_loop(
+        cells in proptest::collection::vec(
+            (any::<bool>(), 0u8..64, 0u8..8, 0u8..3), 1..40),
+        widths in proptest::collection::vec(1u8..6, 8),
+        columns in 1usize..7,
+        walls in any::<u64>(),
+        consistent in any::<bool>(),
+    ) {
+        let xs: Vec<f64> = std::iter::once(0.0)
+            .chain(widths.iter().scan(0.0, |x, w| { *x += *w as f64 * 0.75; Some(*x) }))
+            .collect();
+        let mut list = Vec::new();
+        for (k, &(present, open_bits, nudge, storey)) in cells.iter().enumerate() {
+            if !present {
+                continue;
+            }
+            let (cx, cz) = (k % columns, k / columns);
+            let (cz, cx) = (cz.min(7), cx.min(7));
+            let mut min = [xs[cx], 3.0 * storey as f64, xs[cz]];
+            let mut max = [xs[cx + 1], 3.0 * storey as f64 + 3.0, xs[cz + 1]];
+            // Now and then a block off the grid: shifted by a fraction, or stretched.
+            match nudge {
+                1 => { min[0] += 0.25; max[0] += 0.25; }
+                2 => max[2] += 0.5,
+                _ => {}
+            }
+            // Consistent: each wall (between two cells, or two storeys) open on both sides or
+            // on neither, so that most levels connect without error; else each face at random.
+            let wall = |axis: usize, x: usize, z: usize, y: usize| {
+                walls >> ((axis * 29 + x * 7 + z * 3 + y * 11) % 64) & 1 == 1
+            };
+            let st = storey as usize;
+            let faces_open = if consistent {
+                [
+                    wall(0, cx, cz, st),
+                    wall(0, cx + 1, cz, st),
+                    wall(1, cx, cz, st),
+                    wall(1, cx, cz, st + 1),
+                    wall(2, cx, cz, st),
+                    wall(2, cx, cz + 1, st),
+                ]
+            } else {
+                std::array::from_fn(|f| open_bits & (1 << f) != 0)
+            };
+            let open: Vec<&str> = ["-x", "+x", "-y", "+y", "-z", "+z"]
+                .iter()
+                .zip(faces_open)
+                .filter(|(_, o)| *o)
+                .map(|(n, _)| *n)
+                .collect();
+            list.push(block(&format!("b{k}"), min, max, &open));
+        }
+        prop_assume!(!list.is_empty());
+        // Not validated: overlapping blocks still have openings to compare.
+        let scene: Scene = serde_json::from_value(blocks(list)).unwrap();
+        let got = scene.openings().map_err(|e| e.to_string());
+        prop_assert_eq!(got, openings_by_pairs(&scene));
+    }
+}
+
+/// A whole two-storey 6 × 6 grid with consistent walls: levels that connect without error, many
+/// faces linked, as the windowed search and the pairwise loop both find.
+#[test]
+fn openings_of_connected_grids_equal_the_pairwise_loop() {
+    let mut linked = 0;
+    for seed in 0..40u64 {
+        let walls = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ (seed << 17);
+        let open_of = |axis: usize, x: usize, z: usize, y: usize| {
+            walls >> ((axis * 29 + x * 7 + z * 3 + y * 11) % 64) & 1 == 1
+        };
+        let mut list = Vec::new();
+        for (x, z, y) in
+            (0..6).flat_map(|x| (0..6).flat_map(move |z| (0..2).map(move |y| (x, z, y))))
+        {
+            let faces = [
+                open_of(0, x, z, y) && x > 0,
+                open_of(0, x + 1, z, y) && x < 5,
+                open_of(1, x, z, y) && y > 0,
+                open_of(1, x, z, y + 1) && y < 1,
+                open_of(2, x, z, y) && z > 0,
+                open_of(2, x, z + 1, y) && z < 5,
+            ];
+            let open: Vec<&str> = ["-x", "+x", "-y", "+y", "-z", "+z"]
+                .iter()
+                .zip(faces)
+                .filter(|(_, o)| *o)
+                .map(|(n, _)| *n)
+                .collect();
+            let (x0, z0, y0) = (x as f64 * 2.5, z as f64 * 3.0, y as f64 * 3.0);
+            list.push(block(
+                &format!("c{x}_{z}_{y}"),
+                [x0, y0, z0],
+                [x0 + 2.5, y0 + 3.0, z0 + 3.0],
+                &open,
+            ));
+        }
+        let scene = ok(blocks(list));
+        let got = scene.openings().unwrap();
+        assert_eq!(Ok(got.clone()), openings_by_pairs(&scene), "seed {seed}");
+        linked += got
+            .iter()
+            .flatten()
+            .filter(|f| matches!(f, Some(Opening::Neighbour { .. })))
+            .count();
+    }
+    assert!(linked > 40 * 72 / 4, "{linked} linked faces");
+}
