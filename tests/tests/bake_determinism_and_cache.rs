@@ -344,7 +344,7 @@ fn moving_clutter_next_to_a_mesh_matches_a_fresh_bake() {
 /// gives the bundle of a bake in one piece. A unit run twice leaves identical files.
 #[test]
 fn units_then_assembly_give_the_bundle_of_one_piece() {
-    use lightfarm_server::bake::units::{plan, run_unit, unit_inputs, BakeUnit};
+    use lightfarm_server::bake::units::{plan, run_unit, unit_inputs, BakeUnit, UnitScene};
     for name in ["maze", "ball_corridor", "cornell_mesh"] {
         let (mut scene, _) = load_scene(name, 4, 32);
         scene.settings.dnrt.resolution = 6;
@@ -354,14 +354,15 @@ fn units_then_assembly_give_the_bundle_of_one_piece() {
             std::env::temp_dir().join(format!("lf-units-test-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&cache_dir);
         let cache = ShapeCache::open(&cache_dir).unwrap();
-        let phases = plan(&scene, &dir).unwrap();
+        let us = UnitScene::new(scene.clone(), &dir).unwrap();
+        let phases = plan(&us).unwrap();
         let mut written = Vec::new();
         for phase in &phases {
             // Reverse order: units of a phase do not depend on each other.
             for unit in phase.iter().rev() {
                 assert_eq!(BakeUnit::parse(&unit.name()).as_ref(), Some(unit));
-                let inputs = unit_inputs(&scene, &dir, unit).unwrap();
-                let files = run_unit(&scene, &dir, &cache, unit, &NoProgress).unwrap();
+                let inputs = unit_inputs(&us, unit).unwrap();
+                let files = run_unit(&us, &cache, unit, &NoProgress).unwrap();
                 assert!(!files.is_empty(), "{name}: {} wrote nothing", unit.name());
                 for f in &files {
                     assert!(
@@ -386,7 +387,14 @@ fn units_then_assembly_give_the_bundle_of_one_piece() {
             .iter()
             .map(|f| std::fs::read(cache_dir.join(f)).unwrap())
             .collect();
-        run_unit(&scene, &dir, &cache, again, &NoProgress).unwrap();
+        // On a fresh UnitScene too: nothing it keeps changes a unit's bytes.
+        run_unit(
+            &UnitScene::new(scene.clone(), &dir).unwrap(),
+            &cache,
+            again,
+            &NoProgress,
+        )
+        .unwrap();
         for (f, bytes) in written.iter().zip(&before) {
             assert!(&std::fs::read(cache_dir.join(f)).unwrap() == bytes);
         }

@@ -10,10 +10,17 @@
 //!
 //! Who calls it: the farm's workers (through the service), and tests. Paths are relative to
 //! the operator cache directory (the one [`ShapeCache`] opens).
+//!
+//! A [`UnitScene`] holds what a scene's units share, made once per scene rather than once per
+//! unit: the validation, the shape plan and the DRT ray pass's level (geometry, openings,
+//! tracers). A farm worker plans a bake and runs its units one after another on one
+//! `UnitScene`; at 1,000 blocks (1,338 units) remaking them per unit, three times for a DRT
+//! unit, was most of the farm's time.
 
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
-use lightfarm_proto::scene::Scene;
+use lightfarm_proto::scene::{Opening, Scene};
 
 use crate::bake::cache::dnrt::{dnrt_key, DnrtCache};
 use crate::bake::cache::shape::{Lookup, ShapeCache};
@@ -72,23 +79,106 @@ impl BakeUnit {
     }
 }
 
+/// The level a DRT unit traces: the scene's geometry with and without clutter, its openings and
+/// both tracers (what [`RayPass::new`] borrows).
+struct RayLevel {
+    g: Geometry,
+    gb: Geometry,
+    openings: Vec<[Option<Opening>; 6]>,
+    tracer: Tracer,
+    block_tracer: Tracer,
+}
+
+/// A validated scene and what its units share (module doc): its files' directory, the shape
+/// plan, and the ray pass's level, made on the first DRT unit and kept.
+pub struct UnitScene {
+    scene: Scene,
+    dir: PathBuf,
+    shapes: ShapePlan,
+    rays: Mutex<Option<Arc<RayLevel>>>,
+}
+
+impl UnitScene {
+    /// Validates `scene` (its mesh files under `scene_dir`) and makes its shape plan.
+    pub fn new(scene: Scene, scene_dir: &Path) -> Result<UnitScene, BakeError> {
+        scene.validate()?;
+        let shapes = shape_plan(&scene);
+        Ok(UnitScene {
+            scene,
+            dir: scene_dir.to_path_buf(),
+            shapes,
+            rays: Mutex::new(None),
+        })
+    }
+
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The ray pass over the scene's level (made on first use, then shared) handed to `f`.
+    fn with_ray_pass<T>(&self, f: impl FnOnce(&RayPass) -> T) -> Result<T, BakeError> {
+        let level = {
+            let mut slot = self.rays.lock().unwrap_or_else(|p| p.into_inner());
+            match &*slot {
+                Some(level) => level.clone(),
+                None => {
+                    let g = Geometry::from_scene(&self.scene, &self.dir)?;
+                    let gb = Geometry::blocks_only(&self.scene);
+                    let openings = self.scene.openings()?;
+                    let tracer = Tracer::new(g.primitives.clone(), g.scale());
+                    let block_tracer = Tracer::new(gb.primitives.clone(), gb.scale());
+                    let level = Arc::new(RayLevel {
+                        g,
+                        gb,
+                        openings,
+                        tracer,
+                        block_tracer,
+                    });
+                    *slot = Some(level.clone());
+                    level
+                }
+            }
+        };
+        let pass = RayPass::new(
+            &self.scene,
+            &level.openings,
+            &level.g,
+            &level.gb,
+            &level.tracer,
+            &level.block_tracer,
+        );
+        Ok(f(&pass))
+    }
+}
+
 /// The scene's units by phase: phase 0 shapes, DRT rays and DNRT grids; phase 1 transport.
-pub fn plan(scene: &Scene, scene_dir: &Path) -> Result<Vec<Vec<BakeUnit>>, BakeError> {
-    scene.validate()?;
-    let shapes = shape_plan(scene);
+pub fn plan(us: &UnitScene) -> Result<Vec<Vec<BakeUnit>>, BakeError> {
+    let (scene, shapes) = (&us.scene, &us.shapes);
     let mut first: Vec<BakeUnit> = (0..shapes.unique.len())
         .map(|index| BakeUnit::Shape { index })
         .collect();
     if !scene.clutter.is_empty() {
-        let g = Geometry::from_scene(scene, scene_dir)?;
+        let (block_texels, clutter_texels) = us.with_ray_pass(|pass| {
+            let g = pass.geometry();
+            (
+                g.block_texels
+                    .iter()
+                    .map(|r| r.is_empty())
+                    .collect::<Vec<_>>(),
+                g.clutter_texels
+                    .iter()
+                    .map(|r| r.is_empty())
+                    .collect::<Vec<_>>(),
+            )
+        })?;
         first.extend(
             (0..scene.blocks.len())
-                .filter(|b| !g.block_texels[*b].is_empty())
+                .filter(|b| !block_texels[*b])
                 .map(|block| BakeUnit::DrtBlock { block }),
         );
         first.extend(
             (0..scene.clutter.len())
-                .filter(|c| !g.clutter_texels[*c].is_empty())
+                .filter(|c| !clutter_texels[*c])
                 .map(|clutter| BakeUnit::DrtClutter { clutter }),
         );
     }
@@ -110,12 +200,8 @@ fn shape_files(key: &str) -> [PathBuf; 2] {
 
 /// Cache files a unit reads if present: its own earlier result (reused, or refreshed
 /// incrementally) and, for transport, every shape.
-pub fn unit_inputs(
-    scene: &Scene,
-    scene_dir: &Path,
-    unit: &BakeUnit,
-) -> Result<Vec<PathBuf>, BakeError> {
-    let shapes = shape_plan(scene);
+pub fn unit_inputs(us: &UnitScene, unit: &BakeUnit) -> Result<Vec<PathBuf>, BakeError> {
+    let (scene, shapes) = (&us.scene, &us.shapes);
     Ok(match unit {
         BakeUnit::Shape { index } => {
             shape_files(shapes.unique.get(*index).ok_or_else(|| unknown(unit))?).to_vec()
@@ -123,11 +209,11 @@ pub fn unit_inputs(
         BakeUnit::Transport => {
             let mut files: Vec<PathBuf> =
                 shapes.unique.iter().flat_map(|k| shape_files(k)).collect();
-            files.push(transport_file(scene, &shapes));
+            files.push(transport_file(scene, shapes));
             files
         }
         BakeUnit::DrtBlock { .. } | BakeUnit::DrtClutter { .. } | BakeUnit::Dnrt { .. } => {
-            outputs(scene, scene_dir, unit)?
+            outputs(us, unit)?
         }
     })
 }
@@ -142,32 +228,30 @@ fn transport_file(scene: &Scene, shapes: &ShapePlan) -> PathBuf {
 }
 
 /// The cache files holding a unit's result.
-fn outputs(scene: &Scene, scene_dir: &Path, unit: &BakeUnit) -> Result<Vec<PathBuf>, BakeError> {
-    let shapes = shape_plan(scene);
+fn outputs(us: &UnitScene, unit: &BakeUnit) -> Result<Vec<PathBuf>, BakeError> {
+    let (scene, shapes) = (&us.scene, &us.shapes);
     Ok(match unit {
         BakeUnit::Shape { index } => {
             shape_files(shapes.unique.get(*index).ok_or_else(|| unknown(unit))?).to_vec()
         }
-        BakeUnit::Transport => vec![transport_file(scene, &shapes)],
+        BakeUnit::Transport => vec![transport_file(scene, shapes)],
         BakeUnit::DrtBlock { block } => {
             if *block >= scene.blocks.len() {
                 return Err(unknown(unit));
             }
-            with_ray_pass(scene, scene_dir, |pass| vec![pass.block_unit_file(*block)])?
+            us.with_ray_pass(|pass| vec![pass.block_unit_file(*block)])?
         }
         BakeUnit::DrtClutter { clutter } => {
             if *clutter >= scene.clutter.len() {
                 return Err(unknown(unit));
             }
-            with_ray_pass(scene, scene_dir, |pass| {
-                pass.clutter_unit_file(*clutter).into_iter().collect()
-            })?
+            us.with_ray_pass(|pass| pass.clutter_unit_file(*clutter).into_iter().collect())?
         }
         BakeUnit::Dnrt { object } => {
             let object = scene.dynamic.get(*object).ok_or_else(|| unknown(unit))?;
             let mesh = load_mesh(
                 &format!("dynamic \"{}\"", object.id),
-                scene_dir,
+                &us.dir,
                 &object.mesh,
                 &Default::default(),
             )
@@ -184,31 +268,14 @@ fn outputs(scene: &Scene, scene_dir: &Path, unit: &BakeUnit) -> Result<Vec<PathB
     })
 }
 
-/// Builds the DRT ray pass of a scene (geometry and tracers) and hands it to `f`.
-fn with_ray_pass<T>(
-    scene: &Scene,
-    scene_dir: &Path,
-    f: impl FnOnce(&RayPass) -> T,
-) -> Result<T, BakeError> {
-    let g = Geometry::from_scene(scene, scene_dir)?;
-    let gb = Geometry::blocks_only(scene);
-    let openings = scene.openings()?;
-    let tracer = Tracer::new(g.primitives.clone(), g.scale());
-    let block_tracer = Tracer::new(gb.primitives.clone(), gb.scale());
-    let pass = RayPass::new(scene, &openings, &g, &gb, &tracer, &block_tracer);
-    Ok(f(&pass))
-}
-
 /// Runs one unit against the cache; returns the cache files holding its result.
 pub fn run_unit(
-    scene: &Scene,
-    scene_dir: &Path,
+    us: &UnitScene,
     cache: &ShapeCache,
     unit: &BakeUnit,
     progress: &dyn Progress,
 ) -> Result<Vec<PathBuf>, BakeError> {
-    scene.validate()?;
-    let shapes = shape_plan(scene);
+    let (scene, scene_dir, shapes) = (&us.scene, us.dir.as_path(), &us.shapes);
     match unit {
         BakeUnit::Shape { index } => {
             let key = shapes.unique.get(*index).ok_or_else(|| unknown(unit))?;
@@ -259,7 +326,7 @@ pub fn run_unit(
                 return Err(unknown(unit));
             }
             let ray_cache = DrtRayCache::open(cache.dir())?;
-            with_ray_pass(scene, scene_dir, |pass| {
+            us.with_ray_pass(|pass| {
                 progress.stage("clutter operators", pass.block_texel_count(*block) as u64);
                 trace_block_unit(pass, *block, Some(&ray_cache), &|n| progress.advance(n))
             })??;
@@ -269,7 +336,7 @@ pub fn run_unit(
                 return Err(unknown(unit));
             }
             let ray_cache = DrtRayCache::open(cache.dir())?;
-            with_ray_pass(scene, scene_dir, |pass| {
+            us.with_ray_pass(|pass| {
                 progress.stage(
                     "clutter operators",
                     pass.clutter_texel_count(*clutter) as u64,
@@ -289,5 +356,5 @@ pub fn run_unit(
             progress.advance(1);
         }
     }
-    outputs(scene, scene_dir, unit)
+    outputs(us, unit)
 }

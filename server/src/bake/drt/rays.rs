@@ -745,6 +745,11 @@ impl RayPass<'_> {
         )
     }
 
+    /// The level's geometry (clutter included) the pass traces.
+    pub fn geometry(&self) -> &Geometry {
+        self.g
+    }
+
     /// Texels in block `b`'s ray unit.
     pub fn block_texel_count(&self, b: usize) -> usize {
         self.g.block_texels[b].len()

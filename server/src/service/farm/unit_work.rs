@@ -30,7 +30,7 @@ use super::connection::{Farm, PROGRESS_ACK_EVERY};
 use super::job_state::{UnitDone, UnitMessage};
 use crate::bake::cache::shape::ShapeCache;
 use crate::bake::progress::Progress;
-use crate::bake::units::{run_unit, unit_inputs, BakeUnit};
+use crate::bake::units::{run_unit, unit_inputs, BakeUnit, UnitScene};
 use crate::service::executor::{prepare_scene, ScratchDir};
 use crate::service::job_progress::Cancelled;
 use crate::service::jobs::JobRecord;
@@ -92,6 +92,15 @@ pub struct WorkerContext {
     pub counter: AtomicU64,
     /// Byte budget of `cache_dir`, trimmed least-recently-used after each unit and bake.
     pub cache_bytes: u64,
+    /// The last job's scene for its units, by job id ([`WorkerContext::job_scene`]).
+    pub last_scene: Mutex<Option<(String, Arc<JobScene>)>>,
+}
+
+/// A job's [`UnitScene`] and the scratch directory its mesh files lie in (removed when the
+/// last unit using it is done and another job's scene has replaced it).
+pub struct JobScene {
+    pub units: UnitScene,
+    _dir: ScratchDir,
 }
 
 impl WorkerContext {
@@ -123,6 +132,24 @@ impl WorkerContext {
             self.counter.fetch_add(1, Ordering::Relaxed)
         ));
         prepare_scene(self.store.as_ref(), &record.scene, &record.settings, &dir)
+    }
+
+    /// The job's scene as its units read it ([`UnitScene`]: validated, its shape plan and ray
+    /// level made once), kept for the job's next units on this worker: units of one bake run
+    /// one after another, and remaking these per unit cost more than the units themselves at
+    /// 1,000 blocks. A job's scene and settings never change under its id.
+    pub fn job_scene(&self, record: &JobRecord) -> Result<Arc<JobScene>, String> {
+        let mut last = self.last_scene.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some((id, scene)) = &*last {
+            if *id == record.id {
+                return Ok(scene.clone());
+            }
+        }
+        let (scene, dir) = self.prepare(record)?;
+        let units = UnitScene::new(scene, &dir.0).map_err(|e| e.to_string())?;
+        let scene = Arc::new(JobScene { units, _dir: dir });
+        *last = Some((record.id.clone(), scene.clone()));
+        Ok(scene)
     }
 
     /// Runs `work` on the worker's pool, catching a cancel unwind and panics.
@@ -187,14 +214,14 @@ fn run_blocking(
     unit_name: &str,
     cancel: Arc<AtomicBool>,
 ) -> Outcome<Vec<PathBuf>> {
-    let (scene, dir) = match ctx.prepare(record) {
-        Ok(prepared) => prepared,
+    let scene = match ctx.job_scene(record) {
+        Ok(scene) => scene,
         Err(message) => return Outcome::Failed(message),
     };
     let Some(unit) = BakeUnit::parse(unit_name) else {
         return Outcome::Failed(format!("unit {unit_name:?} is not a bake unit"));
     };
-    let inputs = match unit_inputs(&scene, &dir.0, &unit) {
+    let inputs = match unit_inputs(&scene.units, &unit) {
         Ok(inputs) => inputs,
         Err(e) => return Outcome::Failed(format!("unit {unit_name}: {e}")),
     };
@@ -213,7 +240,7 @@ fn run_blocking(
     };
     let hook = CancelHook(cancel);
     let outcome = ctx.on_pool(|| {
-        run_unit(&scene, &dir.0, &cache, &unit, &hook).map_err(|e| format!("unit {unit_name}: {e}"))
+        run_unit(&scene.units, &cache, &unit, &hook).map_err(|e| format!("unit {unit_name}: {e}"))
     });
     match outcome {
         Outcome::Done(written) => match ctx.farm.block_on(cache_sync::upload(

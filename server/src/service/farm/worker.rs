@@ -22,7 +22,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicU64;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use async_nats::jetstream::{self, AckKind};
@@ -92,6 +92,7 @@ pub async fn run(options: WorkerOptions) -> Result<(), FarmError> {
         name: name.clone(),
         counter: AtomicU64::new(0),
         cache_bytes: options.cache_bytes,
+        last_scene: Mutex::new(None),
     });
 
     let mut cancels = farm
@@ -305,11 +306,11 @@ fn plan_blocking(
     ctx: &WorkerContext,
     job: &FarmJob,
 ) -> Result<(Vec<Vec<String>>, Vec<PathBuf>), String> {
-    let (scene, dir) = ctx.prepare(&job.record)?;
-    let phases = plan(&scene, &dir.0).map_err(|e| format!("plan: {e}"))?;
+    let scene = ctx.job_scene(&job.record)?;
+    let phases = plan(&scene.units).map_err(|e| format!("plan: {e}"))?;
     let mut inputs = Vec::new();
     for unit in phases.iter().flatten() {
-        inputs.extend(unit_inputs(&scene, &dir.0, unit).map_err(|e| format!("plan: {e}"))?);
+        inputs.extend(unit_inputs(&scene.units, unit).map_err(|e| format!("plan: {e}"))?);
     }
     let names = phases
         .iter()
