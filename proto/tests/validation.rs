@@ -1317,6 +1317,16 @@ fn dynamic_regions_are_boxes_and_every_object_must_list_them_to_narrow_the_probe
 // Openings: the windowed search against the pairwise loop it replaced
 // ---------------------------------------------------------------------------------------------
 
+/// The JSON names of the faces `open` says are open, in `Face::ALL` order.
+fn open_names(open: [bool; 6]) -> Vec<&'static str> {
+    ["-x", "+x", "-y", "+y", "-z", "+z"]
+        .into_iter()
+        .zip(open)
+        .filter(|(_, o)| *o)
+        .map(|(n, _)| n)
+        .collect()
+}
+
 /// The pairwise loop over every block `Scene::openings` once was (`O(n²)`): its answer, or its
 /// first error as text.
 fn openings_by_pairs(scene: &Scene) -> Result<Vec<[Option<Opening>; 6]>, String> {
@@ -1432,12 +1442,7 @@ proptest! {
             } else {
                 std::array::from_fn(|f| open_bits & (1 << f) != 0)
             };
-            let open: Vec<&str> = ["-x", "+x", "-y", "+y", "-z", "+z"]
-                .iter()
-                .zip(faces_open)
-                .filter(|(_, o)| *o)
-                .map(|(n, _)| *n)
-                .collect();
+            let open = open_names(faces_open);
             list.push(block(&format!("b{k}"), min, max, &open));
         }
         prop_assume!(!list.is_empty());
@@ -1470,12 +1475,7 @@ fn openings_of_connected_grids_equal_the_pairwise_loop() {
                 open_of(2, x, z, y) && z > 0,
                 open_of(2, x, z + 1, y) && z < 5,
             ];
-            let open: Vec<&str> = ["-x", "+x", "-y", "+y", "-z", "+z"]
-                .iter()
-                .zip(faces)
-                .filter(|(_, o)| *o)
-                .map(|(n, _)| *n)
-                .collect();
+            let open = open_names(faces);
             let (x0, z0, y0) = (x as f64 * 2.5, z as f64 * 3.0, y as f64 * 3.0);
             list.push(block(
                 &format!("c{x}_{z}_{y}"),

@@ -111,10 +111,6 @@ impl UnitScene {
         })
     }
 
-    pub fn scene(&self) -> &Scene {
-        &self.scene
-    }
-
     /// The ray pass over the scene's level (made on first use, then shared) handed to `f`.
     fn with_ray_pass<T>(&self, f: impl FnOnce(&RayPass) -> T) -> Result<T, BakeError> {
         let level = {
@@ -158,27 +154,20 @@ pub fn plan(us: &UnitScene) -> Result<Vec<Vec<BakeUnit>>, BakeError> {
         .map(|index| BakeUnit::Shape { index })
         .collect();
     if !scene.clutter.is_empty() {
-        let (block_texels, clutter_texels) = us.with_ray_pass(|pass| {
+        // Blocks and clutter objects with texels, each a unit.
+        let (blocks, clutter) = us.with_ray_pass(|pass| {
             let g = pass.geometry();
-            (
-                g.block_texels
-                    .iter()
-                    .map(|r| r.is_empty())
-                    .collect::<Vec<_>>(),
-                g.clutter_texels
-                    .iter()
-                    .map(|r| r.is_empty())
-                    .collect::<Vec<_>>(),
-            )
+            let with_texels = |ranges: &[std::ops::Range<usize>]| -> Vec<usize> {
+                (0..ranges.len())
+                    .filter(|&k| !ranges[k].is_empty())
+                    .collect()
+            };
+            (with_texels(&g.block_texels), with_texels(&g.clutter_texels))
         })?;
+        first.extend(blocks.into_iter().map(|block| BakeUnit::DrtBlock { block }));
         first.extend(
-            (0..scene.blocks.len())
-                .filter(|b| !block_texels[*b])
-                .map(|block| BakeUnit::DrtBlock { block }),
-        );
-        first.extend(
-            (0..scene.clutter.len())
-                .filter(|c| !clutter_texels[*c])
+            clutter
+                .into_iter()
                 .map(|clutter| BakeUnit::DrtClutter { clutter }),
         );
     }

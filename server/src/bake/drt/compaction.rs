@@ -354,23 +354,18 @@ pub fn compact_gather(
         });
     }
     // What stays sparse: columns of ranges not factored, and columns in no range.
+    let stays = |c: u32| range_of(c).is_none_or(|ri| !factored_ranges[ri]);
     let mut rest = TexelGather::default();
     rest.row_start.push(0);
-    // Sized for what stays sparse: without the reallocations of growing it entry by entry
-    // (the whole gather when no range factors, as on the maze).
-    let left: usize = (0..gather.rows.len())
-        .map(|i| {
-            row_entries(i)
-                .filter(|(&c, _)| range_of(c).is_none_or(|ri| !factored_ranges[ri]))
-                .count()
-        })
-        .sum();
+    // Sized first, not grown entry by entry (the whole gather when no range factors, as on the
+    // maze).
+    let left = gather.cols.iter().filter(|&&c| stays(c)).count();
     rest.cols.reserve_exact(left);
     rest.values.reserve_exact(left);
     for (i, &row) in gather.rows.iter().enumerate() {
         let before = rest.cols.len();
         for (&c, &v) in row_entries(i) {
-            if range_of(c).is_none_or(|ri| !factored_ranges[ri]) {
+            if stays(c) {
                 rest.cols.push(c);
                 rest.values.push(v);
             }
