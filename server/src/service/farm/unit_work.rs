@@ -29,6 +29,7 @@ use super::cache_sync;
 use super::connection::{Farm, PROGRESS_ACK_EVERY};
 use super::job_state::{UnitDone, UnitMessage};
 use crate::bake::cache::shape::ShapeCache;
+use crate::bake::memory::release_freed;
 use crate::bake::progress::Progress;
 use crate::bake::units::{run_unit, unit_inputs, BakeUnit, UnitScene};
 use crate::service::executor::{prepare_scene, ScratchDir};
@@ -92,7 +93,8 @@ pub struct WorkerContext {
     pub counter: AtomicU64,
     /// Byte budget of `cache_dir`, trimmed least-recently-used after each unit and bake.
     pub cache_bytes: u64,
-    /// The last job's scene for its units, by job id ([`WorkerContext::job_scene`]).
+    /// The last job's scene for its units, by job id ([`WorkerContext::job_scene`]); dropped
+    /// when the unit lane finds no work ([`WorkerContext::forget_job_scene`]).
     pub last_scene: Mutex<Option<(String, Arc<JobScene>)>>,
 }
 
@@ -150,6 +152,22 @@ impl WorkerContext {
         let scene = Arc::new(JobScene { units, _dir: dir });
         *last = Some((record.id.clone(), scene.clone()));
         Ok(scene)
+    }
+
+    /// Lets go of the kept job scene (its geometry and tracers, and its scratch directory) and
+    /// hands the freed pages back to the system: the unit lane calls it when a pull finds no
+    /// work.
+    pub fn forget_job_scene(&self) {
+        let kept = self
+            .last_scene
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take();
+        if let Some((job, _)) = &kept {
+            tracing::info!(%job, "idle: the kept job scene is let go");
+            drop(kept);
+            release_freed();
+        }
     }
 
     /// Runs `work` on the worker's pool, catching a cancel unwind and panics.

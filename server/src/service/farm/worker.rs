@@ -145,7 +145,8 @@ async fn unit_lane(ctx: Arc<WorkerContext>) -> Result<(), FarmError> {
     loop {
         match pull_one(&consumer).await {
             Ok(Some(message)) => handle_unit(ctx.clone(), message).await,
-            Ok(None) => {}
+            // Idle: a kept job scene would hold its level's geometry until the next job.
+            Ok(None) => ctx.forget_job_scene(),
             Err(e) => {
                 tracing::warn!("{e}");
                 tokio::time::sleep(Duration::from_secs(1)).await;
