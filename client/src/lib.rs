@@ -107,7 +107,7 @@ pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};
 pub use occluders::Occluders;
 pub use probes::{irradiance_at, irradiance_sh_at, radiance_sh_at, ProbeField};
-pub use reach_direct::{direct_from_point_lights_by_reach, ReachDirect};
+pub use reach_direct::{direct_from_point_lights_by_reach, every_sample_by_reach, ReachDirect};
 pub use runtime::{
     Applied, ApplyError, Bounces, DeltaApplied, IndirectLight, Method, Runtime, ShLight,
     DEFAULT_TOLERANCE, MAX_BOUNCES,

@@ -80,14 +80,28 @@ pub fn direct_from_point_lights_by_reach(
     samples_per_edge: u32,
 ) -> DirectLight {
     let layout = &bundle.layout;
-    match ReachDirect::new(bundle, occluders) {
-        Some(mut reach) => reach.all_lights_every_sample(
-            layout,
-            occluders,
-            lights,
-            samples_per_edge,
-            direct_scale(layout, occluders),
-        ),
+    every_sample_by_reach(
+        ReachDirect::new(bundle, occluders).as_mut(),
+        layout,
+        occluders,
+        lights,
+        samples_per_edge,
+        direct_scale(layout, occluders),
+    )
+}
+
+/// [`direct_from_point_lights_by_reach`] with the bundle's reach (`None`: it has no rooms) and
+/// [`direct_scale`] kept by the caller, which reuses them across calls.
+pub fn every_sample_by_reach(
+    reach: Option<&mut ReachDirect>,
+    layout: &Layout,
+    occluders: &Occluders,
+    lights: &[Light],
+    samples_per_edge: u32,
+    scale: f64,
+) -> DirectLight {
+    match reach {
+        Some(r) => r.all_lights_every_sample(layout, occluders, lights, samples_per_edge, scale),
         None => direct_from_point_lights_averaged(layout, occluders, lights, samples_per_edge),
     }
 }

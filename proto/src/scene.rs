@@ -746,7 +746,8 @@ impl Scene {
         let mut out = vec![[None; 6]; self.blocks.len()];
         for (i, a) in self.blocks.iter().enumerate() {
             for face in Face::ALL {
-                let (_, _, ac) = a.aabb().face_rect(face);
+                let rect = a.aabb().face_rect(face);
+                let ac = rect.2;
                 let list = &planes[face.opposite().index()];
                 let first = list.partition_point(|p| p.0 < ac - window);
                 near.clear();
@@ -757,23 +758,23 @@ impl Scene {
                         .map(|p| p.1),
                 );
                 near.sort_unstable();
-                out[i][face.index()] = self.opening_of(i, face, &near)?;
+                out[i][face.index()] = self.opening_of(i, face, rect, &near)?;
             }
         }
         Ok(out)
     }
 
-    /// Where face `face` of block `i` leads, among the blocks `candidates` (ascending; every
-    /// block whose opposite face can lie on its plane): the last neighbour found, `Void` when
-    /// open onto nothing, `None` when closed.
+    /// Where face `face` of block `i` leads (`rect`: the face's `Aabb::face_rect`), among the
+    /// blocks `candidates` (ascending; every block whose opposite face can lie on its plane):
+    /// the last neighbour found, `Void` when open onto nothing, `None` when closed.
     fn opening_of(
         &self,
         i: usize,
         face: Face,
+        (amin, amax, ac): ([f64; 2], [f64; 2], f64),
         candidates: &[usize],
     ) -> Result<Option<Opening>, SceneError> {
         let a = &self.blocks[i];
-        let (amin, amax, ac) = a.aabb().face_rect(face);
         let mut found = None;
         for &j in candidates {
             let b = &self.blocks[j];

@@ -49,9 +49,9 @@ use std::time::Instant;
 use std::ops::Range;
 
 use lightfarm_client::{
-    direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in,
-    direct_from_point_lights_averaged, direct_scale, relative_l1, relative_l2, Bounces,
-    DirectLight, IndirectLight, Light, Method, Occluders, ReachDirect, Runtime, TexelSpan,
+    direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in, direct_scale,
+    every_sample_by_reach, relative_l1, relative_l2, Bounces, DirectLight, IndirectLight, Light,
+    Method, Occluders, ReachDirect, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Layout;
 
@@ -305,21 +305,14 @@ pub fn time_update(
     if both {
         // Every sample traced (each light where it reaches, with rooms).
         let start = Instant::now();
-        let every_sample = match full_reach.as_mut() {
-            Some(r) => r.all_lights_every_sample(
-                &layout,
-                occluders,
-                &lights,
-                DIRECT_SAMPLES_PER_EDGE,
-                scale,
-            ),
-            None => direct_from_point_lights_averaged(
-                &layout,
-                occluders,
-                &lights,
-                DIRECT_SAMPLES_PER_EDGE,
-            ),
-        };
+        let every_sample = every_sample_by_reach(
+            full_reach.as_mut(),
+            &layout,
+            occluders,
+            &lights,
+            DIRECT_SAMPLES_PER_EDGE,
+            scale,
+        );
         direct_every_sample_ms = start.elapsed().as_secs_f64() * 1e3;
         direct_error = relative_l2(&direct0.radiance, &every_sample.radiance);
     }

@@ -16,8 +16,9 @@
 //! Invariant: no file I/O and no HTTP here; callers read bundles and write results.
 
 use lightfarm_client::{
-    direct_from_point_lights_by_reach, irradiance_at, Applied, Bounces, Bundle, DirectLight,
-    IndirectLight, Method, Occluders, ProbeField, Runtime,
+    direct_from_point_lights_by_reach, direct_scale, every_sample_by_reach, irradiance_at, Applied,
+    Bounces, Bundle, DirectLight, IndirectLight, Method, Occluders, ProbeField, ReachDirect,
+    Runtime,
 };
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
@@ -59,8 +60,22 @@ pub fn evaluate_with_report(
     let occluders = Occluders::from_layout(&bundle.layout);
     // RESULT.json reports direct light at texel centres; the operators are fed the texel
     // average, which is what a ray landing in the texel sees.
-    let direct = direct_from_point_lights_by_reach(&bundle, &occluders, &lights.lights, 1);
-    let averaged = operator_direct(&bundle, &occluders, lights);
+    // Both with the one reach (rooms and their occluders) and direct scale.
+    let layout = &bundle.layout;
+    let (mut reach, scale) = (
+        ReachDirect::new(&bundle, &occluders),
+        direct_scale(layout, &occluders),
+    );
+    let direct =
+        every_sample_by_reach(reach.as_mut(), layout, &occluders, &lights.lights, 1, scale);
+    let averaged = every_sample_by_reach(
+        reach.as_mut(),
+        layout,
+        &occluders,
+        &lights.lights,
+        DIRECT_SAMPLES_PER_EDGE,
+        scale,
+    );
     let mut runtime = Runtime::try_new(bundle)?;
     // A scene without clutter has no DRT operators: DRT is MRT there.
     let method = if method == Method::Drt && !runtime.has_drt() {
