@@ -10,7 +10,8 @@ What is checked: the exported scene JSON of a two-room level built with bpy agai
 ``data/two_rooms.scene.json``; bake, reuse (200), Apply, the lightmap pixels against
 ``lightfarm eval`` of the same bundle and lights, all bounces and one (within 1/255; float
 images agree to float32 rounding), texel orientation through the mesh's own ``lightmap`` UVs,
-relighting after a light moved without a rebake; a rotated block and a non-manifold clutter
+relighting after a light moved without a rebake; the evaluate answer gzip-compressed on the
+wire and equal to the plain one; a rotated block and a non-manifold clutter
 mesh reported by name; a 422 shown on the object it names; the service down as a message; cancel;
 a mesh clutter uploaded as GLB with a ``lightmap`` UV layer made for it (``TEXCOORD_1``); mesh
 clutter lightmaps (an icosphere with generated UVs, a cylinder with an artist's Lightmap Pack
@@ -389,6 +390,25 @@ class Service(unittest.TestCase):
         self.assertEqual(bpy.ops.lightfarm.cancel(), {"FINISHED"})
         state = run_bake_wait(scene)
         self.assertEqual(state.state, "cancelled", state.message)
+
+    def test_evaluate_is_gzip_compressed_and_gives_the_plain_answer(self):
+        scene = build_two_rooms()
+        state = run_bake(scene)
+        self.assertEqual(state.state, "succeeded", state.message)
+        lights = scene_export.export_scene(scene).lights
+        service = operators.service_of(bpy.context)
+        result, _ = service.evaluate(state.bake_id, lights)
+        self.assertEqual(service.last_encoding, "gzip")
+        # The same request without Accept-Encoding: the plain document, several times larger.
+        request = urllib.request.Request(
+            f"{SERVER.url}/v1/bakes/{state.bake_id}/evaluate",
+            data=json.dumps(lights).encode("utf-8"),
+            headers={"Content-Type": "application/json"}, method="POST")
+        with urllib.request.urlopen(request) as response:
+            self.assertIsNone(response.headers.get("Content-Encoding"))
+            plain = response.read()
+        self.assertEqual(result, json.loads(plain))
+        self.assertLess(3 * service.last_wire_bytes, len(plain))
 
     def test_opening_another_file_during_a_bake_stops_watching_it(self):
         scene = build_two_rooms()
