@@ -45,6 +45,7 @@ use crate::bake::drt::inpaint::inpaint;
 use crate::bake::drt::lit_source::LitSource;
 use crate::bake::drt::rays::{
     clutter_basis_unit, trace_all, BlockTexelRays, ClutterTexelRays, DrtRayCache, RayPass,
+    RayPassResults,
 };
 use crate::bake::drt::rows::{add_row, RowMajor, RowsBySource};
 use crate::bake::mrt::shape::ShapeOperators;
@@ -226,6 +227,13 @@ pub fn build_drt(
     stats.traced_texels = rays.traced_texels;
     stats.reused_texels = rays.reused_texels;
     stats.culled_texels = rays.culled_texels;
+    // The rays are the largest thing a DRT bake holds: each pass below consumes its own, so
+    // their hit lists are freed (or moved into the gather) as the rows that replace them grow.
+    let RayPassResults {
+        block: block_rays,
+        clutter: clutter_rays,
+        ..
+    } = rays;
 
     let rows = SourceRows {
         l_imp: inputs.l_imp_rows.to_vec(),
@@ -238,7 +246,7 @@ pub fn build_drt(
     };
     let widths: Vec<usize> = clutter.iter().map(|(_, p)| p.basis.basis.ncols()).collect();
 
-    let mut blocks = block_texel_rows(inputs, &rays.block, &rows, &burial, &mut stats);
+    let mut blocks = block_texel_rows(inputs, block_rays, &rows, &burial, &mut stats);
     inpaint(
         inputs,
         &widths,
@@ -247,27 +255,39 @@ pub fn build_drt(
         &mut blocks.gathered,
         &mut stats.inpainted_without_neighbours,
     )?;
-    let clutter_rows = clutter_texel_rows(inputs, &rays.clutter, &rows, &burial, &mut stats);
+    let clutter_rows = clutter_texel_rows(inputs, clutter_rays, &rows, &burial, &mut stats);
 
-    // Block texel rows first (they precede clutter texels, so rows stay ascending).
+    // Block texel rows first (they precede clutter texels, so rows stay ascending), each row
+    // freed once copied; the arrays are sized first (growing them by doubling held up to twice
+    // their size, and both copies while moving).
+    let n_rows = blocks.gathered.len() + clutter_rows.gathered.len();
+    let n_entries = blocks.gathered.values().map(Vec::len).sum::<usize>()
+        + clutter_rows
+            .gathered
+            .iter()
+            .map(|(_, r)| r.len())
+            .sum::<usize>();
     let mut gather = TexelGather {
-        row_start: vec![0],
-        ..Default::default()
+        rows: Vec::with_capacity(n_rows),
+        row_start: Vec::with_capacity(n_rows + 1),
+        cols: Vec::with_capacity(n_entries),
+        values: Vec::with_capacity(n_entries),
     };
+    gather.row_start.push(0);
     let inv = 1.0 / settings.rays_per_texel as f64;
     stats.scene_texels_gathered = blocks.gathered.len();
-    for (&x, hits) in &blocks.gathered {
+    let replaced: Vec<u32> = blocks.gathered.keys().copied().collect();
+    for (x, hits) in blocks.gathered {
         gather.rows.push(x);
-        for &(t, n) in hits {
+        for (t, n) in hits {
             gather.cols.push(t);
             gather.values.push((n as f64 * inv) as f32);
         }
         gather.row_start.push(gather.cols.len() as u32);
     }
-    let replaced: Vec<u32> = blocks.gathered.keys().copied().collect();
-    for (x, row) in &clutter_rows.gathered {
-        gather.rows.push(*x);
-        for &(c, v) in row {
+    for (x, row) in clutter_rows.gathered {
+        gather.rows.push(x);
+        for (c, v) in row {
             gather.cols.push(c);
             gather.values.push(v);
         }
@@ -280,7 +300,6 @@ pub fn build_drt(
         }
     }
     buried.sort_unstable();
-
     let exact_scene = settings.scene_gather == SceneGather::Exact;
     let exact = settings.clutter_gather == ClutterGather::Exact;
     Ok(DrtOperators {
@@ -385,19 +404,22 @@ struct BlockRows {
 
 /// ΔU_b and ΔU_c rows of block texels that see clutter (or, with `scene_gather: exact`, their
 /// gathers); buried texels are marked for [`inpaint`]. Each target block's rows are built on a
-/// worker of their own (a block's rows go to its own map), in texel order as one pass would.
+/// worker of their own (a block's rows go to its own map), in texel order as one pass would,
+/// consuming that block's rays (`rays[b]`, the block's texels in order).
 fn block_texel_rows(
     inputs: &DrtInputs,
-    rays: &[BlockTexelRays],
+    rays: Vec<Vec<BlockTexelRays>>,
     rows: &SourceRows,
     burial: &Burial,
     stats: &mut DrtStats,
 ) -> BlockRows {
     let g = inputs.geometry;
     let n_blocks = inputs.scene.blocks.len();
-    let per_block: Vec<TargetRows> = (0..n_blocks)
+    debug_assert_eq!(rays.len(), n_blocks);
+    let per_block: Vec<TargetRows> = rays
         .into_par_iter()
-        .map(|b| target_rows(inputs, b, &rays[g.block_texels[b].clone()], rows, burial))
+        .enumerate()
+        .map(|(b, r)| target_rows(inputs, b, r, rows, burial))
         .collect();
     let mut out = BlockRows {
         per_target: Vec::with_capacity(n_blocks),
@@ -427,11 +449,12 @@ struct TargetRows {
     with_rows: usize,
 }
 
-/// Block `target`'s rows from its texels' rays (`rays`, in the block's texel order).
+/// Block `target`'s rows from its texels' rays (`rays`, in the block's texel order), each
+/// texel's freed once used (its hits moved into the gather with `scene_gather: exact`).
 fn target_rows(
     inputs: &DrtInputs,
     target: usize,
-    rays: &[BlockTexelRays],
+    rays: Vec<BlockTexelRays>,
     rows: &SourceRows,
     burial: &Burial,
 ) -> TargetRows {
@@ -447,7 +470,7 @@ fn target_rows(
         skipped: 0,
         with_rows: 0,
     };
-    for (i, r) in rays.iter().enumerate() {
+    for (i, r) in rays.into_iter().enumerate() {
         let x = first + i;
         let buried = burial.inside_box(g.texels[x].position, None) || r.back_hits > 0.5;
         out.buried[i] = buried;
@@ -462,7 +485,7 @@ fn target_rows(
         out.with_rows += 1;
         if exact_scene {
             // The gather replaces MRT and the deltas on this texel.
-            out.gathered.insert(x as u32, r.hits.clone());
+            out.gathered.insert(x as u32, r.hits);
             continue;
         }
         for &(t, w) in &r.occluded {
@@ -505,10 +528,11 @@ struct ClutterRows {
 }
 
 /// Clutter texels: gather from blocks (C_b) and from other clutter, or (`clutter_gather:
-/// exact`) a sparse row over the direct light of the texels hit.
+/// exact`) a sparse row over the direct light of the texels hit. Consumes the rays (one per
+/// clutter texel in global order), freeing each texel's once used.
 fn clutter_texel_rows(
     inputs: &DrtInputs,
-    rays: &[ClutterTexelRays],
+    rays: Vec<ClutterTexelRays>,
     rows: &SourceRows,
     burial: &Burial,
     stats: &mut DrtStats,
@@ -524,25 +548,25 @@ fn clutter_texel_rows(
         buried: Vec::new(),
     };
     for (&x, r) in clutter_texels.iter().zip(rays) {
-        let (hits, back) = (&r.hits, &r.back);
+        let (hits, back) = (r.hits, r.back);
         let (owner, _) = rows.owners.local(x as u32);
         let p = g.texels[x].position;
-        if !burial.inside_blocks(p) || burial.inside_box(p, Some(owner - n_blocks)) || *back > 0.5 {
+        if !burial.inside_blocks(p) || burial.inside_box(p, Some(owner - n_blocks)) || back > 0.5 {
             stats.buried_clutter_texels += 1;
             out.buried.push(x as u32);
         }
         if exact {
-            // Sparse row over the direct light of the texels hit.
+            // Sparse row over the direct light of the texels hit (in the hits' own allocation).
             let row: Vec<(u32, f32)> = hits
-                .iter()
-                .map(|&(t, n)| (t, (n as f64 * inv) as f32))
+                .into_iter()
+                .map(|(t, n)| (t, (n as f64 * inv) as f32))
                 .collect();
             if !row.is_empty() {
                 out.gathered.push((x as u32, row));
             }
             continue;
         }
-        for &(t, count) in hits {
+        for (t, count) in hits {
             let weight = count as f64 * inv;
             let (source, l) = rows.owners.local(t);
             if source < n_blocks {

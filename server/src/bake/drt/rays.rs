@@ -412,8 +412,9 @@ impl<'a> RayPass<'a> {
 
 /// Both passes' results, in global texel order.
 pub struct RayPassResults {
-    /// One per block texel (global indices `0..`).
-    pub block: Vec<BlockTexelRays>,
+    /// Per block, one per texel of the block in order (so the rows of each block can consume
+    /// its own rays and free them as they go).
+    pub block: Vec<Vec<BlockTexelRays>>,
     /// One per clutter texel, in global order (starting at the first clutter texel).
     pub clutter: Vec<ClutterTexelRays>,
     pub traced_texels: usize,
@@ -714,7 +715,7 @@ pub fn trace_all(
         total.culled += c.culled;
     }
     Ok(RayPassResults {
-        block: blocks.into_iter().flat_map(|(t, _)| t).collect(),
+        block: blocks.into_iter().map(|(t, _)| t).collect(),
         clutter: clutter.into_iter().flat_map(|(t, _)| t).collect(),
         traced_texels: total.traced,
         reused_texels: total.reused,
