@@ -11,6 +11,13 @@ rooms hold a point light (at least one in the level); `--dynamic K` adds K movin
 pose each in the lights file and its room as the region it moves in (the probe volume is baked
 over those rooms only). The same arguments always write the same bytes.
 
+`--storeys K` stacks K storeys of the same grid (the level's N blocks split among them, storey s
+from y = 3s): each storey's rooms are joined by their own spanning tree and loops, and a fraction
+`--stairs` of the rooms (at least one per pair of storeys) open their ceiling into the room above,
+so light and every path between storeys go through those shafts. Pillars, lights and balls are
+placed on every storey as on the ground floor; with one storey (the default) the level is the
+same bytes as without the option.
+
 `--tile B` writes N / B copies of the B-block level side by side along x instead (N a multiple
 of B), each joined to the next through one opening (between the last room of the copy's first
 row and the first room of the next copy's), with the tile's lights in every copy, listed copy by
@@ -21,7 +28,7 @@ the level's size alone (`lightfarm bench --scale ... --tile B`).
 Usage:
     scripts/gen_level.py OUT_DIR [--blocks 1000] [--seed 1] [--texels 8] [--rays 1024]
         [--tolerance 0.001] [--pillars 0.2] [--lights 0.15] [--loops 0.1] [--dynamic 1]
-        [--tile B]
+        [--storeys 1] [--stairs 0.05] [--tile B]
 
 Writes OUT_DIR/scene.json, OUT_DIR/lights.json and (with dynamic objects) OUT_DIR/ball.obj, and
 prints one line of counts.
@@ -54,14 +61,15 @@ def prefix(extents):
 
 
 def spanning_edges(rng, cells, loops):
-    """A random spanning tree over the cells (randomised Kruskal) plus a fraction of the rest."""
+    """A random spanning tree over the cells (randomised Kruskal) plus a fraction of the rest:
+    one tree per storey when cells are (i, j, storey), as walls join rooms of one storey."""
     present = set(cells)
     walls = []
-    for (i, j) in cells:
-        if (i + 1, j) in present:
-            walls.append(((i, j), (i + 1, j)))
-        if (i, j + 1) in present:
-            walls.append(((i, j), (i, j + 1)))
+    for c in cells:
+        for along in (0, 1):
+            n = tuple(v + (k == along) for k, v in enumerate(c))
+            if n in present:
+                walls.append((c, n))
     rng.shuffle(walls)
     parent = {c: c for c in cells}
 
@@ -114,29 +122,55 @@ def icosphere_obj(radius, subdivisions=1):
     return "\n".join(lines) + "\n"
 
 
+def stair_edges(rng, cells, fraction):
+    """Openings between a room and the room above it: a fraction of the stacked pairs, at
+    least one between every two storeys (so every room is reachable)."""
+    present = set(cells)
+    storeys = max(c[2] for c in cells) + 1
+    edges = []
+    for s in range(storeys - 1):
+        pairs = [(c, (c[0], c[1], s + 1)) for c in cells
+                 if c[2] == s and (c[0], c[1], s + 1) in present]
+        rng.shuffle(pairs)
+        edges += pairs[:max(1, int(round(fraction * len(pairs))))]
+    return edges
+
+
 def generate(blocks, seed, texels, rays, tolerance, pillar_fraction, light_fraction, loops,
-             dynamic):
+             dynamic, storeys=1, stairs=0.05):
     rng = random.Random(seed)
-    cols = max(1, math.ceil(math.sqrt(blocks)))
-    rows = math.ceil(blocks / cols)
+    per_storey = math.ceil(blocks / storeys)
+    cols = max(1, math.ceil(math.sqrt(per_storey)))
+    rows = math.ceil(per_storey / cols)
     widths, depths = sizes(rng, cols), sizes(rng, rows)
     xs, zs = prefix(widths), prefix(depths)
-    cells = [(i, j) for j in range(rows) for i in range(cols)][:blocks]
-    name = lambda c: f"room_{c[0]}_{c[1]}"  # noqa: E731
+    if storeys == 1:
+        cells = [(i, j) for j in range(rows) for i in range(cols)][:blocks]
+        name = lambda c: f"room_{c[0]}_{c[1]}"  # noqa: E731
+    else:
+        cells = [(i, j, s) for s in range(storeys) for j in range(rows)
+                 for i in range(cols)][:blocks]
+        name = lambda c: f"room_{c[0]}_{c[1]}_{c[2]}"  # noqa: E731
     openings = {c: set() for c in cells}
-    for a, b in spanning_edges(rng, cells, loops):
-        if a[0] != b[0]:  # neighbours along x
-            openings[a].add("+x")
-            openings[b].add("-x")
-        else:
-            openings[a].add("+z")
-            openings[b].add("-z")
+    edges = spanning_edges(rng, cells, loops)
+    if storeys > 1:
+        edges += stair_edges(rng, cells, stairs)
+    for a, b in edges:
+        axis = next(k for k in range(len(a)) if a[k] != b[k])
+        face = ["x", "z", "y"][axis]  # (i, j, storey) run along x, z and y
+        openings[a].add("+" + face)
+        openings[b].add("-" + face)
     face_order = ["-x", "+x", "-y", "+y", "-z", "+z"]
     scene_blocks, clutter, lights, free_cells = [], [], [], []
+
+    def room_box(c):
+        y0 = HEIGHT * (c[2] if len(c) > 2 else 0)
+        return ([xs[c[0]], y0, zs[c[1]]],
+                [xs[c[0]] + widths[c[0]], y0 + HEIGHT, zs[c[1]] + depths[c[1]]])
     for c in cells:
-        i, j = c
-        lo = [xs[i], 0.0, zs[j]]
-        hi = [xs[i] + widths[i], HEIGHT, zs[j] + depths[j]]
+        i, j = c[:2]
+        lo, hi = room_box(c)
+        y0 = lo[1]
         grey = round(rng.uniform(0.55, 0.75), 2)
         tint = [round(grey + rng.uniform(-0.04, 0.04), 2) for _ in range(3)]
         scene_blocks.append({
@@ -147,9 +181,9 @@ def generate(blocks, seed, texels, rays, tolerance, pillar_fraction, light_fract
         if widths[i] >= 4.0 and depths[j] >= 4.0 and rng.random() < pillar_fraction:
             px = rng.uniform(lo[0] + WALL_GAP, hi[0] - WALL_GAP - PILLAR)
             pz = rng.uniform(lo[2] + WALL_GAP, hi[2] - WALL_GAP - PILLAR)
-            box = {"min": [round(px, 3), 0.0, round(pz, 3)],
-                   "max": [round(px + PILLAR, 3), PILLAR_HEIGHT, round(pz + PILLAR, 3)]}
-            clutter.append({"id": f"pillar_{i}_{j}", "box": box,
+            box = {"min": [round(px, 3), y0, round(pz, 3)],
+                   "max": [round(px + PILLAR, 3), y0 + PILLAR_HEIGHT, round(pz + PILLAR, 3)]}
+            clutter.append({"id": "pillar" + name(c)[4:], "box": box,
                             "albedo": [0.55, 0.53, 0.5]})
             keep_out.append(box)
         else:
@@ -158,9 +192,8 @@ def generate(blocks, seed, texels, rays, tolerance, pillar_fraction, light_fract
             lights.append(light_in(rng, lo, hi, keep_out))
     if not lights:
         c = cells[rng.randrange(len(cells))]
-        lo = [xs[c[0]], 0.0, zs[c[1]]]
-        hi = [xs[c[0]] + widths[c[0]], HEIGHT, zs[c[1]] + depths[c[1]]]
-        boxes = [o["box"] for o in clutter if o["id"] == f"pillar_{c[0]}_{c[1]}"]
+        lo, hi = room_box(c)
+        boxes = [o["box"] for o in clutter if o["id"] == "pillar" + name(c)[4:]]
         lights.append(light_in(rng, lo, hi, boxes))
     scene = {
         "format": "lightfarm.scene/1",
@@ -177,13 +210,12 @@ def generate(blocks, seed, texels, rays, tolerance, pillar_fraction, light_fract
                             for k in range(dynamic)]
         for k in range(dynamic):
             c = free_cells[rng.randrange(len(free_cells))] if free_cells else cells[0]
-            x = xs[c[0]] + widths[c[0]] / 2
-            z = zs[c[1]] + depths[c[1]] / 2
-            poses.append({"id": f"ball_{k}", "translation": [round(x, 3), 0.5, round(z, 3)]})
+            lo, hi = room_box(c)
+            x, z = (lo[0] + hi[0]) / 2, (lo[2] + hi[2]) / 2
+            poses.append({"id": f"ball_{k}",
+                          "translation": [round(x, 3), lo[1] + 0.5, round(z, 3)]})
             # The ball rolls about its room: the probe volume is baked there only.
-            scene["dynamic"][k]["regions"] = [{
-                "min": [xs[c[0]], 0.0, zs[c[1]]],
-                "max": [xs[c[0]] + widths[c[0]], HEIGHT, zs[c[1]] + depths[c[1]]]}]
+            scene["dynamic"][k]["regions"] = [{"min": lo, "max": hi}]
     light_set = {"lights": lights}
     if poses:
         light_set["poses"] = poses
@@ -232,7 +264,7 @@ def tiled(scene, light_set, copies):
 def light_in(rng, lo, hi, keep_out):
     """A point light inside the room [lo, hi], clear of walls and of the boxes in keep_out."""
     for _ in range(100):
-        p = [rng.uniform(lo[0] + LIGHT_GAP, hi[0] - LIGHT_GAP), rng.uniform(1.5, 2.5),
+        p = [rng.uniform(lo[0] + LIGHT_GAP, hi[0] - LIGHT_GAP), lo[1] + rng.uniform(1.5, 2.5),
              rng.uniform(lo[2] + LIGHT_GAP, hi[2] - LIGHT_GAP)]
         clear = all(not all(b["min"][k] - LIGHT_GAP <= p[k] <= b["max"][k] + LIGHT_GAP
                             for k in range(3)) for b in keep_out)
@@ -258,16 +290,23 @@ def main():
     ap.add_argument("--loops", type=float, default=0.1,
                     help="fraction of the walls outside the spanning tree that open")
     ap.add_argument("--dynamic", type=int, default=1, help="moving balls")
+    ap.add_argument("--storeys", type=int, default=1, help="storeys of the grid (module doc)")
+    ap.add_argument("--stairs", type=float, default=0.05,
+                    help="fraction of stacked rooms open to the room above")
     ap.add_argument("--tile", type=int, default=None,
                     help="copies of a level of this many blocks (module doc)")
     a = ap.parse_args()
     if a.blocks < 1:
         ap.error("--blocks must be at least 1")
+    if a.storeys < 1 or a.storeys > a.blocks:
+        ap.error(f"--storeys {a.storeys}: between 1 and --blocks ({a.blocks})")
+    if a.storeys > 1 and a.tile is not None:
+        ap.error("--storeys and --tile do not combine")
     if a.tile is not None and (a.tile < 1 or a.blocks % a.tile != 0):
         ap.error(f"--tile {a.tile}: --blocks {a.blocks} must be a positive multiple of it")
     tile = a.tile or a.blocks
     scene, light_set = generate(tile, a.seed, a.texels, a.rays, a.tolerance, a.pillars,
-                                a.lights, a.loops, a.dynamic)
+                                a.lights, a.loops, a.dynamic, a.storeys, a.stairs)
     if a.blocks > tile:
         scene, light_set = tiled(scene, light_set, a.blocks // tile)
     a.out.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,9 @@
 //! transport into for inpainting hold every buried texel. A lamp's change relit at all bounces
 //! by the change writes a neighbourhood, within the tolerance; switched on by feedback it
 //! settles within the tolerance, no call writing a tenth of the level. Also checks that the
-//! generator is deterministic.
+//! generator is deterministic, and that a level of three storeys (`--storeys 3`) is one level
+//! (every room reachable, shafts between the storeys) whose ground-floor lights light every
+//! storey at all bounces, the upper ones less.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -16,26 +18,34 @@ use std::process::Command;
 use lightfarm_client::{
     direct_from_point_lights, Bounces, DirectLight, IndirectLight, Method, Occluders, Runtime,
 };
-use lightfarm_proto::scene::Scene;
+use lightfarm_proto::scene::{Opening, Scene};
 use lightfarm_server::bake::drt::inpaint::inpainting_targets;
 use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::evaluate::evaluate;
 use lightfarm_tests::*;
 
-/// Runs the generator into `dir`; returns the scene text.
+/// Runs the generator into `dir` (2 texels per face, 16 rays); returns the scene text.
 fn generate(dir: &Path, blocks: u32) -> String {
-    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scripts/gen_level.py");
-    let output = Command::new("python3")
-        .arg(&script)
-        .arg(dir)
-        .args([
+    generate_with(
+        dir,
+        &[
             "--blocks",
             &blocks.to_string(),
             "--texels",
             "2",
             "--rays",
             "16",
-        ])
+        ],
+    )
+}
+
+/// Runs the generator into `dir` with `args`; returns the scene text.
+fn generate_with(dir: &Path, args: &[&str]) -> String {
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scripts/gen_level.py");
+    let output = Command::new("python3")
+        .arg(&script)
+        .arg(dir)
+        .args(args)
         .output()
         .expect("python3 runs scripts/gen_level.py");
     assert!(
@@ -345,4 +355,86 @@ fn the_generator_is_deterministic() {
     assert_eq!(scene.blocks.len(), 50);
     let _ = std::fs::remove_dir_all(&a);
     let _ = std::fs::remove_dir_all(&b);
+}
+
+/// The storey (0, 1, …) a point at height `y` lies on: storeys are 3 m high.
+fn storey_of(y: f64) -> usize {
+    (y / 3.0).floor().max(0.0) as usize
+}
+
+#[test]
+fn a_generated_level_of_storeys_is_one_level_and_its_light_climbs_the_shafts() {
+    let dir = scratch("storeys");
+    let text = generate_with(
+        &dir,
+        &[
+            "--blocks",
+            "36",
+            "--storeys",
+            "3",
+            "--stairs",
+            "0.1",
+            "--seed",
+            "3",
+            "--lights",
+            "0.3",
+            "--texels",
+            "4",
+            "--rays",
+            "64",
+            "--dynamic",
+            "0",
+        ],
+    );
+    let scene = Scene::from_json(&text).expect("the generated level is a valid scene");
+    assert_eq!(scene.blocks.len(), 36);
+    let storey = |b: usize| storey_of(scene.blocks[b].min[1] + 1.5);
+    assert_eq!((0..36).map(storey).max(), Some(2));
+    // Every room is reachable through openings, and each storey opens into the one above.
+    let openings = scene.openings().expect("the openings match");
+    let mut seen = vec![false; 36];
+    let mut stack = vec![0];
+    let mut shafts = [0usize; 2];
+    seen[0] = true;
+    while let Some(b) = stack.pop() {
+        for o in openings[b].iter().flatten() {
+            let Opening::Neighbour { block: n, .. } = *o else {
+                continue;
+            };
+            if storey(n) == storey(b) + 1 {
+                shafts[storey(b)] += 1;
+            }
+            if !std::mem::replace(&mut seen[n], true) {
+                stack.push(n);
+            }
+        }
+    }
+    assert!(seen.iter().all(|&s| s), "a room no opening leads to");
+    assert!(
+        shafts.iter().all(|&n| n >= 1),
+        "shafts between storeys: {shafts:?}"
+    );
+
+    // The ground floor's lights alone: at all bounces their light reaches every storey
+    // through the shafts, and the upper storeys get less than the one they are on.
+    let (bytes, _) = bake_scene(&scene, &dir, scene.settings.transport, false);
+    let bundle = lightfarm_client::decode(&bytes).unwrap();
+    let mut lights = lightfarm_proto::lights::LightSet::from_json(
+        &std::fs::read_to_string(dir.join("lights.json")).unwrap(),
+    )
+    .unwrap();
+    lights.lights.retain(|l| storey_of(l.position[1]) == 0);
+    assert!(!lights.lights.is_empty());
+    let all = Bounces::Converged { tolerance: 1e-3 };
+    let result = evaluate(bundle.clone(), &lights, Method::Drt, all).unwrap();
+    let mut per_storey = [0.0f64; 3];
+    for r in result.by_layout_texel(&bundle.layout).iter().flatten() {
+        // A texel a step off its surface lies in its own room (a floor at 3 m is storey 1's).
+        let y = r.position[1] + 0.1 * r.normal[1];
+        per_storey[storey_of(y).min(2)] += r.indirect.iter().sum::<f64>();
+    }
+    eprintln!("indirect light summed per storey, ground-floor lights: {per_storey:?}");
+    assert!(per_storey.iter().all(|&e| e > 0.0 && e.is_finite()));
+    assert!(per_storey[0] > per_storey[1] && per_storey[0] > per_storey[2]);
+    let _ = std::fs::remove_dir_all(&dir);
 }
