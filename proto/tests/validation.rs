@@ -1495,3 +1495,60 @@ fn openings_of_connected_grids_equal_the_pairwise_loop() {
     }
     assert!(linked > 40 * 72 / 4, "{linked} linked faces");
 }
+
+/// The first pair of blocks (in block order) whose boxes share a volume, by the loop over every
+/// pair (what `Scene::validate` answered before it searched by x), as its error message.
+fn overlap_by_pairs(scene: &Scene) -> Option<String> {
+    let scale = |b: &Aabb| {
+        b.min
+            .iter()
+            .chain(b.max.iter())
+            .fold(1.0f64, |m, x| m.max(x.abs()))
+    };
+    for (i, a) in scene.blocks.iter().enumerate() {
+        for b in &scene.blocks[i + 1..] {
+            if let Some(overlap) = a.aabb().intersection(&b.aabb()) {
+                let tol = 1e-9 * scale(&a.aabb()).max(scale(&b.aabb()));
+                if overlap.extent().iter().all(|x| *x > tol) {
+                    return Some(format!("block \"{}\": overlaps block \"{}\"", a.id, b.id));
+                }
+            }
+        }
+    }
+    None
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
+
+    /// Blocks on a coarse grid with random sizes (touching, apart, overlapping by whole cells
+    /// or by a hair, some very wide): validation refuses the pair the pairwise loop finds first,
+    /// and no pair when it finds none.
+    #[test]
+    fn block_overlaps_equal_the_pairwise_loop(
+        list in proptest::collection::vec(
+            ((0u8..12, 0u8..3, 0u8..12), (1u8..4, 1u8..3, 1u8..4), 0u8..6), 1..30),
+    ) {
+        let mut values = Vec::new();
+        for (k, &((x, y, z), (w, h, d), shape)) in list.iter().enumerate() {
+            let mut min = [x as f64, y as f64 * 3.0, z as f64];
+            let mut max = [min[0] + w as f64, min[1] + h as f64 * 3.0, min[2] + d as f64];
+            match shape {
+                // Into the next cell by a hair: below the tolerance, or just above it.
+                1 => max[0] += 1e-12,
+                2 => max[0] += 1e-7,
+                // Very wide: the window must reach back over it.
+                3 => min[0] -= 40.0,
+                _ => {}
+            }
+            values.push(block(&format!("b{k}"), min, max, &[]));
+        }
+        let scene: Scene = serde_json::from_value(blocks(values)).unwrap();
+        let got = scene
+            .validate()
+            .err()
+            .map(|e| e.to_string())
+            .filter(|e| e.contains("overlaps block"));
+        prop_assert_eq!(got, overlap_by_pairs(&scene));
+    }
+}
