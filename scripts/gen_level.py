@@ -167,6 +167,7 @@ def generate(blocks, seed, texels, rays, tolerance, pillar_fraction, light_fract
         y0 = HEIGHT * (c[2] if len(c) > 2 else 0)
         return ([xs[c[0]], y0, zs[c[1]]],
                 [xs[c[0]] + widths[c[0]], y0 + HEIGHT, zs[c[1]] + depths[c[1]]])
+
     for c in cells:
         i, j = c[:2]
         lo, hi = room_box(c)

@@ -300,6 +300,7 @@ pub fn build_drt(
         }
     }
     buried.sort_unstable();
+
     let exact_scene = settings.scene_gather == SceneGather::Exact;
     let exact = settings.clutter_gather == ClutterGather::Exact;
     Ok(DrtOperators {
