@@ -184,7 +184,7 @@ def generate(blocks, seed, texels, rays, tolerance, pillar_fraction, light_fract
             pz = rng.uniform(lo[2] + WALL_GAP, hi[2] - WALL_GAP - PILLAR)
             box = {"min": [round(px, 3), y0, round(pz, 3)],
                    "max": [round(px + PILLAR, 3), y0 + PILLAR_HEIGHT, round(pz + PILLAR, 3)]}
-            clutter.append({"id": "pillar" + name(c)[4:], "box": box,
+            clutter.append({"id": name(c).replace("room_", "pillar_", 1), "box": box,
                             "albedo": [0.55, 0.53, 0.5]})
             keep_out.append(box)
         else:
@@ -194,7 +194,7 @@ def generate(blocks, seed, texels, rays, tolerance, pillar_fraction, light_fract
     if not lights:
         c = cells[rng.randrange(len(cells))]
         lo, hi = room_box(c)
-        boxes = [o["box"] for o in clutter if o["id"] == "pillar" + name(c)[4:]]
+        boxes = [o["box"] for o in clutter if o["id"] == name(c).replace("room_", "pillar_", 1)]
         lights.append(light_in(rng, lo, hi, boxes))
     scene = {
         "format": "lightfarm.scene/1",

@@ -704,26 +704,17 @@ impl Scene {
             .iter()
             .map(|b| b.max[0] - b.min[0])
             .fold(0.0f64, f64::max);
-        // Far above the rounding of `min - widest`; a wider window only tests more pairs.
-        let slack = 2e-9 * boxes.iter().map(scale_of).fold(1.0f64, f64::max);
-        let mut by_x: Vec<(f64, usize)> = boxes
-            .iter()
-            .enumerate()
-            .map(|(j, b)| (b.min[0], j))
-            .collect();
-        by_x.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+        let slack = self.window_slack();
+        let by_x = ByCoordinate::new(boxes.iter().map(|b| b.min[0]));
         let mut near = Vec::new();
         for (i, a) in boxes.iter().enumerate() {
-            let first = by_x.partition_point(|p| p.0 < a.min[0] - widest - slack);
-            near.clear();
-            near.extend(
-                by_x[first..]
-                    .iter()
-                    .take_while(|p| p.0 <= a.max[0] + slack)
-                    .map(|p| p.1)
-                    .filter(|&j| j > i),
+            let later = |j: usize| j > i;
+            by_x.within(
+                a.min[0] - widest - slack,
+                a.max[0] + slack,
+                later,
+                &mut near,
             );
-            near.sort_unstable();
             for &j in &near {
                 let b = &boxes[j];
                 if let Some(overlap) = a.intersection(b) {
@@ -751,27 +742,11 @@ impl Scene {
     /// `O(n log n)` for a level of `n` blocks rather than `O(n²)` (0.16 s per call at 1,000
     /// blocks, called once per unit by a farm worker).
     pub fn openings(&self) -> Result<Vec<[Option<Opening>; 6]>, SceneError> {
-        // Every pair's tolerance is at most this; the window is twice as wide, far above the
-        // rounding of `ac ± window`.
-        let window = 2e-9
-            * self
-                .blocks
-                .iter()
-                .map(|b| scale_of(&b.aabb()))
-                .fold(1.0f64, f64::max);
-        // Per face direction: (plane coordinate, block), ascending.
-        let planes: Vec<Vec<(f64, usize)>> = Face::ALL
+        let window = self.window_slack();
+        // Per face direction: the blocks by that face's plane coordinate.
+        let planes: Vec<ByCoordinate> = Face::ALL
             .iter()
-            .map(|&f| {
-                let mut v: Vec<(f64, usize)> = self
-                    .blocks
-                    .iter()
-                    .enumerate()
-                    .map(|(j, b)| (b.aabb().face_rect(f).2, j))
-                    .collect();
-                v.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-                v
-            })
+            .map(|&f| ByCoordinate::new(self.blocks.iter().map(|b| b.aabb().face_rect(f).2)))
             .collect();
         let mut near = Vec::new();
         let mut out = vec![[None; 6]; self.blocks.len()];
@@ -779,20 +754,23 @@ impl Scene {
             for face in Face::ALL {
                 let rect = a.aabb().face_rect(face);
                 let ac = rect.2;
-                let list = &planes[face.opposite().index()];
-                let first = list.partition_point(|p| p.0 < ac - window);
-                near.clear();
-                near.extend(
-                    list[first..]
-                        .iter()
-                        .take_while(|p| p.0 <= ac + window)
-                        .map(|p| p.1),
-                );
-                near.sort_unstable();
+                let plane = &planes[face.opposite().index()];
+                plane.within(ac - window, ac + window, |_| true, &mut near);
                 out[i][face.index()] = self.opening_of(i, face, rect, &near)?;
             }
         }
         Ok(out)
+    }
+
+    /// How far the searches by coordinate ([`ByCoordinate`]) widen their windows: twice the
+    /// largest tolerance of any pair of blocks (`1e-9` of the larger one's scale), far above the
+    /// rounding of a coordinate plus or minus it. A wider window only tests more pairs.
+    fn window_slack(&self) -> f64 {
+        2e-9 * self
+            .blocks
+            .iter()
+            .map(|b| scale_of(&b.aabb()))
+            .fold(1.0f64, f64::max)
     }
 
     /// Where face `face` of block `i` leads (`rect`: the face's `Aabb::face_rect`), among the
@@ -888,6 +866,35 @@ impl Scene {
             }
         }
         b
+    }
+}
+
+/// The blocks listed by one coordinate each (ascending, ties by block index), so that those whose
+/// coordinate lies in an interval are found by binary search: how the checks that would compare
+/// every pair of blocks ([`Scene::openings`], the overlap check) test only nearby ones.
+struct ByCoordinate(Vec<(f64, usize)>);
+
+impl ByCoordinate {
+    /// Block `j`'s coordinate is the `j`-th of `values`.
+    fn new(values: impl Iterator<Item = f64>) -> ByCoordinate {
+        let mut v: Vec<(f64, usize)> = values.enumerate().map(|(j, x)| (x, j)).collect();
+        v.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+        ByCoordinate(v)
+    }
+
+    /// The blocks whose coordinate lies in `[lo, hi]` and that `keep` keeps, ascending by
+    /// block index, into `out` (cleared first).
+    fn within(&self, lo: f64, hi: f64, keep: impl Fn(usize) -> bool, out: &mut Vec<usize>) {
+        let first = self.0.partition_point(|p| p.0 < lo);
+        out.clear();
+        out.extend(
+            self.0[first..]
+                .iter()
+                .take_while(|p| p.0 <= hi)
+                .map(|p| p.1)
+                .filter(|&j| keep(j)),
+        );
+        out.sort_unstable();
     }
 }
 

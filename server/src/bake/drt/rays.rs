@@ -410,7 +410,7 @@ impl<'a> RayPass<'a> {
     }
 }
 
-/// Both passes' results, in global texel order.
+/// Both passes' results: the block texels' per block, the clutter texels' in global order.
 pub struct RayPassResults {
     /// Per block, one per texel of the block in order (so the rows of each block can consume
     /// its own rays and free them as they go).
