@@ -163,6 +163,15 @@ impl<'a> TexelOwners<'a> {
 }
 
 /// The buried-texel tests: inside a (closed) clutter box, or outside every block.
+///
+/// A clutter texel is buried when the point just off its surface (along its normal, by
+/// [`Burial::off`]) lies outside every (closed) block or inside another clutter object's
+/// (closed) box, or when most of its rays hit back faces: a face pressed against a wall, the
+/// floor or another prop (stacked or touching crates), or left outside the level. No light
+/// reaches such a face, so it gets no rows and its light is 0, as a path tracer finds (its rays
+/// start inside the other box and gather what that box's inside sees). A texel on an opening
+/// between two blocks is inside the level (closed blocks), so a prop standing in a doorway
+/// keeps its light.
 struct Burial<'a> {
     scene: &'a Scene,
     /// Tolerance, relative to the geometry's scale. `scale()` passes over every primitive:
@@ -183,12 +192,26 @@ impl Burial<'_> {
         })
     }
 
-    fn inside_blocks(&self, p: [f64; 3]) -> bool {
+    /// Whether `p` lies in some block, its faces included (within the tolerance).
+    fn inside_closed_blocks(&self, p: [f64; 3]) -> bool {
         let e = self.e;
         self.scene
             .blocks
             .iter()
-            .any(|b| (0..3).all(|k| p[k] > b.min[k] + e && p[k] < b.max[k] - e))
+            .any(|b| (0..3).all(|k| p[k] >= b.min[k] - e && p[k] <= b.max[k] + e))
+    }
+
+    /// How far off its surface a clutter texel is tested: a hundred tolerances, so a face
+    /// flush with a wall tests a point beyond the wall's tolerance.
+    fn off(&self) -> f64 {
+        100.0 * self.e
+    }
+
+    /// Whether the clutter texel at `p` with normal `n` on scene clutter object `own` is
+    /// buried (see [`Burial`]); `back` is the weight of its rays that hit back faces.
+    fn clutter_texel_buried(&self, p: [f64; 3], n: [f64; 3], own: usize, back: f64) -> bool {
+        let q = [0, 1, 2].map(|k| p[k] + self.off() * n[k]);
+        !self.inside_closed_blocks(q) || self.inside_box(q, Some(own)) || back > 0.5
     }
 }
 
@@ -551,10 +574,12 @@ fn clutter_texel_rows(
     for (&x, r) in clutter_texels.iter().zip(rays) {
         let (hits, back) = (r.hits, r.back);
         let (owner, _) = rows.owners.local(x as u32);
-        let p = g.texels[x].position;
-        if !burial.inside_blocks(p) || burial.inside_box(p, Some(owner - n_blocks)) || back > 0.5 {
+        let texel = &g.texels[x];
+        if burial.clutter_texel_buried(texel.position, texel.normal, owner - n_blocks, back) {
+            // No light reaches it: no rows (its rays started inside what covers it).
             stats.buried_clutter_texels += 1;
             out.buried.push(x as u32);
+            continue;
         }
         if exact {
             // Sparse row over the direct light of the texels hit (in the hits' own allocation).
@@ -619,4 +644,51 @@ fn pack_entries(per_target: Vec<RowsBySource>, per_clutter: RowsBySource) -> Vec
         })
         .collect();
     packed.into_iter().flatten().collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Burial;
+    use lightfarm_proto::scene::Scene;
+
+    /// Two rooms joined at x = 4; a crate standing in the doorway, a box pressed against its
+    /// +z face.
+    fn scene() -> Scene {
+        Scene::from_json(
+            r#"{ "format": "lightfarm.scene/1", "name": "doorway",
+                 "blocks": [
+                   { "id": "a", "min": [0,0,0], "max": [4,3,4], "open": ["+x"], "albedo": [0.5,0.5,0.5] },
+                   { "id": "b", "min": [4,0,0], "max": [8,3,4], "open": ["-x"], "albedo": [0.5,0.5,0.5] } ],
+                 "clutter": [
+                   { "id": "crate", "box": { "min": [3.5,0,1], "max": [4.5,1,2] }, "albedo": [0.5,0.5,0.5] },
+                   { "id": "pressed", "box": { "min": [3.6,0,2], "max": [4.4,0.8,2.5] }, "albedo": [0.5,0.5,0.5] } ] }"#,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_clutter_texel_is_buried_only_where_no_light_reaches_it() {
+        let scene = scene();
+        let burial = Burial {
+            scene: &scene,
+            e: 1e-6 * 8.0,
+        };
+        let buried =
+            |p: [f64; 3], n: [f64; 3], own: usize| burial.clutter_texel_buried(p, n, own, 0.0);
+        // The crate's top on the opening's plane: inside the level (a prop in a doorway).
+        assert!(!buried([4.0, 1.0, 1.5], [0.0, 1.0, 0.0], 0));
+        // Its +x face in room b, and its top in room a: exposed.
+        assert!(!buried([4.5, 0.5, 1.5], [1.0, 0.0, 0.0], 0));
+        assert!(!buried([3.75, 1.0, 1.25], [0.0, 1.0, 0.0], 0));
+        // Its bottom on the floor: outside the level just below it.
+        assert!(buried([3.75, 0.0, 1.25], [0.0, -1.0, 0.0], 0));
+        // Its +z face where the other box presses against it, and that box's −z face.
+        assert!(buried([4.0, 0.4, 2.0], [0.0, 0.0, 1.0], 0));
+        assert!(buried([3.9, 0.4, 2.0], [0.0, 0.0, -1.0], 1));
+        // The same +z face above the other box (y > 0.8) is exposed.
+        assert!(!buried([4.0, 0.9, 2.0], [0.0, 0.0, 1.0], 0));
+        // Outside every block, and rays that mostly hit back faces.
+        assert!(buried([9.0, 0.5, 1.5], [1.0, 0.0, 0.0], 0));
+        assert!(burial.clutter_texel_buried([4.5, 0.5, 1.5], [1.0, 0.0, 0.0], 0, 0.75));
+    }
 }
