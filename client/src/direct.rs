@@ -15,6 +15,13 @@
 //! occluder hides whole neither, and the rest test only the occluders that may cross their
 //! segments, all with the buffer's answers.
 //!
+//! A texel's value is the mean of `L_d` over its area, from an `m × m` grid of samples. A
+//! light within a few texels of an axis-aligned texel peaks inside it more sharply than the
+//! grid resolves, so there the unshadowed mean is exact (the solid angle the texel subtends,
+//! over its area) and the samples only say which share of it is shadowed
+//! ([`crate::texel_samples::near_light_mean`]): a light 5 cm from a wall of 1.5 × 0.75 m
+//! texels lost 31% of its indirect light on the grid alone (0.69 of Mitsuba's, all bounces).
+//!
 //! Invariants:
 //! - [`DirectLight::radiance`] has one entry per layout texel, in layout order.
 //! - Every value is finite and non-negative for finite, non-negative lights: `r²` is clamped
@@ -29,7 +36,7 @@ use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
 use crate::occluders::Occluders;
 pub use crate::texel_samples::ADAPTIVE_MAX_SAMPLES_PER_EDGE;
 use crate::texel_samples::{
-    corner_indices, faces_away, sample_points, unshadowed, TexelAt, TexelSamples,
+    corner_indices, faces_away, near_light_mean, sample_points, unshadowed, TexelAt, TexelSamples,
 };
 
 /// `r²` is clamped below at `(R_MIN_REL · scene scale)²`.
@@ -305,8 +312,8 @@ fn averaged_with(
     DirectLight { radiance }
 }
 
-/// One texel of [`direct_from_point_lights_averaged`] (`m ≥ 2`, a texel with a size): the
-/// mean over its `m × m` samples.
+/// One texel of [`direct_from_point_lights_averaged`] (`m ≥ 2`, a texel with a size): per
+/// light the mean over its `m × m` samples ([`texel_mean`]: exact near the light), summed.
 fn averaged_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
     // On the stack up to 8 × 8 samples (no allocation per texel).
     let mut stack = [[0.0f32; 3]; 64];
@@ -318,14 +325,28 @@ fn averaged_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
         &mut heap
     };
     sample_points(t.x, t.n, t.size, m, points);
-    let mut sum = [0.0f64; 3];
-    for &p in points.iter() {
-        let l = lighting.radiance_at(p, t.n, t.rho);
-        for c in 0..3 {
-            sum[c] += l[c];
+    let mut irr = [0.0f64; 3];
+    for (li, light) in lighting.lights.iter().enumerate() {
+        if light.intensity.iter().all(|&i| i == 0.0) {
+            continue;
+        }
+        // Every sample's term, and the seen ones' (a shadow ray where the term is not 0).
+        let (mut seen, mut all) = (0.0f64, 0.0f64);
+        for &p in points.iter() {
+            let g = unshadowed(p, t.n, light, lighting.r2_min);
+            if g > 0.0 {
+                all += g;
+                if !lighting.occluded(li, p) {
+                    seen += g;
+                }
+            }
+        }
+        let w = texel_mean(&t, light, m, seen, || all);
+        for (e, i) in irr.iter_mut().zip(light.intensity) {
+            *e += i * w;
         }
     }
-    sum.map(|s| (s / (m * m) as f64) as f32)
+    outgoing(t.rho, irr).map(|v| v as f32)
 }
 
 /// [`direct_from_point_lights_averaged`] with shadow rays only where visibility can change
@@ -496,7 +517,8 @@ fn adaptive_texel(
 }
 
 /// Adds light `li`'s term of a texel's adaptive average into `irr`: `I` times the mean over
-/// the texel's `m × m` samples of `cosθ / r² · V`, with `V` traced at the four corner samples
+/// the texel's `m × m` samples of `cosθ / r² · V` ([`texel_mean`]: exact near the light), with
+/// `V` traced at the four corner samples
 /// and at every sample only where the corners disagree (no ray where the shadows are
 /// `Clear` or `Dark`). `samples` has been started on the texel ([`TexelSamples::start`]).
 fn add_adaptive(
@@ -529,10 +551,9 @@ fn add_adaptive(
         samples.fill_points(t, m);
     }
     let points = &samples.points[..m * m];
-    let sum = visible_sum(&samples.g[..m * m], m, corner_seen, |k| {
-        !lighting.occluded(li, points[k])
-    });
-    let w = sum / (m * m) as f64;
+    let g = &samples.g[..m * m];
+    let sum = visible_sum(g, m, corner_seen, |k| !lighting.occluded(li, points[k]));
+    let w = texel_mean(t, light, m, sum, || g.iter().sum());
     for (e, i) in irr.iter_mut().zip(light.intensity) {
         *e += i * w;
     }
@@ -561,6 +582,24 @@ fn visible_sum(
             None => 0.0,
         })
         .sum()
+}
+
+/// A light's texel mean of `cos θ / r² · V` from its `m × m` samples: the seen samples' terms
+/// `seen` over `m²`; or, with the light near the texel ([`near_light_mean`]), the exact
+/// unshadowed mean times the share of the samples' terms that is seen (`seen / all`, `all`
+/// the sum of every sample's term), which is the exact mean wherever the texel is wholly lit.
+fn texel_mean(t: &TexelAt, light: &Light, m: usize, seen: f64, all: impl FnOnce() -> f64) -> f64 {
+    match near_light_mean(t, light) {
+        Some(mean) => {
+            let all = all();
+            if all > 0.0 {
+                mean * (seen / all)
+            } else {
+                0.0
+            }
+        }
+        None => seen / (m * m) as f64,
+    }
 }
 
 /// Adds one light's term of [`direct_from_point_lights_adaptive_in`]'s texel value, before
@@ -609,7 +648,8 @@ pub(crate) fn add_light_term_in(
 }
 
 /// Adds light `li`'s term of a texel's full average into `irr`: `I` times the mean over the
-/// texel's `m × m` samples of `cosθ / r² · V`, a shadow ray at every sample the light faces.
+/// texel's `m × m` samples of `cosθ / r² · V` ([`texel_mean`]: exact near the light), a shadow
+/// ray at every sample the light faces.
 fn add_every_sample(
     lighting: &Lighting,
     li: usize,
@@ -631,7 +671,8 @@ fn add_every_sample(
         .filter(|(&gk, &p)| gk > 0.0 && !lighting.occluded(li, p))
         .map(|(&gk, _)| gk)
         .sum();
-    let w = sum / (m * m) as f64;
+    let g = &samples.g[..m * m];
+    let w = texel_mean(t, light, m, sum, || g.iter().sum());
     for (e, i) in irr.iter_mut().zip(light.intensity) {
         *e += i * w;
     }
@@ -743,6 +784,105 @@ mod tests {
 
     fn close(a: f32, b: f64) -> bool {
         (a as f64 - b).abs() <= 1e-5 * b.abs().max(1e-12)
+    }
+
+    /// A floor of `k × k` texels of `side` metres from the origin, at z = 0, as the bake lays
+    /// them out (centres, normal +z, sizes).
+    fn tiled_floor(k: usize, side: f32) -> Layout {
+        let centres: Vec<[f32; 3]> = (0..k * k)
+            .map(|i| {
+                let (a, b) = ((i % k) as f32, (i / k) as f32);
+                [(a + 0.5) * side, (b + 0.5) * side, 0.0]
+            })
+            .collect();
+        let mut layout = floor(&centres);
+        layout.texel_size = vec![[side, side]; k * k];
+        layout.rects[0].max = [k as f32 * side; 2];
+        layout
+    }
+
+    /// Solid angle of the rectangle `[x0, x1] × [y0, y1]` of the plane z = 0 from `(0, 0, d)`.
+    fn rect_solid_angle(x0: f64, x1: f64, y0: f64, y1: f64, d: f64) -> f64 {
+        let f = |x: f64, y: f64| (x * y / (d * (d * d + x * x + y * y).sqrt())).atan();
+        f(x1, y1) - f(x0, y1) - f(x1, y0) + f(x0, y0)
+    }
+
+    /// A light 5 cm above a floor of 0.5 m texels, over a texel corner: every texel's value
+    /// times its area sums to the light the whole floor receives (`I` times the solid angle
+    /// the floor subtends, in closed form), to 1e-6, on the adaptive, full and per-light
+    /// paths; the 4 × 4 grid alone gives the four texels around the light's foot 77% of
+    /// theirs. Far from the light nothing changes: a texel 11 m away keeps the grid mean.
+    #[test]
+    fn a_light_near_a_surface_gives_it_all_its_light() {
+        let (k, side) = (8usize, 0.5f32);
+        let layout = tiled_floor(k, side);
+        let occ = Occluders::from_layout(&layout);
+        let d = 0.05;
+        let foot = [2.0, 1.5];
+        let lights = [light([foot[0], foot[1], d], [3.0, 3.0, 3.0])];
+        let extent = k as f64 * side as f64;
+        let floor_flux =
+            3.0 * rect_solid_angle(-foot[0], extent - foot[0], -foot[1], extent - foot[1], d);
+        let area = (side * side) as f64;
+        // ρ/π · E, back to irradiance with the red albedo 0.5.
+        let received = |r: &DirectLight| {
+            r.radiance
+                .iter()
+                .map(|v| v[0] as f64 / 0.5 * std::f64::consts::PI * area)
+                .sum::<f64>()
+        };
+        let adaptive = direct_from_point_lights_adaptive(&layout, &occ, &lights, 4);
+        let averaged = direct_from_point_lights_averaged(&layout, &occ, &lights, 4);
+        let mut irr = vec![[0.0; 3]; layout.n_texels()];
+        let all = [TexelSpan {
+            texels: 0..layout.n_texels(),
+            in_sight: false,
+        }];
+        let scale = direct_scale(&layout, &occ);
+        add_light_term_in(
+            &layout,
+            Shadows::Occluders(&occ),
+            &lights[0],
+            4,
+            scale,
+            &all,
+            true,
+            &mut BoxShadows::new(),
+            &mut irr,
+        );
+        let per_light = finish_irradiance(&layout, &irr);
+        for (name, r) in [
+            ("adaptive", &adaptive),
+            ("averaged", &averaged),
+            ("per light", &per_light),
+        ] {
+            let got = received(r);
+            assert!(
+                (got / floor_flux - 1.0).abs() < 1e-6,
+                "{name}: {got} received against {floor_flux}"
+            );
+        }
+        // The grid alone, for scale: the four texels at the foot.
+        let grid: f64 = [(3, 2), (4, 2), (3, 3), (4, 3)]
+            .iter()
+            .map(|&(a, b): &(usize, usize)| {
+                let m = 4;
+                (0..m * m)
+                    .map(|s| {
+                        let x = (a as f64 + (s % m) as f64 / 4.0 + 0.125) * 0.5 - foot[0];
+                        let y = (b as f64 + (s / m) as f64 / 4.0 + 0.125) * 0.5 - foot[1];
+                        d / (d * d + x * x + y * y).powf(1.5) / 16.0 * area
+                    })
+                    .sum::<f64>()
+            })
+            .sum();
+        let exact = rect_solid_angle(-0.5, 0.5, -0.5, 0.5, d);
+        assert!(grid < 0.8 * exact, "the grid gave {grid} of {exact}");
+        // A far texel: the near-light mean does not apply, the grid's value stands.
+        let far = tiled_floor(40, 0.25);
+        let t = far.n_texels() - 1;
+        let at = TexelAt::of(&far, t);
+        assert_eq!(near_light_mean(&at, &lights[0]), None);
     }
 
     #[test]
@@ -902,7 +1042,7 @@ mod tests {
         }
         let seen = corner_indices(m).map(|k| !lighting.occluded(li, points[k]));
         let sum = visible_sum(&g, m, seen, |k| !lighting.occluded(li, points[k]));
-        let w = sum / (m * m) as f64;
+        let w = texel_mean(t, light, m, sum, || g.iter().sum());
         light.intensity.map(|i| i * w)
     }
 

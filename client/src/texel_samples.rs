@@ -140,6 +140,44 @@ pub(crate) fn faces_away(x: [f32; 3], n: [f32; 3], light: &Light) -> bool {
     n[u] == 0.0 && n[v] == 0.0 && !(n[a] as f64 * (light.position[a] - x[a] as f64) > 0.0)
 }
 
+/// Lights closer to an axis-aligned texel's centre than this many of its half-diagonals get the
+/// texel's exact unshadowed mean ([`near_light_mean`]). Farther, the `m × m` grid's mean is
+/// already close: at `m = 4` within 0.2% of the exact one, the worst over 4,000 random
+/// directions down to 1° above the texel's plane and texels of aspect 1:4 to 2:1 (0.8% at 4
+/// half-diagonals, 5% at 2). Nearer, the grid misses the peak: a light 5 cm from a wall whose
+/// texels are 1.5 × 0.75 m gave the four texels around its foot 36% of their light.
+pub(crate) const NEAR_HALF_DIAGONALS: f64 = 8.0;
+
+/// The exact mean of `cos θ / r²` from `light` over an axis-aligned texel's rectangle (the
+/// solid angle the rectangle subtends from the light, over its area): `None` when the texel is
+/// slanted or has no area, when the light lies behind or in its plane, or when it is farther
+/// than [`NEAR_HALF_DIAGONALS`] half-diagonals from the centre (there the grid's mean stands).
+pub(crate) fn near_light_mean(t: &TexelAt, light: &Light) -> Option<f64> {
+    let a = dominant_axis(t.n);
+    let (u, v) = tangent_axes(a as u8);
+    if t.n[u] != 0.0 || t.n[v] != 0.0 {
+        return None;
+    }
+    let (su, sv) = ((t.size[0] as f64).abs(), (t.size[1] as f64).abs());
+    let to = [0, 1, 2].map(|k| light.position[k] - t.x[k] as f64);
+    // Height of the light above the texel's plane, on the lit side.
+    let d = if t.n[a] > 0.0 { to[a] } else { -to[a] };
+    let half_diagonal2 = 0.25 * (su * su + sv * sv);
+    let r2 = to[0] * to[0] + to[1] * to[1] + to[2] * to[2];
+    let near2 = NEAR_HALF_DIAGONALS * NEAR_HALF_DIAGONALS * half_diagonal2;
+    // `!(… < …)` so that a NaN is not near either.
+    if !(d > 0.0) || su * sv == 0.0 || !(r2 < near2) {
+        return None;
+    }
+    // The rectangle relative to the light's foot on the plane.
+    let (u0, u1) = (-0.5 * su - to[u], 0.5 * su - to[u]);
+    let (v0, v1) = (-0.5 * sv - to[v], 0.5 * sv - to[v]);
+    // Solid angle of [0, x] × [0, y] (signed) at height d: atan(xy / (d √(d² + x² + y²))).
+    let corner = |x: f64, y: f64| (x * y / (d * (d * d + x * x + y * y).sqrt())).atan();
+    let solid_angle = corner(u1, v1) - corner(u0, v1) - corner(u1, v0) + corner(u0, v0);
+    Some((solid_angle / (su * sv)).max(0.0))
+}
+
 /// [`unshadowed`] at every point of `points` into `g`: the same operations in the same order
 /// (so the same bits), written without branches so the loop vectorizes (four lanes where the
 /// CPU has AVX2, chosen at run time; IEEE division and square root round alike in every
@@ -442,5 +480,96 @@ pub(crate) fn dominant_axis(n: [f32; 3]) -> usize {
         1
     } else {
         2
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{near_light_mean, TexelAt, NEAR_HALF_DIAGONALS};
+    use lightfarm_proto::lights::{Light, LightKind};
+
+    fn light(position: [f64; 3]) -> Light {
+        Light {
+            kind: LightKind::Point,
+            position,
+            intensity: [1.0; 3],
+        }
+    }
+
+    /// The mean of `cos θ / r²` over the texel by a 2,000 × 2,000 midpoint sum (in the
+    /// texel's tangent axes, as `sample_point` lays samples out).
+    fn brute_mean(t: &TexelAt, l: &Light) -> f64 {
+        let a = (0..3).find(|&k| t.n[k] != 0.0).unwrap();
+        let (u, v) = crate::occluders::tangent_axes(a as u8);
+        let k = 2000;
+        let mut sum = 0.0;
+        for i in 0..k {
+            for j in 0..k {
+                let mut p = t.x.map(f64::from);
+                p[u] += ((i as f64 + 0.5) / k as f64 - 0.5) * t.size[0] as f64;
+                p[v] += ((j as f64 + 0.5) / k as f64 - 0.5) * t.size[1] as f64;
+                let to = [0, 1, 2].map(|c| l.position[c] - p[c]);
+                let r2: f64 = to.iter().map(|x| x * x).sum();
+                let cos = (0..3).map(|c| t.n[c] as f64 * to[c]).sum::<f64>() / r2.sqrt();
+                sum += cos.max(0.0) / r2;
+            }
+        }
+        sum / (k * k) as f64
+    }
+
+    /// The closed form against a fine midpoint sum on texels facing each axis both ways, lights
+    /// over the texel, beside it, low over its plane and over a corner; `None` behind, in the
+    /// plane, far, and on a slanted texel.
+    #[test]
+    fn the_near_light_mean_is_the_texels_exact_mean() {
+        let at = |x: [f32; 3], n: [f32; 3], size: [f32; 2]| TexelAt {
+            x,
+            n,
+            rho: [0.5; 3],
+            size,
+        };
+        let cases = [
+            (
+                at([1.0, 2.0, 0.0], [0.0, 0.0, 1.0], [0.5, 0.25]),
+                [1.1, 2.05, 0.05],
+            ),
+            (
+                at([1.0, 2.0, 0.0], [0.0, 0.0, 1.0], [0.5, 0.25]),
+                [1.25, 2.125, 0.02],
+            ),
+            (
+                at([1.0, 2.0, 0.0], [0.0, 0.0, 1.0], [0.5, 0.25]),
+                [1.9, 2.0, 0.03],
+            ),
+            (
+                at([0.0, 1.0, 3.0], [-1.0, 0.0, 0.0], [0.3, 0.6]),
+                [-0.4, 1.2, 2.9],
+            ),
+            (
+                at([5.0, 3.0, 1.0], [0.0, -1.0, 0.0], [1.5, 0.75]),
+                [5.2, 2.95, 1.1],
+            ),
+            (
+                at([5.0, 3.0, 1.0], [0.0, 1.0, 0.0], [1.5, 0.75]),
+                [5.0, 3.5, 1.0],
+            ),
+        ];
+        for (i, (t, p)) in cases.iter().enumerate() {
+            let l = light(*p);
+            let exact = near_light_mean(t, &l).expect("near");
+            let brute = brute_mean(t, &l);
+            assert!(
+                (exact / brute - 1.0).abs() < 2e-3,
+                "case {i}: {exact} against {brute}"
+            );
+        }
+        let t = at([1.0, 2.0, 0.0], [0.0, 0.0, 1.0], [0.5, 0.25]);
+        let half_diagonal = 0.5 * (0.5f64.powi(2) + 0.25f64.powi(2)).sqrt();
+        let far = NEAR_HALF_DIAGONALS * half_diagonal * 1.01;
+        for p in [[1.0, 2.0, -0.1], [1.3, 2.0, 0.0], [1.0, 2.0, far]] {
+            assert_eq!(near_light_mean(&t, &light(p)), None, "{p:?}");
+        }
+        let slanted = at([1.0, 2.0, 0.0], [0.0, 0.6, 0.8], [0.5, 0.25]);
+        assert_eq!(near_light_mean(&slanted, &light([1.0, 2.1, 0.1])), None);
     }
 }

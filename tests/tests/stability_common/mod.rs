@@ -395,11 +395,25 @@ pub fn reference_3x(
     lights: &LightSet,
     rays: u32,
 ) -> (ResultFile, ResultFile) {
+    reference_kx(scene, dir, lights, rays, 3)
+}
+
+/// [`reference_3x`] at `k × texels_per_face` (`k` odd, so one sub-texel sits at each texel's
+/// centre): the `k × k` sub-texels' mean resolves light that peaks within a texel more
+/// finely (a lamp a metre above a shaft whose texels are 5 m long).
+pub fn reference_kx(
+    scene: &Scene,
+    dir: &Path,
+    lights: &LightSet,
+    rays: u32,
+    k: u32,
+) -> (ResultFile, ResultFile) {
+    assert!(k % 2 == 1, "an odd number of sub-texels per edge");
     let t = scene.settings.texels_per_face;
     let mut fine_scene = scene.clone();
-    fine_scene.settings.texels_per_face = 3 * t;
+    fine_scene.settings.texels_per_face = k * t;
     let fine = reference(&fine_scene, dir, lights, rays);
-    let f = 3 * t;
+    let f = k * t;
     // (surface, coarse index) → (sum of records, count, centre record)
     let mut groups: Vec<(String, u32)> = Vec::new();
     let mut sums: HashMap<(String, u32), (lightfarm_proto::result::TexelRecord, u32)> =
@@ -408,19 +422,19 @@ pub fn reference_3x(
     for r in &fine.texels {
         let (face, local) = (r.index / (f * f), r.index % (f * f));
         let (i, j) = (local % f, local / f);
-        let coarse = face * t * t + (j / 3) * t + i / 3;
+        let coarse = face * t * t + (j / k) * t + i / k;
         let key = (r.surface.clone(), coarse);
-        if i % 3 == 1 && j % 3 == 1 {
+        if i % k == k / 2 && j % k == k / 2 {
             let mut c = r.clone();
             c.index = coarse;
             centres.insert(key.clone(), c);
         }
         match sums.get_mut(&key) {
             Some((s, n)) => {
-                for k in 0..3 {
-                    s.position[k] += r.position[k];
-                    s.direct[k] += r.direct[k];
-                    s.indirect[k] += r.indirect[k];
+                for c in 0..3 {
+                    s.position[c] += r.position[c];
+                    s.direct[c] += r.direct[c];
+                    s.indirect[c] += r.indirect[c];
                 }
                 *n += 1;
             }
@@ -436,11 +450,12 @@ pub fn reference_3x(
     let mut average = ResultFile::default();
     for key in groups {
         let (mut s, n) = sums.remove(&key).unwrap();
-        assert_eq!(n, 9);
-        for k in 0..3 {
-            s.position[k] /= 9.0;
-            s.direct[k] /= 9.0;
-            s.indirect[k] /= 9.0;
+        assert_eq!(n, k * k);
+        let n = n as f64;
+        for c in 0..3 {
+            s.position[c] /= n;
+            s.direct[c] /= n;
+            s.indirect[c] /= n;
         }
         average.texels.push(s);
         centre.texels.push(centres.remove(&key).unwrap());
