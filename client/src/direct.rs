@@ -518,9 +518,9 @@ fn adaptive_texel(
 
 /// Adds light `li`'s term of a texel's adaptive average into `irr`: `I` times the mean over
 /// the texel's `m × m` samples of `cosθ / r² · V` ([`texel_mean`]: exact near the light), with
-/// `V` traced at the four corner samples
-/// and at every sample only where the corners disagree (no ray where the shadows are
-/// `Clear` or `Dark`). `samples` has been started on the texel ([`TexelSamples::start`]).
+/// `V` traced at the four corner samples and at every sample only where the corners disagree
+/// (no ray where the shadows are `Clear` or `Dark`). `samples` has been started on the texel
+/// ([`TexelSamples::start`]).
 fn add_adaptive(
     lighting: &Lighting,
     li: usize,

@@ -143,7 +143,7 @@ pub(crate) fn faces_away(x: [f32; 3], n: [f32; 3], light: &Light) -> bool {
 /// Lights closer to an axis-aligned texel's centre than this many of its half-diagonals get the
 /// texel's exact unshadowed mean ([`near_light_mean`]). Farther, the `m × m` grid's mean is
 /// already close: at `m = 4` within 0.2% of the exact one, the worst over 4,000 random
-/// directions down to 1° above the texel's plane and texels of aspect 1:4 to 2:1 (0.8% at 4
+/// directions down to about 1° above the texel's plane and texels of aspect 1:4 to 2:1 (0.8% at 4
 /// half-diagonals, 5% at 2). Nearer, the grid misses the peak: a light 5 cm from a wall whose
 /// texels are 1.5 × 0.75 m gave the four texels around its foot 36% of their light.
 pub(crate) const NEAR_HALF_DIAGONALS: f64 = 8.0;

@@ -229,6 +229,7 @@ fn faces_pressed_against_another_prop_are_dark_like_the_reference() {
         reference_pressed <= 1e-3 * exposed_mean(&reference),
         "the reference lights a pressed face: {reference_pressed}"
     );
+    // measured 0.054 (0.054 before too: the pressed faces are few); bound 0.08
     let mut clutter = drt.clone();
     clutter.texels.retain(|t| t.surface.starts_with("clutter:"));
     check_against_reference(

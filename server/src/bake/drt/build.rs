@@ -169,9 +169,9 @@ impl<'a> TexelOwners<'a> {
 /// (closed) box, or when most of its rays hit back faces: a face pressed against a wall, the
 /// floor or another prop (stacked or touching crates), or left outside the level. No light
 /// reaches such a face, so it gets no rows and its light is 0, as a path tracer finds (its rays
-/// start inside the other box and gather what that box's inside sees). A texel on an opening
-/// between two blocks is inside the level (closed blocks), so a prop standing in a doorway
-/// keeps its light.
+/// start inside what covers it, where they may meet a wall that box is flush with and gather
+/// the wall's light). A texel on an opening between two blocks is inside the level (closed
+/// blocks), so a prop standing in a doorway keeps its light.
 struct Burial<'a> {
     scene: &'a Scene,
     /// Tolerance, relative to the geometry's scale. `scale()` passes over every primitive:
