@@ -16,9 +16,9 @@
 //! segments, all with the buffer's answers.
 //!
 //! A texel's value is the mean of `L_d` over its area, from an `m × m` grid of samples. A
-//! light within a few texels of an axis-aligned texel peaks inside it more sharply than the
-//! grid resolves, so there the unshadowed mean is exact (the solid angle the texel subtends,
-//! over its area) and the samples only say which share of it is shadowed
+//! light within a few texels of a texel peaks inside it more sharply than the grid resolves,
+//! so there the unshadowed mean is exact (the solid angle the texel subtends, over its area)
+//! and the samples only say which share of it is shadowed
 //! ([`crate::texel_samples::near_light_mean`]): a light 5 cm from a wall of 1.5 × 0.75 m
 //! texels lost 31% of its indirect light on the grid alone (0.69 of Mitsuba's, all bounces).
 //!

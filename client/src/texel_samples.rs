@@ -140,23 +140,25 @@ pub(crate) fn faces_away(x: [f32; 3], n: [f32; 3], light: &Light) -> bool {
     n[u] == 0.0 && n[v] == 0.0 && !(n[a] as f64 * (light.position[a] - x[a] as f64) > 0.0)
 }
 
-/// Lights closer to an axis-aligned texel's centre than this many of its half-diagonals get the
-/// texel's exact unshadowed mean ([`near_light_mean`]). Farther, the `m × m` grid's mean is
-/// already close: at `m = 4` within 0.2% of the exact one, the worst over 4,000 random
-/// directions down to about 1° above the texel's plane and texels of aspect 1:4 to 2:1 (0.8% at 4
-/// half-diagonals, 5% at 2). Nearer, the grid misses the peak: a light 5 cm from a wall whose
+/// Lights closer to a texel's centre than this many of its half-diagonals get the texel's
+/// exact unshadowed mean ([`near_light_mean`]). Farther, the `m × m` grid's mean is already
+/// close: at `m = 4` within 0.2% of the exact one on a rectangle, the worst over 4,000 random
+/// directions down to about 1° above the texel's plane and texels of aspect 1:4 to 2:1 (0.8%
+/// at 4 half-diagonals, 5% at 2). Nearer, the grid misses the peak: a light 5 cm from a wall whose
 /// texels are 1.5 × 0.75 m gave the four texels around its foot 36% of their light.
 pub(crate) const NEAR_HALF_DIAGONALS: f64 = 8.0;
 
-/// The exact mean of `cos θ / r²` from `light` over an axis-aligned texel's rectangle (the
-/// solid angle the rectangle subtends from the light, over its area): `None` when the texel is
-/// slanted or has no area, when the light lies behind or in its plane, or when it is farther
-/// than [`NEAR_HALF_DIAGONALS`] half-diagonals from the centre (there the grid's mean stands).
+/// The exact mean of `cos θ / r²` from `light` over a texel (the solid angle the texel
+/// subtends from the light, over its area): on an axis-aligned texel's rectangle in closed
+/// form, on a slanted texel's parallelogram (what [`sample_point`] spans) by two triangles'
+/// solid angles. `None` when the texel has no area, when the light lies behind or in its plane,
+/// or when it is farther than [`NEAR_HALF_DIAGONALS`] half-diagonals from the centre (there the
+/// grid's mean stands).
 pub(crate) fn near_light_mean(t: &TexelAt, light: &Light) -> Option<f64> {
     let a = dominant_axis(t.n);
     let (u, v) = tangent_axes(a as u8);
     if t.n[u] != 0.0 || t.n[v] != 0.0 {
-        return None;
+        return slanted_near_light_mean(t, light, (a, u, v));
     }
     let (su, sv) = ((t.size[0] as f64).abs(), (t.size[1] as f64).abs());
     let to = [0, 1, 2].map(|k| light.position[k] - t.x[k] as f64);
@@ -176,6 +178,58 @@ pub(crate) fn near_light_mean(t: &TexelAt, light: &Light) -> Option<f64> {
     let corner = |x: f64, y: f64| (x * y / (d * (d * d + x * x + y * y).sqrt())).atan();
     let solid_angle = corner(u1, v1) - corner(u0, v1) - corner(u1, v0) + corner(u0, v0);
     Some((solid_angle / (su * sv)).max(0.0))
+}
+
+/// [`near_light_mean`] on a slanted texel: the parallelogram `x ± E_u/2 ± E_v/2` whose edges
+/// step `size[0]` along tangent `u` and `size[1]` along `v`, lifted along the dominant axis `a`
+/// onto the texel's plane (as [`sample_point`] places samples), its solid angle from the light
+/// as two triangles' (Van Oosterom and Strackee).
+fn slanted_near_light_mean(
+    t: &TexelAt,
+    light: &Light,
+    (a, u, v): (usize, usize, usize),
+) -> Option<f64> {
+    let n = t.n.map(f64::from);
+    let mut eu = [0.0; 3];
+    eu[u] = t.size[0] as f64;
+    eu[a] = -t.size[0] as f64 * n[u] / n[a];
+    let mut ev = [0.0; 3];
+    ev[v] = t.size[1] as f64;
+    ev[a] = -t.size[1] as f64 * n[v] / n[a];
+    let dot = |p: [f64; 3], q: [f64; 3]| p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+    let cross = |p: [f64; 3], q: [f64; 3]| {
+        [
+            p[1] * q[2] - p[2] * q[1],
+            p[2] * q[0] - p[0] * q[2],
+            p[0] * q[1] - p[1] * q[0],
+        ]
+    };
+    let norm = |p: [f64; 3]| dot(p, p).sqrt();
+    let area = norm(cross(eu, ev));
+    let to = [0, 1, 2].map(|k| light.position[k] - t.x[k] as f64);
+    let half_diagonal =
+        0.5 * norm([0, 1, 2].map(|k| eu[k] + ev[k])).max(norm([0, 1, 2].map(|k| eu[k] - ev[k])));
+    let near = NEAR_HALF_DIAGONALS * half_diagonal;
+    // `!(… > …)` so that a NaN is not near either.
+    if !(dot(to, n) > 0.0) || !(area > 0.0) || !(dot(to, to) < near * near) {
+        return None;
+    }
+    // Corners relative to the light, in order around the parallelogram.
+    let corner = |su: f64, sv: f64| [0, 1, 2].map(|k| 0.5 * su * eu[k] + 0.5 * sv * ev[k] - to[k]);
+    let c = [
+        corner(-1.0, -1.0),
+        corner(1.0, -1.0),
+        corner(1.0, 1.0),
+        corner(-1.0, 1.0),
+    ];
+    let triangle = |p: [f64; 3], q: [f64; 3], r: [f64; 3]| {
+        let (lp, lq, lr) = (norm(p), norm(q), norm(r));
+        let num = dot(p, cross(q, r));
+        let den = lp * lq * lr + dot(p, q) * lr + dot(p, r) * lq + dot(q, r) * lp;
+        2.0 * num.atan2(den)
+    };
+    let solid_angle = (triangle(c[0], c[1], c[2]) + triangle(c[0], c[2], c[3])).abs();
+    Some(solid_angle / area)
 }
 
 /// [`unshadowed`] at every point of `points` into `g`: the same operations in the same order
@@ -518,8 +572,8 @@ mod tests {
     }
 
     /// The closed form against a fine midpoint sum on texels facing each axis both ways, lights
-    /// over the texel, beside it, low over its plane and over a corner; `None` behind, in the
-    /// plane, far, and on a slanted texel.
+    /// over the texel, beside it, low over its plane and over a corner, and on slanted texels;
+    /// `None` behind, in the plane and far.
     #[test]
     fn the_near_light_mean_is_the_texels_exact_mean() {
         let at = |x: [f32; 3], n: [f32; 3], size: [f32; 2]| TexelAt {
@@ -569,7 +623,50 @@ mod tests {
         for p in [[1.0, 2.0, -0.1], [1.3, 2.0, 0.0], [1.0, 2.0, far]] {
             assert_eq!(near_light_mean(&t, &light(p)), None, "{p:?}");
         }
-        let slanted = at([1.0, 2.0, 0.0], [0.0, 0.6, 0.8], [0.5, 0.25]);
-        assert_eq!(near_light_mean(&slanted, &light([1.0, 2.1, 0.1])), None);
+        // Slanted texels against the midpoint sum over their samples' parallelogram.
+        let n = [0.0f32, 0.6, 0.8];
+        let m = [0.48f32, -0.6, 0.64];
+        let slanted_cases = [
+            (at([1.0, 2.0, 0.0], n, [0.5, 0.25]), [1.1, 2.1, 0.1]),
+            (at([1.0, 2.0, 0.0], n, [0.5, 0.25]), [1.4, 2.06, 0.08]),
+            (at([1.0, 2.0, 0.0], m, [0.3, 0.4]), [1.05, 1.97, 0.03]),
+        ];
+        for (i, (t, p)) in slanted_cases.iter().enumerate() {
+            let l = light(*p);
+            let exact = near_light_mean(t, &l).expect("near");
+            let brute = brute_mean_slanted(t, &l);
+            assert!(
+                (exact / brute - 1.0).abs() < 2e-3,
+                "slanted case {i}: {exact} against {brute}"
+            );
+        }
+        let behind = [
+            1.0 - 0.1 * n[0] as f64,
+            2.0 - 0.1 * n[1] as f64,
+            -0.1 * n[2] as f64,
+        ];
+        let slanted = at([1.0, 2.0, 0.0], n, [0.5, 0.25]);
+        assert_eq!(near_light_mean(&slanted, &light(behind)), None);
+    }
+
+    /// [`brute_mean`] on a slanted texel: the midpoint sum over [`super::sample_point`]'s
+    /// parallelogram, whose points cover equal areas.
+    fn brute_mean_slanted(t: &TexelAt, l: &Light) -> f64 {
+        let k = 1000;
+        let mut sum = 0.0;
+        for i in 0..k {
+            for j in 0..k {
+                let (ou, ov) = (
+                    (i as f32 + 0.5) / k as f32 - 0.5,
+                    (j as f32 + 0.5) / k as f32 - 0.5,
+                );
+                let p = super::sample_point(t.x, t.n, t.size, ou, ov);
+                let to = [0, 1, 2].map(|c| l.position[c] - p[c] as f64);
+                let r2: f64 = to.iter().map(|x| x * x).sum();
+                let cos = (0..3).map(|c| t.n[c] as f64 * to[c]).sum::<f64>() / r2.sqrt();
+                sum += cos.max(0.0) / r2;
+            }
+        }
+        sum / (k * k) as f64
     }
 }
