@@ -287,8 +287,8 @@ fn lights_on_surfaces_in_corners_and_outside_every_region() {
         // per texel its own estimate moves by 127%; against ours 0.28 at 2048 rays, 0.999 at
         // 32768). The client's direct light is exact on the texels around the lamp (the solid
         // angle each subtends), so ours carries the corner's reflected power: flux 0.90, as a
-        // lamp elsewhere in the room gives (0.87–0.92 above and below), where the 4 × 4 grid
-        // alone gave 0.12 and the reference gives 0.2–0.56. Finite, deterministic and
+        // lamp standing free gives in these rooms (0.81–0.92 here), where the 4 × 4 grid alone
+        // gave 0.12 and the reference gives 0.2–0.56. Finite, deterministic and
         // energy-bounded all the same.
         (
             "a millimetre from a corner",
