@@ -43,7 +43,10 @@
 //!   every light's over a whole bundle the same way (`direct_from_point_lights_by_reach`).
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
 //! - `texel_samples` (private): a texel's sample points and each one's unshadowed term, the
-//!   adaptive average's scratch; what [`direct`] shadows and averages.
+//!   adaptive average's scratch and the exact mean near a light; what [`direct`] shadows and
+//!   averages.
+//! - [`light_sh`]: the direct irradiance point lights give an object at a point, as SH
+//!   ([`point_light_irradiance_sh`], DNRT's light-probe input).
 //! - [`runtime`]: the per-frame, allocation-free application of the bundle's operators
 //!   ([`Method::Mrt`] block operators and transport, [`Method::Drt`] MRT plus the clutter
 //!   deltas of the bundle's DRT section, or the dense [`Method::Full`] operator) over one,
@@ -81,6 +84,7 @@ pub mod dnrt;
 pub mod fetch;
 pub mod light_buffer;
 pub mod light_reach;
+pub mod light_sh;
 pub mod lightmap;
 pub mod occluders;
 pub mod packed;
@@ -96,12 +100,13 @@ pub use compare::{relative_l1, relative_l2};
 pub use direct::{
     direct_from_point_lights, direct_from_point_lights_adaptive,
     direct_from_point_lights_adaptive_in, direct_from_point_lights_averaged, direct_scale,
-    point_light_irradiance_sh, DirectLight, TexelSpan,
+    DirectLight, TexelSpan,
 };
 pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
 #[cfg(feature = "fetch")]
 pub use fetch::{BundleFetcher, FetchError, Fetched};
 pub use light_reach::LightReach;
+pub use light_sh::point_light_irradiance_sh;
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};
