@@ -692,7 +692,7 @@ pub(crate) fn finish_irradiance(layout: &Layout, irr: &[[f64; 3]]) -> DirectLigh
 
 #[cfg(test)]
 #[allow(clippy::needless_range_loop)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::texel_samples::{dominant_axis, sample_offset, sample_point, unshadowed_samples};
     use lightfarm_proto::bundle::Rect;
@@ -717,7 +717,8 @@ mod tests {
         }
     }
 
-    fn light(position: [f64; 3], intensity: [f64; 3]) -> Light {
+    /// A point light (the client's tests share it).
+    pub(crate) fn light(position: [f64; 3], intensity: [f64; 3]) -> Light {
         Light {
             kind: LightKind::Point,
             position,
@@ -725,8 +726,8 @@ mod tests {
         }
     }
 
-    /// Texels on the floor z = 0 (normal +z) of a 4 m box.
-    fn floor(points: &[[f32; 3]]) -> Layout {
+    /// Texels on the floor z = 0 (normal +z) of a 4 m box (the client's tests share it).
+    pub(crate) fn floor(points: &[[f32; 3]]) -> Layout {
         Layout {
             scene_name: "test".into(),
             surfaces: vec![],

@@ -54,36 +54,8 @@ pub fn point_light_irradiance_sh(
 #[allow(clippy::needless_range_loop)]
 mod tests {
     use super::point_light_irradiance_sh;
+    use crate::direct::tests::{floor, light};
     use crate::occluders::Occluders;
-    use lightfarm_proto::bundle::{Layout, Rect};
-    use lightfarm_proto::lights::{Light, LightKind};
-
-    /// A 4 m floor at z = 0 (normal +z) as the only occluder.
-    fn floor() -> Layout {
-        Layout {
-            scene_name: "test".into(),
-            surfaces: vec![],
-            positions: vec![[1.0, 1.0, 0.0]],
-            normals: vec![[0.0, 0.0, 1.0]],
-            albedo: vec![[0.5, 0.25, 0.8]],
-            texel_size: vec![[0.0, 0.0]],
-            rects: vec![Rect {
-                axis: 2,
-                coord: 0.0,
-                min: [0.0, 0.0],
-                max: [4.0, 4.0],
-            }],
-            triangles: vec![],
-        }
-    }
-
-    fn light(position: [f64; 3], intensity: [f64; 3]) -> Light {
-        Light {
-            kind: LightKind::Point,
-            position,
-            intensity,
-        }
-    }
 
     /// The SH of a point light's irradiance are the projection of `I/r² (n·ω)₊` over normals
     /// n (Funk–Hecke gives `Â_l Y_lm(ω)`), here checked by numerical projection; a shadowed
@@ -91,7 +63,7 @@ mod tests {
     #[test]
     fn point_light_irradiance_sh_is_the_projected_clamped_cosine() {
         use lightfarm_proto::sh::sh_basis;
-        let layout = floor();
+        let layout = floor(&[[1.0, 1.0, 0.0]]);
         let occluders = Occluders::from_layout(&layout);
         let p = [1.5f32, 2.0, 1.0];
         let l = light([2.5, 2.5, 3.0], [4.0, 2.0, 1.0]);

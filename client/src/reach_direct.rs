@@ -293,10 +293,10 @@ impl ReachDirect {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::direct::tests::light;
     use crate::direct::{direct_from_point_lights, direct_from_point_lights_adaptive};
     use crate::light_reach::tests::{bundle_with, level, Rng};
     use lightfarm_proto::bundle::{Rect, Rooms, SurfaceInfo, SurfacePlace};
-    use lightfarm_proto::lights::LightKind;
     use lightfarm_proto::Face;
 
     /// Adds a box `[lo, hi]` lying in `rooms_in` (clutter): its six faces as object surfaces of
@@ -371,14 +371,6 @@ mod tests {
             &mut radiance,
         );
         DirectLight { radiance }
-    }
-
-    fn light(position: [f64; 3], intensity: [f64; 3]) -> Light {
-        Light {
-            kind: LightKind::Point,
-            position,
-            intensity,
-        }
     }
 
     /// On random levels with boxes in a third of the rooms (some of them pillars from the
