@@ -41,6 +41,8 @@
 //! - [`reach_direct`]: one light's direct light on the texels it reaches, shadow rays traced
 //!   against only the occluders of the rooms it reaches (exactly the level's answer there);
 //!   every light's over a whole bundle the same way (`direct_from_point_lights_by_reach`).
+//! - [`dynamic_shadows`]: posed dynamic objects' triangles added to the occluders, for their
+//!   direct shadows ([`occluders_with_poses`]).
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
 //! - `texel_samples` (private): a texel's sample points and each one's unshadowed term, the
 //!   adaptive average's scratch and the exact mean near a light; what [`direct`] shadows and
@@ -80,6 +82,7 @@ mod box_shadows;
 pub mod compare;
 pub mod direct;
 pub mod dnrt;
+pub mod dynamic_shadows;
 #[cfg(feature = "fetch")]
 pub mod fetch;
 pub mod light_buffer;
@@ -103,6 +106,7 @@ pub use direct::{
     DirectLight, TexelSpan,
 };
 pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
+pub use dynamic_shadows::{occluders_with_poses, posed_triangles, PosedObjects};
 #[cfg(feature = "fetch")]
 pub use fetch::{BundleFetcher, FetchError, Fetched};
 pub use light_reach::LightReach;

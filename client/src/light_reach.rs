@@ -27,7 +27,8 @@
 //! In sight: when the light is strictly inside exactly one room and nothing but walls lies in
 //! that room (no object surface lists it), every segment from the light to a point of the
 //! room's walls stays inside the convex room and crosses nothing, so those spans are marked
-//! [`TexelSpan::in_sight`] and their direct light needs no shadow ray.
+//! [`TexelSpan::in_sight`] and their direct light needs no shadow ray. Objects the bundle does
+//! not list (posed dynamic objects) are made known with [`LightReach::occupy`].
 //!
 //! Units: metres, world frame, f64 (the rooms' own numbers). Invariant: the spans returned are
 //! ascending, disjoint texel ranges of the layout.
@@ -295,6 +296,18 @@ impl LightReach {
     /// outside it (segments may then pass anywhere).
     pub fn rooms_of_last_walk(&self) -> Option<&[u32]> {
         (self.complete && !self.left_level).then_some(&self.touched[..])
+    }
+
+    /// Marks every room whose closed box, padded, meets the box `[lo, hi]` as holding an
+    /// object (a posed dynamic object the bundle's rooms do not list), so that no span in it is
+    /// [`TexelSpan::in_sight`]. Lasts until the reach is built again.
+    pub fn occupy(&mut self, lo: [f64; 3], hi: [f64; 3]) {
+        let pad = self.pad;
+        for (r, has) in self.rooms.iter().zip(&mut self.room_has_objects) {
+            if (0..3).all(|a| lo[a] <= r.max[a] + pad && hi[a] >= r.min[a] - pad) {
+                *has = true;
+            }
+        }
     }
 
     /// The bundle's rooms, as boxes `(min, max)` in metres.

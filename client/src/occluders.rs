@@ -274,6 +274,16 @@ impl Occluders {
         Occluders::build(prims, scale)
     }
 
+    /// These occluders and `triangles` in a new hierarchy that keeps this one's
+    /// [`Occluders::scale`], so its margins are this one's: a segment none of `triangles`
+    /// crosses gets exactly this hierarchy's answer (posed dynamic objects,
+    /// [`crate::dynamic_shadows`]).
+    pub fn with_triangles(&self, triangles: &[[[f32; 3]; 3]]) -> Occluders {
+        let mut prims = self.prims.clone();
+        prims.extend(triangles.iter().map(|t| Prim::Tri(*t)));
+        Occluders::build(prims, self.scale)
+    }
+
     /// The hierarchy over `prims`, with margins and node padding relative to `scale`.
     fn build(mut prims: Vec<Prim>, scale: f32) -> Occluders {
         let bounds = prims.iter().map(Prim::bounds).reduce(union);

@@ -39,6 +39,7 @@ use crate::direct::{
     direct_from_point_lights_averaged, direct_scale, finish_irradiance, DirectLight, Shadows,
     TexelSpan, ADAPTIVE_MAX_SAMPLES_PER_EDGE,
 };
+use crate::dynamic_shadows::PosedObjects;
 use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
 use crate::light_reach::LightReach;
 use crate::occluders::Occluders;
@@ -71,8 +72,10 @@ pub struct ReachDirect {
 /// reaches, against the occluders there ([`ReachDirect::all_lights_every_sample`]), so the cost
 /// follows what the lights reach rather than lights × texels (a generated 1,000-block level's
 /// 164 lights: 137 s over the whole level, under 2 s this way); without rooms, that function.
-/// `occluders` are the bundle layout's ([`Occluders::from_layout`]). What `lightfarm eval`
-/// feeds the operators and reports, and what the C ABI's direct light computes.
+/// `occluders` are the bundle layout's ([`Occluders::from_layout`]); with posed dynamic objects
+/// ([`crate::occluders_with_poses`]) build the reach with [`ReachDirect::new_posed`] and call
+/// [`every_sample_by_reach`], so that the rooms they stand in are not taken to be empty. What
+/// `lightfarm eval` feeds the operators and reports, and what the C ABI's direct light computes.
 pub fn direct_from_point_lights_by_reach(
     bundle: &Bundle,
     occluders: &Occluders,
@@ -133,6 +136,17 @@ impl ReachDirect {
             boxes: BoxShadows::new(),
             last_occluders: 0,
         })
+    }
+
+    /// [`ReachDirect::new`] over the level's occluders with posed dynamic objects in them
+    /// ([`crate::dynamic_shadows::PosedObjects`]): the rooms the objects lie in are no longer
+    /// taken to hold nothing but walls ([`LightReach::occupy`]), so their shadows are traced.
+    pub fn new_posed(bundle: &Bundle, posed: &PosedObjects) -> Option<ReachDirect> {
+        let mut reach = ReachDirect::new(bundle, &posed.occluders)?;
+        for &(lo, hi) in &posed.boxes {
+            reach.reach.occupy(lo, hi);
+        }
+        Some(reach)
     }
 
     /// Sets `spans` to the texels `light` reaches ([`LightReach::texels`]) and writes its

@@ -32,6 +32,8 @@
 //!   [`DeltaSource`] encoding the `sh` section shares.
 //! - `gather_encoding`: how the DRT section stores the exact gather ([`TexelGather`]).
 //! - `sh_responses`: the `sh` section ([`ShResponses`]).
+//! - `dynamic_shapes`: the dynamic objects' triangles in their own frames (section kind 19,
+//!   [`DynamicShape`]), for their direct shadows.
 //! - `rooms`: the level's rooms (section kind 15, [`Rooms`]): each block's box, where each face
 //!   leads and the rooms each layout surface lies in, for a client's light reach.
 //! - `symmetric_blocks`: blocks instancing a shape through a box symmetry (section kind 14,
@@ -48,6 +50,7 @@ use crate::container::{ContainerError, SectionInfo};
 use crate::wire::WireError;
 
 mod delta_entries;
+mod dynamic_shapes;
 mod gather_encoding;
 mod legacy_1x;
 mod matrix_codec;
@@ -59,6 +62,7 @@ mod source_bases;
 mod symmetric_blocks;
 mod validate;
 mod write;
+pub use dynamic_shapes::DynamicShape;
 pub use gather_encoding::gather_counts;
 pub use matrix_codec::{EncodingMemo, MatrixEncoding};
 pub use rooms::{FaceLink, Room, Rooms, SurfacePlace};
@@ -78,9 +82,10 @@ pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 /// entries (kind 17), written instead of kind 7 when some entry is factored, and DNRT grids with
 /// their 8-bit values planar and differenced (kind 18, codec tag 3), written instead of kind 9
 /// when some grid is 8-bit: a 2.2 or older reader skips them and reads the bundle without a
-/// probe volume or without grids.
+/// probe volume or without grids. Minor 4 adds the dynamic objects' shapes (kind 19), which a
+/// 2.3 or older reader skips (it shades direct light without the objects' shadows).
 pub const BUNDLE_MAJOR: u16 = 2;
-pub const BUNDLE_MINOR: u16 = 3;
+pub const BUNDLE_MINOR: u16 = 4;
 /// The oldest major version this reader decodes.
 pub const OLDEST_READABLE_MAJOR: u16 = 1;
 const READABLE_MAJORS: std::ops::RangeInclusive<u16> = OLDEST_READABLE_MAJOR..=BUNDLE_MAJOR;
@@ -319,6 +324,9 @@ pub struct Bundle {
     /// The level's rooms, for a client's light reach (format 2.1; `None` in older bundles and
     /// in bundles built without a scene).
     pub rooms: Option<Rooms>,
+    /// Each dynamic object's triangles in its own frame, for its direct shadows (format 2.4;
+    /// empty without dynamic objects and in older bundles).
+    pub dynamic_shapes: Vec<DynamicShape>,
 }
 
 /// Where the texels of one layout surface sit in that surface's own lightmap image: texel `k`

@@ -13,7 +13,7 @@ use crate::wire::Reader;
 
 use super::delta_entries::read_entries;
 use super::sections::{is_known_section, section, section_name};
-use super::{gather_encoding, legacy_1x, sh_responses, symmetric_blocks};
+use super::{dynamic_shapes, gather_encoding, legacy_1x, sh_responses, symmetric_blocks};
 use super::{
     Bundle, BundleError, ClutterOps, CompactEntry, DrtOps, Layout, Matrix, OpeningOps,
     PartialBundle, ProbeVolume, PropEntry, Rect, Rooms, ShapeOps, SourceBases, SourceBasis,
@@ -147,6 +147,7 @@ impl Bundle {
         let (mut dnrt, mut sh) = (None, None);
         let mut surface_atlases = Vec::new();
         let mut rooms = None;
+        let mut dynamic_shapes = Vec::new();
         for (kind, payload) in &sections {
             let mut p = Reader::new(payload);
             match *kind {
@@ -181,6 +182,7 @@ impl Bundle {
                 section::SH => sh = Some(sh_responses::read_sh(&mut p)?),
                 section::LIGHTMAP => surface_atlases = read_surface_atlases(&mut p)?,
                 section::ROOMS => rooms = Some(Rooms::read(&mut p)?),
+                section::DYNAMIC_SHAPES => dynamic_shapes = dynamic_shapes::read(&mut p)?,
                 _ => {} // read_sections passes known kinds only
             }
             if p.remaining() != 0 {
@@ -203,6 +205,7 @@ impl Bundle {
             sh,
             surface_atlases,
             rooms,
+            dynamic_shapes,
         };
         bundle.validate()?;
         Ok(bundle)

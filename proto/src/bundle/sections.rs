@@ -51,6 +51,11 @@ pub mod section {
     /// instead of [`DNRT`] when some grid is 8-bit. A 2.2 or older reader skips it and reads the
     /// bundle without grids (dynamic objects then add no DNRT light).
     pub const DNRT_PLANAR: u32 = 18;
+    /// The dynamic objects' triangles in their own frames (format 2.4,
+    /// [`crate::bundle::DynamicShape`]), for a client to pose and cast their direct shadows.
+    /// Written after the DNRT grids when the scene has dynamic objects; a 2.3 or older reader
+    /// skips it and shades direct light without the objects' shadows.
+    pub const DYNAMIC_SHAPES: u32 = 19;
 }
 
 /// Report name of a section kind.
@@ -73,6 +78,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::TRANSPORT_SOURCE_BASES => "transport",
         section::PROBES_LOW_RANK => "probes",
         section::DNRT_PLANAR => "dnrt",
+        section::DYNAMIC_SHAPES => "dynamic shapes",
         _ => "unknown",
     }
 }

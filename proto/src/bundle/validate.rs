@@ -328,6 +328,7 @@ impl Bundle {
                 .check(self.blocks.len(), self.layout.surfaces.len())
                 .map_err(BundleError::Invalid)?;
         }
+        dynamic_shapes::check(&self.dynamic_shapes).map_err(BundleError::Invalid)?;
         let mut previous = None;
         for a in &self.surface_atlases {
             let Some(s) = self.layout.surfaces.get(a.surface as usize) else {

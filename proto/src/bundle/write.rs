@@ -15,7 +15,7 @@ use crate::wire::Writer;
 use super::delta_entries::write_entries;
 use super::matrix_codec::{EncodingMemo, MatrixEncoder};
 use super::sections::{section, section_name};
-use super::{gather_encoding, sh_responses, symmetric_blocks};
+use super::{dynamic_shapes, gather_encoding, sh_responses, symmetric_blocks};
 use super::{
     Bundle, CompactEntry, EncodeOptions, EncodeReport, Layout, TransportOps, BUNDLE_MAJOR,
     BUNDLE_MINOR,
@@ -290,6 +290,11 @@ impl Bundle {
                 section::DNRT
             };
             sections.push((kind, w.bytes));
+        }
+        if !self.dynamic_shapes.is_empty() {
+            let mut w = Writer::new();
+            dynamic_shapes::write(&mut w, &self.dynamic_shapes);
+            sections.push((section::DYNAMIC_SHAPES, w.bytes));
         }
         if let Some(sh) = &self.sh {
             let mut w = Writer::new();

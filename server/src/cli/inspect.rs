@@ -118,6 +118,20 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
         });
         line(&format!("probes ({})", p.n_probes), &probes);
     }
+    for g in bundle.dnrt.as_deref().unwrap_or(&[]) {
+        println!(
+            "  {:<28} {:>17} bytes",
+            format!("dnrt grid \"{}\"", g.object),
+            g.data_bytes()
+        );
+    }
+    for s in &bundle.dynamic_shapes {
+        println!(
+            "  {:<28} {:>6} triangles",
+            format!("shape of \"{}\"", s.object),
+            s.triangles.len()
+        );
+    }
     if let Some(sh) = &bundle.sh {
         let (mut from_block, mut from_clutter) = (Tally::default(), Tally::default());
         for e in &sh.entries {

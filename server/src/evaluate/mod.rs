@@ -1,7 +1,8 @@
 //! A bundle applied to a light set through the client crate, exactly as a game would: the
 //! per-texel radiance the `eval` command writes, the bench scores, and `POST
-//! /v1/bakes/{id}/evaluate` returns. Dynamic objects listed in the light set's `poses` add
-//! their DNRT reflection and occlusion to `indirect`.
+//! /v1/bakes/{id}/evaluate` returns. Dynamic objects listed in the light set's `poses` cast
+//! their direct shadows (their shapes posed into the occluders, so the operators are fed the
+//! shadowed light too) and add their DNRT reflection and occlusion to `indirect`.
 //!
 //! With more than one bounce, everything downstream of the texels sees the bounced light: the
 //! probe volume (MRT's clutter shading, DNRT's input) is fed the radiance leaving the texels,
@@ -16,8 +17,8 @@
 //! Invariant: no file I/O and no HTTP here; callers read bundles and write results.
 
 use lightfarm_client::{
-    direct_from_point_lights_by_reach, direct_scale, every_sample_by_reach, irradiance_at, Applied,
-    Bounces, Bundle, DirectLight, IndirectLight, Method, Occluders, ProbeField, ReachDirect,
+    direct_scale, every_sample_by_reach, irradiance_at, occluders_with_poses, Applied, Bounces,
+    Bundle, DirectLight, IndirectLight, Method, Occluders, PosedObjects, ProbeField, ReachDirect,
     Runtime,
 };
 use lightfarm_proto::lights::LightSet;
@@ -32,11 +33,34 @@ pub use dnrt::dnrt_delta;
 pub const DIRECT_SAMPLES_PER_EDGE: u32 = 4;
 
 /// The direct light the operators are fed for `lights`: texel averages over a
-/// [`DIRECT_SAMPLES_PER_EDGE`]² grid, shadowed by the bundle's own geometry (`occluders`, made
-/// from its layout), every sample traced, each light where it reaches
-/// ([`direct_from_point_lights_by_reach`]).
-pub fn operator_direct(bundle: &Bundle, occluders: &Occluders, lights: &LightSet) -> DirectLight {
-    direct_from_point_lights_by_reach(bundle, occluders, &lights.lights, DIRECT_SAMPLES_PER_EDGE)
+/// [`DIRECT_SAMPLES_PER_EDGE`]² grid, shadowed by the bundle's own geometry (`level`, made
+/// from its layout) and the dynamic objects at the light set's poses
+/// ([`occluders_with_poses`]), every sample traced, each light where it reaches. Without poses
+/// it is [`lightfarm_client::direct_from_point_lights_by_reach`].
+pub fn operator_direct(bundle: &Bundle, level: &Occluders, lights: &LightSet) -> DirectLight {
+    let posed = occluders_with_poses(level, bundle, &lights.poses);
+    let layout = &bundle.layout;
+    every_sample_by_reach(
+        reach_over(bundle, level, posed.as_ref()).as_mut(),
+        layout,
+        posed.as_ref().map_or(level, |p| &p.occluders),
+        &lights.lights,
+        DIRECT_SAMPLES_PER_EDGE,
+        direct_scale(layout, level),
+    )
+}
+
+/// The light reach over the level's occluders, or over them with the posed objects in
+/// ([`ReachDirect::new_posed`]); `None` without rooms.
+fn reach_over(
+    bundle: &Bundle,
+    level: &Occluders,
+    posed: Option<&PosedObjects>,
+) -> Option<ReachDirect> {
+    match posed {
+        Some(p) => ReachDirect::new_posed(bundle, p),
+        None => ReachDirect::new(bundle, level),
+    }
 }
 
 /// Applies a bundle to a light set with `bounces` bounces; returns the records the method
@@ -57,21 +81,24 @@ pub fn evaluate_with_report(
     method: Method,
     bounces: Bounces,
 ) -> anyhow::Result<(ResultFile, Applied)> {
-    let occluders = Occluders::from_layout(&bundle.layout);
+    // Direct light is shadowed by the level and by the posed dynamic objects; the scale that
+    // clamps r² is the level's, whatever the poses.
+    let level = Occluders::from_layout(&bundle.layout);
+    let posed = occluders_with_poses(&level, &bundle, &lights.poses);
+    let occluders = posed.as_ref().map_or(&level, |p| &p.occluders);
     // RESULT.json reports direct light at texel centres; the operators are fed the texel
     // average, which is what a ray landing in the texel sees.
     // Both with the one reach (rooms and their occluders) and direct scale.
     let layout = &bundle.layout;
     let (mut reach, scale) = (
-        ReachDirect::new(&bundle, &occluders),
-        direct_scale(layout, &occluders),
+        reach_over(&bundle, &level, posed.as_ref()),
+        direct_scale(layout, &level),
     );
-    let direct =
-        every_sample_by_reach(reach.as_mut(), layout, &occluders, &lights.lights, 1, scale);
+    let direct = every_sample_by_reach(reach.as_mut(), layout, occluders, &lights.lights, 1, scale);
     let averaged = every_sample_by_reach(
         reach.as_mut(),
         layout,
-        &occluders,
+        occluders,
         &lights.lights,
         DIRECT_SAMPLES_PER_EDGE,
         scale,
@@ -109,7 +136,8 @@ pub fn evaluate_with_report(
                 .collect(),
         );
     }
-    let dnrt = dnrt_delta(&mut runtime, &leaving, bounced, &occluders, lights)?;
+    // An object's own light probe sits at its centre, inside it: the level alone shadows it.
+    let dnrt = dnrt_delta(&mut runtime, &leaving, bounced, &level, lights)?;
     let layout = &runtime.bundle().layout;
     let mut texels = Vec::with_capacity(layout.n_texels());
     for surface in &layout.surfaces {

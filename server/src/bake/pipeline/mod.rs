@@ -265,7 +265,10 @@ fn bake_once(
     }
     lap(&mut report, "probe volume");
 
-    bundle.dnrt = stages::dnrt_grids(scene, scene_dir, cache, &mut report)?;
+    if let Some((grids, shapes)) = stages::dnrt_grids(scene, scene_dir, cache, &mut report)? {
+        bundle.dnrt = Some(grids);
+        bundle.dynamic_shapes = shapes;
+    }
     if bundle.dnrt.is_some() && stage_follows(scene, options.full, LateStage::DnrtGrids) {
         announce(&bundle);
     }

@@ -13,7 +13,8 @@ use std::cell::Cell;
 use std::path::Path;
 use std::sync::Arc;
 
-use lightfarm_proto::bundle::SourceBases;
+use lightfarm_proto::bundle::{DynamicShape, SourceBases};
+use lightfarm_proto::dnrt_grid::DnrtGrid;
 use lightfarm_proto::scene::{ProbeVolumeMode, Scene, Transform, Transport};
 
 use crate::bake::cache::dnrt::{dnrt_key, DnrtCache, DnrtLookup};
@@ -29,7 +30,7 @@ use crate::bake::mrt::one_bounce::gather_rows;
 use crate::bake::mrt::shape::{bake_shape, ShapeLightfields, ShapeOperators, ShapeSpec};
 use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
-use crate::bake::scene::mesh::load_mesh;
+use crate::bake::scene::mesh::{load_mesh, TriangleMesh};
 use crate::bake::scene::mesh_albedo::SurfaceAlbedo;
 use crate::bake::sh::probe_volume::{build_probe_volume, ProbeVolumeOps};
 use crate::bake::sh::responses::{build_sh_responses, ShResponseOps};
@@ -638,15 +639,16 @@ pub fn probe_volume(
     ))
 }
 
-/// The DNRT grids, one per dynamic object in scene order (None without dynamic objects), each
-/// content-cached (a grid depends on its object alone); `report.dnrt` gets each object's
-/// seconds and grid bytes.
+/// The DNRT grids and the dynamic objects' shapes (their triangles in their own frames, for
+/// their direct shadows), one each per dynamic object in scene order (None without dynamic
+/// objects). Each grid is content-cached (a grid depends on its object alone); `report.dnrt`
+/// gets each object's seconds and grid bytes.
 pub fn dnrt_grids(
     scene: &Scene,
     scene_dir: &Path,
     cache: Option<&ShapeCache>,
     report: &mut BakeReport,
-) -> Result<Option<Vec<lightfarm_proto::dnrt_grid::DnrtGrid>>, BakeError> {
+) -> Result<Option<(Vec<DnrtGrid>, Vec<DynamicShape>)>, BakeError> {
     if scene.dynamic.is_empty() {
         return Ok(None);
     }
@@ -654,18 +656,41 @@ pub fn dnrt_grids(
         Some(c) => Some(DnrtCache::open(c.dir())?),
         None => None,
     };
-    let mut grids = Vec::new();
+    let (mut grids, mut shapes) = (Vec::new(), Vec::new());
     for object in &scene.dynamic {
         let start = std::time::Instant::now();
-        let grid = dnrt_grid(scene, scene_dir, object, cache.as_ref())?;
+        let mesh = dynamic_mesh(scene_dir, object)?;
+        let grid = dnrt_grid_of(scene, object, &mesh, cache.as_ref())?;
         report.dnrt.push((
             object.id.clone(),
             start.elapsed().as_secs_f64(),
             grid.data_bytes(),
         ));
         grids.push(grid);
+        shapes.push(DynamicShape {
+            object: object.id.clone(),
+            triangles: mesh
+                .triangles
+                .iter()
+                .map(|t| t.map(|v| v.map(|x| x as f32)))
+                .collect(),
+        });
     }
-    Ok(Some(grids))
+    Ok(Some((grids, shapes)))
+}
+
+/// A dynamic object's mesh in its own frame.
+fn dynamic_mesh(
+    scene_dir: &Path,
+    object: &lightfarm_proto::scene::DynamicObject,
+) -> Result<TriangleMesh, BakeError> {
+    Ok(load_mesh(
+        &format!("dynamic \"{}\"", object.id),
+        scene_dir,
+        &object.mesh,
+        &Transform::default(),
+    )
+    .map_err(GeometryError::from)?)
 }
 
 /// A dynamic object's DNRT grid: from the cache, or baked and stored there.
@@ -674,15 +699,18 @@ pub fn dnrt_grid(
     scene_dir: &Path,
     object: &lightfarm_proto::scene::DynamicObject,
     cache: Option<&DnrtCache>,
-) -> Result<lightfarm_proto::dnrt_grid::DnrtGrid, BakeError> {
+) -> Result<DnrtGrid, BakeError> {
+    dnrt_grid_of(scene, object, &dynamic_mesh(scene_dir, object)?, cache)
+}
+
+/// [`dnrt_grid`] of the object's mesh, already loaded.
+fn dnrt_grid_of(
+    scene: &Scene,
+    object: &lightfarm_proto::scene::DynamicObject,
+    mesh: &TriangleMesh,
+    cache: Option<&DnrtCache>,
+) -> Result<DnrtGrid, BakeError> {
     let settings = &scene.settings;
-    let mesh = load_mesh(
-        &format!("dynamic \"{}\"", object.id),
-        scene_dir,
-        &object.mesh,
-        &Transform::default(),
-    )
-    .map_err(GeometryError::from)?;
     let key = dnrt_key(
         &mesh.triangles,
         object.albedo,

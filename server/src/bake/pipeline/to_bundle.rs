@@ -135,6 +135,7 @@ pub fn mrt_bundle(
         probes: None,
         dnrt: None,
         sh: None,
+        dynamic_shapes: Vec::new(),
     }
 }
 
