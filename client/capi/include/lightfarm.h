@@ -70,6 +70,11 @@ enum LfStatus
    * or a texel span is not a range of the layout's texels.
    */
   LF_STATUS_BAD_INDEX = -10,
+  /**
+   * A pose names no dynamic object of the bundle (or its id is NULL or not UTF-8), or has a
+   * non-finite translation or rotation (`lf_runtime_set_poses`).
+   */
+  LF_STATUS_INVALID_POSE = -11,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -159,6 +164,16 @@ typedef struct {
   float position[3];
   float intensity[3];
 } LfPointLight;
+
+/**
+ * Where a dynamic object is this frame: its id (NUL-terminated UTF-8, the scene's
+ * `dynamic[].id`), translation (world metres) and rotation quaternion `[x, y, z, w]`.
+ */
+typedef struct {
+  const char *id;
+  float translation[3];
+  float rotation[4];
+} LfPose;
 
 /**
  * A run of texels in layout order: `start` (inclusive) to `end` (exclusive).
@@ -347,6 +362,30 @@ int64_t lf_runtime_surface(const LfRuntime *rt,
                            size_t cap,
                            uint32_t *texel_offset,
                            uint32_t *texel_count);
+
+/**
+ * Places the bundle's dynamic objects: from now on `lf_runtime_direct_from_point_lights`,
+ * `lf_runtime_light_direct`, `lf_runtime_direct_in_spans` and `lf_runtime_light_reach`
+ * shadow direct light with the posed objects' shapes (and no longer take a room holding one
+ * to be empty). `n_poses = 0` removes every object. Objects not listed cast no shadow.
+ *
+ * Direct light computed before the call does not change: after moving an object, recompute
+ * the direct light of the lights that reach it (or all) and apply it, or its change. Spans
+ * passed to `lf_runtime_direct_in_spans` must come from `lf_runtime_light_reach` after the
+ * poses were set (their `in_sight` flag depends on them). Costs a rebuild of the shadow-ray
+ * hierarchy over the level and the objects and of the rooms' occluder lists, and allocates.
+ *
+ * Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, or `poses` with
+ * `n_poses > 0`), `LF_STATUS_INVALID_POSE` (an id that is NULL, not UTF-8 or not a dynamic
+ * object of the bundle, or a non-finite translation or rotation; nothing changes) or
+ * `LF_STATUS_PANIC`.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`. `poses` must be NULL or point to
+ * `n_poses` readable `LfPose`s whose `id`s are NULL or readable NUL-terminated strings; no
+ * other thread may use `rt` or write them during the call.
+ */
+int32_t lf_runtime_set_poses(LfRuntime *rt, const LfPose *poses, size_t n_poses);
 
 /**
  * Writes the texel spans the point light at `position` (3 floats, world metres) can reach to

@@ -3,10 +3,11 @@
 //!
 //! Invariants: the result is exactly what `lightfarm eval` feeds the operators
 //! (`direct_from_point_lights_by_reach` with [`LF_DIRECT_SAMPLES_PER_EDGE`] samples per texel
-//! edge, shadow rays against the bundle's occluders, each light traced where it reaches);
+//! edge, shadow rays against the bundle's occluders and the dynamic objects placed with
+//! `lf_runtime_set_poses`, each light traced where it reaches);
 //! lights are checked before use, so every output value is finite and non-negative.
 
-use lightfarm_client::direct_from_point_lights_by_reach;
+use lightfarm_client::every_sample_by_reach;
 use lightfarm_proto::lights::{Light, LightKind};
 
 use crate::boundary::{slice, slice_mut, status_call};
@@ -89,11 +90,15 @@ pub unsafe extern "C" fn lf_runtime_direct_from_point_lights(
         }
         check_rgb_len(rt, "out_rgb", out_len)?;
         let lights = client_lights(lights)?;
-        let direct = direct_from_point_lights_by_reach(
-            rt.runtime().bundle(),
+        // The reach over the posed objects too (`lf_runtime_set_poses`); without poses this is
+        // `direct_from_point_lights_by_reach`.
+        let direct = every_sample_by_reach(
+            rt.new_reach().as_mut(),
+            &rt.runtime().bundle().layout,
             rt.occluders(),
             &lights,
             LF_DIRECT_SAMPLES_PER_EDGE,
+            rt.direct_scale(),
         );
         // SAFETY: `out_len` writable floats, per the contract, not overlapping `lights`.
         let out = unsafe { slice_mut(out_rgb, out_len, "out_rgb") }?;

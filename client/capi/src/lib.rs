@@ -35,6 +35,10 @@
 //!    those texels only, then lf_runtime_apply_delta_in_spans with both reaches' spans (reads
 //!    and writes only there) */
 //! lf_runtime_light_direct(rt, &moved, spans, capacity, &n_spans, after, n);
+//! /* dynamic objects (the scene's `dynamic` ids): placed before direct light is computed, so
+//!    it carries their shadows; recompute the direct light near an object after moving it */
+//! LfPose ball = { "red_ball", { 2.2f, 0.45f, 0.5f }, { 0.0f, 0.0f, 0.0f, 1.0f } };
+//! lf_runtime_set_poses(rt, &ball, 1);
 //! lf_runtime_free(rt);
 //! ```
 //!
@@ -43,6 +47,8 @@
 //!   scratch) and the entry points that create, query, apply (all of the direct light, or
 //!   [`lf_runtime_apply_delta`]: its change) and free it.
 //! - [`direct`]: [`LfPointLight`] and direct light from point lights at every texel.
+//! - [`poses`]: [`LfPose`] and [`lf_runtime_set_poses`]: the dynamic objects placed for the
+//!   direct light's shadows.
 //! - [`reach`]: one moving light: the [`LfTexelSpan`]s a point light can reach, direct
 //!   light on given spans only or on the light's own reach ([`lf_runtime_light_direct`]),
 //!   and relighting by a change that lies in given spans
@@ -77,6 +83,7 @@ pub mod direct;
 pub mod last_error;
 pub mod layout;
 pub mod method;
+pub mod poses;
 pub mod reach;
 pub mod runtime;
 pub mod status;
@@ -90,6 +97,7 @@ pub use layout::{
     lf_runtime_texel_sizes,
 };
 pub use method::LfMethod;
+pub use poses::{lf_runtime_set_poses, LfPose};
 pub use reach::{
     lf_runtime_apply_delta_in_spans, lf_runtime_direct_in_spans, lf_runtime_light_direct,
     lf_runtime_light_reach, LfTexelSpan,

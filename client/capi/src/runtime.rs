@@ -15,10 +15,12 @@
 //!   [`lf_runtime_free`] is the only place that box is dropped.
 
 use lightfarm_client::{
-    direct_from_point_lights_adaptive_in, direct_scale, Applied, Atlas, Bounces, DirectLight,
-    IndirectLight, Light, Occluders, ReachDirect, Runtime, TexelSpan,
+    direct_from_point_lights_adaptive_in, direct_scale, occluders_with_poses, Applied, Atlas,
+    Bounces, DirectLight, IndirectLight, Light, Occluders, PosedObjects, ReachDirect, Runtime,
+    TexelSpan,
 };
 use lightfarm_proto::bundle::Bundle;
+use lightfarm_proto::lights::Pose;
 use std::ops::Range;
 
 use crate::bounces::LfBounces;
@@ -31,7 +33,10 @@ use crate::status::CapiError;
 pub struct LfRuntime {
     runtime: Runtime,
     /// Shadow-ray geometry of the bundle, for direct light from point lights.
-    occluders: Occluders,
+    level: Occluders,
+    /// The level's occluders with the dynamic objects at their poses (`lf_runtime_set_poses`;
+    /// None: no object placed).
+    posed: Option<PosedObjects>,
     /// Where each texel lands in the lightmap atlas (`Atlas::from_layout_with` the bundle's
     /// surface atlases: the image `lightfarm eval` writes).
     atlas: Atlas,
@@ -44,7 +49,7 @@ pub struct LfRuntime {
     /// What the last successful application (`lf_runtime_apply`, or a delta call) did.
     last: Applied,
     /// A point light's reach over the bundle's rooms, with the occluders of each room (None:
-    /// the bundle has no rooms section).
+    /// the bundle has no rooms section); over the posed objects too when there are some.
     reach: Option<ReachDirect>,
     /// Scratch: the spans of the last `lf_runtime_light_reach` or `lf_runtime_light_direct`.
     reach_spans: Vec<TexelSpan>,
@@ -73,7 +78,8 @@ impl LfRuntime {
             reach_spans: Vec::new(),
             direct_scale,
             runtime,
-            occluders,
+            level: occluders,
+            posed: None,
             atlas,
             direct: DirectLight {
                 radiance: vec![[0.0; 3]; n],
@@ -147,9 +153,26 @@ impl LfRuntime {
         &self.runtime
     }
 
-    /// The shadow-ray geometry of the bundle.
+    /// The shadow-ray geometry of the bundle, with the posed dynamic objects.
     pub(crate) fn occluders(&self) -> &Occluders {
-        &self.occluders
+        self.posed.as_ref().map_or(&self.level, |p| &p.occluders)
+    }
+
+    /// A fresh light reach over [`LfRuntime::occluders`] (None without rooms), as the one
+    /// `lf_runtime_light_reach` walks.
+    pub(crate) fn new_reach(&self) -> Option<ReachDirect> {
+        let bundle = self.runtime.bundle();
+        match &self.posed {
+            Some(p) => ReachDirect::new_posed(bundle, p),
+            None => ReachDirect::new(bundle, &self.level),
+        }
+    }
+
+    /// Places the dynamic objects (ids checked by the caller): the occluders and the reach
+    /// are rebuilt over them; no pose, the level's alone. The clamp scale stays the level's.
+    pub(crate) fn set_poses(&mut self, poses: &[Pose]) {
+        self.posed = occluders_with_poses(&self.level, self.runtime.bundle(), poses);
+        self.reach = self.new_reach();
     }
 
     /// `direct_scale` of the bundle's layout and occluders.
@@ -183,7 +206,7 @@ impl LfRuntime {
         match &mut self.reach {
             Some(reach) => reach.light(
                 layout,
-                &self.occluders,
+                self.posed.as_ref().map_or(&self.level, |p| &p.occluders),
                 light,
                 crate::direct::LF_DIRECT_SAMPLES_PER_EDGE,
                 self.direct_scale,
@@ -198,7 +221,7 @@ impl LfRuntime {
                 });
                 direct_from_point_lights_adaptive_in(
                     layout,
-                    &self.occluders,
+                    self.posed.as_ref().map_or(&self.level, |p| &p.occluders),
                     std::slice::from_ref(light),
                     crate::direct::LF_DIRECT_SAMPLES_PER_EDGE,
                     self.direct_scale,

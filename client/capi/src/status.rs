@@ -38,6 +38,9 @@ pub enum LfStatus {
     /// An index is not below its count (`lf_runtime_surface` past `lf_runtime_surface_count`),
     /// or a texel span is not a range of the layout's texels.
     BadIndex = -10,
+    /// A pose names no dynamic object of the bundle (or its id is NULL or not UTF-8), or has a
+    /// non-finite translation or rotation (`lf_runtime_set_poses`).
+    InvalidPose = -11,
 }
 
 /// Why an `lf_*` call failed.
@@ -91,6 +94,8 @@ pub enum CapiError {
     MissingOperator(ApplyError),
     #[error("lights[{index}]: {reason}")]
     InvalidLight { index: usize, reason: &'static str },
+    #[error("poses[{index}]: {reason}")]
+    InvalidPose { index: usize, reason: String },
     #[error("cannot load bundle: {0}")]
     BadBundle(#[from] BundleError),
     #[error("internal panic: {0}")]
@@ -111,6 +116,7 @@ impl CapiError {
             CapiError::NotConverging(_) => LfStatus::NotConverging,
             CapiError::MissingOperator(_) => LfStatus::MissingOperator,
             CapiError::InvalidLight { .. } => LfStatus::InvalidLight,
+            CapiError::InvalidPose { .. } => LfStatus::InvalidPose,
             CapiError::BadBundle(_) => LfStatus::BadBundle,
             CapiError::Panic(_) => LfStatus::Panic,
         }
