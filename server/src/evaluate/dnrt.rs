@@ -2,8 +2,8 @@
 //! by the probe volume (see [`dnrt_delta`]).
 
 use lightfarm_client::{
-    irradiance_sh_at, point_light_irradiance_sh, radiance_sh_at, DirectLight, DnrtInstance,
-    DnrtVolume, Occluders, ProbeField, Runtime,
+    irradiance_sh_at, point_light_irradiance_sh, radiance_sh_at, Bounces, DirectLight,
+    DnrtInstance, DnrtVolume, IndirectLight, Method, Occluders, ProbeField, Runtime,
 };
 use lightfarm_proto::lights::{LightSet, Pose};
 
@@ -60,4 +60,31 @@ pub fn dnrt_delta(
         instance.apply_texels(&bundle.layout, &mut out)?;
     }
     Ok(Some(out))
+}
+
+/// With more than one bounce, the light the posed objects add and take away ([`dnrt_delta`]'s
+/// `change`, radiance leaving the texels) bounces on: it goes through the operators like a
+/// change of direct light (`Runtime::apply_delta`), its bounces added to `indirect`, which
+/// holds the runtime's answer for the direct light. In a bright room a red ball darkens the
+/// whole room's green, not only its surroundings: ball_corridor at all bounces against
+/// Mitsuba, 0.0523 without this, 0.0264 with it. The object's reflection is a bounce already,
+/// so `Fixed(n)` bounces the change `n − 1` more times; at one bounce nothing is added (the
+/// papers' DNRT).
+pub fn bounce_object_light(
+    runtime: &mut Runtime,
+    method: Method,
+    bounces: Bounces,
+    change: &[[f32; 3]],
+    indirect: &mut IndirectLight,
+) -> anyhow::Result<()> {
+    let rest = match bounces {
+        Bounces::One | Bounces::Fixed(0 | 1) => return Ok(()),
+        Bounces::Fixed(n) => Bounces::Fixed(n - 1),
+        other => other,
+    };
+    let change = DirectLight {
+        radiance: change.to_vec(),
+    };
+    runtime.apply_delta(method, rest, &change, indirect)?;
+    Ok(())
 }

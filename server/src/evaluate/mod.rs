@@ -7,7 +7,8 @@
 //! With more than one bounce, everything downstream of the texels sees the bounced light: the
 //! probe volume (MRT's clutter shading, DNRT's input) is fed the radiance leaving the texels,
 //! direct plus indirect, and a dynamic object reflects the point lights plus the probes'
-//! irradiance. One bounce reproduces the papers' light exactly.
+//! irradiance, and the light the objects add and take away bounces on through the operators
+//! ([`bounce_object_light`]). One bounce reproduces the papers' light exactly.
 //!
 //! # Layout
 //! - here: [`evaluate`] and its pieces ([`operator_direct`], [`leaving_light`]).
@@ -27,7 +28,7 @@ use lightfarm_proto::result::{ResultFile, TexelRecord};
 pub mod dnrt;
 pub mod sh;
 
-pub use dnrt::dnrt_delta;
+pub use dnrt::{bounce_object_light, dnrt_delta};
 
 /// Direct light is averaged over a 4×4 grid per texel before it enters the operators.
 pub const DIRECT_SAMPLES_PER_EDGE: u32 = 4;
@@ -138,6 +139,9 @@ pub fn evaluate_with_report(
     }
     // An object's own light probe sits at its centre, inside it: the level alone shadows it.
     let dnrt = dnrt_delta(&mut runtime, &leaving, bounced, &level, lights)?;
+    if let Some(change) = &dnrt {
+        bounce_object_light(&mut runtime, method, bounces, change, &mut indirect)?;
+    }
     let layout = &runtime.bundle().layout;
     let mut texels = Vec::with_capacity(layout.n_texels());
     for surface in &layout.surfaces {

@@ -30,7 +30,9 @@ use crate::bake::progress::NoProgress;
 use crate::bake::{bake, BakeOptions, BakeReport};
 use crate::cli::frame_time::time_frames;
 use crate::cli::frame_update::median;
-use crate::evaluate::{dnrt_delta, evaluate, is_bounced, leaving_light, operator_direct};
+use crate::evaluate::{
+    bounce_object_light, dnrt_delta, evaluate, is_bounced, leaving_light, operator_direct,
+};
 
 /// A method as the bench names it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -386,7 +388,8 @@ pub struct TimedApply {
 
 /// Median milliseconds of one frame: `Runtime::apply` at `bounces` as `frame-time` times it,
 /// plus for `dnrt` the median of the DNRT pass (probe field, SH at each object, per-texel grid
-/// lookups), fed the light leaving the texels at that bounce mode as `eval` feeds it.
+/// lookups and, past one bounce, the bounces of the light the objects change), fed the light
+/// leaving the texels at that bounce mode as `eval` feeds it.
 fn time_apply(
     bundle: &Bundle,
     method: BenchMethod,
@@ -414,20 +417,30 @@ fn time_apply(
         return Ok(timed);
     }
     let bounced = is_bounced(bounces);
+    let mut answer = IndirectLight::default();
     let leaving = if bounced {
-        let mut indirect = IndirectLight::default();
-        runtime.apply(method.client_method(), bounces, &direct, &mut indirect)?;
-        leaving_light(&direct, &indirect)
+        runtime.apply(method.client_method(), bounces, &direct, &mut answer)?;
+        leaving_light(&direct, &answer)
     } else {
         direct
     };
     let mut times = Vec::new();
     let mut sink = IndirectLight::default();
     for _ in 0..frames.clamp(3, 50) {
+        // The answer the objects' bounced light is added to, as eval adds it (not timed).
+        sink.radiance.clone_from(&answer.radiance);
         let start = Instant::now();
         let delta = dnrt_delta(&mut runtime, &leaving, bounced, &occluders, lights)?;
+        if let Some(change) = &delta {
+            bounce_object_light(
+                &mut runtime,
+                method.client_method(),
+                bounces,
+                change,
+                &mut sink,
+            )?;
+        }
         times.push(start.elapsed().as_secs_f64() * 1e3);
-        sink.radiance = delta.unwrap_or_default();
     }
     std::hint::black_box(&sink);
     Ok(TimedApply {
