@@ -88,6 +88,7 @@ mod tests {
     fn square(half: f32, z: f32) -> DynamicShape {
         DynamicShape {
             object: "lid".into(),
+            albedo: [0.5; 3],
             triangles: vec![
                 [[-half, -half, z], [half, -half, z], [half, half, z]],
                 [[-half, -half, z], [half, half, z], [-half, half, z]],

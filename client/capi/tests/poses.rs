@@ -50,6 +50,7 @@ fn room_bundle() -> Vec<u8> {
     let h = 0.1;
     bundle.dynamic_shapes = vec![DynamicShape {
         object: "lid".into(),
+        albedo: [0.5; 3],
         triangles: vec![
             [[-h, 0.0, -h], [h, 0.0, -h], [h, 0.0, h]],
             [[-h, 0.0, -h], [h, 0.0, h], [-h, 0.0, h]],

@@ -13,6 +13,7 @@
 //! # Layout
 //! - here: [`evaluate`] and its pieces ([`operator_direct`], [`leaving_light`]).
 //! - [`dnrt`]: the light posed dynamic objects add and take away.
+//! - [`objects`]: the light leaving the posed objects' own surfaces, for drawing them.
 //! - [`sh`]: SH incident radiance per texel (bundle section `sh`).
 //!
 //! Invariant: no file I/O and no HTTP here; callers read bundles and write results.
@@ -26,9 +27,11 @@ use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
 
 pub mod dnrt;
+pub mod objects;
 pub mod sh;
 
 pub use dnrt::{bounce_object_light, dnrt_delta};
+pub use objects::{shade_objects, ShadedObject};
 
 /// Direct light is averaged over a 4×4 grid per texel before it enters the operators.
 pub const DIRECT_SAMPLES_PER_EDGE: u32 = 4;
@@ -82,6 +85,19 @@ pub fn evaluate_with_report(
     method: Method,
     bounces: Bounces,
 ) -> anyhow::Result<(ResultFile, Applied)> {
+    let (result, applied, _) = evaluate_frame(bundle, lights, method, bounces, false)?;
+    Ok((result, applied))
+}
+
+/// [`evaluate_with_report`], and when `shade_posed` the posed dynamic objects' own light
+/// ([`objects::shade_objects`], for drawing them), from the same frame.
+pub fn evaluate_frame(
+    bundle: Bundle,
+    lights: &LightSet,
+    method: Method,
+    bounces: Bounces,
+    shade_posed: bool,
+) -> anyhow::Result<(ResultFile, Applied, Vec<ShadedObject>)> {
     // Direct light is shadowed by the level and by the posed dynamic objects; the scale that
     // clamps r² is the level's, whatever the poses.
     let level = Occluders::from_layout(&bundle.layout);
@@ -142,6 +158,10 @@ pub fn evaluate_with_report(
     if let Some(change) = &dnrt {
         bounce_object_light(&mut runtime, method, bounces, change, &mut indirect)?;
     }
+    let shaded = match shade_posed {
+        true => shade_objects(&mut runtime, &leaving, occluders, lights)?,
+        false => Vec::new(),
+    };
     let layout = &runtime.bundle().layout;
     let mut texels = Vec::with_capacity(layout.n_texels());
     for surface in &layout.surfaces {
@@ -171,7 +191,7 @@ pub fn evaluate_with_report(
             });
         }
     }
-    Ok((ResultFile { texels }, applied))
+    Ok((ResultFile { texels }, applied, shaded))
 }
 
 /// Whether `bounces` sums more than the first bounce (then the probe volume and DNRT are fed

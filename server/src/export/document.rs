@@ -16,7 +16,7 @@ use lightfarm_proto::bundle::{Layout, SurfaceAtlas};
 use lightfarm_proto::lights::LightSet;
 
 use super::faces::{box_faces, BoxFace};
-use super::mesh_colours::{corner_colours, MeshTexels};
+use super::mesh_colours::{corner_colours, linear_colours, MeshTexels};
 use super::textures::{face_texture, png};
 use super::{ExportError, ExportOptions};
 
@@ -101,10 +101,12 @@ fn winding_normal(t: [[f32; 3]; 3]) -> Vec3 {
 }
 
 /// Builds the document; `radiance` holds every layout texel's radiance for the chosen mode.
+/// `posed` are the posed dynamic objects: id, world triangles and per corner radiance.
 pub fn build(
     layout: &Layout,
     surface_atlases: &[SurfaceAtlas],
     radiance: &[[f32; 3]],
+    posed: &[(String, Vec<[[f32; 3]; 3]>, Vec<[f32; 3]>)],
     lights: &LightSet,
     options: ExportOptions,
 ) -> Result<Built, ExportError> {
@@ -221,6 +223,46 @@ pub fn build(
             "primitives": [{ "attributes": attributes, "material": materials.len() - 1 }]
         }));
         nodes.push(json!({ "name": "mesh clutter", "mesh": meshes.len() - 1 }));
+    }
+    // Posed dynamic objects: their triangles, coloured per corner by the light leaving them
+    // (tone-mapped with the level's exposure), drawn from both sides.
+    for (id, triangles, corners) in posed {
+        let name = format!("dynamic:{id}");
+        let kept: Vec<usize> = (0..triangles.len())
+            .filter(|&k| winding_normal(triangles[k]).length_squared() > 1e-20)
+            .collect();
+        if kept.is_empty() {
+            continue;
+        }
+        let positions: Vec<[f32; 3]> = kept.iter().flat_map(|&k| triangles[k]).collect();
+        let normals: Vec<[f32; 3]> = kept
+            .iter()
+            .flat_map(|&k| {
+                let n = winding_normal(triangles[k]);
+                [(n / n.length()).to_array(); 3]
+            })
+            .collect();
+        let radiance: Vec<[f32; 3]> = kept
+            .iter()
+            .flat_map(|&k| [corners[3 * k], corners[3 * k + 1], corners[3 * k + 2]])
+            .collect();
+        let colours = linear_colours(&radiance, exposure);
+        materials.push(json!({
+            "name": name,
+            "pbrMetallicRoughness": { "metallicFactor": 0.0, "roughnessFactor": 1.0 },
+            "doubleSided": true,
+            "extensions": { "KHR_materials_unlit": {} }
+        }));
+        let attributes = json!({
+            "POSITION": buffer.floats(&positions, "VEC3", true),
+            "NORMAL": buffer.floats(&normals, "VEC3", false),
+            "COLOR_0": buffer.floats(&colours, "VEC4", false),
+        });
+        meshes.push(json!({
+            "name": name,
+            "primitives": [{ "attributes": attributes, "material": materials.len() - 1 }]
+        }));
+        nodes.push(json!({ "name": name, "mesh": meshes.len() - 1 }));
     }
     let mut punctual = Vec::new();
     for (k, light) in lights.lights.iter().enumerate() {

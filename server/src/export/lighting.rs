@@ -1,13 +1,13 @@
 //! The light the export shows: per layout texel, direct, indirect or both, from the ONE call
-//! into [`crate::evaluate::evaluate`] (direct light with shadow rays, then the operators through the
-//! client runtime, DRT where the bundle has it), so the export shows what `eval` reports.
+//! into [`crate::evaluate::evaluate_frame`] (direct light with shadow rays, then the operators
+//! through the client runtime, DRT where the bundle has it), so the export shows what `eval`
+//! reports; and from the same frame the light leaving the posed dynamic objects.
 //!
-//! Units: outgoing radiance, W/(sr·m²) per RGB channel, in layout texel order.
+//! Units: outgoing radiance, W/(sr·m²) per RGB channel, in layout texel order (objects: per
+//! triangle corner).
 
 use lightfarm_client::{Bundle, Method};
-use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
-use lightfarm_proto::result::ResultFile;
 
 use super::{ExportError, ExportOptions};
 
@@ -39,27 +39,45 @@ impl LightMode {
     }
 }
 
-/// Evaluates the bundle under `lights`: the texels' (direct, indirect) radiance with `bounces`
-/// bounces (`all`: the runtime's default, iterated until converged; `1`: the papers' one bounce),
-/// through `eval::evaluate` and nothing else.
-pub fn evaluate(
-    bundle: Bundle,
-    lights: &LightSet,
-    bounces: BounceCount,
-) -> Result<ResultFile, ExportError> {
-    crate::evaluate::evaluate(bundle, lights, Method::Drt, bounces.into())
-        .map_err(|e| ExportError::Evaluate(format!("{e:#}")))
+/// What the export draws lit: per layout texel, and per posed dynamic object per triangle
+/// corner, the radiance the mode asks for.
+pub struct Lit {
+    /// Per layout texel (zero for texels the evaluation does not model).
+    pub texels: Vec<[f32; 3]>,
+    /// The posed objects' triangles (world frame) and per corner radiance.
+    pub objects: Vec<(String, Vec<[[f32; 3]; 3]>, Vec<[f32; 3]>)>,
 }
 
-/// Per layout texel, the radiance `options.mode` asks for (zero for texels the evaluation does
-/// not model).
+/// The radiance `options.mode` asks for, of the texels and of the posed dynamic objects, from
+/// one evaluation.
 pub fn texel_radiance(
     bundle: Bundle,
     lights: &LightSet,
     options: ExportOptions,
-) -> Result<Vec<[f32; 3]>, ExportError> {
+) -> Result<Lit, ExportError> {
     let layout = bundle.layout.clone();
-    let result = evaluate(bundle, lights, options.bounces)?;
+    let (result, _, shaded) =
+        crate::evaluate::evaluate_frame(bundle, lights, Method::Drt, options.bounces.into(), true)
+            .map_err(|e| ExportError::Evaluate(format!("{e:#}")))?;
+    let pick = |d: [f32; 3], i: [f32; 3]| -> [f32; 3] {
+        [0, 1, 2].map(|c| match options.mode {
+            LightMode::Lit => d[c] + i[c],
+            LightMode::Direct => d[c],
+            LightMode::Indirect => i[c],
+        })
+    };
+    let objects = shaded
+        .into_iter()
+        .map(|o| {
+            let corners = o
+                .direct
+                .iter()
+                .zip(&o.indirect)
+                .map(|(d, i)| pick(*d, *i))
+                .collect();
+            (o.id, o.triangles, corners)
+        })
+        .collect();
     let out = result
         .by_layout_texel(&layout)
         .iter()
@@ -75,5 +93,8 @@ pub fn texel_radiance(
             })
         })
         .collect();
-    Ok(out)
+    Ok(Lit {
+        texels: out,
+        objects,
+    })
 }

@@ -1,4 +1,5 @@
-//! Colours for mesh clutter: the bundle keeps a mesh's triangles and its lightmap texels but
+//! Vertex colours: for posed dynamic objects the light leaving each corner
+//! ([`linear_colours`]); for mesh clutter: the bundle keeps a mesh's triangles and its lightmap texels but
 //! not the triangles' lightmap coordinates, so each triangle corner takes the tone-mapped
 //! radiance of the nearest mesh texel facing the same way (normals within 60°), as a linear
 //! `COLOR_0` (glTF vertex colours are linear).
@@ -24,24 +25,41 @@ impl MeshTexels {
         radiance: &[[f32; 3]],
         exposure: f32,
     ) -> MeshTexels {
-        let n = radiance.len() as u32;
-        let bytes = Atlas {
-            width: n.max(1),
-            height: 1,
-            texel_xy: (0..n).map(|k| (k, 0)).collect(),
-        }
-        .to_srgb8(radiance, exposure);
-        let srgb = bytes
-            .chunks(3)
-            .take(n as usize)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
+        let srgb = srgb8(radiance, exposure);
         MeshTexels {
             positions,
             normals,
             srgb,
         }
     }
+}
+
+/// `radiance` tone-mapped with `exposure` to sRGB8, as the textures are.
+fn srgb8(radiance: &[[f32; 3]], exposure: f32) -> Vec<[u8; 3]> {
+    let n = radiance.len() as u32;
+    let bytes = Atlas {
+        width: n.max(1),
+        height: 1,
+        texel_xy: (0..n).map(|k| (k, 0)).collect(),
+    }
+    .to_srgb8(radiance, exposure);
+    bytes
+        .chunks(3)
+        .take(n as usize)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect()
+}
+
+/// Linear RGBA vertex colours showing `radiance` as the textures do: tone-mapped with
+/// `exposure` to sRGB8, then back to linear (glTF's `COLOR_0` is linear).
+pub fn linear_colours(radiance: &[[f32; 3]], exposure: f32) -> Vec<[f32; 4]> {
+    srgb8(radiance, exposure)
+        .into_iter()
+        .map(|c| {
+            let [r, g, b] = c.map(srgb_to_linear);
+            [r, g, b, 1.0]
+        })
+        .collect()
 }
 
 fn srgb_to_linear(v: u8) -> f32 {

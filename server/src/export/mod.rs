@@ -6,7 +6,9 @@
 //! ([`lighting`]). Every block and clutter box becomes one mesh with its own lightmap texture:
 //! its faces as rectangles rebuilt from their texels ([`faces`]), one texture pixel per texel
 //! ([`textures`]). Mesh clutter becomes its triangles coloured per vertex from the nearest
-//! texel ([`mesh_colours`]). Point lights become `KHR_lights_punctual` lights. [`document`]
+//! texel ([`mesh_colours`]). Posed dynamic objects become their triangles coloured per corner
+//! by the light leaving them (`evaluate::objects`). Point lights become `KHR_lights_punctual`
+//! lights. [`document`]
 //! assembles the glTF JSON, [`glb`] the binary container.
 //!
 //! Frames and units: glTF's right-handed, Y-up frame in metres is the scene's own frame (no
@@ -69,7 +71,14 @@ pub fn export_glb(
 ) -> Result<(Vec<u8>, f32), ExportError> {
     let layout = bundle.layout.clone();
     let surface_atlases = bundle.surface_atlases.clone();
-    let radiance = lighting::texel_radiance(bundle, lights, options)?;
-    let built = document::build(&layout, &surface_atlases, &radiance, lights, options)?;
+    let lit = lighting::texel_radiance(bundle, lights, options)?;
+    let built = document::build(
+        &layout,
+        &surface_atlases,
+        &lit.texels,
+        &lit.objects,
+        lights,
+        options,
+    )?;
     Ok((glb::write(&built.json, &built.binary), built.exposure))
 }

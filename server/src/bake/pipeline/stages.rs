@@ -669,6 +669,7 @@ pub fn dnrt_grids(
         grids.push(grid);
         shapes.push(DynamicShape {
             object: object.id.clone(),
+            albedo: object.albedo.map(|a| a as f32),
             triangles: mesh
                 .triangles
                 .iter()

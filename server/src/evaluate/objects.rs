@@ -1,0 +1,96 @@
+//! The light leaving posed dynamic objects' own surfaces, for drawing them (the glTF export and
+//! the dashboard's preview): per triangle corner, `ρ/π · E`, with `E` the point lights'
+//! irradiance at the corner (shadow rays against the level and the posed objects) plus the
+//! probe volume's irradiance there (the light the walls send, as an engine shades a moving
+//! object from its light probes), `ρ` the object's albedo (bundle section `dynamic shapes`).
+//!
+//! Frames and units: world frame, metres; outgoing radiance W/(sr·m²) per RGB channel. A
+//! corner is shaded with its triangle's normal (flat, from the winding; the export draws the
+//! triangle from both sides).
+
+use lightfarm_client::{
+    irradiance_at, posed_triangles, Bundle, DirectLight, Occluders, ProbeField, Runtime,
+};
+use lightfarm_proto::glam::DVec3;
+use lightfarm_proto::lights::LightSet;
+
+/// One posed object and the radiance leaving each corner of its triangles.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShadedObject {
+    /// The scene's dynamic-object id.
+    pub id: String,
+    /// World-frame triangles at this frame's pose.
+    pub triangles: Vec<[[f32; 3]; 3]>,
+    /// Per triangle corner (three per triangle, in order), outgoing radiance from the point
+    /// lights.
+    pub direct: Vec<[f32; 3]>,
+    /// The same from the probe volume's irradiance (the light the surfaces around it send).
+    pub indirect: Vec<[f32; 3]>,
+}
+
+/// Every posed object with a shape in the bundle, shaded under `lights`; `leaving` is the
+/// radiance leaving the texels the probe volume is fed (as for DNRT), `shadows` the level's
+/// occluders with the posed objects in them.
+pub fn shade_objects(
+    runtime: &mut Runtime,
+    leaving: &DirectLight,
+    shadows: &Occluders,
+    lights: &LightSet,
+) -> anyhow::Result<Vec<ShadedObject>> {
+    let mut field = ProbeField::default();
+    let probes = runtime.has_probes();
+    if probes {
+        runtime.apply_probes(leaving, &mut field)?;
+    }
+    let bundle: &Bundle = runtime.bundle();
+    let volume = bundle.probes.as_ref().filter(|_| probes);
+    let mut out = Vec::new();
+    for pose in &lights.poses {
+        let Some(shape) = bundle.dynamic_shapes.iter().find(|s| s.object == pose.id) else {
+            continue;
+        };
+        let triangles = posed_triangles(shape, pose);
+        let rho = shape.albedo.map(|a| a as f64 * std::f64::consts::FRAC_1_PI);
+        let mut direct = Vec::with_capacity(triangles.len() * 3);
+        let mut indirect = Vec::with_capacity(triangles.len() * 3);
+        for tri in &triangles {
+            let [a, b, c] = tri.map(|v| DVec3::from_array(v.map(f64::from)));
+            let n = (b - a).cross(c - a).normalize_or_zero();
+            for p in [a, b, c] {
+                let mut e = [0.0f64; 3];
+                for light in &lights.lights {
+                    let d = DVec3::from_array(light.position) - p;
+                    let r2 = d.length_squared();
+                    let cos = n.dot(d) / r2.sqrt();
+                    if !(cos > 0.0 && r2 > 0.0) {
+                        continue;
+                    }
+                    let at = p.as_vec3().to_array();
+                    if shadows.occluded(at, light.position.map(|x| x as f32)) {
+                        continue;
+                    }
+                    for (ec, i) in e.iter_mut().zip(light.intensity) {
+                        *ec += i * cos / r2;
+                    }
+                }
+                let walls = volume.map_or([0.0; 3], |volume| {
+                    irradiance_at(
+                        volume,
+                        &field,
+                        p.as_vec3().to_array(),
+                        n.as_vec3().to_array(),
+                    )
+                });
+                direct.push([0, 1, 2].map(|k| (rho[k] * e[k]) as f32));
+                indirect.push([0, 1, 2].map(|k| (rho[k] * walls[k] as f64) as f32));
+            }
+        }
+        out.push(ShadedObject {
+            id: pose.id.clone(),
+            triangles,
+            direct,
+            indirect,
+        });
+    }
+    Ok(out)
+}
