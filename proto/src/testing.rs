@@ -391,6 +391,29 @@ pub fn strip_layout(n: usize) -> Layout {
     }
 }
 
+/// One block `room` of two 0.5 m floor texels at (0.25, 0, 0.25) and (0.75, 0, 0.25) (albedo
+/// grey and blue-ish) whose only operator averages them: `U_b = [1, 1]ᵀ`, `T_d→b = [½, ½]`, so
+/// MRT gives `ρ_t · (l_0 + l_1) / 2` at each texel (the C ABI's tests).
+pub fn two_texel_bundle() -> Bundle {
+    let layout = Layout {
+        scene_name: "two texels".into(),
+        surfaces: vec![SurfaceInfo {
+            name: "block:room/-y".into(),
+            texel_offset: 0,
+            texel_count: 2,
+        }],
+        positions: vec![[0.25, 0.0, 0.25], [0.75, 0.0, 0.25]],
+        normals: vec![[0.0, 1.0, 0.0]; 2],
+        albedo: vec![[0.5, 0.5, 0.5], [0.25, 0.5, 1.0]],
+        texel_size: vec![[0.5, 0.5]; 2],
+        rects: vec![],
+        triangles: vec![],
+    };
+    let u_b = Matrix::from_fn(2, 1, |_, _| 1.0);
+    let t_db = Matrix::from_fn(1, 2, |_, _| 0.5);
+    one_block_bundle(layout, "room", "pair", u_b, t_db)
+}
+
 /// A bundle of one block (id `block`, at texel 0) that holds every texel of `layout`, lit by
 /// MRT alone: one shape `key` with `u_b` (texels × r) and `t_db` (r × texels), no openings,
 /// and no other section.

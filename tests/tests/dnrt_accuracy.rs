@@ -15,14 +15,15 @@ use lightfarm_server::bake::reference::{reference, ReferenceSettings};
 use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_tests::*;
 
-/// Per channel, (DNRT delta, reference delta) of the texels within `radius` of `centre`.
-fn deltas_near(
+/// Per channel, (DNRT delta, reference delta) of the texels whose distance from `centre` is
+/// kept by `keep`.
+fn deltas_where(
     ours_with: &ResultFile,
     ours_without: &ResultFile,
     ref_with: &ResultFile,
     ref_without: &ResultFile,
     centre: [f64; 3],
-    radius: f64,
+    keep: impl Fn(f64) -> bool,
 ) -> Vec<([f64; 3], [f64; 3])> {
     let key = |t: &lightfarm_proto::result::TexelRecord| (t.surface.clone(), t.index);
     let index = |r: &ResultFile| -> std::collections::HashMap<_, [f64; 3]> {
@@ -34,7 +35,7 @@ fn deltas_near(
         .iter()
         .filter(|t| {
             let d: f64 = (0..3).map(|k| (t.position[k] - centre[k]).powi(2)).sum();
-            d.sqrt() <= radius
+            keep(d.sqrt())
         })
         .map(|t| {
             let k = key(t);
@@ -46,13 +47,32 @@ fn deltas_near(
         .collect()
 }
 
-#[test]
-fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
-    let (mut scene, lights) = load_scene("ball_corridor", 16, 256);
-    scene.settings.dnrt.resolution = 16;
-    scene.settings.dnrt.rays = 128;
+/// `scenes/ball_corridor` at `texels` per face and `rays` per texel, its ball's DNRT grid at
+/// `resolution`³ points of `grid_rays` rays, baked with lightfield transport: the scene, its
+/// lights (the ball posed), its directory, the bundle and the bake's report.
+fn ball_corridor(
+    texels: u32,
+    rays: u32,
+    resolution: u32,
+    grid_rays: u32,
+) -> (
+    lightfarm_proto::scene::Scene,
+    LightSet,
+    std::path::PathBuf,
+    Vec<u8>,
+    lightfarm_server::bake::BakeReport,
+) {
+    let (mut scene, lights) = load_scene("ball_corridor", texels, rays);
+    scene.settings.dnrt.resolution = resolution;
+    scene.settings.dnrt.rays = grid_rays;
     let dir = scene_dir("ball_corridor");
     let (bundle, report) = bake_scene(&scene, &dir, Transport::Lightfield, false);
+    (scene, lights, dir, bundle, report)
+}
+
+#[test]
+fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
+    let (scene, lights, dir, bundle, report) = ball_corridor(16, 256, 16, 128);
     assert_eq!(report.dnrt.len(), 1);
     assert_eq!(
         report.dnrt[0].2,
@@ -69,13 +89,13 @@ fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
     let ref_without = reference_of(&scene, &dir, &without, 4096);
     let pose = &lights.poses[0];
     let radius = 0.35;
-    let near = deltas_near(
+    let near = deltas_where(
         &ours_with,
         &ours_without,
         &ref_with,
         &ref_without,
         pose.translation,
-        2.0 * radius,
+        |d| d <= 2.0 * radius,
     );
     assert!(near.len() >= 20, "{} texels near the ball", near.len());
     let (mut num, mut den) = (0.0, 0.0);
@@ -124,24 +144,14 @@ fn dnrt_reproduces_what_the_posed_ball_changes_near_it() {
     // the bounced light of the ball's direct shadow (eval shadows the operators' direct light
     // with the posed ball), which follows the reference's change.
     let outer = scene.settings.dnrt.outer_extent * radius * 3f64.sqrt();
-    let far: Vec<_> = deltas_near(
+    let far = deltas_where(
         &ours_with,
         &ours_without,
         &ref_with,
         &ref_without,
         pose.translation,
-        1e9,
-    )
-    .into_iter()
-    .zip(&ref_with.texels)
-    .filter(|(_, t)| {
-        let d: f64 = (0..3)
-            .map(|k| (t.position[k] - pose.translation[k]).powi(2))
-            .sum();
-        d.sqrt() > outer
-    })
-    .map(|(x, _)| x)
-    .collect();
+        |d| d > outer,
+    );
     let (mut num, mut den, mut ours_sum, mut ref_sum) = (0.0, 0.0, 0.0, 0.0);
     for (ours, truth) in &far {
         for c in 0..3 {
@@ -212,11 +222,7 @@ fn total_indirect(r: &ResultFile) -> f64 {
 
 #[test]
 fn at_all_bounces_the_light_the_ball_takes_away_bounces_through_the_room() {
-    let (mut scene, lights) = load_scene("ball_corridor", 8, 256);
-    scene.settings.dnrt.resolution = 16;
-    scene.settings.dnrt.rays = 128;
-    let dir = scene_dir("ball_corridor");
-    let (bundle, _) = bake_scene(&scene, &dir, Transport::Lightfield, false);
+    let (scene, lights, dir, bundle, _) = ball_corridor(8, 256, 16, 128);
     let without = LightSet {
         poses: vec![],
         ..lights.clone()
@@ -239,23 +245,16 @@ fn at_all_bounces_the_light_the_ball_takes_away_bounces_through_the_room() {
     // Far from the ball, where DNRT itself adds nothing, the change is the bounced light of
     // what the ball did near it.
     let pose = &lights.poses[0];
-    let far = deltas_near(
+    let far = deltas_where(
         &ours_with,
         &ours_without,
         &ref_with,
         &ref_without,
         pose.translation,
-        1e9,
+        |d| d > 2.0,
     )
     .into_iter()
-    .zip(&ref_with.texels)
-    .filter(|(_, t)| {
-        let d: f64 = (0..3)
-            .map(|k| (t.position[k] - pose.translation[k]).powi(2))
-            .sum();
-        d.sqrt() > 2.0
-    })
-    .fold((0.0, 0.0), |(o, r), ((a, b), _)| {
+    .fold((0.0, 0.0), |(o, r), (a, b)| {
         (o + a.iter().sum::<f64>(), r + b.iter().sum::<f64>())
     });
     eprintln!(
@@ -283,11 +282,7 @@ fn at_all_bounces_the_light_the_ball_takes_away_bounces_through_the_room() {
 
 #[test]
 fn a_pose_without_a_grid_is_an_error_naming_it() {
-    let (mut scene, lights) = load_scene("ball_corridor", 4, 32);
-    scene.settings.dnrt.resolution = 4;
-    scene.settings.dnrt.rays = 16;
-    let dir = scene_dir("ball_corridor");
-    let (bundle, _) = bake_scene(&scene, &dir, Transport::Lightfield, false);
+    let (_, lights, _, bundle, _) = ball_corridor(4, 32, 4, 16);
     let mut wrong = lights.clone();
     wrong.poses[0].id = "blue_cube".into();
     let bundle = lightfarm_client::decode(&bundle).expect("decode");

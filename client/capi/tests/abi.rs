@@ -18,34 +18,9 @@ use lightfarm_proto::testing::{drt_bundle, one_block_bundle, Lcg};
 
 const OK: i32 = LfStatus::Ok as i32;
 
-/// One block of two floor texels (albedo grey and blue-ish) whose only operator averages them:
-/// `U_b = [1, 1]ᵀ`, `T_d→b = [½, ½]`, so MRT gives `ρ_t · (l_0 + l_1) / 2` at each texel.
+/// `testing::two_texel_bundle`: MRT gives `ρ_t · (l_0 + l_1) / 2` at each texel.
 fn two_texel_bundle() -> Vec<u8> {
-    let layout = Layout {
-        scene_name: "two texels".into(),
-        surfaces: vec![SurfaceInfo {
-            name: "block:room/-y".into(),
-            texel_offset: 0,
-            texel_count: 2,
-        }],
-        positions: vec![[0.25, 0.0, 0.25], [0.75, 0.0, 0.25]],
-        normals: vec![[0.0, 1.0, 0.0]; 2],
-        albedo: vec![[0.5, 0.5, 0.5], [0.25, 0.5, 1.0]],
-        texel_size: vec![[0.5, 0.5]; 2],
-        rects: vec![],
-        triangles: vec![],
-    };
-    let u_b = Matrix {
-        rows: 2,
-        cols: 1,
-        data: vec![1.0, 1.0],
-    };
-    let t_db = Matrix {
-        rows: 1,
-        cols: 2,
-        data: vec![0.5, 0.5],
-    };
-    one_block_bundle(layout, "room", "pair", u_b, t_db).encode()
+    lightfarm_proto::testing::two_texel_bundle().encode()
 }
 
 /// Owns a runtime for the length of a test.

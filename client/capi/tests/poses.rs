@@ -8,10 +8,8 @@ use std::ffi::{c_char, CStr};
 use std::ptr::{null, null_mut};
 
 use lightfarm::*;
-use lightfarm_proto::bundle::{
-    DynamicShape, FaceLink, Layout, Matrix, Room, Rooms, SurfaceInfo, SurfacePlace,
-};
-use lightfarm_proto::testing::one_block_bundle;
+use lightfarm_proto::bundle::{DynamicShape, FaceLink, Room, Rooms, SurfacePlace};
+use lightfarm_proto::testing::two_texel_bundle;
 
 const OK: i32 = LfStatus::Ok as i32;
 const LIGHT: LfPointLight = LfPointLight {
@@ -19,26 +17,11 @@ const LIGHT: LfPointLight = LfPointLight {
     intensity: [2.0, 1.0, 0.5],
 };
 
-/// A closed 1 m room whose floor holds two 0.5 m texels, with the rooms section (so a light's
-/// reach is walked) and a dynamic object "lid": a 0.2 m square, level, in its own frame.
+/// A closed 1 m room whose floor holds two 0.5 m texels (`testing::two_texel_bundle`), with the
+/// rooms section (so a light's reach is walked) and a dynamic object "lid": a 0.2 m square,
+/// level, in its own frame.
 fn room_bundle() -> Vec<u8> {
-    let layout = Layout {
-        scene_name: "room with a lid".into(),
-        surfaces: vec![SurfaceInfo {
-            name: "block:room/-y".into(),
-            texel_offset: 0,
-            texel_count: 2,
-        }],
-        positions: vec![[0.25, 0.0, 0.25], [0.75, 0.0, 0.25]],
-        normals: vec![[0.0, 1.0, 0.0]; 2],
-        albedo: vec![[0.5, 0.5, 0.5], [0.25, 0.5, 1.0]],
-        texel_size: vec![[0.5, 0.5]; 2],
-        rects: vec![],
-        triangles: vec![],
-    };
-    let u_b = Matrix::from_fn(2, 1, |_, _| 1.0);
-    let t_db = Matrix::from_fn(1, 2, |_, _| 0.5);
-    let mut bundle = one_block_bundle(layout, "room", "pair", u_b, t_db);
+    let mut bundle = two_texel_bundle();
     bundle.rooms = Some(Rooms {
         rooms: vec![Room {
             min: [0.0; 3],

@@ -158,9 +158,10 @@ pub fn evaluate_frame(
     if let Some(change) = &dnrt {
         bounce_object_light(&mut runtime, method, bounces, change, &mut indirect)?;
     }
-    let shaded = match shade_posed {
-        true => shade_objects(&mut runtime, &leaving, occluders, lights)?,
-        false => Vec::new(),
+    let shaded = if shade_posed {
+        shade_objects(&mut runtime, &leaving, occluders, lights)?
+    } else {
+        Vec::new()
     };
     let layout = &runtime.bundle().layout;
     let mut texels = Vec::with_capacity(layout.n_texels());

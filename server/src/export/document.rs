@@ -100,6 +100,55 @@ fn winding_normal(t: [[f32; 3]; 3]) -> Vec3 {
     (b - a).cross(c - a)
 }
 
+/// The document's growing lists, for adding meshes.
+struct Parts<'a> {
+    buffer: &'a mut Buffer,
+    materials: &'a mut Vec<Value>,
+    meshes: &'a mut Vec<Value>,
+    nodes: &'a mut Vec<Value>,
+}
+
+impl Parts<'_> {
+    /// One node and mesh `name` of `triangles` (non-degenerate), flat normals from their
+    /// winding and `colours` per corner, with an unlit material of its own.
+    fn coloured_mesh(
+        &mut self,
+        name: &str,
+        triangles: &[[[f32; 3]; 3]],
+        colours: &[[f32; 4]],
+        double_sided: bool,
+    ) {
+        let positions: Vec<[f32; 3]> = triangles.iter().flatten().copied().collect();
+        let normals: Vec<[f32; 3]> = triangles
+            .iter()
+            .flat_map(|t| {
+                let n = winding_normal(*t);
+                [(n / n.length()).to_array(); 3]
+            })
+            .collect();
+        let mut material = json!({
+            "name": name,
+            "pbrMetallicRoughness": { "metallicFactor": 0.0, "roughnessFactor": 1.0 },
+            "extensions": { "KHR_materials_unlit": {} }
+        });
+        if double_sided {
+            material["doubleSided"] = json!(true);
+        }
+        self.materials.push(material);
+        let attributes = json!({
+            "POSITION": self.buffer.floats(&positions, "VEC3", true),
+            "NORMAL": self.buffer.floats(&normals, "VEC3", false),
+            "COLOR_0": self.buffer.floats(colours, "VEC4", false),
+        });
+        self.meshes.push(json!({
+            "name": name,
+            "primitives": [{ "attributes": attributes, "material": self.materials.len() - 1 }]
+        }));
+        self.nodes
+            .push(json!({ "name": name, "mesh": self.meshes.len() - 1 }));
+    }
+}
+
 /// Builds the document; `radiance` holds every layout texel's radiance for the chosen mode.
 /// `posed` are the posed dynamic objects: id, world triangles and per corner radiance.
 pub fn build(
@@ -190,6 +239,12 @@ pub fn build(
         }));
         nodes.push(json!({ "name": name, "mesh": meshes.len() - 1 }));
     }
+    let mut parts = Parts {
+        buffer: &mut buffer,
+        materials: &mut materials,
+        meshes: &mut meshes,
+        nodes: &mut nodes,
+    };
     // Mesh clutter: its triangles, coloured per corner.
     let triangles: Vec<[[f32; 3]; 3]> = layout
         .triangles
@@ -200,69 +255,24 @@ pub fn build(
     if !triangles.is_empty() {
         let texels = MeshTexels::new(mesh_texels.0, mesh_texels.1, &mesh_texels.2, exposure);
         let colours = corner_colours(&triangles, &texels);
-        let positions: Vec<[f32; 3]> = triangles.iter().flatten().copied().collect();
-        let normals: Vec<[f32; 3]> = triangles
-            .iter()
-            .flat_map(|t| {
-                let n = winding_normal(*t);
-                [(n / n.length()).to_array(); 3]
-            })
-            .collect();
-        materials.push(json!({
-            "name": "mesh clutter",
-            "pbrMetallicRoughness": { "metallicFactor": 0.0, "roughnessFactor": 1.0 },
-            "extensions": { "KHR_materials_unlit": {} }
-        }));
-        let attributes = json!({
-            "POSITION": buffer.floats(&positions, "VEC3", true),
-            "NORMAL": buffer.floats(&normals, "VEC3", false),
-            "COLOR_0": buffer.floats(&colours, "VEC4", false),
-        });
-        meshes.push(json!({
-            "name": "mesh clutter",
-            "primitives": [{ "attributes": attributes, "material": materials.len() - 1 }]
-        }));
-        nodes.push(json!({ "name": "mesh clutter", "mesh": meshes.len() - 1 }));
+        parts.coloured_mesh("mesh clutter", &triangles, &colours, false);
     }
     // Posed dynamic objects: their triangles, coloured per corner by the light leaving them
     // (tone-mapped with the level's exposure), drawn from both sides.
     for (id, triangles, corners) in posed {
-        let name = format!("dynamic:{id}");
         let kept: Vec<usize> = (0..triangles.len())
             .filter(|&k| winding_normal(triangles[k]).length_squared() > 1e-20)
             .collect();
         if kept.is_empty() {
             continue;
         }
-        let positions: Vec<[f32; 3]> = kept.iter().flat_map(|&k| triangles[k]).collect();
-        let normals: Vec<[f32; 3]> = kept
-            .iter()
-            .flat_map(|&k| {
-                let n = winding_normal(triangles[k]);
-                [(n / n.length()).to_array(); 3]
-            })
-            .collect();
+        let kept_triangles: Vec<[[f32; 3]; 3]> = kept.iter().map(|&k| triangles[k]).collect();
         let radiance: Vec<[f32; 3]> = kept
             .iter()
             .flat_map(|&k| [corners[3 * k], corners[3 * k + 1], corners[3 * k + 2]])
             .collect();
         let colours = linear_colours(&radiance, exposure);
-        materials.push(json!({
-            "name": name,
-            "pbrMetallicRoughness": { "metallicFactor": 0.0, "roughnessFactor": 1.0 },
-            "doubleSided": true,
-            "extensions": { "KHR_materials_unlit": {} }
-        }));
-        let attributes = json!({
-            "POSITION": buffer.floats(&positions, "VEC3", true),
-            "NORMAL": buffer.floats(&normals, "VEC3", false),
-            "COLOR_0": buffer.floats(&colours, "VEC4", false),
-        });
-        meshes.push(json!({
-            "name": name,
-            "primitives": [{ "attributes": attributes, "material": materials.len() - 1 }]
-        }));
-        nodes.push(json!({ "name": name, "mesh": meshes.len() - 1 }));
+        parts.coloured_mesh(&format!("dynamic:{id}"), &kept_triangles, &colours, true);
     }
     let mut punctual = Vec::new();
     for (k, light) in lights.lights.iter().enumerate() {

@@ -19,7 +19,7 @@
 //! # Layout
 //! - [`lighting`]: the one call into `eval` (light mode, bounces) → per-texel radiance.
 //! - [`faces`]: rectangles of a surface's texels; [`textures`]: per-surface texture images.
-//! - [`mesh_colours`]: per-vertex colours of mesh clutter.
+//! - [`mesh_colours`]: per-vertex colours of mesh clutter and of posed dynamic objects.
 //! - [`document`]: the glTF JSON and binary buffer; [`glb`]: the GLB container.
 
 pub mod document;
