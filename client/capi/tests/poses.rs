@@ -4,14 +4,17 @@
 //! point; the room holding it is no longer reported in sight; removing it restores the level's
 //! light exactly; and every refused pose names itself and leaves the previous poses in force.
 
-use std::ffi::{c_char, CStr};
+use std::ffi::c_char;
 use std::ptr::{null, null_mut};
 
 use lightfarm::*;
 use lightfarm_proto::bundle::{DynamicShape, FaceLink, Room, Rooms, SurfacePlace};
 use lightfarm_proto::testing::two_texel_bundle;
 
-const OK: i32 = LfStatus::Ok as i32;
+mod common;
+
+use common::{last_error, Rt, OK};
+
 const LIGHT: LfPointLight = LfPointLight {
     position: [0.25, 0.9, 0.25],
     intensity: [2.0, 1.0, 0.5],
@@ -42,32 +45,12 @@ fn room_bundle() -> Vec<u8> {
     bundle.encode()
 }
 
-struct Rt(*mut LfRuntime);
-
-impl Drop for Rt {
-    fn drop(&mut self) {
-        // SAFETY: from lf_runtime_new, freed once.
-        unsafe { lf_runtime_free(self.0) }
-    }
-}
-
 fn load() -> Rt {
     let bytes = room_bundle();
     // SAFETY: `bytes.len()` readable bytes.
     let rt = unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) };
     assert!(!rt.is_null());
     Rt(rt)
-}
-
-fn last_error() -> String {
-    let mut buf = vec![0u8; 512];
-    // SAFETY: `buf.len()` writable bytes.
-    unsafe { lf_last_error(buf.as_mut_ptr().cast(), buf.len()) };
-    CStr::from_bytes_until_nul(&buf)
-        .unwrap()
-        .to_str()
-        .unwrap()
-        .to_owned()
 }
 
 /// The lid over texel 0, 0.5 m above the floor (its shadow from the light covers every sample
