@@ -50,6 +50,12 @@ pub struct PosedObjects {
     pub boxes: Vec<([f64; 3], [f64; 3])>,
 }
 
+/// The occluders this frame's direct light is shadowed with: the level's with the posed objects
+/// in when some are placed (`posed`), else the level's.
+pub fn frame_occluders<'a>(level: &'a Occluders, posed: Option<&'a PosedObjects>) -> &'a Occluders {
+    posed.map_or(level, |p| &p.occluders)
+}
+
 /// The level's occluders with every posed object's triangles ([`posed_triangles`]) added;
 /// `None` when no pose has a shape in the bundle (the level's occluders stand as they are).
 pub fn occluders_with_poses(

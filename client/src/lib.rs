@@ -106,7 +106,7 @@ pub use direct::{
     DirectLight, TexelSpan,
 };
 pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
-pub use dynamic_shadows::{occluders_with_poses, posed_triangles, PosedObjects};
+pub use dynamic_shadows::{frame_occluders, occluders_with_poses, posed_triangles, PosedObjects};
 #[cfg(feature = "fetch")]
 pub use fetch::{BundleFetcher, FetchError, Fetched};
 pub use light_reach::LightReach;

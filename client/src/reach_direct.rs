@@ -138,10 +138,18 @@ impl ReachDirect {
         })
     }
 
-    /// [`ReachDirect::new`] over the level's occluders with posed dynamic objects in them
-    /// ([`crate::dynamic_shadows::PosedObjects`]): the rooms the objects lie in are no longer
-    /// taken to hold nothing but walls ([`LightReach::occupy`]), so their shadows are traced.
-    pub fn new_posed(bundle: &Bundle, posed: &PosedObjects) -> Option<ReachDirect> {
+    /// [`ReachDirect::new`] over this frame's occluders: the level's `level`, or with posed
+    /// dynamic objects (`posed`, [`crate::dynamic_shadows::PosedObjects`]) the level's with
+    /// them in, where the rooms the objects lie in are no longer taken to hold nothing but
+    /// walls ([`LightReach::occupy`]), so their shadows are traced.
+    pub fn new_posed(
+        bundle: &Bundle,
+        level: &Occluders,
+        posed: Option<&PosedObjects>,
+    ) -> Option<ReachDirect> {
+        let Some(posed) = posed else {
+            return ReachDirect::new(bundle, level);
+        };
         let mut reach = ReachDirect::new(bundle, &posed.occluders)?;
         for &(lo, hi) in &posed.boxes {
             reach.reach.occupy(lo, hi);

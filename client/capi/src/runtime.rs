@@ -15,9 +15,9 @@
 //!   [`lf_runtime_free`] is the only place that box is dropped.
 
 use lightfarm_client::{
-    direct_from_point_lights_adaptive_in, direct_scale, occluders_with_poses, Applied, Atlas,
-    Bounces, DirectLight, IndirectLight, Light, Occluders, PosedObjects, ReachDirect, Runtime,
-    TexelSpan,
+    direct_from_point_lights_adaptive_in, direct_scale, frame_occluders, occluders_with_poses,
+    Applied, Atlas, Bounces, DirectLight, IndirectLight, Light, Occluders, PosedObjects,
+    ReachDirect, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Bundle;
 use lightfarm_proto::lights::Pose;
@@ -155,17 +155,13 @@ impl LfRuntime {
 
     /// The shadow-ray geometry of the bundle, with the posed dynamic objects.
     pub(crate) fn occluders(&self) -> &Occluders {
-        self.posed.as_ref().map_or(&self.level, |p| &p.occluders)
+        frame_occluders(&self.level, self.posed.as_ref())
     }
 
     /// A fresh light reach over [`LfRuntime::occluders`] (None without rooms), as the one
     /// `lf_runtime_light_reach` walks.
     pub(crate) fn new_reach(&self) -> Option<ReachDirect> {
-        let bundle = self.runtime.bundle();
-        match &self.posed {
-            Some(p) => ReachDirect::new_posed(bundle, p),
-            None => ReachDirect::new(bundle, &self.level),
-        }
+        ReachDirect::new_posed(self.runtime.bundle(), &self.level, self.posed.as_ref())
     }
 
     /// Places the dynamic objects (ids checked by the caller): the occluders and the reach
@@ -206,7 +202,7 @@ impl LfRuntime {
         match &mut self.reach {
             Some(reach) => reach.light(
                 layout,
-                self.posed.as_ref().map_or(&self.level, |p| &p.occluders),
+                frame_occluders(&self.level, self.posed.as_ref()),
                 light,
                 crate::direct::LF_DIRECT_SAMPLES_PER_EDGE,
                 self.direct_scale,
@@ -221,7 +217,7 @@ impl LfRuntime {
                 });
                 direct_from_point_lights_adaptive_in(
                     layout,
-                    self.posed.as_ref().map_or(&self.level, |p| &p.occluders),
+                    frame_occluders(&self.level, self.posed.as_ref()),
                     std::slice::from_ref(light),
                     crate::direct::LF_DIRECT_SAMPLES_PER_EDGE,
                     self.direct_scale,

@@ -2,13 +2,14 @@
 //! by the probe volume (see [`dnrt_delta`]).
 
 use lightfarm_client::{
-    irradiance_sh_at, point_light_irradiance_sh, radiance_sh_at, Bounces, DirectLight,
+    irradiance_sh_at, point_light_irradiance_sh, radiance_sh_at, Bounces, Bundle, DirectLight,
     DnrtInstance, DnrtVolume, IndirectLight, Method, Occluders, ProbeField, Runtime,
 };
 use lightfarm_proto::lights::{LightSet, Pose};
 
 /// DNRT (paper 003) for every posed dynamic object: per texel, the light the objects add and
-/// take away. `leaving` is the radiance leaving the texels that the probe volume is fed.
+/// take away. `field` is the probe volume fed the radiance leaving the texels
+/// (`Runtime::apply_probes`), made once per frame by the caller.
 /// One bounce (`bounced` false, `leaving` the direct light), consistent with the one-bounce
 /// solution: an object reflects the point lights' direct light (their irradiance lobe at its
 /// centre) and hides the radiance of the direct-lit surfaces behind it (the probe volume's
@@ -17,25 +18,23 @@ use lightfarm_proto::lights::{LightSet, Pose};
 /// reflects the walls' light (the probes' irradiance at its centre, the full light-probe input
 /// the paper assumes) and hides their bounced light too. A point light it hides is its direct
 /// shadow, never indirect light.
-/// `None` when there are no poses; an error when a pose names an object without a grid.
+/// `None` when there are no poses; an error when a pose names an object without a grid or the
+/// bundle has no probe volume.
 pub fn dnrt_delta(
-    runtime: &mut Runtime,
-    leaving: &DirectLight,
+    bundle: &Bundle,
+    field: &ProbeField,
     bounced: bool,
     occluders: &Occluders,
     lights: &LightSet,
-) -> anyhow::Result<Option<Vec<[f32; 3]>>> {
+) -> anyhow::Result<Option<DirectLight>> {
     let poses: &[Pose] = &lights.poses;
     if poses.is_empty() {
         return Ok(None);
     }
-    let mut field = ProbeField::default();
-    runtime.apply_probes(leaving, &mut field)?;
-    let bundle = runtime.bundle();
     let volume = bundle
         .probes
         .as_ref()
-        .expect("apply_probes checked the probe volume");
+        .ok_or_else(|| anyhow::anyhow!("posed objects need the bundle's probe volume"))?;
     let grids = bundle.dnrt.as_deref().unwrap_or(&[]);
     let mut out = vec![[0.0f32; 3]; bundle.layout.n_texels()];
     for pose in poses {
@@ -48,18 +47,18 @@ pub fn dnrt_delta(
         let centre = at.centre_world();
         let mut lit = point_light_irradiance_sh(occluders, &lights.lights, centre);
         if bounced {
-            let walls = irradiance_sh_at(volume, &field, centre);
+            let walls = irradiance_sh_at(volume, field, centre);
             for (l, w) in lit.iter_mut().zip(walls) {
                 for (a, b) in l.iter_mut().zip(w) {
                     *a += b;
                 }
             }
         }
-        let hidden = radiance_sh_at(volume, &field, centre);
+        let hidden = radiance_sh_at(volume, field, centre);
         let instance = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, lit, hidden);
         instance.apply_texels(&bundle.layout, &mut out)?;
     }
-    Ok(Some(out))
+    Ok(Some(DirectLight { radiance: out }))
 }
 
 /// With more than one bounce, the light the posed objects add and take away ([`dnrt_delta`]'s
@@ -74,7 +73,7 @@ pub fn bounce_object_light(
     runtime: &mut Runtime,
     method: Method,
     bounces: Bounces,
-    change: &[[f32; 3]],
+    change: &DirectLight,
     indirect: &mut IndirectLight,
 ) -> anyhow::Result<()> {
     let rest = match bounces {
@@ -82,9 +81,6 @@ pub fn bounce_object_light(
         Bounces::Fixed(n) => Bounces::Fixed(n - 1),
         other => other,
     };
-    let change = DirectLight {
-        radiance: change.to_vec(),
-    };
-    runtime.apply_delta(method, rest, &change, indirect)?;
+    runtime.apply_delta(method, rest, change, indirect)?;
     Ok(())
 }

@@ -19,9 +19,9 @@
 //! Invariant: no file I/O and no HTTP here; callers read bundles and write results.
 
 use lightfarm_client::{
-    direct_scale, every_sample_by_reach, irradiance_at, occluders_with_poses, Applied, Bounces,
-    Bundle, DirectLight, IndirectLight, Method, Occluders, PosedObjects, ProbeField, ReachDirect,
-    Runtime,
+    direct_scale, every_sample_by_reach, frame_occluders, irradiance_at, occluders_with_poses,
+    Applied, Bounces, Bundle, DirectLight, IndirectLight, Method, Occluders, ProbeField,
+    ReachDirect, Runtime,
 };
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
@@ -45,26 +45,13 @@ pub fn operator_direct(bundle: &Bundle, level: &Occluders, lights: &LightSet) ->
     let posed = occluders_with_poses(level, bundle, &lights.poses);
     let layout = &bundle.layout;
     every_sample_by_reach(
-        reach_over(bundle, level, posed.as_ref()).as_mut(),
+        ReachDirect::new_posed(bundle, level, posed.as_ref()).as_mut(),
         layout,
-        posed.as_ref().map_or(level, |p| &p.occluders),
+        frame_occluders(level, posed.as_ref()),
         &lights.lights,
         DIRECT_SAMPLES_PER_EDGE,
         direct_scale(layout, level),
     )
-}
-
-/// The light reach over the level's occluders, or over them with the posed objects in
-/// ([`ReachDirect::new_posed`]); `None` without rooms.
-fn reach_over(
-    bundle: &Bundle,
-    level: &Occluders,
-    posed: Option<&PosedObjects>,
-) -> Option<ReachDirect> {
-    match posed {
-        Some(p) => ReachDirect::new_posed(bundle, p),
-        None => ReachDirect::new(bundle, level),
-    }
 }
 
 /// Applies a bundle to a light set with `bounces` bounces; returns the records the method
@@ -102,13 +89,13 @@ pub fn evaluate_frame(
     // clamps r² is the level's, whatever the poses.
     let level = Occluders::from_layout(&bundle.layout);
     let posed = occluders_with_poses(&level, &bundle, &lights.poses);
-    let occluders = posed.as_ref().map_or(&level, |p| &p.occluders);
+    let occluders = frame_occluders(&level, posed.as_ref());
     // RESULT.json reports direct light at texel centres; the operators are fed the texel
     // average, which is what a ray landing in the texel sees.
     // Both with the one reach (rooms and their occluders) and direct scale.
     let layout = &bundle.layout;
     let (mut reach, scale) = (
-        reach_over(&bundle, &level, posed.as_ref()),
+        ReachDirect::new_posed(&bundle, &level, posed.as_ref()),
         direct_scale(layout, &level),
     );
     let direct = every_sample_by_reach(reach.as_mut(), layout, occluders, &lights.lights, 1, scale);
@@ -137,29 +124,40 @@ pub fn evaluate_frame(
     } else {
         averaged.clone()
     };
-    // MRT shades clutter from the probe volume (U_dyn), as the MRT paper does; DRT gathers.
-    let mut probe_lit: Option<Vec<[f32; 3]>> = None;
-    if method == Method::Mrt && runtime.has_probes() {
+    // The probe volume fed that light, once: MRT's clutter shading, DNRT's light-probe input
+    // and the posed objects' own light read it (posed objects without a probe volume are an
+    // error, as DNRT needs it).
+    let field = if (method == Method::Mrt && runtime.has_probes()) || !lights.poses.is_empty() {
         let mut field = ProbeField::default();
         runtime.apply_probes(&leaving, &mut field)?;
+        Some(field)
+    } else {
+        None
+    };
+    // MRT shades clutter from the probe volume (U_dyn), as the MRT paper does; DRT gathers.
+    let mut probe_lit: Option<Vec<[f32; 3]>> = None;
+    if let Some(field) = field.as_ref().filter(|_| method == Method::Mrt) {
         let layout = &runtime.bundle().layout;
         let volume = runtime.probe_volume().expect("has probes");
         probe_lit = Some(
             (0..layout.n_texels())
                 .map(|t| {
-                    let e = irradiance_at(volume, &field, layout.positions[t], layout.normals[t]);
+                    let e = irradiance_at(volume, field, layout.positions[t], layout.normals[t]);
                     [0, 1, 2].map(|c| layout.albedo[t][c] * std::f32::consts::FRAC_1_PI * e[c])
                 })
                 .collect(),
         );
     }
     // An object's own light probe sits at its centre, inside it: the level alone shadows it.
-    let dnrt = dnrt_delta(&mut runtime, &leaving, bounced, &level, lights)?;
+    let dnrt = match &field {
+        Some(field) => dnrt_delta(runtime.bundle(), field, bounced, &level, lights)?,
+        None => None,
+    };
     if let Some(change) = &dnrt {
         bounce_object_light(&mut runtime, method, bounces, change, &mut indirect)?;
     }
     let shaded = if shade_posed {
-        shade_objects(&mut runtime, &leaving, occluders, lights)?
+        shade_objects(runtime.bundle(), field.as_ref(), occluders, lights)
     } else {
         Vec::new()
     };
@@ -186,7 +184,7 @@ pub fn evaluate_frame(
                         (Some(lit), true) => lit[t],
                         _ => indirect.radiance[t],
                     };
-                    let add = dnrt.as_ref().map_or([0.0; 3], |d| d[t]);
+                    let add = dnrt.as_ref().map_or([0.0; 3], |d| d.radiance[t]);
                     f([0, 1, 2].map(|c| base[c] + add[c]))
                 },
             });

@@ -8,9 +8,7 @@
 //! corner is shaded with its triangle's normal (flat, from the winding; the export draws the
 //! triangle from both sides).
 
-use lightfarm_client::{
-    irradiance_at, posed_triangles, Bundle, DirectLight, Occluders, ProbeField, Runtime,
-};
+use lightfarm_client::{irradiance_at, posed_triangles, Bundle, Occluders, ProbeField};
 use lightfarm_proto::glam::DVec3;
 use lightfarm_proto::lights::LightSet;
 
@@ -28,22 +26,16 @@ pub struct ShadedObject {
     pub indirect: Vec<[f32; 3]>,
 }
 
-/// Every posed object with a shape in the bundle, shaded under `lights`; `leaving` is the
-/// radiance leaving the texels the probe volume is fed (as for DNRT), `shadows` the level's
-/// occluders with the posed objects in them.
+/// Every posed object with a shape in the bundle, shaded under `lights`; `field` is the probe
+/// volume fed the radiance leaving the texels (as for DNRT; `None`: no light from the probes),
+/// `shadows` the level's occluders with the posed objects in them.
 pub fn shade_objects(
-    runtime: &mut Runtime,
-    leaving: &DirectLight,
+    bundle: &Bundle,
+    field: Option<&ProbeField>,
     shadows: &Occluders,
     lights: &LightSet,
-) -> anyhow::Result<Vec<ShadedObject>> {
-    let mut field = ProbeField::default();
-    let probes = runtime.has_probes();
-    if probes {
-        runtime.apply_probes(leaving, &mut field)?;
-    }
-    let bundle: &Bundle = runtime.bundle();
-    let volume = bundle.probes.as_ref().filter(|_| probes);
+) -> Vec<ShadedObject> {
+    let probes = bundle.probes.as_ref().zip(field);
     let mut out = Vec::new();
     for pose in &lights.poses {
         let Some(shape) = bundle.dynamic_shapes.iter().find(|s| s.object == pose.id) else {
@@ -73,10 +65,10 @@ pub fn shade_objects(
                         *ec += i * cos / r2;
                     }
                 }
-                let walls = volume.map_or([0.0; 3], |volume| {
+                let walls = probes.map_or([0.0; 3], |(volume, field)| {
                     irradiance_at(
                         volume,
-                        &field,
+                        field,
                         p.as_vec3().to_array(),
                         n.as_vec3().to_array(),
                     )
@@ -92,5 +84,5 @@ pub fn shade_objects(
             indirect,
         });
     }
-    Ok(out)
+    out
 }

@@ -16,6 +16,7 @@ use lightfarm_proto::bundle::{Layout, SurfaceAtlas};
 use lightfarm_proto::lights::LightSet;
 
 use super::faces::{box_faces, BoxFace};
+use super::lighting::LitObject;
 use super::mesh_colours::{corner_colours, linear_colours, MeshTexels};
 use super::textures::{face_texture, png};
 use super::{ExportError, ExportOptions};
@@ -150,12 +151,12 @@ impl Parts<'_> {
 }
 
 /// Builds the document; `radiance` holds every layout texel's radiance for the chosen mode.
-/// `posed` are the posed dynamic objects: id, world triangles and per corner radiance.
+/// `posed` are the posed dynamic objects, lit.
 pub fn build(
     layout: &Layout,
     surface_atlases: &[SurfaceAtlas],
     radiance: &[[f32; 3]],
-    posed: &[(String, Vec<[[f32; 3]; 3]>, Vec<[f32; 3]>)],
+    posed: &[LitObject],
     lights: &LightSet,
     options: ExportOptions,
 ) -> Result<Built, ExportError> {
@@ -259,7 +260,12 @@ pub fn build(
     }
     // Posed dynamic objects: their triangles, coloured per corner by the light leaving them
     // (tone-mapped with the level's exposure), drawn from both sides.
-    for (id, triangles, corners) in posed {
+    for LitObject {
+        id,
+        triangles,
+        corners,
+    } in posed
+    {
         let kept: Vec<usize> = (0..triangles.len())
             .filter(|&k| winding_normal(triangles[k]).length_squared() > 1e-20)
             .collect();

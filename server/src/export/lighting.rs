@@ -44,8 +44,18 @@ impl LightMode {
 pub struct Lit {
     /// Per layout texel (zero for texels the evaluation does not model).
     pub texels: Vec<[f32; 3]>,
-    /// The posed objects' triangles (world frame) and per corner radiance.
-    pub objects: Vec<(String, Vec<[[f32; 3]; 3]>, Vec<[f32; 3]>)>,
+    /// The posed dynamic objects.
+    pub objects: Vec<LitObject>,
+}
+
+/// A posed dynamic object as the export draws it.
+pub struct LitObject {
+    /// The scene's dynamic-object id.
+    pub id: String,
+    /// World-frame triangles at this frame's pose.
+    pub triangles: Vec<[[f32; 3]; 3]>,
+    /// Per triangle corner, the radiance the mode asks for.
+    pub corners: Vec<[f32; 3]>,
 }
 
 /// The radiance `options.mode` asks for, of the texels and of the posed dynamic objects, from
@@ -75,7 +85,11 @@ pub fn texel_radiance(
                 .zip(&o.indirect)
                 .map(|(d, i)| pick(*d, *i))
                 .collect();
-            (o.id, o.triangles, corners)
+            LitObject {
+                id: o.id,
+                triangles: o.triangles,
+                corners,
+            }
         })
         .collect();
     let out = result

@@ -18,7 +18,7 @@
 use std::collections::HashMap;
 use std::time::Instant;
 
-use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, Runtime};
+use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, ProbeField, Runtime};
 use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{compare, ResultFile};
@@ -426,11 +426,13 @@ fn time_apply(
     };
     let mut times = Vec::new();
     let mut sink = IndirectLight::default();
+    let mut field = ProbeField::default();
     for _ in 0..frames.clamp(3, 50) {
         // The answer the objects' bounced light is added to, as eval adds it (not timed).
         sink.radiance.clone_from(&answer.radiance);
         let start = Instant::now();
-        let delta = dnrt_delta(&mut runtime, &leaving, bounced, &occluders, lights)?;
+        runtime.apply_probes(&leaving, &mut field)?;
+        let delta = dnrt_delta(runtime.bundle(), &field, bounced, &occluders, lights)?;
         if let Some(change) = &delta {
             bounce_object_light(
                 &mut runtime,
