@@ -15,18 +15,23 @@
 //! occluder hides whole neither, and the rest test only the occluders that may cross their
 //! segments, all with the buffer's answers.
 //!
-//! A texel's value is the mean of `L_d` over its area, from an `m × m` grid of samples. A
-//! light within a few texels of a texel peaks inside it more sharply than the grid resolves,
-//! so there the unshadowed mean is exact (the solid angle the texel subtends, over its area)
-//! and the samples only say which share of it is shadowed
-//! ([`crate::texel_samples::near_light_mean`]): a light 5 cm from a wall of 1.5 × 0.75 m
-//! texels lost 31% of its indirect light on the grid alone (0.69 of Mitsuba's, all bounces).
+//! A texel's value is the mean of `L_d` over its area: the unshadowed mean of `cosθ / r²`
+//! times the share of it an `m × m` grid of samples sees. Within a few texels of the light
+//! that mean is exact (the solid angle the texel subtends, over its area,
+//! [`crate::texel_samples::near_light_mean`]): a light peaks there more sharply than a grid
+//! resolves (a light 5 cm from a wall of 1.5 × 0.75 m texels lost 31% of its indirect light on
+//! the 4 × 4 grid alone, 0.69 of Mitsuba's, all bounces). Farther it is the 2 × 2
+//! Gauss–Legendre rule ([`crate::texel_samples::far_light_mean`]), closer to the exact mean
+//! than the grid's 16 midpoints; a texel whose samples all see the light takes it without
+//! making the grid's terms.
 //!
 //! Invariants:
 //! - [`DirectLight::radiance`] has one entry per layout texel, in layout order.
 //! - Every value is finite and non-negative for finite, non-negative lights: `r²` is clamped
 //!   below at `(1e-4 · scene scale)²` (scene scale: the diagonal of the box around texel centres
 //!   and occluders), and a light exactly at a texel centre (no direction) contributes nothing.
+
+use std::ops::Range;
 
 use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::lights::{Light, LightKind};
@@ -36,7 +41,8 @@ use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
 use crate::occluders::Occluders;
 pub use crate::texel_samples::ADAPTIVE_MAX_SAMPLES_PER_EDGE;
 use crate::texel_samples::{
-    corner_indices, faces_away, near_light_mean, sample_points, unshadowed, TexelAt, TexelSamples,
+    corner_indices, faces_away, is_axis_aligned, sample_points, unshadowed, unshadowed_mean,
+    TexelAt, TexelSamples,
 };
 
 /// `r²` is clamped below at `(R_MIN_REL · scene scale)²`.
@@ -90,8 +96,6 @@ pub(crate) enum Shadows<'a> {
     /// Only these primitives of the occluders can cross the segments at hand (a run of texels
     /// after [`BoxShadow::Listed`]).
     Listed(&'a Occluders, &'a [u32]),
-    /// Every segment at hand is crossed (a run after [`BoxShadow::Dark`]).
-    Dark,
 }
 
 /// The lights' positions in f32: one light's inline (so lighting one light allocates
@@ -173,7 +177,6 @@ impl<'a> Lighting<'a> {
                         .iter()
                         .any(|&p| occluders.prim_crosses(p as usize, &seg))
                 }),
-            Shadows::Dark => true,
         }
     }
 
@@ -276,10 +279,13 @@ pub fn direct_from_point_lights(
     direct_from_point_lights_averaged(layout, occluders, lights, 1)
 }
 
-/// Direct radiance averaged over each texel's area on a `samples_per_edge²` grid (1: the
-/// centre only). The texel average is what the one-bounce operators expect as input: a ray
-/// landing anywhere in a texel reads that texel's value, so averaging removes the error of
-/// point-sampling sharp highlights (a light close to a wall).
+/// Direct radiance averaged over each texel's area (1 sample per edge: the centre only):
+/// per light the texel's unshadowed mean (exact within a few texels of the light, by the
+/// 2 × 2 Gauss–Legendre rule farther) times the share of it a `samples_per_edge²` grid of
+/// samples sees. The texel average is what the
+/// one-bounce operators expect as input: a ray landing anywhere in a texel reads that texel's
+/// value, so averaging removes the error of point-sampling sharp highlights (a light close to a
+/// wall).
 pub fn direct_from_point_lights_averaged(
     layout: &Layout,
     occluders: &Occluders,
@@ -313,7 +319,7 @@ fn averaged_with(
 }
 
 /// One texel of [`direct_from_point_lights_averaged`] (`m ≥ 2`, a texel with a size): per
-/// light the mean over its `m × m` samples ([`texel_mean`]: exact near the light), summed.
+/// light the mean over its `m × m` samples ([`texel_mean`]), summed.
 fn averaged_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
     // On the stack up to 8 × 8 samples (no allocation per texel).
     let mut stack = [[0.0f32; 3]; 64];
@@ -341,7 +347,7 @@ fn averaged_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
                 }
             }
         }
-        let w = texel_mean(&t, light, m, seen, || all);
+        let w = texel_mean(&t, light, lighting.r2_min, seen, all);
         for (e, i) in irr.iter_mut().zip(light.intensity) {
             *e += i * w;
         }
@@ -352,8 +358,8 @@ fn averaged_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
 /// [`direct_from_point_lights_averaged`] with shadow rays only where visibility can change
 /// across the texel: per texel and light, the four corner samples of the grid are traced
 /// first; when they agree (all lit or all shadowed) the texel is taken as uniformly visible and
-/// the `samples_per_edge²` samples' unshadowed light is averaged without more rays, otherwise
-/// every sample is traced. A light behind every sample (facing away) traces nothing.
+/// its unshadowed mean is taken without more rays, otherwise every sample is traced. A light
+/// behind every sample (facing away) traces nothing.
 ///
 /// Four rays instead of `samples_per_edge²` wherever a texel is wholly lit or wholly
 /// shadowed; what it can miss is a shadow (or a gap in one) narrower than a texel that touches
@@ -435,59 +441,81 @@ pub(crate) fn adaptive_in_with(
     let lighting = Lighting::new(lights, shadows, scale);
     let n = out.len().min(layout.n_texels());
     let mut samples = TexelSamples::new();
-    for_each_shadowed(&lighting, layout, spans, (n, m), boxes, |lighting, t| {
-        out[t] = texel_direct(lighting, TexelAt::of(layout, t), m, Some(&mut samples));
-    });
+    for_each_shadowed(
+        &lighting,
+        layout,
+        spans,
+        (n, m),
+        boxes,
+        |lighting, texels| {
+            let Some(lighting) = lighting else {
+                out[texels].fill([0.0; 3]);
+                return;
+            };
+            for t in texels {
+                out[t] = texel_direct(lighting, TexelAt::of(layout, t), m, Some(&mut samples));
+            }
+        },
+    );
 }
 
-/// Calls `each(queries, t)` for every texel `t < n` of `spans` (`m × m` samples each), with
-/// shadow queries that give the texel's samples what `lighting`'s give them, bit for bit: none
-/// in spans in sight, and with one light over a [`LightBuffer`], per run of texels what a box
-/// query found ([`crate::box_shadows`]: nothing in the way, one occluder in the way of every
-/// sample, or the few occluders that may be), so that most runs trace no ray or test a
-/// handful of occluders. Runs whose texels all face away from the light are not queried.
+/// Calls `each(Some(queries), texels)` for the texels `< n` of `spans` (`m × m` samples each),
+/// a run at a time, with shadow queries that give the texels' samples what `lighting`'s give
+/// them, bit for bit: none in spans in sight, and with one light over a [`LightBuffer`], per
+/// run of texels what a box query found ([`crate::box_shadows`]: nothing in the way, one
+/// occluder in the way of every sample, or the few occluders that may be), so that most runs
+/// trace no ray or test a handful of occluders. With one light, a run whose texels all face
+/// away from it, or whose samples it all hides, gets `each(None, texels)`: every value there
+/// is zero (no light term), and nothing is queried.
 fn for_each_shadowed(
     lighting: &Lighting,
     layout: &Layout,
     spans: &[TexelSpan],
     (n, m): (usize, usize),
     query: &mut BoxShadows,
-    mut each: impl FnMut(&Lighting, usize),
+    mut each: impl FnMut(Option<&Lighting>, Range<usize>),
 ) {
     let clear = lighting.with_shadows(Shadows::Clear);
-    let dark = lighting.with_shadows(Shadows::Dark);
     let boxed = match lighting.shadows {
         Shadows::Buffers(occluders, [buffer]) => Some((occluders, buffer)),
         _ => None,
     };
+    let one_light = match lighting.lights {
+        [one] => Some(one),
+        _ => None,
+    };
+    let facing_away = |run: &Range<usize>| {
+        one_light.is_some_and(|light| {
+            run.clone()
+                .all(|t| faces_away(layout.positions[t], layout.normals[t], light))
+        })
+    };
     for span in spans {
         let texels = span.texels.start.min(n)..span.texels.end.min(n);
         if span.in_sight {
-            texels.for_each(|t| each(&clear, t));
+            for run in runs(layout, texels) {
+                each((!facing_away(&run)).then_some(&clear), run);
+            }
             continue;
         }
         let Some((occluders, buffer)) = boxed else {
-            texels.for_each(|t| each(lighting, t));
+            each(Some(lighting), texels);
             continue;
         };
-        let light = &lighting.lights[0];
         for run in runs(layout, texels) {
-            if run
-                .clone()
-                .all(|t| faces_away(layout.positions[t], layout.normals[t], light))
-            {
-                run.for_each(|t| each(lighting, t));
+            if facing_away(&run) {
+                each(None, run);
                 continue;
             }
             let (lo, hi) = run_bounds(layout, run.clone(), m);
             match query.query(buffer, occluders, lo, hi) {
-                BoxShadow::Clear => run.for_each(|t| each(&clear, t)),
-                BoxShadow::Dark => run.for_each(|t| each(&dark, t)),
+                BoxShadow::Clear => each(Some(&clear), run),
+                BoxShadow::Dark => each(None, run),
                 BoxShadow::Listed => {
                     let listed = lighting.with_shadows(Shadows::Listed(occluders, query.listed()));
-                    run.for_each(|t| each(&listed, t));
+                    each(Some(&listed), run);
                 }
-                BoxShadow::Unknown => run.for_each(|t| each(lighting, t)),
+                BoxShadow::Unknown => each(Some(lighting), run),
             }
         }
     }
@@ -517,9 +545,9 @@ fn adaptive_texel(
 }
 
 /// Adds light `li`'s term of a texel's adaptive average into `irr`: `I` times the mean over
-/// the texel's `m × m` samples of `cosθ / r² · V` ([`texel_mean`]: exact near the light), with
+/// the texel's `m × m` samples of `cosθ / r² · V` ([`texel_mean`]), with
 /// `V` traced at the four corner samples and at every sample only where the corners disagree
-/// (no ray where the shadows are `Clear` or `Dark`). `samples` has been started on the texel
+/// (no ray where the shadows are `Clear`). `samples` has been started on the texel
 /// ([`TexelSamples::start`]).
 fn add_adaptive(
     lighting: &Lighting,
@@ -530,15 +558,19 @@ fn add_adaptive(
     irr: &mut [f64; 3],
 ) {
     let light = &lighting.lights[li];
-    // Every sample shadowed, or no intensity: the term is zero (adding it leaves `irr`).
-    if matches!(lighting.shadows, Shadows::Dark) || light.intensity.iter().all(|&i| i == 0.0) {
+    // No intensity: the term is zero (adding it leaves `irr`).
+    if light.intensity.iter().all(|&i| i == 0.0) {
         return;
     }
     let corners = corner_indices(m);
-    // Unshadowed cos/r² per sample (0 where the light is behind).
-    samples.unshadowed(t, m, light, lighting.r2_min);
-    if samples.g[..m * m].iter().all(|&v| v == 0.0) {
-        return;
+    // An axis-aligned texel the light does not face away from (the callers' `faces_away`)
+    // has a positive term at every sample; a slanted one's terms are made first.
+    let axis_aligned = is_axis_aligned(t.n);
+    if !axis_aligned {
+        samples.unshadowed(t, m, light, lighting.r2_min);
+        if samples.g[..m * m].iter().all(|&v| v == 0.0) {
+            return;
+        }
     }
     let corner_seen = if matches!(lighting.shadows, Shadows::Clear) {
         // What the corners' rays would say, without making the corner points.
@@ -547,13 +579,22 @@ fn add_adaptive(
         samples.corners(t, m);
         corners.map(|k| !lighting.occluded(li, samples.points[k]))
     };
-    if corner_seen.iter().any(|&v| v != corner_seen[0]) {
-        samples.fill_points(t, m);
-    }
-    let points = &samples.points[..m * m];
-    let g = &samples.g[..m * m];
-    let sum = visible_sum(g, m, corner_seen, |k| !lighting.occluded(li, points[k]));
-    let w = texel_mean(t, light, m, sum, || g.iter().sum());
+    let w = if axis_aligned && corner_seen == [true; 4] {
+        // Every sample seen, every term positive: the share seen is 1, the grid's terms are
+        // not needed (what `texel_mean` gives, bit for bit: `mean · (all / all)`).
+        unshadowed_mean(t, light, lighting.r2_min)
+    } else {
+        if axis_aligned {
+            samples.unshadowed(t, m, light, lighting.r2_min);
+        }
+        if corner_seen.iter().any(|&v| v != corner_seen[0]) {
+            samples.fill_points(t, m);
+        }
+        let points = &samples.points[..m * m];
+        let g = &samples.g[..m * m];
+        let sum = visible_sum(g, m, corner_seen, |k| !lighting.occluded(li, points[k]));
+        texel_mean(t, light, lighting.r2_min, sum, g.iter().sum())
+    };
     for (e, i) in irr.iter_mut().zip(light.intensity) {
         *e += i * w;
     }
@@ -584,21 +625,15 @@ fn visible_sum(
         .sum()
 }
 
-/// A light's texel mean of `cos θ / r² · V` from its `m × m` samples: the seen samples' terms
-/// `seen` over `m²`; or, with the light near the texel ([`near_light_mean`]), the exact
-/// unshadowed mean times the share of the samples' terms that is seen (`seen / all`, `all`
-/// the sum of every sample's term), which is the exact mean wherever the texel is wholly lit.
-fn texel_mean(t: &TexelAt, light: &Light, m: usize, seen: f64, all: impl FnOnce() -> f64) -> f64 {
-    match near_light_mean(t, light) {
-        Some(mean) => {
-            let all = all();
-            if all > 0.0 {
-                mean * (seen / all)
-            } else {
-                0.0
-            }
-        }
-        None => seen / (m * m) as f64,
+/// A light's texel mean of `cos θ / r² · V` from its samples: the unshadowed mean
+/// ([`unshadowed_mean`]: exact near the light, 2 × 2 Gauss–Legendre farther) times the share
+/// of the samples' terms that is seen (`seen / all`, `all` the sum of every sample's term; 0
+/// when no sample has one).
+fn texel_mean(t: &TexelAt, light: &Light, r2_min: f64, seen: f64, all: f64) -> f64 {
+    if all > 0.0 {
+        unshadowed_mean(t, light, r2_min) * (seen / all)
+    } else {
+        0.0
     }
 }
 
@@ -629,26 +664,37 @@ pub(crate) fn add_light_term_in(
     let lighting = Lighting::new(lights, shadows, scale);
     let n = irr.len().min(layout.n_texels());
     let mut samples = TexelSamples::new();
-    for_each_shadowed(&lighting, layout, spans, (n, m), boxes, |lighting, t| {
-        let at = TexelAt::of(layout, t);
-        // Every sample's term is zero when the light faces away (`faces_away`) or every
-        // sample is shadowed: what the samples would add.
-        if faces_away(at.x, at.n, light) || matches!(lighting.shadows, Shadows::Dark) {
-            return;
-        }
-        if m == 1 || at.size == [0.0, 0.0] {
-            lighting.add_point(0, at.x, at.n, &mut irr[t]);
-        } else if every_sample {
-            add_every_sample(lighting, 0, &at, m, &mut samples, &mut irr[t]);
-        } else {
-            samples.start(&at, m);
-            add_adaptive(lighting, 0, &at, m, &mut samples, &mut irr[t]);
-        }
-    });
+    for_each_shadowed(
+        &lighting,
+        layout,
+        spans,
+        (n, m),
+        boxes,
+        |lighting, texels| {
+            // A run without light adds zero terms.
+            let Some(lighting) = lighting else { return };
+            for t in texels {
+                let at = TexelAt::of(layout, t);
+                // Every sample's term is zero when the light faces away (`faces_away`): what the
+                // samples would add.
+                if faces_away(at.x, at.n, light) {
+                    continue;
+                }
+                if m == 1 || at.size == [0.0, 0.0] {
+                    lighting.add_point(0, at.x, at.n, &mut irr[t]);
+                } else if every_sample {
+                    add_every_sample(lighting, 0, &at, m, &mut samples, &mut irr[t]);
+                } else {
+                    samples.start(&at, m);
+                    add_adaptive(lighting, 0, &at, m, &mut samples, &mut irr[t]);
+                }
+            }
+        },
+    );
 }
 
 /// Adds light `li`'s term of a texel's full average into `irr`: `I` times the mean over the
-/// texel's `m × m` samples of `cosθ / r² · V` ([`texel_mean`]: exact near the light), a shadow
+/// texel's `m × m` samples of `cosθ / r² · V` ([`texel_mean`]), a shadow
 /// ray at every sample the light faces.
 fn add_every_sample(
     lighting: &Lighting,
@@ -672,7 +718,7 @@ fn add_every_sample(
         .map(|(&gk, _)| gk)
         .sum();
     let g = &samples.g[..m * m];
-    let w = texel_mean(t, light, m, sum, || g.iter().sum());
+    let w = texel_mean(t, light, lighting.r2_min, sum, g.iter().sum());
     for (e, i) in irr.iter_mut().zip(light.intensity) {
         *e += i * w;
     }
@@ -694,7 +740,9 @@ pub(crate) fn finish_irradiance(layout: &Layout, irr: &[[f64; 3]]) -> DirectLigh
 #[allow(clippy::needless_range_loop)]
 pub(crate) mod tests {
     use super::*;
-    use crate::texel_samples::{dominant_axis, sample_offset, sample_point, unshadowed_samples};
+    use crate::texel_samples::{
+        dominant_axis, near_light_mean, sample_offset, sample_point, unshadowed_samples,
+    };
     use lightfarm_proto::bundle::Rect;
 
     /// Adds `n` random axis-aligned occluder rects to `layout`: corner and plane in
@@ -1005,7 +1053,7 @@ pub(crate) mod tests {
         }
         let seen = corner_indices(m).map(|k| !lighting.occluded(li, points[k]));
         let sum = visible_sum(&g, m, seen, |k| !lighting.occluded(li, points[k]));
-        let w = texel_mean(t, light, m, sum, || g.iter().sum());
+        let w = texel_mean(t, light, lighting.r2_min, sum, g.iter().sum());
         light.intensity.map(|i| i * w)
     }
 

@@ -9,7 +9,7 @@
 //!     IndirectLight, Method, Occluders, ProbeField, Runtime};
 //! let bundle = decode(bytes)?;
 //! let occluders = Occluders::from_layout(&bundle.layout);
-//! // Texel averages over 4 × 4 samples (what `eval` feeds the operators), each light traced
+//! // Texel averages, shadows from 4 × 4 samples (what `eval` feeds the operators), each light traced
 //! // only on the texels it reaches.
 //! let direct = direct_from_point_lights_by_reach(&bundle, &occluders, lights, 4);
 //! let mut runtime = Runtime::new(bundle);

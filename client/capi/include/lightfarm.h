@@ -9,7 +9,8 @@
 #include <stdint.h>
 
 /**
- * Direct light is averaged over an `N x N` grid per texel (the value `lightfarm eval` uses).
+ * Direct light is each texel's average, its shadows from an `N x N` grid of samples (the
+ * value `lightfarm eval` uses).
  */
 #define LF_DIRECT_SAMPLES_PER_EDGE 4
 

@@ -14,7 +14,8 @@ use crate::boundary::{slice, slice_mut, status_call};
 use crate::runtime::{check_rgb_len, LfRuntime};
 use crate::status::CapiError;
 
-/// Direct light is averaged over an `N x N` grid per texel (the value `lightfarm eval` uses).
+/// Direct light is each texel's average, its shadows from an `N x N` grid of samples (the
+/// value `lightfarm eval` uses).
 pub const LF_DIRECT_SAMPLES_PER_EDGE: u32 = 4;
 
 /// A point light: world position (metres) and radiant intensity (W/sr per RGB channel).

@@ -5,7 +5,7 @@
 //! [`PATH_RADIUS`]) around its position, one turn every [`PATH_FRAMES`] frames. Every frame
 //! both ways relight the level for the light's new position, interleaved so the machine's
 //! noise falls on both alike:
-//! - **full**: every light's direct light (texel-averaged over the 4 × 4 samples `eval` feeds the
+//! - **full**: every light's direct light (texel-averaged, shadows from the 4 × 4 samples `eval` feeds the
 //!   operators, with shadow rays only where visibility changes across a texel:
 //!   `direct_from_point_lights_adaptive`; with rooms each light is traced only where it reaches,
 //!   against the occluders there, `ReachDirect::all_lights`, the same bits), then
