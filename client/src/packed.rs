@@ -22,6 +22,7 @@
 //! - No allocation per call: the 8-bit per-column form needs `3 · cols` floats of scratch, which
 //!   the caller passes (see [`PackedMatrix::scratch_len`]).
 
+use std::ops::Range;
 use std::sync::Arc;
 
 use lightfarm_proto::bundle::Matrix;
@@ -266,18 +267,36 @@ impl PackedMatrix {
     /// [`PackedMatrix::scratch_len`].
     #[inline]
     pub fn matvec<E: FnMut(usize, [f32; 3])>(&self, x: [&[f32]; 3], scratch: &mut [f32], emit: E) {
+        self.matvec_columns(x, std::slice::from_ref(&(0..self.cols)), scratch, emit)
+    }
+
+    /// [`PackedMatrix::matvec`] when `x` is zero in every channel outside `columns` (ascending,
+    /// disjoint ranges of columns): only those columns are read, and every row's value is the
+    /// whole product's bit for bit (a skipped term `v · 0` is a zero, which leaves a sum that
+    /// started at `+0` as it is). A factored matrix reads every column.
+    #[inline]
+    pub fn matvec_columns<E: FnMut(usize, [f32; 3])>(
+        &self,
+        x: [&[f32]; 3],
+        columns: &[Range<usize>],
+        scratch: &mut [f32],
+        emit: E,
+    ) {
         if self.rows == 0 {
             return;
         }
         if let Values::Factored(f) = &self.values {
             return f.matvec(x, scratch, emit);
         }
+        debug_assert!(columns
+            .iter()
+            .all(|r| r.start <= r.end && r.end <= self.cols));
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked above); the function has no other contract.
-            return unsafe { self.matvec_avx2(x, scratch, emit) };
+            return unsafe { self.matvec_avx2(x, columns, scratch, emit) };
         }
-        self.matvec_portable(x, scratch, emit)
+        self.matvec_portable(x, columns, scratch, emit)
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -285,16 +304,18 @@ impl PackedMatrix {
     unsafe fn matvec_avx2<E: FnMut(usize, [f32; 3])>(
         &self,
         x: [&[f32]; 3],
+        columns: &[Range<usize>],
         scratch: &mut [f32],
         emit: E,
     ) {
-        self.matvec_portable(x, scratch, emit)
+        self.matvec_portable(x, columns, scratch, emit)
     }
 
     #[inline(always)]
     fn matvec_portable<E: FnMut(usize, [f32; 3])>(
         &self,
         x: [&[f32]; 3],
+        columns: &[Range<usize>],
         scratch: &mut [f32],
         mut emit: E,
     ) {
@@ -306,10 +327,11 @@ impl PackedMatrix {
             return;
         }
         let (x0, x1, x2) = (&x[0][..cols], &x[1][..cols], &x[2][..cols]);
+        let each_column = || columns.iter().flat_map(Range::clone);
         match &self.values {
             Values::F32(v) => {
                 for (p, panel) in v.chunks_exact(cols * PANEL).enumerate() {
-                    let acc = panel_sum(panel, x0, x1, x2, |v: f32| v);
+                    let acc = panel_sum(panel, x0, x1, x2, columns, |v: f32| v);
                     for lane in 0..PANEL.min(rows - p * PANEL) {
                         emit(p * PANEL + lane, [acc[0][lane], acc[1][lane], acc[2][lane]]);
                     }
@@ -320,7 +342,7 @@ impl PackedMatrix {
                 let (xs, rest) = scratch[..3 * cols].split_at_mut(cols);
                 let (ys, zs) = rest.split_at_mut(cols);
                 let mut constant = [0.0f32; 3];
-                for j in 0..cols {
+                for j in each_column() {
                     xs[j] = scale[j] * x0[j];
                     ys[j] = scale[j] * x1[j];
                     zs[j] = scale[j] * x2[j];
@@ -329,7 +351,7 @@ impl PackedMatrix {
                     constant[2] += offset[j] * x2[j];
                 }
                 for (p, panel) in q.chunks_exact(cols * PANEL).enumerate() {
-                    let acc = panel_sum(panel, xs, ys, zs, |v: u8| v as f32);
+                    let acc = panel_sum(panel, xs, ys, zs, columns, |v: u8| v as f32);
                     for lane in 0..PANEL.min(rows - p * PANEL) {
                         emit(
                             p * PANEL + lane,
@@ -345,13 +367,13 @@ impl PackedMatrix {
             Values::U8Rows { q, offset, scale } => {
                 // value = o_i + s_i q: row_i · x = s_i Σ_j q_ij x_j + o_i Σ_j x_j.
                 let mut total = [0.0f32; 3];
-                for j in 0..cols {
+                for j in each_column() {
                     total[0] += x0[j];
                     total[1] += x1[j];
                     total[2] += x2[j];
                 }
                 for (p, panel) in q.chunks_exact(cols * PANEL).enumerate() {
-                    let acc = panel_sum(panel, x0, x1, x2, |v: u8| v as f32);
+                    let acc = panel_sum(panel, x0, x1, x2, columns, |v: u8| v as f32);
                     for lane in 0..PANEL.min(rows - p * PANEL) {
                         let i = p * PANEL + lane;
                         let (o, s) = (offset[i], scale[i]);
@@ -371,16 +393,42 @@ impl PackedMatrix {
     }
 }
 
+/// Runs of `Z'`'s columns [`Factored::matvec`] lists at most before it reads them all.
+const FACTORED_RUNS: usize = 16;
+
 impl Factored {
-    /// `Z' · (blockdiag(Q_s) · x)`, the inner product into the front of `scratch`.
+    /// `Z' · (blockdiag(Q_s) · x)`, the inner product into the front of `scratch`. A source
+    /// whose segment of `x` is zero in every channel (a source block without light) makes no
+    /// product: its part of the inner product is zero, and `Z'` reads only the other sources'
+    /// columns ([`PackedMatrix::matvec_columns`], the same bits).
     fn matvec<E: FnMut(usize, [f32; 3])>(&self, x: [&[f32]; 3], scratch: &mut [f32], emit: E) {
         let w = self.width;
         let (c, rest) = scratch.split_at_mut(3 * w);
         let (c0, c12) = c.split_at_mut(w);
         let (c1, c2) = c12.split_at_mut(w);
         let (mut from, mut to) = (0, 0);
+        let mut runs: [Range<usize>; FACTORED_RUNS] = std::array::from_fn(|_| 0..0);
+        let mut n_runs = 0usize;
+        let mut every_column = false;
         for (r, q) in &self.sources {
             let seg = |ch: usize| &x[ch][from..from + r];
+            let width = q.as_ref().map_or(*r, |q| q.rows);
+            if (0..3).all(|ch| seg(ch).iter().all(|&v| v == 0.0)) {
+                c0[to..to + width].fill(0.0);
+                c1[to..to + width].fill(0.0);
+                c2[to..to + width].fill(0.0);
+                to += width;
+                from += r;
+                continue;
+            }
+            match n_runs.checked_sub(1).map(|i| &mut runs[i]) {
+                Some(last) if last.end == to => last.end = to + width,
+                _ if n_runs < FACTORED_RUNS => {
+                    runs[n_runs] = to..to + width;
+                    n_runs += 1;
+                }
+                _ => every_column = true,
+            }
             match q {
                 Some(q) => {
                     let j = q.rows;
@@ -404,26 +452,38 @@ impl Factored {
             }
             from += r;
         }
-        self.z.matvec([c0, c1, c2], rest, emit)
+        let all = 0..w;
+        let columns = if every_column {
+            std::slice::from_ref(&all)
+        } else {
+            &runs[..n_runs]
+        };
+        self.z.matvec_columns([c0, c1, c2], columns, rest, emit)
     }
 }
 
-/// `acc[c][lane] = Σ_j value(panel[j·8 + lane]) · x_c[j]`, j ascending.
+/// `acc[c][lane] = Σ_j value(panel[j·8 + lane]) · x_c[j]` over the columns j of `columns`,
+/// ascending.
 #[inline(always)]
 fn panel_sum<T: Copy>(
     panel: &[T],
     x0: &[f32],
     x1: &[f32],
     x2: &[f32],
+    columns: &[Range<usize>],
     value: impl Fn(T) -> f32,
 ) -> [[f32; PANEL]; 3] {
     let mut acc = [[0.0f32; PANEL]; 3];
-    for (((column, &a), &b), &c) in panel.chunks_exact(PANEL).zip(x0).zip(x1).zip(x2) {
-        for lane in 0..PANEL {
-            let v = value(column[lane]);
-            acc[0][lane] += v * a;
-            acc[1][lane] += v * b;
-            acc[2][lane] += v * c;
+    for r in columns {
+        let panel = &panel[r.start * PANEL..r.end * PANEL];
+        let (x0, x1, x2) = (&x0[r.clone()], &x1[r.clone()], &x2[r.clone()]);
+        for (((column, &a), &b), &c) in panel.chunks_exact(PANEL).zip(x0).zip(x1).zip(x2) {
+            for lane in 0..PANEL {
+                let v = value(column[lane]);
+                acc[0][lane] += v * a;
+                acc[1][lane] += v * b;
+                acc[2][lane] += v * c;
+            }
         }
     }
     acc
@@ -576,8 +636,57 @@ mod tests {
             let mut scratch = vec![0.0; p.scratch_len()];
             let (mut a, mut b) = (Vec::new(), Vec::new());
             p.matvec(x, &mut scratch, |_, v| a.push(v));
-            p.matvec_portable(x, &mut scratch, |_, v| b.push(v));
+            let every = 0..29;
+            p.matvec_portable(x, std::slice::from_ref(&every), &mut scratch, |_, v| {
+                b.push(v)
+            });
             assert_eq!(a, b);
+        }
+    }
+
+    /// With the input zero outside some runs of columns (one channel alone non-zero in
+    /// places, negative values in the matrix), reading those runs alone gives every row's
+    /// value bit for bit, in every storage.
+    #[test]
+    fn reading_the_non_zero_columns_alone_gives_the_same_bits() {
+        let m = matrix(37, 29, 5);
+        let mut x: Vec<Vec<f32>> = (0..3).map(|c| matrix(1, 29, 21 + c).data).collect();
+        let runs = [2..5, 9..10, 17..26];
+        for j in 0..29 {
+            if !runs.iter().any(|r| r.contains(&j)) {
+                for ch in x.iter_mut() {
+                    ch[j] = 0.0;
+                }
+            }
+        }
+        // Column 9 carries light in the green channel only.
+        x[0][9] = 0.0;
+        x[2][9] = 0.0;
+        let x = [&x[0][..], &x[1][..], &x[2][..]];
+        for codec in [
+            MatrixCodec::F32,
+            MatrixCodec::U8Columns,
+            MatrixCodec::U8Rows,
+        ] {
+            let decoded = Matrix {
+                data: round_trip(&m.data, 37, 29, codec),
+                ..m.clone()
+            };
+            let p = PackedMatrix::new(&decoded);
+            let mut scratch = vec![0.0; p.scratch_len()];
+            let (mut whole, mut some) = (Vec::new(), Vec::new());
+            p.matvec(x, &mut scratch, |_, v| whole.push(v.map(f32::to_bits)));
+            p.matvec_columns(x, &runs, &mut scratch, |_, v| {
+                some.push(v.map(f32::to_bits))
+            });
+            assert_eq!(whole.len(), 37);
+            assert_eq!(whole, some, "{codec:?}");
+            // The runs matter: without the last one the rows change.
+            let mut fewer = Vec::new();
+            p.matvec_columns(x, &runs[..2], &mut scratch, |_, v| {
+                fewer.push(v.map(f32::to_bits))
+            });
+            assert_ne!(whole, fewer, "{codec:?}");
         }
     }
 }

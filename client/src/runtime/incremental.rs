@@ -57,6 +57,25 @@ use super::{Applied, ApplyError, Bounces, DirectLight, IndirectLight, Method, Ru
 use crate::packed_gather::texel_units;
 use lightfarm_proto::bundle::{DeltaSource, TransportOps};
 
+/// Texels apart that [`nonzero_runs`] still joins into one run (reading a few zero columns
+/// costs less than starting another run).
+const RUN_GAP: usize = 8;
+
+/// The runs of `light` (indices from its start) holding a value that is not zero in some
+/// channel (NaN is not zero), joined across gaps of fewer than [`RUN_GAP`] zeros, into `runs`.
+fn nonzero_runs(light: &[[f32; 3]], runs: &mut Vec<Range<usize>>) {
+    runs.clear();
+    for (t, v) in light.iter().enumerate() {
+        if v[0] == 0.0 && v[1] == 0.0 && v[2] == 0.0 {
+            continue;
+        }
+        match runs.last_mut() {
+            Some(last) if t - last.end < RUN_GAP => last.end = t + 1,
+            _ => runs.push(t..t + 1),
+        }
+    }
+}
+
 /// Which blocks and clutter objects an application's input reaches (see the module doc).
 #[derive(Clone, Debug, Default)]
 pub(super) struct Reach {
@@ -114,9 +133,18 @@ pub(super) struct Sparse {
     unit_entry_start: Vec<u32>,
     /// Scratch: the entries this call's reached units may move.
     entries: Vec<u32>,
+    /// Per block, while it is reached: the runs of its texels (from the block's first) whose
+    /// input is not zero in every channel, so its projection reads those columns alone.
+    nonzero: Vec<Vec<Range<usize>>>,
 }
 
 impl Sparse {
+    /// Block `k`'s runs of non-zero input while the stages of a sparse call run (`None`
+    /// otherwise: read every column).
+    pub(super) fn nonzero_columns(&self, k: usize) -> Option<&[Range<usize>]> {
+        self.active.then(|| self.nonzero[k].as_slice())
+    }
+
     fn new(rt: &Runtime) -> Sparse {
         let units = rt.texel_units();
         let n_blocks = rt.blocks.len();
@@ -142,6 +170,7 @@ impl Sparse {
             change_everywhere: true,
             reached: Vec::new(),
             active: false,
+            nonzero: vec![Vec::new(); n_blocks],
         }
     }
 
@@ -600,10 +629,14 @@ impl Runtime {
             }
         }
         for &u in &sparse.reached {
-            for t in sparse.ranges[u].clone() {
+            let range = sparse.ranges[u].clone();
+            for t in range.clone() {
                 for ch in 0..3 {
                     self.ld[ch * n + t] = delta[t][ch];
                 }
+            }
+            if u < sparse.n_blocks {
+                nonzero_runs(&delta[range.clone()], &mut sparse.nonzero[u]);
             }
         }
         sparse.in_ld.clone_from(&sparse.reached);

@@ -88,6 +88,24 @@ pub(super) fn set_matvec(
     });
 }
 
+/// [`set_matvec`] when `x` is zero outside `columns` ([`PackedMatrix::matvec_columns`]: the
+/// same values, reading those columns alone).
+#[inline]
+pub(super) fn set_matvec_columns(
+    dst: &mut [f32],
+    width: usize,
+    m: &PackedMatrix,
+    x: [&[f32]; 3],
+    columns: &[std::ops::Range<usize>],
+    scratch: &mut [f32],
+) {
+    m.matvec_columns(x, columns, scratch, |j, v| {
+        dst[j] = v[0];
+        dst[width + j] = v[1];
+        dst[2 * width + j] = v[2];
+    });
+}
+
 /// `dst[c·width + j] += M.row(j) · x` (channel c), like [`set_matvec`].
 #[inline]
 pub(super) fn acc_matvec(

@@ -14,7 +14,8 @@
 use lightfarm_proto::bundle::TransportOps;
 
 use super::kernels::{
-    acc_matvec, add_matvec, for_each_block, group, planar, set_matvec, stack_sources,
+    acc_matvec, add_matvec, for_each_block, group, planar, set_matvec, set_matvec_columns,
+    stack_sources,
 };
 use super::packed_ops::BlockSlots;
 use super::Runtime;
@@ -38,8 +39,10 @@ impl Runtime {
         } = self;
         let reach = reach.as_ref();
         // Relighting by the change at one bounce: `ld` holds the reached units' light already
-        // (zero elsewhere), and an unreached block's `b` is never read.
-        let sparse = sparse.as_ref().is_some_and(|s| s.active);
+        // (zero elsewhere), and an unreached block's `b` is never read; a reached block's
+        // projection reads only its columns of non-zero light.
+        let sparse_state = sparse.as_ref().filter(|s| s.active);
+        let sparse = sparse_state.is_some();
 
         // Direct light, planar.
         if !sparse {
@@ -77,7 +80,12 @@ impl Runtime {
                 let blk = &bundle.blocks[k];
                 let t_db = &ops.shapes[blk.shape as usize].1;
                 let x = planar(ld, n, blk.texel_offset as usize, t_db.cols());
-                set_matvec(b_k, blocks[k].rank, t_db, x, scratch);
+                match sparse_state.and_then(|s| s.nonzero_columns(k)) {
+                    Some(columns) => {
+                        set_matvec_columns(b_k, blocks[k].rank, t_db, x, columns, scratch)
+                    }
+                    None => set_matvec(b_k, blocks[k].rank, t_db, x, scratch),
+                }
             },
         );
     }
