@@ -39,12 +39,13 @@ pub fn posed_triangles(shape: &DynamicShape, pose: &Pose) -> Vec<[[f32; 3]; 3]> 
 }
 
 /// This frame's posed objects: the occluders to shadow direct light with, and the boxes the
-/// objects occupy (for the light reach, [`crate::ReachDirect::new_posed`], which must not take
+/// objects occupy (for the light reach, [`crate::ReachDirect::with_posed`], which must not take
 /// a room holding one to hold nothing but walls).
 #[derive(Clone, Debug)]
 pub struct PosedObjects {
     /// The level's occluders plus every posed object's triangles, with the level's margins
-    /// ([`Occluders::with_triangles`]).
+    /// ([`Occluders::with_triangles`]: the level's hierarchy shared, the objects' in one of
+    /// their own, numbered after the level's).
     pub occluders: Occluders,
     /// Per posed object, the bounds `(min, max)` of its posed triangles (metres).
     pub boxes: Vec<([f64; 3], [f64; 3])>,

@@ -7,6 +7,13 @@
 //! between two points? [`Occluders::prims_in_box`] and [`Occluders::subset`] cut out the part
 //! of a level some segments can meet (`reach_direct`), keeping the level's margins.
 //!
+//! Two levels: the level's hierarchy is shared (`Arc`), and [`Occluders::with_triangles`] adds
+//! posed dynamic objects in a hierarchy of their own over them alone, numbered after the
+//! level's primitives. Placing objects every frame then costs a build over the objects'
+//! triangles, not over the level, and keeps the level's primitive numbers (the rooms' lists of
+//! `reach_direct` stay valid); a query asks both hierarchies, which answers what one over all
+//! the primitives would.
+//!
 //! Invariants:
 //! - Hits count only strictly inside the segment, away from both ends by
 //!   `T_EPS_REL + EPS_SCALE · scale / length` (in units of the segment, so the margin is about
@@ -20,6 +27,8 @@
 //!   loop over all primitives with the same tests answers.
 //! - Construction never panics, whatever the input (degenerate rects and triangles are kept and
 //!   simply never hit, or hit as their exact tests say).
+
+use std::sync::Arc;
 
 use lightfarm_proto::bundle::{Layout, Rect};
 use lightfarm_proto::glam::Vec3;
@@ -97,15 +106,26 @@ struct Node {
     count: u32,
 }
 
-/// Occluding geometry with a BVH for shadow rays.
+/// A BVH over primitives (see the module doc).
 #[derive(Clone, Debug)]
-pub struct Occluders {
+struct Tree {
     /// Primitives, reordered so every leaf's are contiguous.
     prims: Vec<Prim>,
     nodes: Vec<Node>,
+}
+
+/// Occluding geometry with a BVH for shadow rays.
+#[derive(Clone, Debug)]
+pub struct Occluders {
+    /// The level's primitives, numbered `0 .. level.prims.len()` (shared by the copies with
+    /// posed objects in).
+    level: Arc<Tree>,
+    /// Posed dynamic objects' triangles ([`Occluders::with_triangles`]), numbered after the
+    /// level's.
+    posed: Option<Tree>,
     /// Bounds of all primitives (`None` when there are none).
     bounds: Option<([f32; 3], [f32; 3])>,
-    /// Diagonal of `bounds`, or 1 when that is zero or there are no primitives.
+    /// Diagonal of the level's bounds, or 1 when that is zero or there are no primitives.
     scale: f32,
 }
 
@@ -274,21 +294,67 @@ impl Occluders {
         Occluders::build(prims, scale)
     }
 
-    /// These occluders and `triangles` in a new hierarchy that keeps this one's
-    /// [`Occluders::scale`], so its margins are this one's: a segment none of `triangles`
-    /// crosses gets exactly this hierarchy's answer (posed dynamic objects,
-    /// [`crate::dynamic_shadows`]).
+    /// These occluders and `triangles` (posed dynamic objects, [`crate::dynamic_shadows`]):
+    /// the level's hierarchy shared, the triangles (with any this one's objects already had)
+    /// in a hierarchy of their own numbered after the level's primitives, this one's
+    /// [`Occluders::scale`] kept, so its margins are this one's: a segment none of
+    /// `triangles` crosses gets exactly this one's answer. Costs a build over the objects'
+    /// triangles only.
     pub fn with_triangles(&self, triangles: &[[[f32; 3]; 3]]) -> Occluders {
-        let mut prims = self.prims.clone();
-        prims.extend(triangles.iter().map(|t| Prim::Tri(*t)));
-        Occluders::build(prims, self.scale)
+        let mut prims = self
+            .posed
+            .as_ref()
+            .map_or_else(Vec::new, |t| t.prims.clone());
+        let added: Vec<Prim> = triangles.iter().map(|t| Prim::Tri(*t)).collect();
+        let bounds = match (self.bounds, added.iter().map(Prim::bounds).reduce(union)) {
+            (Some(a), Some(b)) => Some(union(a, b)),
+            (a, b) => a.or(b),
+        };
+        prims.extend(added);
+        Occluders {
+            level: Arc::clone(&self.level),
+            posed: (!prims.is_empty()).then(|| Tree::build(prims, BOX_PAD * self.scale)),
+            bounds,
+            scale: self.scale,
+        }
     }
 
-    /// The hierarchy over `prims`, with margins and node padding relative to `scale`.
-    fn build(mut prims: Vec<Prim>, scale: f32) -> Occluders {
+    /// One hierarchy over `prims`, with margins and node padding relative to `scale`.
+    fn build(prims: Vec<Prim>, scale: f32) -> Occluders {
         let bounds = prims.iter().map(Prim::bounds).reduce(union);
-        let pad = BOX_PAD * scale;
+        Occluders {
+            level: Arc::new(Tree::build(prims, BOX_PAD * scale)),
+            posed: None,
+            bounds,
+            scale,
+        }
+    }
 
+    /// Primitive `i` (the level's, then the posed objects').
+    #[inline]
+    fn prim(&self, i: usize) -> &Prim {
+        let n = self.level.prims.len();
+        if i < n {
+            &self.level.prims[i]
+        } else {
+            &self
+                .posed
+                .as_ref()
+                .expect("a primitive index below len()")
+                .prims[i - n]
+        }
+    }
+
+    /// The hierarchies, each with the number of its first primitive.
+    fn trees(&self) -> impl Iterator<Item = (&Tree, u32)> {
+        let n = self.level.prims.len() as u32;
+        std::iter::once((&*self.level, 0)).chain(self.posed.iter().map(move |t| (t, n)))
+    }
+}
+
+impl Tree {
+    /// The hierarchy over `prims`, node boxes padded by `pad`.
+    fn build(mut prims: Vec<Prim>, pad: f32) -> Tree {
         let mut nodes: Vec<Node> = Vec::with_capacity(2 * prims.len().div_ceil(LEAF_SIZE).max(1));
         if !prims.is_empty() {
             let mut centroids: Vec<([f32; 3], Prim)> =
@@ -352,17 +418,12 @@ impl Occluders {
             }
             prims = centroids.into_iter().map(|(_, p)| p).collect();
         }
-        Occluders {
-            prims,
-            nodes,
-            bounds,
-            scale,
-        }
+        Tree { prims, nodes }
     }
 
-    /// Appends to `out` the indices (in this hierarchy's primitive order, for
-    /// [`Occluders::subset`]) of the primitives whose bounds meet the closed box `[lo, hi]`.
-    pub fn prims_in_box(&self, lo: [f32; 3], hi: [f32; 3], out: &mut Vec<u32>) {
+    /// Appends `first +` the index of every primitive whose bounds meet the closed box
+    /// `[lo, hi]`.
+    fn prims_in_box(&self, lo: [f32; 3], hi: [f32; 3], first: u32, out: &mut Vec<u32>) {
         let meets = |a: &[f32; 3], b: &[f32; 3]| (0..3).all(|k| a[k] <= hi[k] && b[k] >= lo[k]);
         if self.nodes.is_empty() {
             return;
@@ -380,9 +441,55 @@ impl Occluders {
             for i in node.first..node.first + node.count {
                 let (a, b) = self.prims[i as usize].bounds();
                 if meets(&a, &b) {
-                    out.push(i);
+                    out.push(first + i);
                 }
             }
+        }
+    }
+
+    /// Does a primitive cross `origin + t·d` for `tmin < t < tmax`? (the traversal of
+    /// [`Occluders::occluded`]).
+    fn occluded(&self, origin: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+        if self.nodes.is_empty() {
+            return false;
+        }
+        let inv_d = 1.0 / d;
+        let mut stack = [0u32; STACK_DEPTH];
+        let mut top = 0usize;
+        let mut ni = 0usize;
+        loop {
+            let node = &self.nodes[ni];
+            if segment_hits_box(origin, inv_d, d, tmin, tmax, node) {
+                if node.count > 0 {
+                    let first = node.first as usize;
+                    let leaf = &self.prims[first..first + node.count as usize];
+                    if leaf.iter().any(|p| p.hit(origin, d, tmin, tmax)) {
+                        return true;
+                    }
+                } else {
+                    // Depth is bounded (see STACK_DEPTH), so the stack cannot overflow.
+                    stack[top] = node.first + 1;
+                    top += 1;
+                    ni = node.first as usize;
+                    continue;
+                }
+            }
+            if top == 0 {
+                return false;
+            }
+            top -= 1;
+            ni = stack[top] as usize;
+        }
+    }
+}
+
+impl Occluders {
+    /// Appends to `out` the indices (in this hierarchy's primitive order, for
+    /// [`Occluders::subset`]) of the primitives whose bounds meet the closed box `[lo, hi]`:
+    /// the level's, then the posed objects'.
+    pub fn prims_in_box(&self, lo: [f32; 3], hi: [f32; 3], out: &mut Vec<u32>) {
+        for (tree, first) in self.trees() {
+            tree.prims_in_box(lo, hi, first, out);
         }
     }
 
@@ -392,19 +499,19 @@ impl Occluders {
     /// segment as [`Occluders::occluded`] tests it.
     pub fn subset(&self, indices: &[u32]) -> Occluders {
         Occluders::build(
-            indices.iter().map(|&i| self.prims[i as usize]).collect(),
+            indices.iter().map(|&i| *self.prim(i as usize)).collect(),
             self.scale,
         )
     }
 
     /// Number of primitives.
     pub fn len(&self) -> usize {
-        self.prims.len()
+        self.level.prims.len() + self.posed.as_ref().map_or(0, |t| t.prims.len())
     }
 
     /// True when there is nothing to hit.
     pub fn is_empty(&self) -> bool {
-        self.prims.is_empty()
+        self.len() == 0
     }
 
     /// Bounds `(min, max)` of all primitives, `None` when there are none.
@@ -417,11 +524,17 @@ impl Occluders {
         self.scale
     }
 
+    /// Primitive `i`'s bounds (this hierarchy's primitive order), as [`Occluders::prims_in_box`]
+    /// compares them.
+    pub(crate) fn prim_bounds(&self, i: usize) -> ([f32; 3], [f32; 3]) {
+        self.prim(i).bounds()
+    }
+
     /// Primitive `i`'s bounds (this hierarchy's primitive order), padded as the hierarchy pads
     /// its node boxes: a segment the query reports as crossing primitive `i` touches this box
     /// (the invariant that makes traversal equal to a loop over every primitive).
     pub(crate) fn padded_prim_bounds(&self, i: usize) -> ([f32; 3], [f32; 3]) {
-        let (mut lo, mut hi) = self.prims[i].bounds();
+        let (mut lo, mut hi) = self.prim(i).bounds();
         let pad = BOX_PAD * self.scale;
         for k in 0..3 {
             lo[k] -= pad;
@@ -442,7 +555,7 @@ impl Occluders {
     /// Does primitive `i` cross `seg` (the test [`Occluders::occluded`] applies per primitive)?
     #[inline]
     pub(crate) fn prim_crosses(&self, i: usize, seg: &Segment) -> bool {
-        self.prims[i].hit(seg.o, seg.d, seg.tmin, seg.tmax)
+        self.prim(i).hit(seg.o, seg.d, seg.tmin, seg.tmax)
     }
 
     /// What primitive `i` does to every segment [`Occluders::occluded`] tests from a point of
@@ -466,7 +579,7 @@ impl Occluders {
             m.max(l[k].abs()).max(lo[k].abs()).max(hi[k].abs())
         });
         let slack = BOX_SLACK_REL * mag;
-        match self.prims[i] {
+        match *self.prim(i) {
             Prim::Rect {
                 axis,
                 coord,
@@ -572,40 +685,15 @@ impl Occluders {
     /// Does any primitive cross the segment strictly between `origin` and `target` (away from
     /// both ends by the margins in the module doc)?
     pub fn occluded(&self, origin: [f32; 3], target: [f32; 3]) -> bool {
-        if self.nodes.is_empty() {
+        if self.is_empty() {
             return false;
         }
         let origin = Vec3::from(origin);
         let Some((d, tmin, tmax)) = self.segment(origin, Vec3::from(target)) else {
             return false;
         };
-        let inv_d = 1.0 / d;
-        let mut stack = [0u32; STACK_DEPTH];
-        let mut top = 0usize;
-        let mut ni = 0usize;
-        loop {
-            let node = &self.nodes[ni];
-            if segment_hits_box(origin, inv_d, d, tmin, tmax, node) {
-                if node.count > 0 {
-                    let first = node.first as usize;
-                    let leaf = &self.prims[first..first + node.count as usize];
-                    if leaf.iter().any(|p| p.hit(origin, d, tmin, tmax)) {
-                        return true;
-                    }
-                } else {
-                    // Depth is bounded (see STACK_DEPTH), so the stack cannot overflow.
-                    stack[top] = node.first + 1;
-                    top += 1;
-                    ni = node.first as usize;
-                    continue;
-                }
-            }
-            if top == 0 {
-                return false;
-            }
-            top -= 1;
-            ni = stack[top] as usize;
-        }
+        self.trees()
+            .any(|(tree, _)| tree.occluded(origin, d, tmin, tmax))
     }
 
     /// The same query by testing every primitive (the reference for the hierarchy).
@@ -615,7 +703,7 @@ impl Occluders {
         let Some((d, tmin, tmax)) = self.segment(origin, Vec3::from(target)) else {
             return false;
         };
-        self.prims.iter().any(|p| p.hit(origin, d, tmin, tmax))
+        (0..self.len()).any(|i| self.prim(i).hit(origin, d, tmin, tmax))
     }
 }
 
@@ -806,13 +894,65 @@ pub(crate) mod tests {
         );
     }
 
+    /// Triangles added in a hierarchy of their own ([`Occluders::with_triangles`], twice, as
+    /// objects placed in two calls) answer every segment as one hierarchy over all the
+    /// primitives does, keep the level's scale and numbers, and find the same primitives in a
+    /// box.
+    #[test]
+    fn triangles_in_a_second_hierarchy_answer_what_one_hierarchy_answers() {
+        let mut rng = Lcg(0x2_1e7e1);
+        let (mut hits, mut total) = (0, 0);
+        for scene in 0..20 {
+            let (rects, tris) = random_scene(&mut rng, 10 + scene * 3, 40);
+            let (level_tris, posed) = tris.split_at(10);
+            let (first, second) = posed.split_at(scene % 30);
+            let level = Occluders::new(&rects, level_tris);
+            let two = level.with_triangles(first).with_triangles(second);
+            // One hierarchy over all of them, with the level's margins.
+            let one = two.subset(&(0..two.len() as u32).collect::<Vec<_>>());
+            assert_eq!(two.len(), one.len());
+            assert_eq!(two.len(), rects.len() + tris.len());
+            assert_eq!(two.scale(), level.scale());
+            assert_eq!(two.bounds(), Occluders::new(&rects, &tris).bounds());
+            for i in 0..level.len() {
+                assert_eq!(
+                    two.prim_bounds(i),
+                    level.prim_bounds(i),
+                    "the level's numbers"
+                );
+            }
+            for _ in 0..400 {
+                let (o, t) = (rng.point(-6.0, 6.0), rng.point(-6.0, 6.0));
+                let got = two.occluded(o, t);
+                assert_eq!(
+                    got,
+                    two.occluded_brute(o, t),
+                    "scene {scene}: {o:?} → {t:?}"
+                );
+                assert_eq!(got, one.occluded(o, t), "scene {scene}: {o:?} → {t:?}");
+                hits += got as usize;
+                total += 1;
+            }
+            let (lo, hi) = random_box(&mut rng, &rects);
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            two.prims_in_box(lo, hi, &mut a);
+            one.prims_in_box(lo, hi, &mut b);
+            assert_eq!(a.len(), b.len(), "scene {scene}");
+            assert!(a.iter().all(|&i| (i as usize) < two.len()));
+        }
+        assert!(
+            hits > total / 10 && hits < total * 9 / 10,
+            "{hits} of {total}"
+        );
+    }
+
     #[test]
     fn build_is_a_proper_tree() {
         let mut rng = Lcg(7);
         let (rects, tris) = random_scene(&mut rng, 300, 300);
         let occ = Occluders::new(&rects, &tris);
-        let mut seen = vec![0u32; occ.prims.len()];
-        for n in &occ.nodes {
+        let mut seen = vec![0u32; occ.level.prims.len()];
+        for n in &occ.level.nodes {
             if n.count > 0 {
                 assert!(n.count as usize <= LEAF_SIZE);
                 for s in &mut seen[n.first as usize..(n.first + n.count) as usize] {

@@ -84,8 +84,9 @@ unsafe fn client_poses(rt: &LfRuntime, poses: &[LfPose]) -> Result<Vec<Pose>, Ca
 /// Direct light computed before the call does not change: after moving an object, recompute
 /// the direct light of the lights that reach it (or all) and apply it, or its change. Spans
 /// passed to `lf_runtime_direct_in_spans` must come from `lf_runtime_light_reach` after the
-/// poses were set (their `in_sight` flag depends on them). Costs a rebuild of the shadow-ray
-/// hierarchy over the level and the objects and of the rooms' occluder lists, and allocates.
+/// poses were set (their `in_sight` flag depends on them). Costs a shadow-ray hierarchy over
+/// the objects' triangles (the level's is kept) and a copy of the rooms' occluder lists with
+/// the objects added to the rooms they touch; allocates.
 ///
 /// Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, or `poses` with
 /// `n_poses > 0`), `LF_STATUS_INVALID_POSE` (an id that is NULL, not UTF-8 or not a dynamic

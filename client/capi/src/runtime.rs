@@ -51,6 +51,9 @@ pub struct LfRuntime {
     /// A point light's reach over the bundle's rooms, with the occluders of each room (None:
     /// the bundle has no rooms section); over the posed objects too when there are some.
     reach: Option<ReachDirect>,
+    /// The same over the level alone, made at load: each `lf_runtime_set_poses` derives
+    /// `reach` from it ([`ReachDirect::with_posed`]) instead of searching the level again.
+    level_reach: Option<ReachDirect>,
     /// Scratch: the spans of the last `lf_runtime_light_reach` or `lf_runtime_light_direct`.
     reach_spans: Vec<TexelSpan>,
     /// The direct light's clamp scale (`direct_scale`: a pass over every texel, made once).
@@ -69,12 +72,13 @@ impl LfRuntime {
         let bundle = Bundle::decode(bytes)?;
         let occluders = Occluders::from_layout(&bundle.layout);
         let atlas = Atlas::from_layout_with(&bundle.layout, &bundle.surface_atlases);
-        let reach = ReachDirect::new(&bundle, &occluders);
+        let level_reach = ReachDirect::new(&bundle, &occluders);
         let direct_scale = direct_scale(&bundle.layout, &occluders);
         let runtime = Runtime::try_new(bundle)?;
         let n = runtime.n_texels();
         Ok(LfRuntime {
-            reach,
+            reach: level_reach.clone(),
+            level_reach,
             reach_spans: Vec::new(),
             direct_scale,
             runtime,
@@ -161,11 +165,17 @@ impl LfRuntime {
     /// A fresh light reach over [`LfRuntime::occluders`] (None without rooms), as the one
     /// `lf_runtime_light_reach` walks.
     pub(crate) fn new_reach(&self) -> Option<ReachDirect> {
-        ReachDirect::new_posed(self.runtime.bundle(), &self.level, self.posed.as_ref())
+        let level = self.level_reach.as_ref()?;
+        Some(match &self.posed {
+            Some(posed) => level.with_posed(posed),
+            None => level.clone(),
+        })
     }
 
-    /// Places the dynamic objects (ids checked by the caller): the occluders and the reach
-    /// are rebuilt over them; no pose, the level's alone. The clamp scale stays the level's.
+    /// Places the dynamic objects (ids checked by the caller): the objects' own hierarchy over
+    /// their posed triangles beside the level's (`Occluders::with_triangles`), and the reach
+    /// with them in the rooms they touch; no pose, the level's alone. The clamp scale stays
+    /// the level's.
     pub(crate) fn set_poses(&mut self, poses: &[Pose]) {
         self.posed = occluders_with_poses(&self.level, self.runtime.bundle(), poses);
         self.reach = self.new_reach();
