@@ -617,23 +617,35 @@ mod tests {
         );
     }
 
+    /// `m` through each codec the packing keeps apart (f32, 8 bits per column, per row),
+    /// packed, with its scratch.
+    fn in_every_storage(
+        m: &Matrix,
+    ) -> impl Iterator<Item = (MatrixCodec, PackedMatrix, Vec<f32>)> + '_ {
+        [
+            MatrixCodec::F32,
+            MatrixCodec::U8Columns,
+            MatrixCodec::U8Rows,
+        ]
+        .into_iter()
+        .map(|codec| {
+            let decoded = Matrix {
+                data: round_trip(&m.data, m.rows as usize, m.cols as usize, codec),
+                ..m.clone()
+            };
+            let p = PackedMatrix::new(&decoded);
+            let scratch = vec![0.0; p.scratch_len()];
+            (codec, p, scratch)
+        })
+    }
+
     /// The AVX2 and portable builds give the same bits.
     #[test]
     fn dispatch_is_bit_identical() {
         let m = matrix(37, 29, 3);
         let x: Vec<Vec<f32>> = (0..3).map(|c| matrix(1, 29, 11 + c).data).collect();
         let x = [&x[0][..], &x[1][..], &x[2][..]];
-        for codec in [
-            MatrixCodec::F32,
-            MatrixCodec::U8Columns,
-            MatrixCodec::U8Rows,
-        ] {
-            let decoded = Matrix {
-                data: round_trip(&m.data, 37, 29, codec),
-                ..m.clone()
-            };
-            let p = PackedMatrix::new(&decoded);
-            let mut scratch = vec![0.0; p.scratch_len()];
+        for (_, p, mut scratch) in in_every_storage(&m) {
             let (mut a, mut b) = (Vec::new(), Vec::new());
             p.matvec(x, &mut scratch, |_, v| a.push(v));
             let every = 0..29;
@@ -663,17 +675,7 @@ mod tests {
         x[0][9] = 0.0;
         x[2][9] = 0.0;
         let x = [&x[0][..], &x[1][..], &x[2][..]];
-        for codec in [
-            MatrixCodec::F32,
-            MatrixCodec::U8Columns,
-            MatrixCodec::U8Rows,
-        ] {
-            let decoded = Matrix {
-                data: round_trip(&m.data, 37, 29, codec),
-                ..m.clone()
-            };
-            let p = PackedMatrix::new(&decoded);
-            let mut scratch = vec![0.0; p.scratch_len()];
+        for (codec, p, mut scratch) in in_every_storage(&m) {
             let (mut whole, mut some) = (Vec::new(), Vec::new());
             p.matvec(x, &mut scratch, |_, v| whole.push(v.map(f32::to_bits)));
             p.matvec_columns(x, &runs, &mut scratch, |_, v| {

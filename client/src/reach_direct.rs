@@ -458,6 +458,17 @@ mod tests {
         DirectLight { radiance }
     }
 
+    /// Asserts `got` holds `want`'s bits on every texel of `spans`.
+    fn same_bits_on(spans: &[TexelSpan], want: &DirectLight, got: &[[f32; 3]], what: &str) {
+        for t in spans.iter().flat_map(|s| s.texels.clone()) {
+            assert_eq!(
+                want.radiance[t].map(f32::to_bits),
+                got[t].map(f32::to_bits),
+                "{what}: texel {t}"
+            );
+        }
+    }
+
     /// On random levels with boxes in a third of the rooms (some of them pillars from the
     /// floor nearly to the ceiling, which split a room's view), open ceilings and lights now and then above the
     /// level: one light's direct light traced against the reached rooms' occluders (its light
@@ -513,16 +524,17 @@ mod tests {
                 reach.light(&layout, &occluders, &l, 4, scale, &mut spans, &mut part);
                 calls += 1;
                 cut += usize::from(reach.occluders_traced() * 2 < occluders.len());
-                for s in &spans {
-                    for t in s.texels.clone() {
-                        assert_eq!(
-                            whole.radiance[t].map(f32::to_bits),
-                            part[t].map(f32::to_bits),
-                            "case {case}: texel {t}, light at {p:?}"
-                        );
-                        lit += usize::from(part[t] != [0.0; 3]);
-                    }
-                }
+                same_bits_on(
+                    &spans,
+                    &whole,
+                    &part,
+                    &format!("case {case}, light at {p:?}"),
+                );
+                lit += spans
+                    .iter()
+                    .flat_map(|s| s.texels.clone())
+                    .filter(|&t| part[t] != [0.0; 3])
+                    .count();
                 lights.push(l);
             }
             let whole = by_tree(&layout, &occluders, &lights, scale);
@@ -656,16 +668,17 @@ mod tests {
                 );
                 scratch.texels(&layout, p, &mut expected_spans);
                 assert_eq!(spans, expected_spans, "case {case}: the spans from scratch");
-                for s in &spans {
-                    for t in s.texels.clone() {
-                        assert_eq!(
-                            whole.radiance[t].map(f32::to_bits),
-                            part[t].map(f32::to_bits),
-                            "case {case}: texel {t}, light at {p:?}"
-                        );
-                        shadowed += usize::from(whole.radiance[t] != level_only.radiance[t]);
-                    }
-                }
+                same_bits_on(
+                    &spans,
+                    &whole,
+                    &part,
+                    &format!("case {case}, light at {p:?}"),
+                );
+                shadowed += spans
+                    .iter()
+                    .flat_map(|s| s.texels.clone())
+                    .filter(|&t| whole.radiance[t] != level_only.radiance[t])
+                    .count();
             }
         }
         // The objects do shadow: texels whose light they change.

@@ -714,13 +714,8 @@ mod tests {
     /// texel's value took before: 1.7e-3 here), and a slanted texel's mean is the fine sum's.
     #[test]
     fn the_far_light_mean_is_closer_to_the_exact_mean_than_the_sample_grid() {
-        let mut seed = 7u64;
-        let mut uniform = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = lightfarm_proto::testing::Lcg(7);
+        let mut uniform = || rng.unit() as f64;
         let (mut worst_gauss, mut worst_grid) = (0.0f64, 0.0f64);
         for i in 0..2000 {
             let axis = i % 3;

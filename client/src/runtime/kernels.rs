@@ -81,11 +81,8 @@ pub(super) fn set_matvec(
     x: [&[f32]; 3],
     scratch: &mut [f32],
 ) {
-    m.matvec(x, scratch, |j, v| {
-        dst[j] = v[0];
-        dst[width + j] = v[1];
-        dst[2 * width + j] = v[2];
-    });
+    let every = 0..m.cols();
+    set_matvec_columns(dst, width, m, x, std::slice::from_ref(&every), scratch)
 }
 
 /// [`set_matvec`] when `x` is zero outside `columns` ([`PackedMatrix::matvec_columns`]: the
