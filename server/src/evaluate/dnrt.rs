@@ -2,10 +2,11 @@
 //! by the probe volume (see [`dnrt_delta`]).
 
 use lightfarm_client::{
-    irradiance_sh_at, point_light_irradiance_sh, radiance_sh_at, Bounces, Bundle, DirectLight,
-    DnrtInstance, DnrtVolume, IndirectLight, Method, Occluders, ProbeField, Runtime,
+    frame_occluders, irradiance_sh_at, occluders_with_poses, point_light_irradiance_sh,
+    radiance_sh_at, Bounces, Bundle, DirectLight, DnrtInstance, DnrtVolume, IndirectLight, Method,
+    Occluders, ProbeField, Runtime,
 };
-use lightfarm_proto::lights::{LightSet, Pose};
+use lightfarm_proto::lights::{Light, LightSet, Pose};
 
 /// DNRT (paper 003) for every posed dynamic object: per texel, the light the objects add and
 /// take away. `field` is the probe volume fed the radiance leaving the texels
@@ -17,14 +18,16 @@ use lightfarm_proto::lights::{LightSet, Pose};
 /// second bounce. All bounces (`bounced`, `leaving` direct plus indirect): the object also
 /// reflects the walls' light (the probes' irradiance at its centre, the full light-probe input
 /// the paper assumes) and hides their bounced light too. A point light it hides is its direct
-/// shadow, never indirect light.
+/// shadow, never indirect light. The point lights reach an object's centre past the level
+/// (`level`, its occluders) and the other posed objects, not its own triangles (which enclose
+/// the centre): a ball under another gets none of the lamp the upper one hides.
 /// `None` when there are no poses; an error when a pose names an object without a grid or the
 /// bundle has no probe volume.
 pub fn dnrt_delta(
     bundle: &Bundle,
     field: &ProbeField,
     bounced: bool,
-    occluders: &Occluders,
+    level: &Occluders,
     lights: &LightSet,
 ) -> anyhow::Result<Option<DirectLight>> {
     let poses: &[Pose] = &lights.poses;
@@ -37,7 +40,7 @@ pub fn dnrt_delta(
         .ok_or_else(|| anyhow::anyhow!("posed objects need the bundle's probe volume"))?;
     let grids = bundle.dnrt.as_deref().unwrap_or(&[]);
     let mut out = vec![[0.0f32; 3]; bundle.layout.n_texels()];
-    for pose in poses {
+    for (i, pose) in poses.iter().enumerate() {
         let grid = grids.iter().find(|g| g.object == pose.id).ok_or_else(|| {
             anyhow::anyhow!("pose \"{}\": the bundle has no DNRT grid for it", pose.id)
         })?;
@@ -45,7 +48,7 @@ pub fn dnrt_delta(
         let zero = [[0.0; 9]; 3];
         let at = DnrtInstance::new(&dnrt, pose.translation, pose.rotation, zero, zero);
         let centre = at.centre_world();
-        let mut lit = point_light_irradiance_sh(occluders, &lights.lights, centre);
+        let mut lit = lights_at_object(bundle, level, poses, i, &lights.lights, centre);
         if bounced {
             let walls = irradiance_sh_at(volume, field, centre);
             for (l, w) in lit.iter_mut().zip(walls) {
@@ -59,6 +62,25 @@ pub fn dnrt_delta(
         instance.apply_texels(&bundle.layout, &mut out)?;
     }
     Ok(Some(DirectLight { radiance: out }))
+}
+
+/// The point lights' irradiance SH at posed object `i`'s centre `centre` (its light-probe
+/// input): shadowed by the level's occluders `level` and by the other posed objects, not by
+/// the object's own triangles, which enclose its centre. With one pose, the level's answer.
+fn lights_at_object(
+    bundle: &Bundle,
+    level: &Occluders,
+    poses: &[Pose],
+    i: usize,
+    lights: &[Light],
+    centre: [f32; 3],
+) -> [[f32; 9]; 3] {
+    let others: Vec<Pose> = (poses.iter().enumerate())
+        .filter(|&(j, _)| j != i)
+        .map(|(_, p)| p.clone())
+        .collect();
+    let others = occluders_with_poses(level, bundle, &others);
+    point_light_irradiance_sh(frame_occluders(level, others.as_ref()), lights, centre)
 }
 
 /// With more than one bounce, the light the posed objects add and take away ([`dnrt_delta`]'s
@@ -83,4 +105,69 @@ pub fn bounce_object_light(
     };
     runtime.apply_delta(method, rest, change, indirect)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lightfarm_proto::bundle::DynamicShape;
+    use lightfarm_proto::lights::LightKind;
+
+    /// A closed cube of half-size `half` about the origin (12 triangles).
+    fn cube(id: &str, half: f32) -> DynamicShape {
+        let c = |i: usize| [0, 1, 2].map(|b| if i >> b & 1 == 0 { -half } else { half });
+        let quads = [
+            [0, 1, 3, 2],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 3, 7, 6],
+            [0, 2, 6, 4],
+            [1, 3, 7, 5],
+        ];
+        DynamicShape {
+            object: id.into(),
+            albedo: [0.5; 3],
+            triangles: quads
+                .iter()
+                .flat_map(|q| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
+                .collect(),
+        }
+    }
+
+    /// A lamp above two stacked cubes: the lower one's light-probe input gets none of the lamp
+    /// (the upper cube hides it), and alone it gets the lamp's unshadowed lobe; the upper one
+    /// gets the lamp either way, and no object's own triangles hide its centre.
+    #[test]
+    fn an_object_hides_a_lamp_from_the_object_under_it() {
+        let bundle = Bundle {
+            dynamic_shapes: vec![cube("upper", 0.3), cube("lower", 0.3)],
+            ..Bundle::default()
+        };
+        let level = Occluders::from_layout(&bundle.layout);
+        let lamp = Light {
+            kind: LightKind::Point,
+            position: [0.0, 3.0, 0.0],
+            intensity: [10.0; 3],
+        };
+        let pose = |id: &str, y: f64| Pose {
+            id: id.into(),
+            translation: [0.0, y, 0.0],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        };
+        let both = [pose("upper", 2.0), pose("lower", 0.5)];
+        let lamp = std::slice::from_ref(&lamp);
+        let energy = |sh: [[f32; 9]; 3]| sh.iter().flatten().map(|c| c.abs()).sum::<f32>();
+        let lower_alone = lights_at_object(&bundle, &level, &both[1..], 0, lamp, [0.0, 0.5, 0.0]);
+        let lower = lights_at_object(&bundle, &level, &both, 1, lamp, [0.0, 0.5, 0.0]);
+        let upper = lights_at_object(&bundle, &level, &both, 0, lamp, [0.0, 2.0, 0.0]);
+        // 10 W/sr at 2.5 m: the DC term of the lobe is Â₀ · 1.6 · Y₀₀ > 0.
+        assert!(energy(lower_alone) > 0.5, "{lower_alone:?}");
+        assert_eq!(energy(lower), 0.0, "{lower:?}");
+        assert!(energy(upper) > 4.0 * energy(lower_alone), "{upper:?}");
+        // One pose: the level's answer, bit for bit.
+        assert_eq!(
+            lower_alone,
+            point_light_irradiance_sh(&level, lamp, [0.0, 0.5, 0.0])
+        );
+    }
 }

@@ -148,7 +148,8 @@ pub fn evaluate_frame(
                 .collect(),
         );
     }
-    // An object's own light probe sits at its centre, inside it: the level alone shadows it.
+    // An object's own light probe sits at its centre, inside it: the level and the other
+    // objects shadow it, not its own triangles.
     let dnrt = match &field {
         Some(field) => dnrt_delta(runtime.bundle(), field, bounced, &level, lights)?,
         None => None,
