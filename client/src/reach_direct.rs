@@ -612,23 +612,7 @@ mod tests {
                 ]
                 .map(|x| x as f32)
             };
-            let quads = [
-                [0, 1, 3, 2],
-                [4, 5, 7, 6],
-                [0, 1, 5, 4],
-                [2, 3, 7, 6],
-                [0, 2, 6, 4],
-                [1, 3, 7, 5],
-            ];
-            let tris: Vec<[[f32; 3]; 3]> = quads
-                .iter()
-                .flat_map(|q| {
-                    [
-                        [corner(q[0]), corner(q[1]), corner(q[2])],
-                        [corner(q[0]), corner(q[2]), corner(q[3])],
-                    ]
-                })
-                .collect();
+            let tris = lightfarm_proto::testing::hexahedron(corner);
             let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
             for v in tris.iter().flatten() {
                 for k in 0..3 {

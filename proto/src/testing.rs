@@ -6,8 +6,9 @@
 //!
 //! Also the smallest bundle ([`one_block_bundle`]: one block, MRT only) that the C ABI, fetch
 //! and no-allocation tests build theirs on, the fuzz driver both fuzzers run
-//! ([`fuzz_mutations`]) and an allocation counter for the no-allocation tests
-//! ([`CountingAlloc`]; each test binary installs it).
+//! ([`fuzz_mutations`]), an allocation counter for the no-allocation tests
+//! ([`CountingAlloc`]; each test binary installs it) and a box's triangles for the shadow
+//! tests of posed objects ([`hexahedron`]).
 //!
 //! Invariant: deterministic; the same seed gives the same bundle bytes and the same mutations
 //! on every platform.
@@ -44,6 +45,26 @@ impl Lcg {
     pub fn point(&mut self, lo: f32, hi: f32) -> [f32; 3] {
         [self.range(lo, hi), self.range(lo, hi), self.range(lo, hi)]
     }
+}
+
+/// The 12 triangles of a hexahedron whose corner `i` (bit 0: +x, bit 1: +y, bit 2: +z side)
+/// is `corner(i)`: a box, or a slanted one (posed dynamic objects in shadow tests).
+pub fn hexahedron(corner: impl Fn(usize) -> [f32; 3]) -> Vec<[[f32; 3]; 3]> {
+    const QUADS: [[usize; 4]; 6] = [
+        [0, 1, 3, 2],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 3, 7, 6],
+        [0, 2, 6, 4],
+        [1, 3, 7, 5],
+    ];
+    QUADS
+        .iter()
+        .flat_map(|q| {
+            let c = q.map(&corner);
+            [[c[0], c[1], c[2]], [c[0], c[2], c[3]]]
+        })
+        .collect()
 }
 
 pub fn matrix(rng: &mut Lcg, rows: usize, cols: usize) -> Matrix {

@@ -115,22 +115,12 @@ mod tests {
 
     /// A closed cube of half-size `half` about the origin (12 triangles).
     fn cube(id: &str, half: f32) -> DynamicShape {
-        let c = |i: usize| [0, 1, 2].map(|b| if i >> b & 1 == 0 { -half } else { half });
-        let quads = [
-            [0, 1, 3, 2],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 3, 7, 6],
-            [0, 2, 6, 4],
-            [1, 3, 7, 5],
-        ];
         DynamicShape {
             object: id.into(),
             albedo: [0.5; 3],
-            triangles: quads
-                .iter()
-                .flat_map(|q| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
-                .collect(),
+            triangles: lightfarm_proto::testing::hexahedron(|i| {
+                [0, 1, 2].map(|b| if i >> b & 1 == 0 { -half } else { half })
+            }),
         }
     }
 
