@@ -4,9 +4,12 @@
 //! A gather weight is a ray-hit fraction, `hits / rays_per_texel`, so every weight of a bundle
 //! is a small integer times one unit. [`PackedGather::new`] finds that unit (the smallest
 //! positive weight) and keeps the integers in a byte when *every* weight is exactly
-//! `unit · count` in f32 with `count ≤ 255`; column indices are kept in 16 bits when the layout
+//! `unit · count` in f32 with `count ≤ 255`, else in 16 bits when every count is at most
+//! 65,535 (a texel close to a wall can send hundreds of its rays to one texel there: on the
+//! maze, counts reach 399 of 1,024 rays); column indices are kept in 16 bits when the layout
 //! has at most 65,536 texels. Anything else keeps the bundle's u32 / f32 form. An entry is then
-//! read as 3 bytes instead of 8 (the gather is the largest sparse operator of a DRT frame).
+//! read as 3 or 4 bytes instead of 8 (the gather is the largest sparse operator of a DRT
+//! frame, and relighting by a change streams its entries from memory).
 //!
 //! [`GatherColumns`] holds the same entries by column (per texel, the rows reading it), so
 //! relighting by a change of light runs only the entries that read a changed texel
@@ -15,8 +18,8 @@
 //! (the terms are added in another order).
 //!
 //! Invariants:
-//! - Lossless: with 8-bit weights a row is summed as `unit · Σ count · l` instead of `Σ (unit ·
-//!   count) · l`; the two agree exactly when `unit` is a power of two (the usual
+//! - Lossless: with 8- or 16-bit weights a row is summed as `unit · Σ count · l` instead of
+//!   `Σ (unit · count) · l`; the two agree exactly when `unit` is a power of two (the usual
 //!   `rays_per_texel`) and to float rounding otherwise.
 //! - Rows are visited in the bundle's order and each row's terms in a fixed order (four
 //!   interleaved partial sums, see `accumulate`) whatever the storage, so results do not depend
@@ -26,7 +29,7 @@
 
 use std::ops::Range;
 
-use lightfarm_proto::bundle::{gather_counts, TexelGather};
+use lightfarm_proto::bundle::{gather_counts, gather_counts_u16, TexelGather};
 
 /// Indices of the gather's entries: their columns (texels) in [`PackedGather`], their rows in
 /// [`GatherColumns`].
@@ -43,6 +46,11 @@ enum Weights {
     Counts {
         unit: f32,
         counts: Vec<u8>,
+    },
+    /// `weight = unit · count`, some count above 255.
+    Counts16 {
+        unit: f32,
+        counts: Vec<u16>,
     },
     F32(Vec<f32>),
 }
@@ -65,9 +73,12 @@ impl PackedGather {
         } else {
             Columns::U32(gather.cols.clone())
         };
-        let weights = match gather_counts(&gather.values) {
-            Some((unit, counts)) => Weights::Counts { unit, counts },
-            None => Weights::F32(gather.values.clone()),
+        let weights = if let Some((unit, counts)) = gather_counts(&gather.values) {
+            Weights::Counts { unit, counts }
+        } else if let Some((unit, counts)) = gather_counts_u16(&gather.values) {
+            Weights::Counts16 { unit, counts }
+        } else {
+            Weights::F32(gather.values.clone())
         };
         PackedGather {
             rows: gather.rows.clone(),
@@ -85,6 +96,7 @@ impl PackedGather {
         };
         let weights = match &self.weights {
             Weights::Counts { counts, .. } => counts.len(),
+            Weights::Counts16 { counts, .. } => 2 * counts.len(),
             Weights::F32(v) => 4 * v.len(),
         };
         cols + weights + 4 * (self.rows.len() + self.row_start.len())
@@ -115,6 +127,12 @@ impl PackedGather {
                 self.accumulate(c, counts, *unit, direct, out)
             }
             (Columns::U32(c), Weights::Counts { unit, counts }) => {
+                self.accumulate(c, counts, *unit, direct, out)
+            }
+            (Columns::U16(c), Weights::Counts16 { unit, counts }) => {
+                self.accumulate(c, counts, *unit, direct, out)
+            }
+            (Columns::U32(c), Weights::Counts16 { unit, counts }) => {
                 self.accumulate(c, counts, *unit, direct, out)
             }
             (Columns::U16(c), Weights::F32(v)) => self.accumulate(c, v, 1.0, direct, out),
@@ -156,6 +174,10 @@ impl PackedGather {
         };
         let weights = match &self.weights {
             Weights::Counts { unit, counts } => Weights::Counts {
+                unit: *unit,
+                counts: source.iter().map(|&k| counts[k as usize]).collect(),
+            },
+            Weights::Counts16 { unit, counts } => Weights::Counts16 {
                 unit: *unit,
                 counts: source.iter().map(|&k| counts[k as usize]).collect(),
             },
@@ -262,6 +284,12 @@ impl GatherColumns {
             (Columns::U32(r), Weights::Counts { counts, .. }) => {
                 self.scatter_in(texels, r, counts, direct, sums)
             }
+            (Columns::U16(r), Weights::Counts16 { counts, .. }) => {
+                self.scatter_in(texels, r, counts, direct, sums)
+            }
+            (Columns::U32(r), Weights::Counts16 { counts, .. }) => {
+                self.scatter_in(texels, r, counts, direct, sums)
+            }
             (Columns::U16(r), Weights::F32(v)) => self.scatter_in(texels, r, v, direct, sums),
             (Columns::U32(r), Weights::F32(v)) => self.scatter_in(texels, r, v, direct, sums),
         }
@@ -330,7 +358,7 @@ impl GatherColumns {
         out: &mut [[f32; 3]],
     ) {
         let scale = match &self.weights {
-            Weights::Counts { unit, .. } => *unit,
+            Weights::Counts { unit, .. } | Weights::Counts16 { unit, .. } => *unit,
             Weights::F32(_) => 1.0,
         };
         for &i in touched.iter() {
@@ -432,12 +460,12 @@ mod tests {
     /// The columns hold every entry once; scattering the texels that carry light gives what
     /// the whole gather gives, to float rounding, the rows reading them are exactly the rows
     /// that read a lit texel, each listed once, and finishing leaves the scratch clean for the
-    /// next call (8-bit and f32 weights).
+    /// next call (8-bit, 16-bit and f32 weights).
     #[test]
     fn the_columns_scatter_what_the_rows_gather() {
         let mut rng = Lcg(11);
         let n = 500;
-        for rays in [1024.0f32, 1000.0] {
+        for (rays, most) in [(1024.0f32, 30.0), (1000.0, 30.0), (1024.0, 800.0)] {
             // Rows reading windows of 60 texels here and there.
             let mut source = TexelGather {
                 row_start: vec![0],
@@ -450,11 +478,19 @@ mod tests {
                     source.cols.push(c);
                     source
                         .values
-                        .push((1 + (rng.unit() * 30.0) as u32) as f32 / rays);
+                        .push((1 + (rng.unit() * most) as u32) as f32 / rays);
                 }
                 source.row_start.push(source.cols.len() as u32);
             }
+            // One ray's weight, the unit the counts are found in.
+            source.values[0] = 1.0 / rays;
             let g = PackedGather::new(&source, n);
+            let kind = match (&g.weights, rays == 1024.0, most > 255.0) {
+                (Weights::Counts { .. }, true, false) => "8-bit",
+                (Weights::Counts16 { .. }, true, true) => "16-bit",
+                (Weights::F32(_), false, _) => "f32",
+                _ => panic!("{rays} rays, counts to {most}: unexpected storage"),
+            };
             let columns = g.by_columns(n);
             assert_eq!(columns.col_start[n] as usize, source.cols.len());
             let mut sums = vec![[0.0f32; 4]; g.n_rows()];
@@ -490,14 +526,14 @@ mod tests {
                     .collect();
                 let mut got = touched.clone();
                 got.sort_unstable();
-                assert_eq!(got, want, "{rays} rays, {lit:?}");
+                assert_eq!(got, want, "{kind}, {lit:?}");
                 assert!(want.len() < g.n_rows());
                 columns.finish(&g, &mut sums, &mut touched, &mut marked, &mut scattered);
                 for (t, (a, b)) in scattered.iter().zip(&whole).enumerate() {
                     for ch in 0..3 {
                         assert!(
                             (a[ch] - b[ch]).abs() <= 1e-6 * b[ch].abs().max(1e-3),
-                            "{rays} rays, texel {t}: {a:?} against {b:?}"
+                            "{kind}, texel {t}: {a:?} against {b:?}"
                         );
                     }
                 }
@@ -614,6 +650,33 @@ mod tests {
         assert_eq!(b, c);
     }
 
+    /// Counts above a byte (a texel sending hundreds of its rays to one texel) keep 16 bits
+    /// instead of falling back to f32, and sum exactly what the f32 form sums.
+    #[test]
+    fn counts_above_a_byte_pack_to_16_bits_and_sum_what_the_f32_form_sums() {
+        let mut rng = Lcg(5);
+        let n = 3000;
+        let mut g = gather(200, n, 1024, &mut rng);
+        for k in (0..g.values.len()).step_by(97) {
+            g.values[k] = (256 + (rng.unit() * 700.0) as u32) as f32 / 1024.0;
+        }
+        let packed = PackedGather::new(&g, n);
+        assert!(matches!(packed.weights, Weights::Counts16 { unit: u, .. } if u == 1.0 / 1024.0));
+        assert_eq!(packed.bytes(), 4 * g.values.len() + 4 * (200 + 201));
+        let l = direct(n, &mut rng);
+        let (mut a, mut b) = (vec![[0.1f32; 3]; n], vec![[0.1f32; 3]; n]);
+        reference(&g, &l, &mut a);
+        packed.add_to(&l, &mut b);
+        assert_close(&a, &b);
+        let wide = PackedGather {
+            weights: Weights::F32(g.values.clone()),
+            ..packed.clone()
+        };
+        let mut c = vec![[0.1f32; 3]; n];
+        wide.add_to(&l, &mut c);
+        assert_eq!(b, c);
+    }
+
     #[test]
     fn other_ray_counts_agree_to_rounding() {
         let mut rng = Lcg(11);
@@ -644,6 +707,9 @@ mod tests {
         assert_eq!(gather_counts(&[0.0, 0.0]), None);
         assert_eq!(gather_counts(&[0.5, 1.0]), Some((0.5, vec![1, 2])));
         assert_eq!(gather_counts(&[1.0, 256.0]), None);
+        assert_eq!(gather_counts_u16(&[1.0, 256.0]), Some((1.0, vec![1, 256])));
+        assert_eq!(gather_counts_u16(&[1.0, 65_536.0]), None);
+        assert_eq!(gather_counts_u16(&[0.5, 0.7]), None);
         assert_eq!(
             gather_counts(&[0.25, 0.0, 0.75]),
             Some((0.25, vec![1, 0, 3]))

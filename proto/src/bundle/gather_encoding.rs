@@ -203,6 +203,18 @@ fn read_varint(r: &mut Reader) -> Result<u32, WireError> {
 /// the smallest positive value; zero weights count 0): how the bundle stores gather weights and
 /// how the client keeps them in memory.
 pub fn gather_counts(values: &[f32]) -> Option<(f32, Vec<u8>)> {
+    unit_counts(values, u8::MAX.into(), |c| c as u8)
+}
+
+/// [`gather_counts`] with counts up to 65,535: how the client keeps in memory the weights of a
+/// gather some of whose counts exceed a byte (the bundle stores those as f32).
+pub fn gather_counts_u16(values: &[f32]) -> Option<(f32, Vec<u16>)> {
+    unit_counts(values, u16::MAX.into(), |c| c as u16)
+}
+
+/// `(unit, counts)` when every value is exactly `unit · count` with `count ≤ max` (each count
+/// narrowed by `narrow`).
+fn unit_counts<C>(values: &[f32], max: f32, narrow: impl Fn(f32) -> C) -> Option<(f32, Vec<C>)> {
     let unit = values
         .iter()
         .copied()
@@ -215,9 +227,9 @@ pub fn gather_counts(values: &[f32]) -> Option<(f32, Vec<u8>)> {
         .iter()
         .map(|&v| {
             let count = (v / unit).round();
-            ((0.0..=255.0).contains(&count) && unit * count == v).then_some(count as u8)
+            ((0.0..=max).contains(&count) && unit * count == v).then(|| narrow(count))
         })
-        .collect::<Option<Vec<u8>>>()
+        .collect::<Option<Vec<C>>>()
         .map(|counts| (unit, counts))
 }
 

@@ -63,7 +63,7 @@ mod symmetric_blocks;
 mod validate;
 mod write;
 pub use dynamic_shapes::DynamicShape;
-pub use gather_encoding::gather_counts;
+pub use gather_encoding::{gather_counts, gather_counts_u16};
 pub use matrix_codec::{EncodingMemo, MatrixEncoding};
 pub use rooms::{FaceLink, Room, Rooms, SurfacePlace};
 pub use sections::{section, section_name};
