@@ -74,6 +74,16 @@ pub enum ClutterBasis {
 }
 
 /// How clutter texels gather light from the scene (DRT §4.3).
+///
+/// The choice trades accuracy for the cost of relighting by a change. The maze at T = 16,
+/// 1,024 rays, 1,000 texels checked against Mitsuba:
+/// - error at all bounces: exact 0.0229, implicit 0.0251 (Mitsuba's noise 0.0113);
+/// - error at one bounce: exact 0.0248, implicit 0.0315.
+///
+/// Moving one light (`frame-time --update one-light`, one bounce), the operators' part per
+/// light is 0.88 / 2.71 / 0.60 / 1.57 ms with exact and 0.53 / 0.71 / 0.50 / 0.55 ms with
+/// implicit. The exact gather's rows read about 490 texels each, and a moving light's change
+/// reaches many of them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ClutterGather {
