@@ -103,7 +103,7 @@ pub use compare::{relative_l1, relative_l2};
 pub use direct::{
     direct_from_point_lights, direct_from_point_lights_adaptive,
     direct_from_point_lights_adaptive_in, direct_from_point_lights_averaged, direct_scale,
-    DirectLight, TexelSpan,
+    point_irradiance, DirectLight, TexelSpan,
 };
 pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
 pub use dynamic_shadows::{frame_occluders, occluders_with_poses, posed_triangles, PosedObjects};

@@ -33,7 +33,8 @@
 //!
 //! # Layout
 //! - this file: the convention, the lights' shadow queries (`Lighting`, `Shadows`), the
-//!   whole-level functions, the adaptive average and its runs of texels, one light's terms.
+//!   whole-level functions, the adaptive average and its runs of texels, one light's terms,
+//!   and the same rule at points that are not texels (`point_irradiance`).
 //! - `tests`: closed forms, shadows, light buffers and the adaptive average against tracing
 //!   every sample; the fixtures other modules' tests share.
 
@@ -274,6 +275,29 @@ fn shadows_of<'a>(occluders: &'a Occluders, buffers: &'a Option<Vec<LightBuffer>
         Some(b) => Shadows::Buffers(occluders, b),
         None => Shadows::Occluders(occluders),
     }
+}
+
+/// Irradiance `Σ I · cosθ / r² · V` (W/m², per channel) of point `lights` at each `(x, n)`
+/// of `points` (a point and its unit normal, in the world frame), with shadow rays against
+/// `occluders` and `r²` clamped as at texels (`scale`: [`direct_scale`]). For surfaces that are
+/// not layout texels, e.g. the corners of a posed dynamic object's triangles.
+pub fn point_irradiance(
+    occluders: &Occluders,
+    lights: &[Light],
+    scale: f64,
+    points: impl IntoIterator<Item = ([f32; 3], [f32; 3])>,
+) -> Vec<[f64; 3]> {
+    let lighting = Lighting::new(lights, Shadows::Occluders(occluders), scale);
+    points
+        .into_iter()
+        .map(|(x, n)| {
+            let mut irr = [0.0f64; 3];
+            for li in 0..lights.len() {
+                lighting.add_point(li, x, n, &mut irr);
+            }
+            irr
+        })
+        .collect()
 }
 
 /// Direct radiance `ρ/π · Σ I cosθ / r² · V` at each texel centre.

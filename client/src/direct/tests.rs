@@ -482,3 +482,75 @@ fn one_value_per_texel_and_nothing_without_lights() {
     let out = direct_from_point_lights(&layout, &Occluders::from_layout(&layout), &[]);
     assert_eq!(out.radiance, vec![[0.0; 3]; 3]);
 }
+
+/// Irradiance at points that are not texels: the closed form `I cosθ / r²`, zero behind an
+/// occluder and behind the surface, clamped (finite) with the light on the point, and at
+/// texel centres exactly what the texels' direct light holds before `ρ/π`.
+#[test]
+fn point_irradiance_is_the_texels_rule_at_any_point() {
+    let layout = floor(&[[1.0, 1.0, 0.0], [3.0, 3.0, 0.0]]);
+    let mut shadowed = layout.clone();
+    shadowed.rects.push(Rect {
+        axis: 2,
+        coord: 1.0,
+        min: [0.5, 0.5],
+        max: [1.5, 1.5],
+    });
+    let (occ, blocked) = (
+        Occluders::from_layout(&layout),
+        Occluders::from_layout(&shadowed),
+    );
+    let scale = direct_scale(&layout, &occ);
+    let lights = [light([2.0, 3.0, 2.5], [10.0, 20.0, 5.0])];
+    let up = [0.0, 0.0, 1.0];
+    let got = point_irradiance(&occ, &lights, scale, [([1.0, 1.0, 0.0], up)]);
+    let (to, i) = ([1.0f64, 2.0, 2.5], lights[0].intensity);
+    let r2 = to.iter().map(|v| v * v).sum::<f64>();
+    for c in 0..3 {
+        let want = i[c] * 2.5 / r2.sqrt() / r2;
+        assert!(
+            (got[0][c] - want).abs() <= 1e-12 * want,
+            "{c}: {:?}",
+            got[0]
+        );
+    }
+    // The blocker hides the light from (1, 1, 0) only; facing down sees nothing.
+    let over = [light([1.0, 1.0, 3.0], [1.0; 3])];
+    let seen = point_irradiance(
+        &blocked,
+        &over,
+        scale,
+        [([1.0, 1.0, 0.0], up), ([3.0, 3.0, 0.0], up)],
+    );
+    assert_eq!(seen[0], [0.0; 3]);
+    assert!(seen[1].iter().all(|&e| e > 0.0));
+    let down = point_irradiance(&occ, &over, scale, [([3.0, 3.0, 0.0], [0.0, 0.0, -1.0])]);
+    assert_eq!(down[0], [0.0; 3]);
+    // On the point: zero; a hair above it: the clamp, `I / (1e-4 · scale)²`.
+    let hair = [
+        light([3.0, 3.0, 0.0], [1.0; 3]),
+        light([1.0, 1.0, 1e-9], [1.0; 3]),
+    ];
+    let at = point_irradiance(&occ, &hair[..1], scale, [([3.0, 3.0, 0.0], up)]);
+    assert_eq!(at[0], [0.0; 3]);
+    let near = point_irradiance(&occ, &hair[1..], scale, [([1.0, 1.0, 0.0], up)]);
+    let clamp = 1.0 / (R_MIN_REL * scale).powi(2);
+    assert!(
+        (near[0][0] - clamp).abs() <= 1e-9 * clamp,
+        "{:?} against {clamp}",
+        near[0]
+    );
+    // At texel centres: the texels' direct light is `ρ/π` times it, bit for bit.
+    let both = [lights[0].clone(), over[0].clone()];
+    let texels = direct_from_point_lights(&shadowed, &blocked, &both);
+    let points = (0..2).map(|t| (shadowed.positions[t], shadowed.normals[t]));
+    for (t, e) in point_irradiance(&blocked, &both, direct_scale(&shadowed, &blocked), points)
+        .iter()
+        .enumerate()
+    {
+        assert_eq!(
+            outgoing(shadowed.albedo[t], *e).map(|v| v as f32),
+            texels.radiance[t]
+        );
+    }
+}

@@ -158,7 +158,7 @@ pub fn evaluate_frame(
         bounce_object_light(&mut runtime, method, bounces, change, &mut indirect)?;
     }
     let shaded = if shade_posed {
-        shade_objects(runtime.bundle(), field.as_ref(), occluders, lights)
+        shade_objects(runtime.bundle(), field.as_ref(), occluders, lights, scale)
     } else {
         Vec::new()
     };

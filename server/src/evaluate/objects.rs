@@ -4,11 +4,16 @@
 //! probe volume's irradiance there (the light the walls send, as an engine shades a moving
 //! object from its light probes), `ρ` the object's albedo (bundle section `dynamic shapes`).
 //!
+//! The point lights' part is the texels' rule (`lightfarm_client::point_irradiance`: the same
+//! `r²` clamp, so a light on an object's surface gives a finite value).
+//!
 //! Frames and units: world frame, metres; outgoing radiance W/(sr·m²) per RGB channel. A
 //! corner is shaded with its triangle's normal (flat, from the winding; the export draws the
 //! triangle from both sides).
 
-use lightfarm_client::{irradiance_at, posed_triangles, Bundle, Occluders, ProbeField};
+use lightfarm_client::{
+    irradiance_at, point_irradiance, posed_triangles, Bundle, Occluders, ProbeField,
+};
 use lightfarm_proto::glam::DVec3;
 use lightfarm_proto::lights::LightSet;
 
@@ -28,12 +33,14 @@ pub struct ShadedObject {
 
 /// Every posed object with a shape in the bundle, shaded under `lights`; `field` is the probe
 /// volume fed the radiance leaving the texels (as for DNRT; `None`: no light from the probes),
-/// `shadows` the level's occluders with the posed objects in them.
+/// `shadows` the level's occluders with the posed objects in them, `scale` the texels' `r²`
+/// clamp ([`lightfarm_client::direct_scale`] of the level).
 pub fn shade_objects(
     bundle: &Bundle,
     field: Option<&ProbeField>,
     shadows: &Occluders,
     lights: &LightSet,
+    scale: f64,
 ) -> Vec<ShadedObject> {
     let probes = bundle.probes.as_ref().zip(field);
     let mut out = Vec::new();
@@ -43,40 +50,33 @@ pub fn shade_objects(
         };
         let triangles = posed_triangles(shape, pose);
         let rho = shape.albedo.map(|a| a as f64 * std::f64::consts::FRAC_1_PI);
-        let mut direct = Vec::with_capacity(triangles.len() * 3);
-        let mut indirect = Vec::with_capacity(triangles.len() * 3);
-        for tri in &triangles {
-            let [a, b, c] = tri.map(|v| DVec3::from_array(v.map(f64::from)));
-            let n = (b - a).cross(c - a).normalize_or_zero();
-            for p in [a, b, c] {
-                let mut e = [0.0f64; 3];
-                for light in &lights.lights {
-                    let d = DVec3::from_array(light.position) - p;
-                    let r2 = d.length_squared();
-                    let cos = n.dot(d) / r2.sqrt();
-                    if !(cos > 0.0 && r2 > 0.0) {
-                        continue;
-                    }
-                    let at = p.as_vec3().to_array();
-                    if shadows.occluded(at, light.position.map(|x| x as f32)) {
-                        continue;
-                    }
-                    for (ec, i) in e.iter_mut().zip(light.intensity) {
-                        *ec += i * cos / r2;
-                    }
-                }
+        // Each corner with its triangle's normal (flat).
+        let corners: Vec<([f32; 3], [f32; 3])> = triangles
+            .iter()
+            .flat_map(|tri| {
+                let [a, b, c] = tri.map(|v| DVec3::from_array(v.map(f64::from)));
+                let n = (b - a)
+                    .cross(c - a)
+                    .normalize_or_zero()
+                    .as_vec3()
+                    .to_array();
+                tri.map(|p| (p, n))
+            })
+            .collect();
+        let irradiance = point_irradiance(shadows, &lights.lights, scale, corners.iter().copied());
+        let direct = irradiance
+            .iter()
+            .map(|e| [0, 1, 2].map(|k| (rho[k] * e[k]) as f32))
+            .collect();
+        let indirect = corners
+            .iter()
+            .map(|&(p, n)| {
                 let walls = probes.map_or([0.0; 3], |(volume, field)| {
-                    irradiance_at(
-                        volume,
-                        field,
-                        p.as_vec3().to_array(),
-                        n.as_vec3().to_array(),
-                    )
+                    irradiance_at(volume, field, p, n)
                 });
-                direct.push([0, 1, 2].map(|k| (rho[k] * e[k]) as f32));
-                indirect.push([0, 1, 2].map(|k| (rho[k] * walls[k] as f64) as f32));
-            }
-        }
+                [0, 1, 2].map(|k| (rho[k] * walls[k] as f64) as f32)
+            })
+            .collect();
         out.push(ShadedObject {
             id: pose.id.clone(),
             triangles,
