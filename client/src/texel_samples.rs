@@ -135,8 +135,8 @@ pub(crate) fn is_axis_aligned(n: [f32; 3]) -> bool {
 /// it: then every sample point of the texel (which [`sample_points`] keeps in that plane) gets
 /// a zero [`unshadowed`] term, `n · (p − x)` being the same product `n_a (p_a − x_a)` at each.
 #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(… > 0)`: a NaN product faces away too.
-pub(crate) fn faces_away(x: [f32; 3], n: [f32; 3], light: &Light) -> bool {
-    let a = dominant_axis(n);
+pub(crate) fn faces_away(x: &[f32; 3], n: &[f32; 3], light: &Light) -> bool {
+    let a = dominant_axis(*n);
     let (u, v) = tangent_axes(a as u8);
     n[u] == 0.0 && n[v] == 0.0 && !(n[a] as f64 * (light.position[a] - x[a] as f64) > 0.0)
 }

@@ -520,7 +520,7 @@ fn for_each_shadowed(
     let facing_away = |run: &Range<usize>| {
         one_light.is_some_and(|light| {
             run.clone()
-                .all(|t| faces_away(layout.positions[t], layout.normals[t], light))
+                .all(|t| faces_away(&layout.positions[t], &layout.normals[t], light))
         })
     };
     for span in spans {
@@ -556,6 +556,7 @@ fn for_each_shadowed(
 
 /// One texel of [`direct_from_point_lights_adaptive`] (`2 ≤ m ≤ ADAPTIVE_MAX_SAMPLES_PER_EDGE`,
 /// a texel with a size).
+#[inline(always)]
 fn adaptive_texel(
     lighting: &Lighting,
     t: TexelAt,
@@ -566,7 +567,7 @@ fn adaptive_texel(
     let mut irr = [0.0f64; 3];
     for li in 0..lighting.lights.len() {
         // A light behind the texel adds zero terms (`faces_away`): skip its samples.
-        if faces_away(t.x, t.n, &lighting.lights[li]) {
+        if faces_away(&t.x, &t.n, &lighting.lights[li]) {
             continue;
         }
         if !std::mem::replace(&mut sampled, true) {
@@ -710,7 +711,7 @@ pub(crate) fn add_light_term_in(
                 let at = TexelAt::of(layout, t);
                 // Every sample's term is zero when the light faces away (`faces_away`): what the
                 // samples would add.
-                if faces_away(at.x, at.n, light) {
+                if faces_away(&at.x, &at.n, light) {
                     continue;
                 }
                 if m == 1 || at.size == [0.0, 0.0] {
