@@ -48,24 +48,46 @@ impl Lcg {
     }
 }
 
-/// The 12 triangles of a hexahedron whose corner `i` (bit 0: +x, bit 1: +y, bit 2: +z side)
-/// is `corner(i)`: a box, or a slanted one (posed dynamic objects in shadow tests).
+/// A box's six faces as corner quads, counter-clockwise seen from outside, corner `i` on the
+/// +x side when bit 0 is set, +y bit 1, +z bit 2 (each quad makes triangles `q0 q1 q2` and
+/// `q0 q2 q3`).
+pub const BOX_QUADS: [[usize; 4]; 6] = [
+    [0, 4, 6, 2],
+    [1, 3, 7, 5],
+    [0, 1, 5, 4],
+    [2, 6, 7, 3],
+    [0, 2, 3, 1],
+    [4, 5, 7, 6],
+];
+
+/// The 12 triangles of a hexahedron whose corner `i` (numbered as in [`BOX_QUADS`]) is
+/// `corner(i)`, outward-wound when it is a box: a box, or a slanted one (posed dynamic
+/// objects in shadow tests).
 pub fn hexahedron(corner: impl Fn(usize) -> [f32; 3]) -> Vec<[[f32; 3]; 3]> {
-    const QUADS: [[usize; 4]; 6] = [
-        [0, 1, 3, 2],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 3, 7, 6],
-        [0, 2, 6, 4],
-        [1, 3, 7, 5],
-    ];
-    QUADS
+    BOX_QUADS
         .iter()
         .flat_map(|q| {
             let c = q.map(&corner);
             [[c[0], c[1], c[2]], [c[0], c[2], c[3]]]
         })
         .collect()
+}
+
+/// A Wavefront OBJ of the box `[lo, hi]`: its eight corners, then [`BOX_QUADS`] as two
+/// outward-wound triangles each (mesh clutter and dynamic objects in end-to-end tests).
+pub fn box_obj(lo: [f64; 3], hi: [f64; 3]) -> String {
+    let mut s = String::new();
+    for i in 0..8 {
+        let [x, y, z] = [0, 1, 2].map(|k| if i >> k & 1 == 0 { lo[k] } else { hi[k] });
+        s += &format!("v {x} {y} {z}\n");
+    }
+    for q in BOX_QUADS.map(|q| q.map(|c| c + 1)) {
+        s += &format!(
+            "f {} {} {}\nf {} {} {}\n",
+            q[0], q[1], q[2], q[0], q[2], q[3]
+        );
+    }
+    s
 }
 
 /// A random `rows × cols` matrix, entries in `[-1, 0)`: operators made of these, with

@@ -28,31 +28,6 @@ fn room_with(clutter: &str) -> String {
     )
 }
 
-/// An OBJ cube `[lo, hi]`, faces counter-clockwise seen from outside.
-fn cube_obj(lo: [f64; 3], hi: [f64; 3]) -> String {
-    let mut s = String::new();
-    for i in 0..8 {
-        let x = if i & 1 == 0 { lo[0] } else { hi[0] };
-        let y = if i & 2 == 0 { lo[1] } else { hi[1] };
-        let z = if i & 4 == 0 { lo[2] } else { hi[2] };
-        s += &format!("v {x} {y} {z}\n");
-    }
-    for q in [
-        [1, 5, 7, 3],
-        [2, 4, 8, 6],
-        [1, 2, 6, 5],
-        [3, 7, 8, 4],
-        [1, 3, 4, 2],
-        [5, 6, 8, 7],
-    ] {
-        s += &format!(
-            "f {} {} {}\nf {} {} {}\n",
-            q[0], q[1], q[2], q[0], q[2], q[3]
-        );
-    }
-    s
-}
-
 const LO: [f64; 3] = [1.5, 0.0, 1.5];
 const HI: [f64; 3] = [2.5, 1.0, 2.5];
 
@@ -106,7 +81,11 @@ fn box_scene() -> lightfarm_proto::scene::Scene {
 }
 
 fn mesh_scene(dir: &Path, lo: [f64; 3], hi: [f64; 3]) -> lightfarm_proto::scene::Scene {
-    std::fs::write(dir.join("cube.obj"), cube_obj(lo, hi)).unwrap();
+    std::fs::write(
+        dir.join("cube.obj"),
+        lightfarm_proto::testing::box_obj(lo, hi),
+    )
+    .unwrap();
     scene(
         &room_with(r#"{ "id": "crate", "mesh": "cube.obj", "albedo": [0.2, 0.6, 0.3] }"#),
         T,

@@ -81,31 +81,9 @@ fn scene_text(name: &str) -> String {
     std::fs::read_to_string(scene_dir(name).join("scene.json")).unwrap()
 }
 
-/// A unit cube as OBJ text, centred at `c`, half-size `h`.
+/// An OBJ cube of half-size `h` about `c`, outward-wound.
 fn cube_obj(c: [f64; 3], h: f64) -> String {
-    let mut s = String::new();
-    for i in 0..8 {
-        let p = [
-            c[0] + if i & 1 == 0 { -h } else { h },
-            c[1] + if i & 2 == 0 { -h } else { h },
-            c[2] + if i & 4 == 0 { -h } else { h },
-        ];
-        s += &format!("v {} {} {}\n", p[0], p[1], p[2]);
-    }
-    for f in [
-        [1, 3, 4, 2],
-        [5, 6, 8, 7],
-        [1, 2, 6, 5],
-        [3, 7, 8, 4],
-        [1, 5, 7, 3],
-        [2, 4, 8, 6],
-    ] {
-        s += &format!(
-            "f {} {} {}\nf {} {} {}\n",
-            f[0], f[1], f[2], f[0], f[2], f[3]
-        );
-    }
-    s
+    lightfarm_proto::testing::box_obj(c.map(|x| x - h), c.map(|x| x + h))
 }
 
 fn fast_settings() -> serde_json::Value {

@@ -202,7 +202,7 @@ impl<'a> Lighting<'a> {
         match light.kind {
             LightKind::Point => {}
         }
-        if light.intensity.iter().all(|&i| i == 0.0) {
+        if is_dark(light) {
             return;
         }
         // Unshadowed first: a light behind the texel costs no shadow ray.
@@ -210,9 +210,22 @@ impl<'a> Lighting<'a> {
         if g == 0.0 || self.occluded(li, x) {
             return;
         }
-        for (e, i) in irr.iter_mut().zip(light.intensity) {
-            *e += i * g;
-        }
+        add_term(irr, light, g);
+    }
+}
+
+/// A light without intensity: its terms are zero, and adding them leaves `irr`.
+#[inline(always)]
+fn is_dark(light: &Light) -> bool {
+    light.intensity.iter().all(|&i| i == 0.0)
+}
+
+/// Adds `light`'s term `I · w` into `irr` (`w`: its `cosθ / r² · V` at a point, or the
+/// texel's mean of it).
+#[inline(always)]
+fn add_term(irr: &mut [f64; 3], light: &Light, w: f64) {
+    for (e, i) in irr.iter_mut().zip(light.intensity) {
+        *e += i * w;
     }
 }
 
@@ -366,7 +379,7 @@ fn averaged_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
     sample_points(t.x, t.n, t.size, m, points);
     let mut irr = [0.0f64; 3];
     for (li, light) in lighting.lights.iter().enumerate() {
-        if light.intensity.iter().all(|&i| i == 0.0) {
+        if is_dark(light) {
             continue;
         }
         // Every sample's term, and the seen ones' (a shadow ray where the term is not 0).
@@ -381,9 +394,7 @@ fn averaged_texel(lighting: &Lighting, t: TexelAt, m: usize) -> [f32; 3] {
             }
         }
         let w = texel_mean(&t, light, lighting.r2_min, seen, all);
-        for (e, i) in irr.iter_mut().zip(light.intensity) {
-            *e += i * w;
-        }
+        add_term(&mut irr, light, w);
     }
     outgoing(t.rho, irr).map(|v| v as f32)
 }
@@ -593,7 +604,7 @@ fn add_adaptive(
 ) {
     let light = &lighting.lights[li];
     // No intensity: the term is zero (adding it leaves `irr`).
-    if light.intensity.iter().all(|&i| i == 0.0) {
+    if is_dark(light) {
         return;
     }
     let corners = corner_indices(m);
@@ -629,9 +640,7 @@ fn add_adaptive(
         let sum = visible_sum(g, m, corner_seen, |k| !lighting.occluded(li, points[k]));
         texel_mean(t, light, lighting.r2_min, sum, g.iter().sum())
     };
-    for (e, i) in irr.iter_mut().zip(light.intensity) {
-        *e += i * w;
-    }
+    add_term(irr, light, w);
 }
 
 /// The sum of the unshadowed terms `g` (`m × m` samples) over the samples seen: all of them
@@ -739,7 +748,7 @@ fn add_every_sample(
     irr: &mut [f64; 3],
 ) {
     let light = &lighting.lights[li];
-    if light.intensity.iter().all(|&i| i == 0.0) {
+    if is_dark(light) {
         return;
     }
     samples.start(t, m);
@@ -753,9 +762,7 @@ fn add_every_sample(
         .sum();
     let g = &samples.g[..m * m];
     let w = texel_mean(t, light, lighting.r2_min, sum, g.iter().sum());
-    for (e, i) in irr.iter_mut().zip(light.intensity) {
-        *e += i * w;
-    }
+    add_term(irr, light, w);
 }
 
 /// The direct light of texels whose lights' terms ([`add_light_term_in`]) sum to `irr`:
