@@ -156,8 +156,9 @@ fn lightfields_are_read_only_for_a_transport_that_is_computed() {
     assert_eq!((r4.corrupt_cache_entries, r4.shapes_computed), (1, 1));
     assert!(fourth.encode() == fresh);
 
-    // A traced transport's shapes are its own (their rank ignores the lightfields: `M = F P S`);
-    // computed again with no lightfield entry at all, it bakes no shape again.
+    // A traced transport's shapes are its own (their rank keeps what leaves each opening's cells,
+    // not the lightfields: `ShapeSpec::lightfield_rows`); computed again with no lightfield
+    // entry at all, it bakes no shape again.
     let traced = BakeOptions {
         transport: Some(Transport::Traced),
         ..options.clone()
