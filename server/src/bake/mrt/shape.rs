@@ -39,7 +39,7 @@ use crate::bake::scene::geometry::{Geometry, Primitive};
 use crate::bake::tracer::Tracer;
 
 /// Bump when operator math changes: it is part of every cache key.
-pub const SHAPE_CODE_VERSION: &str = "shape-ops/4";
+pub const SHAPE_CODE_VERSION: &str = "shape-ops/5";
 
 /// What identifies a shape's operators.
 #[derive(Clone, Debug, PartialEq)]
@@ -638,24 +638,32 @@ pub fn bake_shape(
     })
 }
 
+/// The weight of [`exit_rows`] against `F`'s rows in `M`: the rank they add follows their
+/// share of `M`'s energy (`EXIT_WEIGHT²`). Against Mitsuba at all bounces, bundle bytes beside
+/// (the levels of `tests/data/multibounce_accuracy.md`: two storeys 60 blocks, two storeys 80,
+/// one storey 80), side by side on 2026-12-02: weight 1: 0.0564 / 0.0564 / 0.0486, 6.06 / 5.41 /
+/// 3.42 MB; 0.25: 0.0572 / 0.0566 / 0.0480, 5.76 / 5.10 / 3.26 MB; **0.1**: 0.0594 / 0.0556 /
+/// 0.0489, 5.54 / 4.89 / 3.14 MB; without exit rows: 0.1126 / 0.0912 / 0.0503, 5.45 / 4.79 /
+/// 3.09 MB. A block whose `F` is zero keeps what leaves it at any weight.
+const EXIT_WEIGHT: f64 = 0.1;
+
 /// The light leaving an opening per cell of its lightfield, averaged over the cell's direction
 /// bins (`cells² × texels` from `Out_o`'s `cells² · dirs² × texels`; the bins are equal in
-/// projected solid angle, so the mean is the cell's cosine-weighted exitance over π).
+/// projected solid angle, so the mean is the cell's cosine-weighted exitance over π), times
+/// [`EXIT_WEIGHT`].
 ///
 /// `M`'s rows for a traced transport. With `F` alone the rank keeps only the direct light a
 /// block's own texels gather, and a block open on most sides loses what it sends out: a block
 /// open on five faces has `F = 0` (its one closed face cannot see itself), rank 0, and carried
 /// none of its light to its neighbours (a generated two-storey level's lamp in such a block
 /// left the floor below it at 0.42 of the reference's light, one bounce). These rows keep
-/// what leaves for less rank than `Out`'s (that level without its clutter: median rank 47 →
-/// 61, against 109 with `Out` rows, for the same error within 0.01): that level's error at all bounces against
-/// Mitsuba 0.1126 → 0.0564 (its noise 0.0229) for a bundle 5.45 → 6.06 MB; the maze 0.0229 →
-/// 0.0230, 4.28 → 4.41 MB (2026-12-02).
+/// what leaves for less rank than `Out`'s (that level without its clutter, at weight 1: median
+/// rank 47 → 61, against 109 with `Out` rows, for the same error within 0.01).
 fn exit_rows(out: &Mat<f64>, cells: usize, dirs: usize) -> Mat<f64> {
     let bins = dirs * dirs;
     debug_assert_eq!(out.nrows(), cells * cells * bins);
     Mat::from_fn(cells * cells, out.ncols(), |cell, t| {
-        (0..bins).map(|b| out[(cell * bins + b, t)]).sum::<f64>() / bins as f64
+        (0..bins).map(|b| out[(cell * bins + b, t)]).sum::<f64>() / bins as f64 * EXIT_WEIGHT
     })
 }
 
