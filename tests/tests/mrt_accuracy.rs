@@ -8,6 +8,16 @@ use lightfarm_proto::result::ResultFile;
 use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_tests::*;
 
+/// The indirect light of the texels whose surface starts with `prefix`, summed over texels and
+/// channels.
+fn indirect_in(r: &ResultFile, prefix: &str) -> f64 {
+    r.texels
+        .iter()
+        .filter(|t| t.surface.starts_with(prefix))
+        .map(|t| t.indirect.iter().sum::<f64>())
+        .sum()
+}
+
 #[test]
 fn empty_cornell_box_mrt_and_full_match_the_reference() {
     let (mut scene, lights) = load_scene("cornell", 8, 512);
@@ -41,27 +51,20 @@ fn corridor_light_reaches_the_far_end_through_both_transports() {
     let dir = scene_dir("corridor");
     let reference = reference_of(&scene, &dir, &lights, 4096);
     let last = scene.blocks.last().unwrap().id.clone();
-    let energy_in = |r: &ResultFile, prefix: &str| -> f64 {
-        r.texels
-            .iter()
-            .filter(|t| t.surface.starts_with(prefix))
-            .map(|t| t.indirect.iter().sum::<f64>())
-            .sum()
-    };
     // Two openings away from the lamp there is indirect light in the reference, and both
     // transports carry it there.
     let third = format!("block:{}/", scene.blocks[2].id);
-    assert!(energy_in(&reference, &third) > 0.0);
+    assert!(indirect_in(&reference, &third) > 0.0);
     for transport in [Transport::Lightfield, Transport::Traced] {
         let (bundle, _) = bake_scene(&scene, &dir, transport, false);
         let mrt = apply(&bundle, &lights, Method::Mrt);
         check_against_reference(&format!("corridor {transport:?}"), &mrt, &reference, 0.03);
-        let ratio = energy_in(&mrt, &third) / energy_in(&reference, &third);
+        let ratio = indirect_in(&mrt, &third) / indirect_in(&reference, &third);
         assert!(
             (0.5..1.5).contains(&ratio),
             "{transport:?}: block 3 gets {ratio} of the reference's light"
         );
-        assert!(energy_in(&mrt, &format!("block:{last}/")) >= 0.0);
+        assert!(indirect_in(&mrt, &format!("block:{last}/")) >= 0.0);
     }
 }
 
@@ -111,16 +114,9 @@ fn a_block_open_on_five_sides_carries_its_light_to_every_neighbour() {
     let (bundle, _) = bake_scene(&scene, &dir, Transport::Traced, false);
     let mrt = apply(&bundle, &lights, Method::Mrt);
     check_against_reference("five openings", &mrt, &reference, 0.06);
-    let energy_in = |r: &ResultFile, prefix: &str| -> f64 {
-        r.texels
-            .iter()
-            .filter(|t| t.surface.starts_with(prefix))
-            .map(|t| t.indirect.iter().sum::<f64>())
-            .sum()
-    };
     for block in ["below", "west", "east", "south", "north"] {
         let prefix = format!("block:{block}/");
-        let ratio = energy_in(&mrt, &prefix) / energy_in(&reference, &prefix);
+        let ratio = indirect_in(&mrt, &prefix) / indirect_in(&reference, &prefix);
         eprintln!("{block}: {ratio:.3} of the reference's light");
         assert!(
             (0.9..1.1).contains(&ratio),
