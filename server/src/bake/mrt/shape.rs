@@ -580,19 +580,24 @@ pub fn bake_shape(
     let f_ps = &f * &p_s;
     // What leaves through the openings, so that the rank keeps the light only neighbours see
     // (`ShapeSpec::lightfield_rows`, `exit_rows`).
-    let out_rows: Vec<Mat<f64>> = if spec.lightfield_rows {
-        out_ops.clone()
+    let exits: Vec<Mat<f64>> = if spec.lightfield_rows {
+        Vec::new()
     } else {
         out_ops
             .iter()
             .map(|out| exit_rows(out, spec.lightfield_cells, spec.lightfield_directions))
             .collect()
     };
+    let out_rows: &[Mat<f64>] = if spec.lightfield_rows {
+        &out_ops
+    } else {
+        &exits
+    };
     let extra: usize = out_rows.iter().map(|m| m.nrows()).sum();
     let mut m_ext = Mat::<f64>::zeros(n + extra, p_s.ncols());
     m_ext.subrows_mut(0, n).copy_from(&f_ps);
     let mut row = n;
-    for out in &out_rows {
+    for out in out_rows {
         let o_ps = out * &p_s;
         m_ext.subrows_mut(row, out.nrows()).copy_from(&o_ps);
         row += out.nrows();
