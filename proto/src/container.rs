@@ -139,8 +139,9 @@ pub fn write_container(
 pub type CompressSection<'a> = dyn Fn(u32, &[u8], i32) -> Option<Vec<u8>> + Sync + 'a;
 
 /// [`write_container`] taking each section's stored payload from `compress(kind, raw, level)`,
-/// which must give what [`compress_section`]`(raw, level)` gives (e.g. kept from an earlier
-/// write of the same bytes). Sections are compressed side by side, one thread each.
+/// which must give what [`compress_section`] gives for `raw` at `level` or at a level it
+/// chooses for `kind` (the bundle writer raises some kinds'), or what it gave in an earlier
+/// write of the same bytes: a pure function of its arguments. Sections are compressed side by side, one thread each.
 pub fn write_container_with(
     major: u16,
     minor: u16,
