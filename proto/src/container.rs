@@ -141,7 +141,8 @@ pub type CompressSection<'a> = dyn Fn(u32, &[u8], i32) -> Option<Vec<u8>> + Sync
 /// [`write_container`] taking each section's stored payload from `compress(kind, raw, level)`,
 /// which must give what [`compress_section`] gives for `raw` at `level` or at a level it
 /// chooses for `kind` (the bundle writer raises some kinds'), or what it gave in an earlier
-/// write of the same bytes: a pure function of its arguments. Sections are compressed side by side, one thread each.
+/// write of the same bytes: a pure function of its arguments. Sections are compressed side by
+/// side, one thread each.
 pub fn write_container_with(
     major: u16,
     minor: u16,
