@@ -580,17 +580,14 @@ pub fn bake_shape(
     let f_ps = &f * &p_s;
     // What leaves through the openings, so that the rank keeps the light only neighbours see
     // (`ShapeSpec::lightfield_rows`, `exit_rows`).
-    let exits: Vec<Mat<f64>> = if spec.lightfield_rows {
-        Vec::new()
-    } else {
-        out_ops
-            .iter()
-            .map(|out| exit_rows(out, spec.lightfield_cells, spec.lightfield_directions))
-            .collect()
-    };
+    let exits: Vec<Mat<f64>>;
     let out_rows: &[Mat<f64>] = if spec.lightfield_rows {
         &out_ops
     } else {
+        exits = out_ops
+            .iter()
+            .map(|out| exit_rows(out, spec.lightfield_cells, spec.lightfield_directions))
+            .collect();
         &exits
     };
     let extra: usize = out_rows.iter().map(|m| m.nrows()).sum();
