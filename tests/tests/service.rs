@@ -296,6 +296,19 @@ fn validation_and_limits_give_clear_errors() {
     let e = client.upload_asset(&vec![b'#'; 30000]).unwrap_err();
     assert_eq!(e.status(), Some(413));
     assert!(e.to_string().contains("limits.max_body_bytes"), "{e}");
+    // A glTF that refers to a file on the server is refused: an asset must be self-contained.
+    for uri in ["file:///etc/hostname", "../../Cargo.toml"] {
+        let gltf = format!(
+            r#"{{"asset":{{"version":"2.0"}},"buffers":[{{"uri":"{uri}","byteLength":4}}]}}"#
+        );
+        let e = client.upload_asset(gltf.as_bytes()).unwrap_err();
+        assert_eq!(e.status(), Some(422), "{uri}: {e}");
+        assert!(
+            e.to_string()
+                .contains(&format!("buffer 0 refers to the file \"{uri}\"")),
+            "{uri}: {e}"
+        );
+    }
     // A mesh path that is no asset.
     let mut scene: serde_json::Value = serde_json::from_str(&scene_text("cornell")).unwrap();
     scene["clutter"][0] = json!({"id": "ghost", "mesh": "chair.obj", "albedo": [0.5, 0.5, 0.5]});

@@ -16,6 +16,7 @@ use lightfarm_proto::scene::{Scene, Settings};
 
 use super::store::is_hash;
 use crate::bake::scene::geometry::Geometry;
+use crate::bake::scene::mesh::MeshFormat;
 
 /// A mesh format the service accepts, detected from the bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -31,6 +32,14 @@ impl AssetFormat {
             AssetFormat::Glb => "glb",
             AssetFormat::Gltf => "gltf",
             AssetFormat::Obj => "obj",
+        }
+    }
+
+    /// The parser the bake uses for this format.
+    pub fn mesh_format(self) -> MeshFormat {
+        match self {
+            AssetFormat::Glb | AssetFormat::Gltf => MeshFormat::Gltf,
+            AssetFormat::Obj => MeshFormat::Obj,
         }
     }
 

@@ -3,7 +3,9 @@
 //!
 //! Invariant: returned triangles are finite and have positive area; zero-area triangles are
 //! dropped and counted, a NaN or infinite vertex is an error naming the object and triangle.
-//! Paths are relative to the scene file's directory.
+//! Paths are relative to the scene file's directory. A mesh given as bytes (an upload) must be
+//! self-contained: a glTF's buffers and images may only be data URIs or the GLB's own chunk, so
+//! parsing it reads no file.
 
 use std::path::{Path, PathBuf};
 
@@ -74,7 +76,17 @@ pub enum MeshError {
 /// Most triangles one mesh may have.
 pub const MAX_TRIANGLES: usize = 2_000_000;
 
-/// Loads a mesh file and applies `transform`.
+/// Which parser a mesh's bytes go to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MeshFormat {
+    /// Wavefront OBJ text (materials are not read).
+    Obj,
+    /// glTF 2.0, JSON or binary (GLB).
+    Gltf,
+}
+
+/// Loads a mesh file and applies `transform`. The format follows the extension (`.obj`, else
+/// glTF); a glTF's relative buffer and image URIs resolve against the file's directory.
 pub fn load_mesh(
     object: &str,
     base_dir: &Path,
@@ -82,22 +94,58 @@ pub fn load_mesh(
     transform: &Transform,
 ) -> Result<TriangleMesh, MeshError> {
     let path = base_dir.join(relative);
-    let read_err = |message: String| MeshError::Read {
+    let bytes = std::fs::read(&path).map_err(|e| MeshError::Read {
         object: object.to_string(),
         path: path.clone(),
+        message: e.to_string(),
+    })?;
+    let format = if relative.to_ascii_lowercase().ends_with(".obj") {
+        MeshFormat::Obj
+    } else {
+        MeshFormat::Gltf
+    };
+    let base = path.parent().unwrap_or(Path::new("./"));
+    parse_mesh(object, &path, &bytes, format, Some(base), transform)
+}
+
+/// Parses a self-contained mesh from memory (an uploaded asset) and applies `transform`: a
+/// glTF that refers to any file (a relative or `file:` URI) is refused, so nothing but `bytes`
+/// is read. `label` names the bytes in errors.
+pub fn load_mesh_bytes(
+    object: &str,
+    label: &str,
+    bytes: &[u8],
+    format: MeshFormat,
+    transform: &Transform,
+) -> Result<TriangleMesh, MeshError> {
+    parse_mesh(object, Path::new(label), bytes, format, None, transform)
+}
+
+/// Both loaders' parser: `base` is where a glTF's relative URIs resolve, `None` to refuse them.
+fn parse_mesh(
+    object: &str,
+    path: &Path,
+    bytes: &[u8],
+    format: MeshFormat,
+    base: Option<&Path>,
+    transform: &Transform,
+) -> Result<TriangleMesh, MeshError> {
+    let read_err = |message: String| MeshError::Read {
+        object: object.to_string(),
+        path: path.to_path_buf(),
         message,
     };
-    let lower = relative.to_ascii_lowercase();
     let mut textures = Vec::new();
     type RawTriangle = ([[f64; 3]; 3], Option<TriangleAlbedo>, Option<[[f64; 2]; 3]>);
-    let raw: Vec<RawTriangle> = if lower.ends_with(".obj") {
-        let (models, _) = tobj::load_obj(
-            &path,
+    let raw: Vec<RawTriangle> = if format == MeshFormat::Obj {
+        let (models, _) = tobj::load_obj_buf(
+            &mut std::io::Cursor::new(bytes),
             &tobj::LoadOptions {
                 triangulate: true,
                 single_index: true,
                 ..Default::default()
             },
+            |_| Err(tobj::LoadError::OpenFileFailed),
         )
         .map_err(|e| read_err(e.to_string()))?;
         let mut tris = Vec::new();
@@ -123,7 +171,22 @@ pub fn load_mesh(
         }
         tris
     } else {
-        let (doc, buffers, images) = gltf::import(&path).map_err(|e| read_err(e.to_string()))?;
+        let gltf_err = |e: gltf::Error| read_err(e.to_string());
+        let gltf::Gltf {
+            document: doc,
+            blob,
+        } = gltf::Gltf::from_slice(bytes).map_err(gltf_err)?;
+        let base = match base {
+            Some(base) => base,
+            None => {
+                refuse_file_uris(&doc).map_err(read_err)?;
+                // Every URI is a data URI now, which the importer decodes without looking at
+                // the base (it only refuses an image data URI when given none).
+                Path::new(".")
+            }
+        };
+        let buffers = gltf::import_buffers(&doc, Some(base), blob).map_err(gltf_err)?;
+        let images = gltf::import_images(&doc, Some(base), &buffers).map_err(gltf_err)?;
         textures = images.iter().map(texture_from_gltf).collect();
         let mut tris = Vec::new();
         let scene = doc.default_scene().or_else(|| doc.scenes().next());
@@ -274,6 +337,35 @@ pub fn load_mesh(
         });
     }
     Ok(mesh)
+}
+
+/// A self-contained glTF's buffers and images are data URIs or the GLB chunk; the message names
+/// the first one that refers to a file.
+fn refuse_file_uris(doc: &gltf::Document) -> Result<(), String> {
+    let external = |uri: &str| !uri.starts_with("data:");
+    for buffer in doc.buffers() {
+        if let gltf::buffer::Source::Uri(uri) = buffer.source() {
+            if external(uri) {
+                return Err(format!(
+                    "buffer {} refers to the file \"{uri}\"; an uploaded mesh must embed its \
+                     data (data: URIs or GLB)",
+                    buffer.index()
+                ));
+            }
+        }
+    }
+    for image in doc.images() {
+        if let gltf::image::Source::Uri { uri, .. } = image.source() {
+            if external(uri) {
+                return Err(format!(
+                    "image {} refers to the file \"{uri}\"; an uploaded mesh must embed its \
+                     data (data: URIs or GLB)",
+                    image.index()
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Area of a triangle.
@@ -434,6 +526,61 @@ mod tests {
         for c in 0..3 {
             assert!((a[c] - want[c]).abs() < 1e-4, "{a:?} vs {want:?}");
         }
+        // From memory (an upload): the same file names are refused, nothing is read from disk;
+        // with both files as data URIs the same mesh and albedo come back.
+        let refused = load_mesh_bytes(
+            "asset a",
+            "upload.gltf",
+            json.as_bytes(),
+            MeshFormat::Gltf,
+            &Transform::default(),
+        )
+        .unwrap_err();
+        assert!(
+            refused.to_string().starts_with(
+                "asset a: cannot read mesh upload.gltf: buffer 0 refers to the file \"tri.bin\""
+            ),
+            "{refused}"
+        );
+        use base64::engine::{general_purpose::STANDARD, Engine};
+        let buffer_embedded = json.replace(
+            "\"tri.bin\"",
+            &format!(
+                "\"data:application/octet-stream;base64,{}\"",
+                STANDARD.encode(&bin)
+            ),
+        );
+        let image_refused = load_mesh_bytes(
+            "asset a",
+            "upload.gltf",
+            buffer_embedded.as_bytes(),
+            MeshFormat::Gltf,
+            &Transform::default(),
+        )
+        .unwrap_err();
+        assert!(
+            image_refused
+                .to_string()
+                .ends_with("image 0 refers to the file \"tex.png\"; an uploaded mesh must embed its data (data: URIs or GLB)"),
+            "{image_refused}"
+        );
+        let embedded = buffer_embedded.replace(
+            "\"tex.png\"",
+            &format!(
+                "\"data:image/png;base64,{}\"",
+                STANDARD.encode(std::fs::read(dir.join("tex.png")).unwrap())
+            ),
+        );
+        let from_bytes = load_mesh_bytes(
+            "asset a",
+            "upload.gltf",
+            embedded.as_bytes(),
+            MeshFormat::Gltf,
+            &Transform::default(),
+        )
+        .unwrap();
+        assert_eq!(from_bytes.triangles, mesh.triangles);
+        assert_eq!(from_bytes.albedo.at(0, [0.2, 0.3, 0.5], [0.9; 3]), a);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -1,7 +1,9 @@
 //! `POST /v1/assets`: a mesh (GLB, self-contained glTF or OBJ) is checked by loading it exactly
 //! as a bake will, counted against `limits.max_triangles`, and stored under its content hash.
 //!
-//! Invariant: only meshes that load are stored; the load runs off the async runtime.
+//! Invariant: only meshes that load are stored, and only self-contained ones (a glTF that refers
+//! to a file is refused, so a bake of the asset reads nothing but it); the load parses the body in
+//! memory, off the async runtime.
 
 use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
@@ -15,7 +17,7 @@ use lightfarm_proto::scene::Transform;
 use super::auth::Caller;
 use super::error::{blocking, body_failure, ApiFailure};
 use super::AppState;
-use crate::bake::scene::mesh::load_mesh;
+use crate::bake::scene::mesh::load_mesh_bytes;
 use crate::service::scene_inputs::AssetFormat;
 use crate::service::store::{content_hash, BlobKind};
 
@@ -24,7 +26,7 @@ use crate::service::store::{content_hash, BlobKind};
     post,
     path = "/v1/assets",
     tag = "assets",
-    request_body(content = Vec<u8>, description = "GLB, glTF (buffers embedded as data URIs) or OBJ bytes", content_type = "application/octet-stream"),
+    request_body(content = Vec<u8>, description = "GLB, glTF (buffers and images embedded: data URIs or the GLB chunk; a URI naming a file is refused) or OBJ bytes", content_type = "application/octet-stream"),
     responses(
         (status = 201, description = "Stored (or already stored)", body = AssetCreated),
         (status = 401, description = "No or unknown token", body = ApiError),
@@ -43,20 +45,17 @@ pub async fn upload_asset(
     let format = AssetFormat::detect(&body)
         .ok_or_else(|| ApiFailure::unprocessable("asset: not GLB, glTF JSON or OBJ text"))?;
     let max_triangles = state.config.limits.max_triangles;
-    let scratch = state.config.data.join("tmp");
     let store = state.store.clone();
     let created = blocking(move || {
         let hash = content_hash(&body);
-        let path = scratch.join(format!("upload-{hash}.{}", format.extension()));
-        std::fs::write(&path, &body).map_err(|e| ApiFailure::internal("asset scratch file", e))?;
-        let loaded = load_mesh(
+        let mesh = load_mesh_bytes(
             &format!("asset {hash}"),
-            &scratch,
-            path.file_name().unwrap().to_str().unwrap(),
+            &format!("upload.{}", format.extension()),
+            &body,
+            format.mesh_format(),
             &Transform::default(),
-        );
-        let _ = std::fs::remove_file(&path);
-        let mesh = loaded.map_err(|e| ApiFailure::unprocessable(e.to_string()))?;
+        )
+        .map_err(|e| ApiFailure::unprocessable(e.to_string()))?;
         let triangles = mesh.triangles.len() as u64;
         if triangles > max_triangles {
             return Err(ApiFailure::too_large(format!(
