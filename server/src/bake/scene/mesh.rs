@@ -342,30 +342,24 @@ fn parse_mesh(
 /// A self-contained glTF's buffers and images are data URIs or the GLB chunk; the message names
 /// the first one that refers to a file.
 fn refuse_file_uris(doc: &gltf::Document) -> Result<(), String> {
-    let external = |uri: &str| !uri.starts_with("data:");
-    for buffer in doc.buffers() {
-        if let gltf::buffer::Source::Uri(uri) = buffer.source() {
-            if external(uri) {
-                return Err(format!(
-                    "buffer {} refers to the file \"{uri}\"; an uploaded mesh must embed its \
-                     data (data: URIs or GLB)",
-                    buffer.index()
-                ));
-            }
-        }
+    let buffers = doc.buffers().filter_map(|b| match b.source() {
+        gltf::buffer::Source::Uri(uri) => Some(("buffer", b.index(), uri)),
+        gltf::buffer::Source::Bin => None,
+    });
+    let images = doc.images().filter_map(|i| match i.source() {
+        gltf::image::Source::Uri { uri, .. } => Some(("image", i.index(), uri)),
+        gltf::image::Source::View { .. } => None,
+    });
+    match buffers
+        .chain(images)
+        .find(|(_, _, uri)| !uri.starts_with("data:"))
+    {
+        Some((kind, index, uri)) => Err(format!(
+            "{kind} {index} refers to the file \"{uri}\"; an uploaded mesh must embed its data \
+             (data: URIs or GLB)"
+        )),
+        None => Ok(()),
     }
-    for image in doc.images() {
-        if let gltf::image::Source::Uri { uri, .. } = image.source() {
-            if external(uri) {
-                return Err(format!(
-                    "image {} refers to the file \"{uri}\"; an uploaded mesh must embed its \
-                     data (data: URIs or GLB)",
-                    image.index()
-                ));
-            }
-        }
-    }
-    Ok(())
 }
 
 /// Area of a triangle.
@@ -528,14 +522,16 @@ mod tests {
         }
         // From memory (an upload): the same file names are refused, nothing is read from disk;
         // with both files as data URIs the same mesh and albedo come back.
-        let refused = load_mesh_bytes(
-            "asset a",
-            "upload.gltf",
-            json.as_bytes(),
-            MeshFormat::Gltf,
-            &Transform::default(),
-        )
-        .unwrap_err();
+        let from_memory = |json: &str| {
+            load_mesh_bytes(
+                "asset a",
+                "upload.gltf",
+                json.as_bytes(),
+                MeshFormat::Gltf,
+                &Transform::default(),
+            )
+        };
+        let refused = from_memory(json).unwrap_err();
         assert!(
             refused.to_string().starts_with(
                 "asset a: cannot read mesh upload.gltf: buffer 0 refers to the file \"tri.bin\""
@@ -550,14 +546,7 @@ mod tests {
                 STANDARD.encode(&bin)
             ),
         );
-        let image_refused = load_mesh_bytes(
-            "asset a",
-            "upload.gltf",
-            buffer_embedded.as_bytes(),
-            MeshFormat::Gltf,
-            &Transform::default(),
-        )
-        .unwrap_err();
+        let image_refused = from_memory(&buffer_embedded).unwrap_err();
         assert!(
             image_refused
                 .to_string()
@@ -571,14 +560,7 @@ mod tests {
                 STANDARD.encode(std::fs::read(dir.join("tex.png")).unwrap())
             ),
         );
-        let from_bytes = load_mesh_bytes(
-            "asset a",
-            "upload.gltf",
-            embedded.as_bytes(),
-            MeshFormat::Gltf,
-            &Transform::default(),
-        )
-        .unwrap();
+        let from_bytes = from_memory(&embedded).unwrap();
         assert_eq!(from_bytes.triangles, mesh.triangles);
         assert_eq!(from_bytes.albedo.at(0, [0.2, 0.3, 0.5], [0.9; 3]), a);
         let _ = std::fs::remove_dir_all(&dir);
