@@ -1,5 +1,6 @@
 //! The embedded [`BakeExecutor`]: loads a job's canonical scene and its assets from the store,
-//! lays the assets out as files in a scratch directory, runs [`crate::bake::bake()`] with
+//! lays the assets out as files in a scratch directory (refusing a glTF asset that refers to a
+//! file, which the loader would read from beside it), runs [`crate::bake::bake()`] with
 //! the shared shape-operator cache, and encodes the bundle with the scene's codec settings.
 //!
 //! While the bake runs, each partial bundle the engine reports is encoded with the same options
@@ -29,12 +30,13 @@ use lightfarm_proto::scene::Scene;
 use super::job_progress::JobProgress;
 use super::jobs::{BakeExecutor, BakeOutput};
 use super::operator_cache;
-use super::scene_inputs::{apply_overrides, asset_hash};
+use super::scene_inputs::{apply_overrides, asset_hash, AssetFormat};
 use super::store::{BlobKind, BlobStore};
 use crate::bake::cache::encodings::EncodingCache;
 use crate::bake::cache::shape::ShapeCache;
 use crate::bake::pipeline::encoding::{encode_and_keep, encode_options, encode_through};
 use crate::bake::progress::Progress;
+use crate::bake::scene::mesh::refuse_external_files;
 use crate::bake::{bake, BakeOptions};
 
 /// Bakes in this process.
@@ -204,6 +206,13 @@ pub fn prepare_scene(
             .get(BlobKind::Asset, hash)
             .map_err(|e| e.to_string())?
             .ok_or_else(|| format!("asset {hash} is no longer in the store; upload it again"))?;
+        // The upload refuses a glTF that refers to files, but an asset stored before that check
+        // could still name one, which the bake would read from beside the scratch file.
+        if let Some(format) = AssetFormat::detect(&asset) {
+            refuse_external_files(&asset, format.mesh_format()).map_err(|e| {
+                format!("asset {hash}: {e}; upload it again with its data embedded")
+            })?;
+        }
         std::fs::write(dir.0.join(file), asset.as_slice())
             .map_err(|e| format!("scratch directory: {e}"))?;
     }
@@ -224,4 +233,70 @@ pub fn open_memo(dir: &Path, scene: &Scene) -> Option<EncodingCache> {
         .map_err(|e| tracing::warn!(error = %e, "encoding memo unavailable"))
         .ok()
         .flatten()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::service::store::{content_hash, DiskStore};
+
+    /// A one-triangle glTF whose buffer is `uri`.
+    fn triangle_gltf(uri: &str) -> Vec<u8> {
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}],
+"bufferViews":[{{"buffer":0,"byteLength":36}}],"buffers":[{{"byteLength":36,"uri":"{uri}"}}]}}"#
+        )
+        .into_bytes()
+    }
+
+    /// A stored glTF asset that names a file (as an upload before the upload check could) is
+    /// refused when a bake lays its assets out, naming the asset and the URI; the same mesh with
+    /// its buffer embedded is laid out as its file.
+    #[test]
+    fn a_stored_asset_that_names_a_file_is_refused_before_the_bake_reads_it() {
+        let root =
+            std::env::temp_dir().join(format!("lightfarm-executor-assets-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let store = DiskStore::open(&root.join("store"), 1 << 30).unwrap();
+        let embedded = {
+            use base64::engine::{general_purpose::STANDARD, Engine};
+            let floats = [0f32, 0., 0., 1., 0., 0., 0., 1., 0.];
+            let bytes: Vec<u8> = floats.iter().flat_map(|f| f.to_le_bytes()).collect();
+            format!(
+                "data:application/octet-stream;base64,{}",
+                STANDARD.encode(bytes)
+            )
+        };
+        for (uri, refused) in [("../../Cargo.toml", true), (embedded.as_str(), false)] {
+            let asset = triangle_gltf(uri);
+            let hash = store.put(BlobKind::Asset, &asset).unwrap();
+            assert_eq!(hash, content_hash(&asset));
+            let scene = format!(
+                r#"{{"format":"lightfarm.scene/1","name":"s","blocks":[{{"id":"b","min":[0,0,0],"max":[2,2,2],"open":[],"albedo":[0.5,0.5,0.5]}}],
+"clutter":[{{"id":"c","mesh":"{hash}.gltf","albedo":[0.5,0.5,0.5]}}]}}"#
+            );
+            let scene_id = store.put(BlobKind::Scene, scene.as_bytes()).unwrap();
+            let dir = root.join("scratch");
+            let result = prepare_scene(&store, &scene_id, &serde_json::json!({}), &dir);
+            match result {
+                Err(message) => {
+                    assert!(refused, "{message}");
+                    assert!(
+                        message.contains(&format!("asset {hash}"))
+                            && message.contains("\"../../Cargo.toml\""),
+                        "{message}"
+                    );
+                    assert!(!dir.join(format!("{hash}.gltf")).exists());
+                }
+                Ok((_, scratch)) => {
+                    assert!(!refused, "the asset naming a file was laid out");
+                    let written = std::fs::read(scratch.0.join(format!("{hash}.gltf"))).unwrap();
+                    assert_eq!(written, asset);
+                }
+            }
+        }
+        let _ = std::fs::remove_dir_all(&root);
+    }
 }

@@ -339,6 +339,21 @@ fn parse_mesh(
     Ok(mesh)
 }
 
+/// Checks that a mesh's bytes are self-contained without loading it: an OBJ always is (its
+/// material libraries are never read); a glTF or GLB must embed every buffer and image (data URIs
+/// or the GLB chunk). The message names the first buffer or image that refers to a file, as
+/// [`load_mesh_bytes`] does. For bytes stored by an older upload check, before they are laid out
+/// as a file that [`load_mesh`] would resolve URIs next to.
+pub fn refuse_external_files(bytes: &[u8], format: MeshFormat) -> Result<(), String> {
+    match format {
+        MeshFormat::Obj => Ok(()),
+        MeshFormat::Gltf => {
+            let doc = gltf::Gltf::from_slice(bytes).map_err(|e| e.to_string())?;
+            refuse_file_uris(&doc)
+        }
+    }
+}
+
 /// A self-contained glTF's buffers and images are data URIs or the GLB chunk; the message names
 /// the first one that refers to a file.
 fn refuse_file_uris(doc: &gltf::Document) -> Result<(), String> {
