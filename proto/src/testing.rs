@@ -18,7 +18,7 @@
 use crate::bundle::{
     BlockOps, Bundle, ClutterOps, CompactEntry, DeltaEntry, DeltaSource, DrtOps, Layout, Matrix,
     OpeningOps, ProbeVolume, PropEntry, ShapeOps, SourceBases, SourceBasis, SparseRows,
-    SurfaceInfo, TracedEntry, TransportOps,
+    SurfaceInfo, TexelGather, TracedEntry, TransportOps,
 };
 use crate::bundle::{BUNDLE_MAJOR, BUNDLE_MINOR};
 use crate::container::write_container;
@@ -340,6 +340,47 @@ pub fn drt_bundle(rng: &mut Lcg, lightfield: bool, two_clutter: bool, full: bool
         }),
         ..Bundle::default()
     }
+}
+
+/// An exact gather of `b`'s clutter texels (a [`drt_bundle`]: every texel of surfaces named
+/// `clutter:…`) from its block texels, as a bake of 1,024 rays per texel makes it: each row
+/// reads a random half of the block texels, with hit counts from 1 to `max_count` (over 255,
+/// the DRT section is written as kind 20's escaped counts); each row's first count is
+/// `max_count`, the first row's second 1 (so the weights' unit is one ray).
+pub fn with_gather(rng: &mut Lcg, b: &mut Bundle, max_count: u32) {
+    let unit = 1.0 / 1024.0;
+    let mut rows = Vec::new();
+    let mut blocks = Vec::new();
+    for s in &b.layout.surfaces {
+        let texels = s.texel_offset..s.texel_offset + s.texel_count;
+        if s.name.starts_with("clutter:") {
+            rows.extend(texels);
+        } else {
+            blocks.extend(texels);
+        }
+    }
+    let mut g = TexelGather {
+        row_start: vec![0],
+        ..TexelGather::default()
+    };
+    for row in rows {
+        g.rows.push(row);
+        for &c in &blocks {
+            let in_row = g.cols.len() - *g.row_start.last().unwrap() as usize;
+            let one = g.rows.len() == 1 && in_row == 1;
+            if in_row == 0 || one || rng.next_u32().is_multiple_of(2) {
+                let count = match (in_row, one) {
+                    (0, _) => max_count,
+                    (_, true) => 1,
+                    _ => 1 + rng.next_u32() % max_count,
+                };
+                g.cols.push(c);
+                g.values.push(unit * count as f32);
+            }
+        }
+        g.row_start.push(g.cols.len() as u32);
+    }
+    b.drt.as_mut().expect("a DRT bundle").direct_gather = Some(g);
 }
 
 /// [`drt_bundle`]'s blocks (a: 4 texels, r = 2; b: 6 texels, r = 3) with compact transport

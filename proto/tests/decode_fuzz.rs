@@ -13,7 +13,7 @@
 
 use lightfarm_proto::bundle::{section, Bundle};
 use lightfarm_proto::testing::{
-    drt_bundle, factored_bundle, fuzz_mutations, probe_bundle, Lcg, Mutation,
+    drt_bundle, factored_bundle, fuzz_mutations, probe_bundle, with_gather, Lcg, Mutation,
 };
 
 /// Decodes `bytes`; a decoded bundle must pass `validate` (what the runtime checks before
@@ -75,4 +75,12 @@ fn mutated_drt_bundles_with_replaced_texels_never_panic() {
     let mut b = drt_bundle(&mut rng, false, true, true);
     b.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
     fuzz_decode(&mut rng, &b, section::DRT_REPLACING);
+}
+
+#[test]
+fn mutated_drt_bundles_with_escaped_gather_counts_never_panic() {
+    let mut rng = Lcg(39);
+    let mut b = drt_bundle(&mut rng, false, true, true);
+    with_gather(&mut rng, &mut b, 700);
+    fuzz_decode(&mut rng, &b, section::DRT_WIDE_COUNTS);
 }

@@ -1,7 +1,8 @@
 //! DRT sections of the kinds older writers chose (6 without low-rank entries, 11 with them)
 //! still decode, to the same [`Bundle`] the current writer's kind 13 gives. The writer now
-//! writes kind 13 only, with an empty replaced-texel list when nothing is replaced, so these
-//! bytes come from bundles already on disk (1.x files, and 2.0 bundles of earlier writers).
+//! writes kind 13 (or 20, when the gather has a count over 255: `wide_gather_counts.rs`), with
+//! an empty replaced-texel list when nothing is replaced, so these bytes come from bundles
+//! already on disk (1.x files, and 2.0 bundles of earlier writers).
 
 use lightfarm_proto::bundle::{section, Bundle, DeltaSource};
 use lightfarm_proto::testing::{drt_bundle, join_sections, Lcg};

@@ -30,7 +30,8 @@
 //!   on reading.
 //! - `delta_entries`: the [`DeltaEntry`] lists of the DRT and probe sections and the
 //!   [`DeltaSource`] encoding the `sh` section shares.
-//! - `gather_encoding`: how the DRT section stores the exact gather ([`TexelGather`]).
+//! - `gather_encoding`: how the DRT section stores the exact gather ([`TexelGather`]), its
+//!   weights as counts of one byte, escaped past 255 in kind 20.
 //! - `sh_responses`: the `sh` section ([`ShResponses`]).
 //! - `dynamic_shapes`: the dynamic objects' triangles in their own frames (section kind 19,
 //!   [`DynamicShape`]), for their direct shadows.
@@ -83,9 +84,12 @@ pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 /// their 8-bit values planar and differenced (kind 18, codec tag 3), written instead of kind 9
 /// when some grid is 8-bit: a 2.2 or older reader skips them and reads the bundle without a
 /// probe volume or without grids. Minor 4 adds the dynamic objects' shapes (kind 19), which a
-/// 2.3 or older reader skips (it shades direct light without the objects' shadows).
+/// 2.3 or older reader skips (it shades direct light without the objects' shadows). Minor 5
+/// adds the DRT section whose exact gather keeps counts over 255 as escaped bytes (kind 20),
+/// written instead of kind 13 when some count exceeds a byte: a 2.4 or older reader skips it
+/// and lights the scene by MRT alone.
 pub const BUNDLE_MAJOR: u16 = 2;
-pub const BUNDLE_MINOR: u16 = 4;
+pub const BUNDLE_MINOR: u16 = 5;
 /// The oldest major version this reader decodes.
 pub const OLDEST_READABLE_MAJOR: u16 = 1;
 const READABLE_MAJORS: std::ops::RangeInclusive<u16> = OLDEST_READABLE_MAJOR..=BUNDLE_MAJOR;

@@ -171,9 +171,10 @@ impl Bundle {
                     }
                 }
                 section::FULL => full = Some(read_full(&mut p)?),
-                section::DRT | section::DRT_LOW_RANK => drt = Some(read_drt(&mut p)?),
-                section::DRT_REPLACING => {
-                    let mut d = read_drt(&mut p)?;
+                section::DRT | section::DRT_LOW_RANK => drt = Some(read_drt(&mut p, false)?),
+                section::DRT_REPLACING | section::DRT_WIDE_COUNTS => {
+                    let wide = *kind == section::DRT_WIDE_COUNTS;
+                    let mut d = read_drt(&mut p, wide)?;
                     d.replaced = p.u32s()?;
                     drt = Some(d);
                 }
@@ -328,7 +329,8 @@ fn read_full(r: &mut Reader) -> Result<SparseRows, BundleError> {
     })
 }
 
-fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
+/// A DRT section's common layout; `wide_counts` for section 20 (escaped gather counts).
+fn read_drt(r: &mut Reader, wide_counts: bool) -> Result<DrtOps, BundleError> {
     let n_clutter = r.u32()? as usize;
     let mut clutter = Vec::with_capacity(n_clutter.min(r.remaining() / 16));
     for _ in 0..n_clutter {
@@ -340,7 +342,7 @@ fn read_drt(r: &mut Reader) -> Result<DrtOps, BundleError> {
     }
     let entries = read_entries(r)?;
     let buried = r.u32s()?;
-    let direct_gather = gather_encoding::read_gather(r)?;
+    let direct_gather = gather_encoding::read_gather(r, wide_counts)?;
     Ok(DrtOps {
         clutter,
         entries,

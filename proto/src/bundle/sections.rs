@@ -56,6 +56,11 @@ pub mod section {
     /// Written after the DNRT grids when the scene has dynamic objects; a 2.3 or older reader
     /// skips it and shades direct light without the objects' shadows.
     pub const DYNAMIC_SHAPES: u32 = 19;
+    /// The DRT section of format 2.5: [`DRT_REPLACING`]'s layout, whose exact gather may keep
+    /// its weights as escaped counts (weight form 2, `gather_encoding`): written instead of
+    /// [`DRT_REPLACING`] when some weight is a count over 255 (a form-1 byte), which a 2.4
+    /// writer stored as f32. A 2.4 or older reader skips it and lights the scene by MRT alone.
+    pub const DRT_WIDE_COUNTS: u32 = 20;
 }
 
 /// Report name of a section kind.
@@ -73,6 +78,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::DRT_LOW_RANK => "drt",
         section::LIGHTMAP => "lightmap",
         section::DRT_REPLACING => "drt",
+        section::DRT_WIDE_COUNTS => "drt",
         section::BLOCKS_SYMMETRIC => "blocks",
         section::ROOMS => "rooms",
         section::TRANSPORT_SOURCE_BASES => "transport",

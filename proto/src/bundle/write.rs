@@ -273,9 +273,14 @@ impl Bundle {
             }
             write_entries(&mut w, &d.entries, enc);
             w.u32s(&d.buried);
-            gather_encoding::write_gather(&mut w, d.direct_gather.as_ref());
+            let wide = gather_encoding::write_gather(&mut w, d.direct_gather.as_ref());
             w.u32s(&d.replaced);
-            sections.push((section::DRT_REPLACING, w.bytes));
+            let kind = if wide {
+                section::DRT_WIDE_COUNTS
+            } else {
+                section::DRT_REPLACING
+            };
+            sections.push((kind, w.bytes));
         }
         if let Some(p) = &self.probes {
             let mut w = Writer::new();

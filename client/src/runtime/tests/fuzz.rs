@@ -7,7 +7,7 @@
 
 use super::*;
 use crate::probes::irradiance_at;
-use lightfarm_proto::testing::{factored_bundle, fuzz_mutations};
+use lightfarm_proto::testing::{factored_bundle, fuzz_mutations, with_gather};
 
 /// Decodes `bytes`; a decoded bundle must make a runtime, which must apply every method
 /// without panicking. Returns whether the bytes decoded.
@@ -97,5 +97,17 @@ fn mutated_drt_bundles_with_replaced_texels_never_panic() {
         &mut rng,
         &b,
         lightfarm_proto::bundle::section::DRT_REPLACING,
+    );
+}
+
+#[test]
+fn mutated_drt_bundles_with_escaped_gather_counts_never_panic() {
+    let mut rng = Lcg(39);
+    let mut b = drt_bundle(&mut rng, false, true, true);
+    with_gather(&mut rng, &mut b, 700);
+    fuzz_bundle(
+        &mut rng,
+        &b,
+        lightfarm_proto::bundle::section::DRT_WIDE_COUNTS,
     );
 }
