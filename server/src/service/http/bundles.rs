@@ -11,6 +11,8 @@
 //!   is also what the client's fetcher asks for.
 //! - Bytes are verified against the hash on every read (by the store); a corrupt bundle is never
 //!   sent: it is dropped and reported absent, and baking the same scene again rebuilds it.
+//! - The store is read off the async runtime (`blocking`): the team's grant and the blob's
+//!   presence are files too, and a slow disk must hold a blocking thread, not a runtime worker.
 
 use axum::body::Body;
 use axum::extract::{Path, State};
@@ -31,6 +33,15 @@ impl AsRef<[u8]> for SharedBlob {
     fn as_ref(&self) -> &[u8] {
         self.0.as_slice()
     }
+}
+
+/// What the store holds for a request: invisible to the team, unchanged since the client's
+/// copy, gone, or the bytes.
+enum Lookup {
+    Hidden,
+    NotModified,
+    Gone,
+    Bytes(std::sync::Arc<Vec<u8>>),
 }
 
 /// zstd level for the encoded representation.
@@ -131,9 +142,6 @@ pub async fn get_bundle(
     Path(hash): Path<String>,
     headers: HeaderMap,
 ) -> Result<Response, ApiFailure> {
-    if !state.store.visible(&team, BlobKind::Bundle, &hash) {
-        return Err(ApiFailure::not_found("bundle", &hash));
-    }
     let etag = format!("\"{hash}\"");
     let mut out = HeaderMap::new();
     out.insert(header::ETAG, HeaderValue::from_str(&etag).expect("hex"));
@@ -143,30 +151,42 @@ pub async fn get_bundle(
     );
     out.insert(header::ACCEPT_RANGES, HeaderValue::from_static("bytes"));
     out.insert(header::VARY, HeaderValue::from_static("Accept-Encoding"));
-    if let Some(inm) = headers
+    let if_none_match = headers
         .get(header::IF_NONE_MATCH)
         .and_then(|v| v.to_str().ok())
-    {
-        if etag_matches(inm, &hash) && state.store.contains(BlobKind::Bundle, &hash) {
-            return Ok((StatusCode::NOT_MODIFIED, out).into_response());
-        }
-    }
+        .map(str::to_owned);
+    // Every look at the store (the team's grant, the blob's presence, its bytes) is file work,
+    // kept off the async runtime.
     let store = state.store.clone();
     let key = hash.clone();
-    let bytes = blocking(move || {
+    let lookup = blocking(move || {
+        if !store.visible(&team, BlobKind::Bundle, &key) {
+            return Ok(Lookup::Hidden);
+        }
+        if if_none_match.is_some_and(|inm| etag_matches(&inm, &key))
+            && store.contains(BlobKind::Bundle, &key)
+        {
+            return Ok(Lookup::NotModified);
+        }
         store
             .get(BlobKind::Bundle, &key)
+            .map(|bytes| bytes.map_or(Lookup::Gone, Lookup::Bytes))
             .map_err(|e| ApiFailure::internal("store", e))
     })
-    .await?
-    .ok_or_else(|| {
-        ApiFailure::not_found(
-            "bundle",
-            &format!(
-                "{hash} (no longer stored, or found corrupt and dropped; bake the scene again)"
-            ),
-        )
-    })?;
+    .await?;
+    let bytes = match lookup {
+        Lookup::Hidden => return Err(ApiFailure::not_found("bundle", &hash)),
+        Lookup::NotModified => return Ok((StatusCode::NOT_MODIFIED, out).into_response()),
+        Lookup::Gone => {
+            return Err(ApiFailure::not_found(
+                "bundle",
+                &format!(
+                    "{hash} (no longer stored, or found corrupt and dropped; bake the scene again)"
+                ),
+            ))
+        }
+        Lookup::Bytes(bytes) => bytes,
+    };
     out.insert(
         header::CONTENT_TYPE,
         HeaderValue::from_static("application/vnd.lightfarm.bundle"),
