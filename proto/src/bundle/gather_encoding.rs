@@ -111,31 +111,28 @@ pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) -> bool
     }
     w.u64(varints.len() as u64);
     w.bytes.extend_from_slice(&varints);
-    if let Some((unit, counts)) = gather_counts(values) {
-        w.u8(1);
-        w.f32(unit);
-        w.u64(counts.len() as u64);
-        w.bytes.extend_from_slice(&counts);
+    // One unit and its counts for both count forms: every count within a byte is form 1.
+    let Some((unit, counts)) = unit_counts(values, WIDEST_COUNT, |c| c as u32) else {
+        w.u8(0);
+        w.f32s(values);
         return false;
-    }
-    if let Some((unit, counts)) = unit_counts(values, WIDEST_COUNT, |c| c as u32) {
-        w.u8(2);
-        w.f32(unit);
-        w.u64(counts.len() as u64);
-        let mut extra = Vec::new();
-        for &c in &counts {
-            w.u8(c.min(255) as u8);
-            if c >= 255 {
-                push_varint(&mut extra, c - 255);
-            }
+    };
+    let escaped = counts.iter().any(|&c| c > 255);
+    w.u8(if escaped { 2 } else { 1 });
+    w.f32(unit);
+    w.u64(counts.len() as u64);
+    let mut extra = Vec::new();
+    for &c in &counts {
+        w.u8(c.min(255) as u8);
+        if escaped && c >= 255 {
+            push_varint(&mut extra, c - 255);
         }
+    }
+    if escaped {
         w.u64(extra.len() as u64);
         w.bytes.extend_from_slice(&extra);
-        return true;
     }
-    w.u8(0);
-    w.f32s(values);
-    false
+    escaped
 }
 
 /// The largest count of weight form 2: every whole number up to it is an f32.
@@ -185,30 +182,25 @@ pub(super) fn read_gather(
             }
             let values = match r.u8()? {
                 0 => r.f32s()?,
-                1 => {
+                form @ (1 | 2) if form == 1 || escaped_counts => {
                     let unit = r.f32()?;
                     let count = r.u64()?;
                     if count != n as u64 {
                         return Err(invalid("weight count differs from the entries"));
                     }
                     let counts = r.take(n)?;
-                    counts.iter().map(|&c| unit * c as f32).collect()
-                }
-                2 if escaped_counts => {
-                    let unit = r.f32()?;
-                    let count = r.u64()?;
-                    if count != n as u64 {
-                        return Err(invalid("weight count differs from the entries"));
+                    // Form 2's escapes: one varint per count byte of 255 (none in form 1).
+                    let mut extra = Reader::new(&[]);
+                    if form == 2 {
+                        let len = r.u64()?;
+                        if len > r.remaining() as u64 {
+                            return Err(invalid("escaped counts shorter than their length"));
+                        }
+                        extra = Reader::new(r.take(len as usize)?);
                     }
-                    let counts = r.take(n)?;
-                    let len = r.u64()?;
-                    if len > r.remaining() as u64 {
-                        return Err(invalid("escaped counts shorter than their length"));
-                    }
-                    let mut extra = Reader::new(r.take(len as usize)?);
                     let mut values = Vec::with_capacity(n);
                     for &c in counts {
-                        let c = if c == 255 {
+                        let c = if form == 2 && c == 255 {
                             read_varint(&mut extra)?
                                 .checked_add(255)
                                 .filter(|&c| c as f32 <= WIDEST_COUNT)

@@ -58,8 +58,8 @@ pub mod section {
     pub const DYNAMIC_SHAPES: u32 = 19;
     /// The DRT section of format 2.5: [`DRT_REPLACING`]'s layout, whose exact gather may keep
     /// its weights as escaped counts (weight form 2, `gather_encoding`): written instead of
-    /// [`DRT_REPLACING`] when some weight is a count over 255 (a form-1 byte), which a 2.4
-    /// writer stored as f32. A 2.4 or older reader skips it and lights the scene by MRT alone.
+    /// [`DRT_REPLACING`] when some weight is a count over 255 (more than form 1's byte holds),
+    /// which a 2.4 writer stored as f32. A 2.4 or older reader skips it and lights the scene by MRT alone.
     pub const DRT_WIDE_COUNTS: u32 = 20;
 }
 
