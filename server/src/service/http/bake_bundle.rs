@@ -23,7 +23,7 @@ use lightfarm_proto::api::{ApiError, JobState};
 
 use super::auth::Caller;
 use super::bundles::SharedBlob;
-use super::error::ApiFailure;
+use super::error::{blocking, ApiFailure};
 use super::AppState;
 use crate::service::store::BlobKind;
 
@@ -46,7 +46,14 @@ async fn next_chunk(mut s: Streaming) -> Option<(Result<Bytes, std::io::Error>, 
         if s.done {
             return None;
         }
-        if let Some(prefix) = s.state.jobs.bundle_prefix(&s.team, &s.id) {
+        // The queue's lock is held while a job record is written to disk: look off the runtime.
+        let (jobs, team, id) = (s.state.jobs.clone(), s.team.clone(), s.id.clone());
+        let (prefix, status) = tokio::task::spawn_blocking(move || {
+            (jobs.bundle_prefix(&team, &id), jobs.status(&team, &id))
+        })
+        .await
+        .ok()?;
+        if let Some(prefix) = prefix {
             let from = sent_len(&s);
             let previous: &[u8] = s.sent.as_deref().map_or(&[], |v| &v[..]);
             if prefix.len() > from && prefix[..from] == *previous {
@@ -55,7 +62,7 @@ async fn next_chunk(mut s: Streaming) -> Option<(Result<Bytes, std::io::Error>, 
                 return Some((Ok(chunk), s));
             }
         }
-        let status = s.state.jobs.status(&s.team, &s.id)?;
+        let status = status?;
         match status.state {
             JobState::Succeeded => {
                 s.done = true;
@@ -117,9 +124,9 @@ pub async fn stream_bake_bundle(
     Path(id): Path<String>,
 ) -> Result<Response, ApiFailure> {
     // Subscribe before looking, so nothing that happens in between is missed.
-    let (status, receiver) = state
-        .jobs
-        .subscribe(&team, &id)
+    let (jobs, subscriber, key) = (state.jobs.clone(), team.clone(), id.clone());
+    let (status, receiver) = blocking(move || Ok(jobs.subscribe(&subscriber, &key)))
+        .await?
         .ok_or_else(|| ApiFailure::not_found("bake", &id))?;
     if matches!(status.state, JobState::Failed | JobState::Cancelled) {
         return Err(ApiFailure::new(

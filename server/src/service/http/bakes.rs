@@ -130,9 +130,12 @@ pub async fn bake_status(
     Caller(team): Caller,
     Path(id): Path<String>,
 ) -> Result<Json<BakeStatus>, ApiFailure> {
-    state
-        .jobs
-        .status(&team, &id)
+    // The queue's lock is held while a job record is written to disk: wait for it off the
+    // runtime.
+    let jobs = state.jobs.clone();
+    let (team, key) = (team, id.clone());
+    blocking(move || Ok(jobs.status(&team, &key)))
+        .await?
         .map(Json)
         .ok_or_else(|| ApiFailure::not_found("bake", &id))
 }

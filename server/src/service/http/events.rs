@@ -17,7 +17,7 @@ use tokio::sync::broadcast::error::RecvError;
 use lightfarm_proto::api::{ApiError, BakeEvent};
 
 use super::auth::Caller;
-use super::error::ApiFailure;
+use super::error::{blocking, ApiFailure};
 use super::AppState;
 
 fn to_sse(event: &BakeEvent) -> Event {
@@ -43,9 +43,10 @@ pub async fn bake_events(
     Caller(team): Caller,
     Path(id): Path<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiFailure> {
-    let (status, receiver) = state
-        .jobs
-        .subscribe(&team, &id)
+    let jobs = state.jobs.clone();
+    let key = id.clone();
+    let (status, receiver) = blocking(move || Ok(jobs.subscribe(&team, &key)))
+        .await?
         .ok_or_else(|| ApiFailure::not_found("bake", &id))?;
     let first = BakeEvent::State {
         state: status.state,

@@ -1,6 +1,9 @@
 //! The HTTP layer: routes, shared state and the tower middleware (request ids, tracing,
 //! timeouts, body limits). Handlers translate between HTTP and the [`JobQueue`]/[`BlobStore`]
-//! traits; they do no light-transport work and run file and CPU work with `spawn_blocking`.
+//! traits; they do no light-transport work and run file and CPU work with `spawn_blocking`,
+//! every call into the traits included (the store's methods touch files; the local queue's
+//! lock is held while a job record is written, the farm's reaches NATS): a slow disk then holds
+//! a blocking thread, never one of the runtime's two workers, which the request timeouts need.
 //!
 //! # Layout
 //! - [`auth`]: the calling team; [`error`]: the error response.

@@ -38,9 +38,10 @@ pub async fn readyz(State(state): State<AppState>) -> (StatusCode, &'static str)
 
 /// Prometheus metrics.
 #[utoipa::path(get, path = "/metrics", tag = "ops", responses((status = 200, description = "Prometheus text format", content_type = "text/plain")))]
-pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
-    let q = state.jobs.metrics();
-    let s = state.store.stats();
+pub async fn metrics(State(state): State<AppState>) -> Result<impl IntoResponse, ApiFailure> {
+    // The queue's lock is held while a job record is written to disk: take both off the runtime.
+    let (jobs, store) = (state.jobs.clone(), state.store.clone());
+    let (q, s) = blocking(move || Ok((jobs.metrics(), store.stats()))).await?;
     let mut text = String::new();
     let mut gauge = |name: &str, help: &str, kind: &str, lines: Vec<(String, f64)>| {
         let _ = writeln!(text, "# HELP {name} {help}\n# TYPE {name} {kind}");
@@ -114,7 +115,7 @@ pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
         "counter",
         vec![(String::new(), s.trimmed as f64)],
     );
-    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text)
+    Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text))
 }
 
 /// Cached shape operators.
@@ -132,9 +133,10 @@ pub async fn list_shapes(
     State(state): State<AppState>,
     Caller(team): Caller,
 ) -> Result<Json<Vec<ShapeEntry>>, ApiFailure> {
-    let uses = state.jobs.shape_uses(&team);
+    let jobs = state.jobs.clone();
     let dir = state.operator_cache.clone();
     let entries = blocking(move || {
+        let uses = jobs.shape_uses(&team);
         let mut entries = Vec::new();
         let listing = match std::fs::read_dir(&dir) {
             Ok(l) => l,
