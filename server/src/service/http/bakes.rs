@@ -132,8 +132,7 @@ pub async fn bake_status(
 ) -> Result<Json<BakeStatus>, ApiFailure> {
     // The queue's lock is held while a job record is written to disk: wait for it off the
     // runtime.
-    let jobs = state.jobs.clone();
-    let (team, key) = (team, id.clone());
+    let (jobs, key) = (state.jobs.clone(), id.clone());
     blocking(move || Ok(jobs.status(&team, &key)))
         .await?
         .map(Json)
