@@ -209,9 +209,8 @@ pub fn prepare_scene(
         // The upload refuses a glTF that refers to files, but an asset stored before that check
         // could still name one, which the bake would read from beside the scratch file.
         if let Some(format) = AssetFormat::detect(&asset) {
-            refuse_external_files(&asset, format.mesh_format()).map_err(|e| {
-                format!("asset {hash}: {e}; upload it again with its data embedded")
-            })?;
+            refuse_external_files(&asset, format.mesh_format())
+                .map_err(|e| format!("asset {hash}: {e}"))?;
         }
         std::fs::write(dir.0.join(file), asset.as_slice())
             .map_err(|e| format!("scratch directory: {e}"))?;
