@@ -17,6 +17,12 @@
 //! the rows that read the blocks it reaches. Its sums agree with the rows' to float rounding
 //! (the terms are added in another order).
 //!
+//! A gather of format 2.6 has tiles ([`GatherTiles`]): column `n_texels + i` reads the mean
+//! direct light of tile `i`. The rows read it from the padded light, whose tile lanes
+//! [`PackedGather::fill_tiles`] sets per application; by the change, [`GatherColumns::scatter_tiles`]
+//! takes each tile's mean of the change (a tile lies on one surface, so the tiles of a block's or
+//! clutter object's texels are consecutive: [`GatherColumns::tiles_of`]).
+//!
 //! Invariants:
 //! - Lossless: with 8- or 16-bit weights a row is summed as `unit · Σ count · l` instead of
 //!   `Σ (unit · count) · l`; the two agree exactly when `unit` is a power of two (the usual
@@ -29,7 +35,7 @@
 
 use std::ops::Range;
 
-use lightfarm_proto::bundle::{gather_counts, gather_counts_u16, TexelGather};
+use lightfarm_proto::bundle::{gather_counts, gather_counts_u16, GatherTiles, TexelGather};
 
 /// Indices of the gather's entries: their columns (texels) in [`PackedGather`], their rows in
 /// [`GatherColumns`].
@@ -63,12 +69,58 @@ pub struct PackedGather {
     row_start: Vec<u32>,
     cols: Columns,
     weights: Weights,
+    tiles: TileMeans,
+}
+
+/// The gather's tiles ([`GatherTiles`]): column `n_texels + i` reads the mean direct light of
+/// tile `i`'s texels.
+#[derive(Clone, Debug, PartialEq)]
+struct TileMeans {
+    n_texels: usize,
+    tiles: GatherTiles,
+    /// Each tile's first texel, ascending (the tiles of a texel range by binary search).
+    first: Vec<u32>,
+}
+
+impl TileMeans {
+    fn new(tiles: &GatherTiles, n_texels: usize) -> TileMeans {
+        TileMeans {
+            n_texels,
+            first: (0..tiles.len()).map(|i| tiles.texels(i)[0]).collect(),
+            tiles: tiles.clone(),
+        }
+    }
+
+    /// Columns of the gather: texels, then tiles.
+    fn n_columns(&self) -> usize {
+        self.n_texels + self.tiles.len()
+    }
+
+    /// Mean of `direct` over tile `i`'s texels, summed in their order.
+    #[inline]
+    fn mean<const N: usize>(&self, i: usize, direct: &[[f32; N]]) -> [f32; N] {
+        let texels = self.tiles.texels(i);
+        let mut sum = [0.0f32; N];
+        for &t in texels {
+            for (s, l) in sum.iter_mut().zip(&direct[t as usize]) {
+                *s += l;
+            }
+        }
+        sum.map(|s| s / texels.len() as f32)
+    }
+
+    /// The tiles whose first texel lies in `texels` (every tile of a range of whole surfaces).
+    fn tiles_of(&self, texels: Range<usize>) -> Range<usize> {
+        let at = |t: usize| self.first.partition_point(|&f| (f as usize) < t);
+        at(texels.start)..at(texels.end)
+    }
 }
 
 impl PackedGather {
     /// Packs `gather` over a layout of `n_texels` texels.
     pub fn new(gather: &TexelGather, n_texels: usize) -> PackedGather {
-        let cols = if n_texels <= 1 << 16 {
+        let tiles = TileMeans::new(&gather.tiles, n_texels);
+        let cols = if tiles.n_columns() <= 1 << 16 {
             Columns::U16(gather.cols.iter().map(|&c| c as u16).collect())
         } else {
             Columns::U32(gather.cols.clone())
@@ -85,6 +137,22 @@ impl PackedGather {
             row_start: gather.row_start.clone(),
             cols,
             weights,
+            tiles,
+        }
+    }
+
+    /// Columns the gather reads: the layout's texels, then its tiles (the length of the
+    /// padded direct light [`PackedGather::add_to_padded`] reads).
+    pub fn n_columns(&self) -> usize {
+        self.tiles.n_columns()
+    }
+
+    /// Sets the tile columns of `padded` (the texels' direct light padded by [`pad_direct`],
+    /// [`PackedGather::n_columns`] long) to each tile's mean.
+    pub fn fill_tiles(&self, padded: &mut [[f32; 4]]) {
+        let n = self.tiles.n_texels;
+        for i in 0..self.tiles.tiles.len() {
+            padded[n + i] = self.tiles.mean(i, padded);
         }
     }
 
@@ -118,7 +186,8 @@ impl PackedGather {
     }
 
     /// Adds the gather of `direct` (texel radiance, albedo-free, padded to four lanes by
-    /// [`pad_direct`] into a buffer the caller keeps) to `out`: one 16-byte load per entry, so
+    /// [`pad_direct`] into a buffer the caller keeps, its tiles' means by
+    /// [`PackedGather::fill_tiles`]) to `out`: one 16-byte load per entry, so
     /// each entry is a load, a broadcast weight, a multiply and an add on four lanes (the
     /// fourth unused) instead of three scalar multiply-adds.
     pub fn add_to_padded(&self, direct: &[[f32; 4]], out: &mut [[f32; 3]]) {
@@ -143,16 +212,17 @@ impl PackedGather {
     /// The same entries by column ([`GatherColumns`]), in the same storage (row indices in 16
     /// bits when the gather has at most 65,536 rows). Allocates; made once, on the first
     /// relight by the change.
-    pub fn by_columns(&self, n_texels: usize) -> GatherColumns {
+    pub fn by_columns(&self) -> GatherColumns {
         let cols: Vec<u32> = match &self.cols {
             Columns::U16(c) => c.iter().map(|&c| c as u32).collect(),
             Columns::U32(c) => c.clone(),
         };
-        let mut col_start = vec![0u32; n_texels + 1];
+        let n_columns = self.n_columns();
+        let mut col_start = vec![0u32; n_columns + 1];
         for &c in &cols {
             col_start[c as usize + 1] += 1;
         }
-        for t in 0..n_texels {
+        for t in 0..n_columns {
             col_start[t + 1] += col_start[t];
         }
         // Entries in column order, each column's by ascending row (a counting sort).
@@ -187,6 +257,7 @@ impl PackedGather {
             col_start,
             rows,
             weights,
+            tiles: self.tiles.clone(),
         }
     }
 
@@ -263,6 +334,7 @@ pub struct GatherColumns {
     col_start: Vec<u32>,
     rows: Columns,
     weights: Weights,
+    tiles: TileMeans,
 }
 
 impl GatherColumns {
@@ -277,31 +349,67 @@ impl GatherColumns {
         direct: &[[f32; 3]],
         sums: &mut [[f32; 4]],
     ) -> bool {
+        let light = |c: usize| direct[c];
+        self.scatter_by(texels, light, sums)
+    }
+
+    /// [`GatherColumns::scatter`] for the tile columns of the tiles in `tiles` (indices into
+    /// the gather's tiles), each reading the mean of `direct` over its texels; whether any
+    /// tile carried light.
+    pub fn scatter_tiles(
+        &self,
+        tiles: Range<usize>,
+        direct: &[[f32; 3]],
+        sums: &mut [[f32; 4]],
+    ) -> bool {
+        let n = self.tiles.n_texels;
+        let light = |c: usize| self.tiles.mean(c - n, direct);
+        self.scatter_by(n + tiles.start..n + tiles.end, light, sums)
+    }
+
+    /// The tiles whose texels lie in `texels`, a range of whole surfaces (a block's or a
+    /// clutter object's texels): consecutive, by the tiles' order.
+    pub fn tiles_of(&self, texels: Range<usize>) -> Range<usize> {
+        self.tiles.tiles_of(texels)
+    }
+
+    /// The columns of the tiles in `tiles`.
+    pub fn tile_columns(&self, tiles: Range<usize>) -> Range<usize> {
+        self.tiles.n_texels + tiles.start..self.tiles.n_texels + tiles.end
+    }
+
+    #[inline(always)]
+    fn scatter_by(
+        &self,
+        columns: Range<usize>,
+        light: impl Fn(usize) -> [f32; 3],
+        sums: &mut [[f32; 4]],
+    ) -> bool {
         match (&self.rows, &self.weights) {
             (Columns::U16(r), Weights::Counts { counts, .. }) => {
-                self.scatter_in(texels, r, counts, direct, sums)
+                self.scatter_in(columns, r, counts, light, sums)
             }
             (Columns::U32(r), Weights::Counts { counts, .. }) => {
-                self.scatter_in(texels, r, counts, direct, sums)
+                self.scatter_in(columns, r, counts, light, sums)
             }
             (Columns::U16(r), Weights::Counts16 { counts, .. }) => {
-                self.scatter_in(texels, r, counts, direct, sums)
+                self.scatter_in(columns, r, counts, light, sums)
             }
             (Columns::U32(r), Weights::Counts16 { counts, .. }) => {
-                self.scatter_in(texels, r, counts, direct, sums)
+                self.scatter_in(columns, r, counts, light, sums)
             }
-            (Columns::U16(r), Weights::F32(v)) => self.scatter_in(texels, r, v, direct, sums),
-            (Columns::U32(r), Weights::F32(v)) => self.scatter_in(texels, r, v, direct, sums),
+            (Columns::U16(r), Weights::F32(v)) => self.scatter_in(columns, r, v, light, sums),
+            (Columns::U32(r), Weights::F32(v)) => self.scatter_in(columns, r, v, light, sums),
         }
     }
 
     #[inline(always)]
     fn scatter_in<R, W>(
         &self,
-        texels: Range<usize>,
+        columns: Range<usize>,
         rows: &[R],
         weights: &[W],
-        direct: &[[f32; 3]],
+        light: impl Fn(usize) -> [f32; 3],
         sums: &mut [[f32; 4]],
     ) -> bool
     where
@@ -309,8 +417,8 @@ impl GatherColumns {
         W: Copy + Into<f32>,
     {
         let mut lit = false;
-        for c in texels {
-            let l = direct[c];
+        for c in columns {
+            let l = light(c);
             if l == [0.0; 3] {
                 continue;
             }
@@ -328,12 +436,13 @@ impl GatherColumns {
         lit
     }
 
-    /// Appends to `rows` every row reading a texel of `texels` that `marked` does not hold yet,
-    /// and marks it: the rows [`GatherColumns::scatter`] over those texels may write.
-    pub fn rows_reading(&self, texels: Range<usize>, marked: &mut [bool], rows: &mut Vec<u32>) {
+    /// Appends to `rows` every row reading a column of `columns` (texels, or tiles by
+    /// [`GatherColumns::tile_columns`]) that `marked` does not hold yet, and marks it: the rows
+    /// [`GatherColumns::scatter`] over those columns may write.
+    pub fn rows_reading(&self, columns: Range<usize>, marked: &mut [bool], rows: &mut Vec<u32>) {
         let (start, end) = (
-            self.col_start[texels.start] as usize,
-            self.col_start[texels.end] as usize,
+            self.col_start[columns.start] as usize,
+            self.col_start[columns.end] as usize,
         );
         for k in start..end {
             let r = match &self.rows {
@@ -491,7 +600,7 @@ mod tests {
                 (Weights::F32(_), false, _) => "f32",
                 _ => panic!("{rays} rays, counts to {most}: unexpected storage"),
             };
-            let columns = g.by_columns(n);
+            let columns = g.by_columns();
             assert_eq!(columns.col_start[n] as usize, source.cols.len());
             let mut sums = vec![[0.0f32; 4]; g.n_rows()];
             let mut marked = vec![false; g.n_rows()];
@@ -543,6 +652,110 @@ mod tests {
         }
     }
 
+    /// A gather with tiles (format 2.6): the rows read each tile's mean, as the same gather
+    /// with every tile entry spread over the tile's texels (weight / tile size each) reads
+    /// their light, to float rounding; scattering each lit range's texels and then its tiles
+    /// by column gives the same, and the rows listed are those reading a lit texel or tile.
+    #[test]
+    fn tile_columns_read_their_texels_mean_by_rows_and_by_columns() {
+        let mut rng = Lcg(12);
+        let n = 120;
+        // Tiles of 4 texels over 0..100 (in two "surfaces" 0..60 and 60..100), a lone tile.
+        let mut tiles = GatherTiles::default();
+        for first in (0..100).step_by(4) {
+            tiles.push(&[first, first + 1, first + 2, first + 3]);
+        }
+        tiles.push(&[110]);
+        let n_tiles = tiles.len() as u32;
+        let mut g = TexelGather {
+            row_start: vec![0],
+            tiles,
+            ..Default::default()
+        };
+        for r in 0..30u32 {
+            g.rows.push(r * 4);
+            for c in 0..n as u32 + n_tiles {
+                if rng.unit() >= 0.3 {
+                    continue;
+                }
+                g.cols.push(c);
+                g.values
+                    .push((1 + (rng.unit() * 3.0) as u32) as f32 / 1024.0);
+            }
+            g.row_start.push(g.cols.len() as u32);
+        }
+        g.values[0] = 1.0 / 1024.0;
+        // The same gather over texels alone.
+        let mut spread = TexelGather {
+            rows: g.rows.clone(),
+            row_start: vec![0],
+            ..Default::default()
+        };
+        for i in 0..g.rows.len() {
+            let mut row: Vec<(u32, f32)> = Vec::new();
+            for k in g.row_start[i] as usize..g.row_start[i + 1] as usize {
+                let (texels, share) = g.column_texels(n, &g.cols[k]);
+                row.extend(texels.iter().map(|&t| (t, g.values[k] * share as f32)));
+            }
+            spread.cols.extend(row.iter().map(|e| e.0));
+            spread.values.extend(row.iter().map(|e| e.1));
+            spread.row_start.push(spread.cols.len() as u32);
+        }
+        let packed = PackedGather::new(&g, n);
+        assert!(packed.is_8bit());
+        assert_eq!(packed.n_columns(), n + n_tiles as usize);
+        let columns = packed.by_columns();
+        let (mut sums, mut marked, mut touched) =
+            (vec![[0.0f32; 4]; 30], vec![false; 30], Vec::new());
+        for lit in [vec![0..30, 30..60], vec![60..100, 100..120]] {
+            let mut direct = vec![[0.0f32; 3]; n];
+            for r in &lit {
+                for d in &mut direct[r.clone()] {
+                    *d = [rng.unit(), rng.unit(), rng.unit()];
+                }
+            }
+            let (mut rows, mut want, mut scattered) = (
+                vec![[0.0f32; 3]; n],
+                vec![[0.0f32; 3]; n],
+                vec![[0.0f32; 3]; n],
+            );
+            packed.add_to(&direct, &mut rows);
+            reference(&spread, &direct, &mut want);
+            for r in &lit {
+                let t = columns.tiles_of(r.clone());
+                columns.scatter(r.clone(), &direct, &mut sums);
+                columns.scatter_tiles(t.clone(), &direct, &mut sums);
+                columns.rows_reading(r.clone(), &mut marked, &mut touched);
+                columns.rows_reading(columns.tile_columns(t), &mut marked, &mut touched);
+            }
+            columns.finish(
+                &packed,
+                &mut sums,
+                &mut touched,
+                &mut marked,
+                &mut scattered,
+            );
+            assert!(want.iter().filter(|w| w[0] > 0.0).count() >= 25, "{lit:?}");
+            for t in 0..n {
+                for ch in 0..3 {
+                    let w = want[t][ch];
+                    assert!(
+                        (rows[t][ch] - w).abs() <= 1e-6 * w.max(1e-3),
+                        "rows, texel {t}"
+                    );
+                    assert!(
+                        (scattered[t][ch] - w).abs() <= 1e-6 * w.max(1e-3),
+                        "columns, {t}"
+                    );
+                }
+            }
+        }
+        // The tiles of a range of whole surfaces.
+        assert_eq!(columns.tiles_of(0..60), 0..15);
+        assert_eq!(columns.tiles_of(60..100), 15..25);
+        assert_eq!(columns.tiles_of(100..120), 25..26);
+    }
+
     #[test]
     fn simd_and_portable_row_sums_agree_bit_for_bit() {
         let mut rng = Lcg(7);
@@ -561,8 +774,9 @@ mod tests {
     impl PackedGather {
         /// `add_to_padded` over unpadded direct light (allocates; tests only).
         fn add_to(&self, direct: &[[f32; 3]], out: &mut [[f32; 3]]) {
-            let mut padded = vec![[0.0f32; 4]; direct.len()];
+            let mut padded = vec![[0.0f32; 4]; self.n_columns()];
             pad_direct(direct, &mut padded);
+            self.fill_tiles(&mut padded);
             self.add_to_padded(&padded, out);
         }
     }

@@ -16,9 +16,9 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::bundle::{
-    BlockOps, Bundle, ClutterOps, CompactEntry, DeltaEntry, DeltaSource, DrtOps, Layout, Matrix,
-    OpeningOps, ProbeVolume, PropEntry, ShapeOps, SourceBases, SourceBasis, SparseRows,
-    SurfaceInfo, TexelGather, TracedEntry, TransportOps,
+    BlockOps, Bundle, ClutterOps, CompactEntry, DeltaEntry, DeltaSource, DrtOps, GatherTiles,
+    Layout, Matrix, OpeningOps, ProbeVolume, PropEntry, ShapeOps, SourceBases, SourceBasis,
+    SparseRows, SurfaceInfo, TexelGather, TracedEntry, TransportOps,
 };
 use crate::bundle::{BUNDLE_MAJOR, BUNDLE_MINOR};
 use crate::container::write_container;
@@ -381,6 +381,64 @@ pub fn with_gather(rng: &mut Lcg, b: &mut Bundle, max_count: u32) {
         g.row_start.push(g.cols.len() as u32);
     }
     b.drt.as_mut().expect("a DRT bundle").direct_gather = Some(g);
+}
+
+/// Pools `b`'s exact gather by tile as a bake does (format 2.6, [`GatherTiles`]): the tiles
+/// are runs of up to three consecutive texels of each block surface, and in every row the
+/// entries of at most `max_hits` rays (weights of [`with_gather`]'s unit, 1/1,024) on a tiled
+/// texel move to their tile's column, their counts summed, after the row's other entries.
+pub fn with_tiles(b: &mut Bundle, max_hits: u32) {
+    let n = b.layout.n_texels() as u32;
+    let mut tile_of = vec![u32::MAX; n as usize];
+    let mut tiles = GatherTiles::default();
+    for s in b
+        .layout
+        .surfaces
+        .iter()
+        .filter(|s| !s.name.starts_with("clutter:"))
+    {
+        let texels: Vec<u32> = (s.texel_offset..s.texel_offset + s.texel_count).collect();
+        for run in texels.chunks(3) {
+            for &t in run {
+                tile_of[t as usize] = tiles.len() as u32;
+            }
+            tiles.push(run);
+        }
+    }
+    let unit = 1.0 / 1024.0;
+    let g = b
+        .drt
+        .as_mut()
+        .and_then(|d| d.direct_gather.as_mut())
+        .expect("a bundle with a gather");
+    let mut out = TexelGather {
+        rows: g.rows.clone(),
+        row_start: vec![0],
+        ..TexelGather::default()
+    };
+    for i in 0..g.rows.len() {
+        let mut pooled = std::collections::BTreeMap::<u32, u32>::new();
+        for k in g.row_start[i] as usize..g.row_start[i + 1] as usize {
+            let (c, v) = (g.cols[k], g.values[k]);
+            let hits = (v / unit).round() as u32;
+            match tile_of[c as usize] {
+                tile if tile != u32::MAX && hits <= max_hits => {
+                    *pooled.entry(tile).or_default() += hits
+                }
+                _ => {
+                    out.cols.push(c);
+                    out.values.push(v);
+                }
+            }
+        }
+        for (tile, hits) in pooled {
+            out.cols.push(n + tile);
+            out.values.push(unit * hits as f32);
+        }
+        out.row_start.push(out.cols.len() as u32);
+    }
+    out.tiles = tiles;
+    *g = out;
 }
 
 /// [`drt_bundle`]'s blocks (a: 4 texels, r = 2; b: 6 texels, r = 3) with compact transport

@@ -13,7 +13,8 @@
 
 use lightfarm_proto::bundle::{section, Bundle};
 use lightfarm_proto::testing::{
-    drt_bundle, factored_bundle, fuzz_mutations, probe_bundle, with_gather, Lcg, Mutation,
+    drt_bundle, factored_bundle, fuzz_mutations, probe_bundle, with_gather, with_tiles, Lcg,
+    Mutation,
 };
 
 /// Decodes `bytes`; a decoded bundle must pass `validate` (what the runtime checks before
@@ -83,4 +84,13 @@ fn mutated_drt_bundles_with_escaped_gather_counts_never_panic() {
     let mut b = drt_bundle(&mut rng, false, true, true);
     with_gather(&mut rng, &mut b, 700);
     fuzz_decode(&mut rng, &b, section::DRT_WIDE_COUNTS);
+}
+
+#[test]
+fn mutated_drt_bundles_with_gather_tiles_never_panic() {
+    let mut rng = Lcg(40);
+    let mut b = drt_bundle(&mut rng, false, true, true);
+    with_gather(&mut rng, &mut b, 700);
+    with_tiles(&mut b, 2);
+    fuzz_decode(&mut rng, &b, section::DRT_TILED_GATHER);
 }

@@ -176,7 +176,7 @@ impl Runtime {
         if self.gather_by_change.is_none() {
             let units = self.texel_units();
             self.gather_by_change = Some(GatherByChange::new(
-                g.by_columns(self.n_texels),
+                g.by_columns(),
                 &units,
                 g.n_rows(),
                 self.n_texels,
@@ -195,6 +195,7 @@ impl Runtime {
         let Some(g) = &self.ops.gather else { return };
         let Some(reach) = &self.reach else {
             pad_direct(direct, &mut self.direct_padded);
+            g.fill_tiles(&mut self.direct_padded);
             g.add_to_padded(&self.direct_padded, out);
             return;
         };
@@ -213,6 +214,7 @@ impl Runtime {
         let GatherByChange {
             columns,
             ranges,
+            tiles,
             unit_rows,
             sums,
             touched,
@@ -220,7 +222,8 @@ impl Runtime {
             ..
         } = by_change;
         for u in reached {
-            if columns.scatter(ranges[u].clone(), direct, sums) {
+            let lit = columns.scatter(ranges[u].clone(), direct, sums);
+            if columns.scatter_tiles(tiles[u].clone(), direct, sums) | lit {
                 for &r in unit_rows.get(u) {
                     if !std::mem::replace(&mut marked[r as usize], true) {
                         touched.push(r);
@@ -254,6 +257,8 @@ pub(super) enum Deltas {
 pub(super) struct GatherByChange {
     columns: GatherColumns,
     ranges: Vec<Range<usize>>,
+    /// Per unit, the gather's tiles on its texels.
+    tiles: Vec<Range<usize>>,
     /// Units given (blocks and clutter objects); `ranges[units..]` are the texels in neither.
     units: usize,
     /// Per unit, the rows reading one of its texels (listed when the unit carries light).
@@ -271,11 +276,17 @@ impl GatherByChange {
         n_texels: usize,
     ) -> GatherByChange {
         let (ranges, _) = texel_units(units, n_texels);
+        let tiles: Vec<Range<usize>> = ranges.iter().map(|r| columns.tiles_of(r.clone())).collect();
         let mut marked = vec![false; n_rows];
         let mut unit_rows = Ragged::default();
-        for r in &ranges {
+        for (r, t) in ranges.iter().zip(&tiles) {
             let first = unit_rows.items.len();
             columns.rows_reading(r.clone(), &mut marked, &mut unit_rows.items);
+            columns.rows_reading(
+                columns.tile_columns(t.clone()),
+                &mut marked,
+                &mut unit_rows.items,
+            );
             for &i in &unit_rows.items[first..] {
                 marked[i as usize] = false;
             }
@@ -284,6 +295,7 @@ impl GatherByChange {
         GatherByChange {
             columns,
             ranges,
+            tiles,
             units: units.len(),
             unit_rows,
             sums: vec![[0.0; 4]; n_rows],

@@ -483,7 +483,7 @@ impl Runtime {
             entry_order,
             entry_opening,
             ld: vec![0.0; 3 * n_texels],
-            direct_padded: vec![[0.0; 4]; if ops.gather.is_some() { n_texels } else { 0 }],
+            direct_padded: vec![[0.0; 4]; ops.gather.as_ref().map_or(0, |g| g.n_columns())],
             b: vec![0.0; n_coef],
             lf: vec![0.0; n_lf],
             clutter_coef,

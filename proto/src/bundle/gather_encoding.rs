@@ -43,13 +43,14 @@ impl TexelGather {
 
     /// The same gather with each row's entries in ascending column order and repeated columns
     /// merged (their weights added): the form the bundle stores, so a bake that keeps its
-    /// gather sorted decodes to exactly what it wrote.
+    /// gather sorted decodes to exactly what it wrote. The tiles stay as they are.
     pub fn sorted(&self) -> TexelGather {
         let mut out = TexelGather {
             rows: self.rows.clone(),
             row_start: vec![0],
             cols: Vec::with_capacity(self.cols.len()),
             values: Vec::with_capacity(self.values.len()),
+            tiles: self.tiles.clone(),
         };
         for i in 0..self.rows.len() {
             let (s, e) = (self.row_start[i] as usize, self.row_start[i + 1] as usize);
@@ -89,6 +90,7 @@ pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) -> bool
         row_start,
         cols,
         values,
+        ..
     } = if g.is_sorted() {
         g
     } else {
@@ -222,6 +224,7 @@ pub(super) fn read_gather(
                 row_start,
                 cols,
                 values,
+                tiles: Default::default(),
             }))
         }
         k => Err(invalid(&format!("unknown gather flag {k}"))),
@@ -304,6 +307,7 @@ mod tests {
             row_start: vec![0, 4, 6],
             cols: vec![70000, 5, 5, 0, 128, 127],
             values: vec![unit, 2.0 * unit, unit, 7.0 * unit, unit, 3.0 * unit],
+            ..Default::default()
         };
         let out = round_trip(&g);
         assert_eq!(out.rows, vec![3, 9]);
@@ -322,6 +326,7 @@ mod tests {
             row_start: vec![0, 2],
             cols: vec![1, 2],
             values: vec![0.3, 0.7],
+            ..Default::default()
         };
         assert_eq!(round_trip(&g), g);
     }

@@ -34,5 +34,6 @@ pub(super) fn read_gather_csr(r: &mut Reader) -> Result<TexelGather, BundleError
         row_start: r.u32s()?,
         cols: r.u32s()?,
         values: r.f32s()?,
+        tiles: Default::default(),
     })
 }

@@ -32,6 +32,8 @@
 //!   [`DeltaSource`] encoding the `sh` section shares.
 //! - `gather_encoding`: how the DRT section stores the exact gather ([`TexelGather`]), its
 //!   weights as counts of one byte, escaped past 255 in kind 20.
+//! - `gather_tiles`: the tiles of texels a gather column may read the mean of ([`GatherTiles`],
+//!   section kind 21).
 //! - `sh_responses`: the `sh` section ([`ShResponses`]).
 //! - `dynamic_shapes`: the dynamic objects' triangles in their own frames (section kind 19,
 //!   [`DynamicShape`]), for their direct shadows.
@@ -53,6 +55,7 @@ use crate::wire::WireError;
 mod delta_entries;
 mod dynamic_shapes;
 mod gather_encoding;
+mod gather_tiles;
 mod legacy_1x;
 mod matrix_codec;
 mod read;
@@ -65,6 +68,7 @@ mod validate;
 mod write;
 pub use dynamic_shapes::DynamicShape;
 pub use gather_encoding::{gather_counts, gather_counts_u16};
+pub use gather_tiles::GatherTiles;
 pub use matrix_codec::{EncodingMemo, MatrixEncoding};
 pub use rooms::{FaceLink, Room, Rooms, SurfacePlace};
 pub use sections::{section, section_name};
@@ -87,9 +91,11 @@ pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 /// 2.3 or older reader skips (it shades direct light without the objects' shadows). Minor 5
 /// adds the DRT section whose exact gather keeps counts over 255 as escaped bytes (kind 20),
 /// written instead of kind 13 when some count exceeds a byte: a 2.4 or older reader skips it
-/// and lights the scene by MRT alone.
+/// and lights the scene by MRT alone. Minor 6 adds the DRT section whose exact gather reads tiles
+/// of texels ([`GatherTiles`], kind 21), written instead of kinds 13 and 20 when the gather has
+/// tiles: a 2.5 or older reader skips it and lights the scene by MRT alone.
 pub const BUNDLE_MAJOR: u16 = 2;
-pub const BUNDLE_MINOR: u16 = 5;
+pub const BUNDLE_MINOR: u16 = 6;
 /// The oldest major version this reader decodes.
 pub const OLDEST_READABLE_MAJOR: u16 = 1;
 const READABLE_MAJORS: std::ops::RangeInclusive<u16> = OLDEST_READABLE_MAJOR..=BUNDLE_MAJOR;
@@ -415,13 +421,15 @@ pub struct DrtOps {
     pub replaced: Vec<u32>,
 }
 
-/// Sparse rows over texels (see [`DrtOps::direct_gather`]).
+/// Sparse rows over texels (see [`DrtOps::direct_gather`]); a column `n_texels + i` reads the
+/// mean direct light of tile `i` of `tiles` (format 2.6, [`GatherTiles`]).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TexelGather {
     pub rows: Vec<u32>,
     pub row_start: Vec<u32>,
     pub cols: Vec<u32>,
     pub values: Vec<f32>,
+    pub tiles: GatherTiles,
 }
 
 /// Why bytes are not a usable bundle.

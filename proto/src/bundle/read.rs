@@ -15,7 +15,7 @@ use super::delta_entries::read_entries;
 use super::sections::{is_known_section, section, section_name};
 use super::{dynamic_shapes, gather_encoding, legacy_1x, sh_responses, symmetric_blocks};
 use super::{
-    Bundle, BundleError, ClutterOps, CompactEntry, DrtOps, Layout, Matrix, OpeningOps,
+    Bundle, BundleError, ClutterOps, CompactEntry, DrtOps, GatherTiles, Layout, Matrix, OpeningOps,
     PartialBundle, ProbeVolume, PropEntry, Rect, Rooms, ShapeOps, SourceBases, SourceBasis,
     SparseRows, SurfaceAtlas, SurfaceInfo, TracedEntry, TransportOps, READABLE_MAJORS,
 };
@@ -172,10 +172,22 @@ impl Bundle {
                 }
                 section::FULL => full = Some(read_full(&mut p)?),
                 section::DRT | section::DRT_LOW_RANK => drt = Some(read_drt(&mut p, false)?),
-                section::DRT_REPLACING | section::DRT_WIDE_COUNTS => {
-                    let wide = *kind == section::DRT_WIDE_COUNTS;
+                section::DRT_REPLACING | section::DRT_WIDE_COUNTS | section::DRT_TILED_GATHER => {
+                    let wide = *kind != section::DRT_REPLACING;
                     let mut d = read_drt(&mut p, wide)?;
                     d.replaced = p.u32s()?;
+                    if *kind == section::DRT_TILED_GATHER {
+                        let tiles = GatherTiles::read(&mut p)?;
+                        match d.direct_gather.as_mut() {
+                            Some(g) => g.tiles = tiles,
+                            None if tiles.is_empty() => {}
+                            None => {
+                                return Err(BundleError::Invalid(
+                                    "drt: gather tiles without a gather".into(),
+                                ))
+                            }
+                        }
+                    }
                     drt = Some(d);
                 }
                 section::PROBES | section::PROBES_LOW_RANK => probes = Some(read_probes(&mut p)?),

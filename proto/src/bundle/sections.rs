@@ -61,6 +61,11 @@ pub mod section {
     /// [`DRT_REPLACING`] when some weight is a count over 255 (more than form 1's byte holds),
     /// which a 2.4 writer stored as f32. A 2.4 or older reader skips it and lights the scene by MRT alone.
     pub const DRT_WIDE_COUNTS: u32 = 20;
+    /// The DRT section of format 2.6: [`DRT_WIDE_COUNTS`]' layout followed by the tiles its
+    /// exact gather reads (`start:u32s texels:u32s`, [`crate::bundle::GatherTiles`]); written
+    /// instead of kinds 13 and 20 when the gather has tiles. A 2.5 or older reader skips it and
+    /// lights the scene by MRT alone.
+    pub const DRT_TILED_GATHER: u32 = 21;
 }
 
 /// Report name of a section kind.
@@ -79,6 +84,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::LIGHTMAP => "lightmap",
         section::DRT_REPLACING => "drt",
         section::DRT_WIDE_COUNTS => "drt",
+        section::DRT_TILED_GATHER => "drt",
         section::BLOCKS_SYMMETRIC => "blocks",
         section::ROOMS => "rooms",
         section::TRANSPORT_SOURCE_BASES => "transport",

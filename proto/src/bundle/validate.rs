@@ -244,13 +244,25 @@ impl Bundle {
                 return bad("drt: replaced texels are not ascending block texels".into());
             }
             if let Some(g) = &d.direct_gather {
+                let starts: Vec<u32> = self
+                    .layout
+                    .surfaces
+                    .iter()
+                    .map(|s| s.texel_offset)
+                    .collect();
+                if let Some(why) = g.tiles.check(&starts, n_texels) {
+                    return bad(format!("drt: {why}"));
+                }
+                // Columns past the texels are tiles.
+                let n_columns = n_texels + g.tiles.len() as u64;
                 let ok = g.row_start.len() == g.rows.len() + 1
                     && g.row_start.first() == Some(&0)
                     && g.row_start.windows(2).all(|w| w[1] >= w[0])
                     && g.row_start.last().map(|l| *l as usize) == Some(g.cols.len())
                     && g.cols.len() == g.values.len()
                     && g.rows.windows(2).all(|w| w[1] > w[0])
-                    && g.rows.iter().chain(&g.cols).all(|r| (*r as u64) < n_texels)
+                    && g.rows.iter().all(|r| (*r as u64) < n_texels)
+                    && g.cols.iter().all(|c| (*c as u64) < n_columns)
                     && g.values.iter().all(|v| v.is_finite());
                 if !ok {
                     return bad("drt: direct gather is inconsistent".into());

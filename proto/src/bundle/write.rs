@@ -275,10 +275,14 @@ impl Bundle {
             w.u32s(&d.buried);
             let wide = gather_encoding::write_gather(&mut w, d.direct_gather.as_ref());
             w.u32s(&d.replaced);
-            let kind = if wide {
-                section::DRT_WIDE_COUNTS
-            } else {
-                section::DRT_REPLACING
+            let tiles = d.direct_gather.as_ref().map(|g| &g.tiles);
+            let kind = match tiles {
+                Some(t) if !t.is_empty() => {
+                    t.write(&mut w);
+                    section::DRT_TILED_GATHER
+                }
+                _ if wide => section::DRT_WIDE_COUNTS,
+                _ => section::DRT_REPLACING,
             };
             sections.push((kind, w.bytes));
         }

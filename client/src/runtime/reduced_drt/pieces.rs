@@ -303,21 +303,25 @@ fn gather_by_clutter(
             let local = g.rows[i] as usize - first;
             let column = &columns[local * m..(local + 1) * m];
             let span = g.row_start[i] as usize..g.row_start[i + 1] as usize;
-            for (&col, &v) in g.cols[span.clone()].iter().zip(&g.values[span]) {
-                if owner[col as usize] == NO_UNIT {
-                    return None;
+            for (col, &v) in g.cols[span.clone()].iter().zip(&g.values[span]) {
+                // A tile column reads its texels' mean: each texel a share of the weight.
+                let (texels, share) = g.column_texels(owner.len(), col);
+                for &col in texels {
+                    if owner[col as usize] == NO_UNIT {
+                        return None;
+                    }
+                    if slot[col as usize] == u32::MAX {
+                        slot[col as usize] = read.len() as u32;
+                        read.push(col);
+                        data.extend(std::iter::repeat_n(0.0, m + 1));
+                    }
+                    let s = slot[col as usize] as usize * (m + 1);
+                    let v = v as f64 * share;
+                    for (d, t) in data[s..s + m].iter_mut().zip(column) {
+                        *d += t * v;
+                    }
+                    data[s + m] += v;
                 }
-                if slot[col as usize] == u32::MAX {
-                    slot[col as usize] = read.len() as u32;
-                    read.push(col);
-                    data.extend(std::iter::repeat_n(0.0, m + 1));
-                }
-                let s = slot[col as usize] as usize * (m + 1);
-                let v = v as f64;
-                for (d, t) in data[s..s + m].iter_mut().zip(column) {
-                    *d += t * v;
-                }
-                data[s + m] += v;
             }
         }
         for (d, rows) in &entries_of[j] {

@@ -7,7 +7,7 @@
 
 use super::*;
 use crate::probes::irradiance_at;
-use lightfarm_proto::testing::{factored_bundle, fuzz_mutations, with_gather};
+use lightfarm_proto::testing::{factored_bundle, fuzz_mutations, with_gather, with_tiles};
 
 /// Decodes `bytes`; a decoded bundle must make a runtime, which must apply every method
 /// without panicking. Returns whether the bytes decoded.
@@ -109,5 +109,18 @@ fn mutated_drt_bundles_with_escaped_gather_counts_never_panic() {
         &mut rng,
         &b,
         lightfarm_proto::bundle::section::DRT_WIDE_COUNTS,
+    );
+}
+
+#[test]
+fn mutated_drt_bundles_with_gather_tiles_never_panic() {
+    let mut rng = Lcg(41);
+    let mut b = drt_bundle(&mut rng, false, true, true);
+    with_gather(&mut rng, &mut b, 700);
+    with_tiles(&mut b, 2);
+    fuzz_bundle(
+        &mut rng,
+        &b,
+        lightfarm_proto::bundle::section::DRT_TILED_GATHER,
     );
 }

@@ -9,6 +9,7 @@
 
 use super::*;
 use crate::compare::relative_l1;
+use lightfarm_proto::testing::{with_gather, with_tiles};
 
 /// `ld` with `change` added on the texels `range` (zero elsewhere): (new light, change).
 fn changed(
@@ -101,6 +102,12 @@ fn cases(rng: &mut Lcg, rho: f32) -> Vec<(Bundle, Method, &'static str)> {
     let gather = gather_rows(rng, &[1, 5, 8, 12, 15], &reads, (0.01, 0.2));
     gathered.drt.as_mut().unwrap().direct_gather = Some(gather);
     out.push((gathered, Method::Drt, "drt exact gather"));
+    // A gather whose few-hit entries read tiles' means (format 2.6).
+    let rng = &mut Lcg(98);
+    let mut tiled = drt_bundle(rng, false, true, true);
+    with_gather(rng, &mut tiled, 40);
+    with_tiles(&mut tiled, 20);
+    out.push((tiled, Method::Drt, "drt exact gather with tiles"));
     // A bundle whose `Converged` runs in coefficient space (module `reduced_drt`).
     let rng = &mut Lcg(101);
     let reducible = super::reduced_drt::reducible(rng, &super::reduced_drt::LAMP_READS);

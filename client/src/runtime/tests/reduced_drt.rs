@@ -1,7 +1,7 @@
 //! Tests of [`Bounces::Converged`] for DRT in coefficient space (`runtime/reduced_drt.rs`):
 //! the same light as the texel path's GMRES and as many explicit bounces wherever the system
 //! is exact (no gather, a gather reading blocks, a gather reading a clutter object whose basis
-//! spans its texels, the gather in low-rank form), the first bounce's energy from coefficients equal to `One`'s, the texel
+//! spans its texels, a gather reading tiles of block texels, the gather in low-rank form), the first bounce's energy from coefficients equal to `One`'s, the texel
 //! path kept for what it does not model, no allocation and the same bits on a second call and
 //! at two threads.
 
@@ -34,7 +34,11 @@ pub(super) fn reducible(rng: &mut Lcg, reads: &[&[u32]]) -> Bundle {
         data: vec![1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c],
     };
     if !reads.is_empty() {
-        let gather = gather_rows(rng, &[10, 11, 13, 14, 16], reads, (0.05, 0.3));
+        let mut gather = gather_rows(rng, &[10, 11, 13, 14, 16], reads, (0.05, 0.3));
+        // Columns 17.. read the means of three tiles of block texels (format 2.6).
+        for tile in [&[0, 1, 2][..], &[4, 5, 6], &[7, 8, 9]] {
+            gather.tiles.push(tile);
+        }
         d.direct_gather = Some(gather);
     }
     b
@@ -44,6 +48,8 @@ pub(super) fn reducible(rng: &mut Lcg, reads: &[&[u32]]) -> Bundle {
 const BLOCK_READS: [&[u32]; 5] = [&[0, 2], &[3, 4, 9], &[5, 6], &[1, 8], &[7]];
 pub(super) const LAMP_READS: [&[u32]; 5] =
     [&[0, 14, 15], &[3, 16], &[5, 6, 14], &[1, 15], &[16, 2]];
+/// Reads of blocks, the lamp and the tiles of block texels (columns 17, 18, 19).
+const TILE_READS: [&[u32]; 5] = [&[0, 17], &[3, 18], &[5, 14, 19], &[1, 17, 18], &[16, 19]];
 
 /// A runtime for `b` with the albedo halved until the texel path's `Converged` converges
 /// (random operators may keep more light than they receive).
@@ -94,6 +100,7 @@ fn reduced_drt_matches_the_texel_path_and_many_bounces_where_exact() {
         (&LAMP_READS[..], false, "gather reading blocks and the lamp"),
         (&[][..], true, "low-rank gather alone"),
         (&LAMP_READS[..], true, "gather and low-rank gather"),
+        (&TILE_READS[..], false, "gather reading tiles"),
     ] {
         let mut b = reducible(&mut rng, reads);
         if low_rank {

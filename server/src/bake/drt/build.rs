@@ -48,6 +48,7 @@ use crate::bake::drt::rays::{
     RayPassResults,
 };
 use crate::bake::drt::rows::{add_row, RowMajor, RowsBySource};
+use crate::bake::drt::tiles::TilePool;
 use crate::bake::mrt::shape::ShapeOperators;
 use crate::bake::scene::geometry::Geometry;
 use crate::bake::tracer::Tracer;
@@ -295,12 +296,16 @@ pub fn build_drt(
         row_start: Vec::with_capacity(n_rows + 1),
         cols: Vec::with_capacity(n_entries),
         values: Vec::with_capacity(n_entries),
+        tiles: Default::default(),
     };
     gather.row_start.push(0);
     let inv = 1.0 / settings.rays_per_texel as f64;
     stats.scene_texels_gathered = blocks.gathered.len();
     let replaced: Vec<u32> = blocks.gathered.keys().copied().collect();
-    for (x, hits) in blocks.gathered {
+    // Few-hit entries read their tile's mean direct light (`tiles`).
+    let mut tiles = TilePool::new(g);
+    for (x, mut hits) in blocks.gathered.into_iter().chain(clutter_rows.gathered) {
+        tiles.pool(&mut hits);
         gather.rows.push(x);
         for (t, n) in hits {
             gather.cols.push(t);
@@ -308,14 +313,7 @@ pub fn build_drt(
         }
         gather.row_start.push(gather.cols.len() as u32);
     }
-    for (x, row) in clutter_rows.gathered {
-        gather.rows.push(x);
-        for (c, v) in row {
-            gather.cols.push(c);
-            gather.values.push(v);
-        }
-        gather.row_start.push(gather.cols.len() as u32);
-    }
+    tiles.finish(&mut gather);
     let mut buried = clutter_rows.buried;
     for (x, b) in blocks.buried.iter().enumerate() {
         if *b {
@@ -546,7 +544,7 @@ struct ClutterRows {
     per_clutter: RowsBySource,
     /// `clutter_gather: exact`: per clutter texel with hits, its sparse row over the direct
     /// light of the texels hit, ascending by texel.
-    gathered: Vec<(u32, Vec<(u32, f32)>)>,
+    gathered: Vec<(u32, Vec<(u32, u32)>)>,
     /// Buried clutter texels, ascending.
     buried: Vec<u32>,
 }
@@ -582,13 +580,10 @@ fn clutter_texel_rows(
             continue;
         }
         if exact {
-            // Sparse row over the direct light of the texels hit (in the hits' own allocation).
-            let row: Vec<(u32, f32)> = hits
-                .into_iter()
-                .map(|(t, n)| (t, (n as f64 * inv) as f32))
-                .collect();
-            if !row.is_empty() {
-                out.gathered.push((x as u32, row));
+            // Sparse row over the direct light of the texels hit (their hit counts, weighed
+            // when the gather is written).
+            if !hits.is_empty() {
+                out.gathered.push((x as u32, hits));
             }
             continue;
         }

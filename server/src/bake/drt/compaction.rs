@@ -355,7 +355,10 @@ pub fn compact_gather(
     }
     // What stays sparse: columns of ranges not factored, and columns in no range.
     let stays = |c: u32| range_of(c).is_none_or(|ri| !factored_ranges[ri]);
-    let mut rest = TexelGather::default();
+    let mut rest = TexelGather {
+        tiles: gather.tiles.clone(),
+        ..TexelGather::default()
+    };
     rest.row_start.push(0);
     // Sized first, not grown entry by entry (the whole gather when no range factors, as on the
     // maze).

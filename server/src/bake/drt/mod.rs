@@ -11,6 +11,8 @@
 //! - [`build`]: the delta operators `ΔU_b`, `ΔU_c`, `C_b` and the exact gather, from the rays
 //!   ([`build::DrtInputs`]: what it reads), accumulated as [`rows`]; buried block texels get
 //!   [`inpaint`]ed transport.
+//! - [`tiles`]: the exact gather's few-hit entries pooled by tile of the surface they hit
+//!   ([`tiles::TilePool`], bundle format 2.6).
 //! - [`compaction`]: their low-rank form, where smaller.
 //! - [`error`]: [`error::DrtError`], why a DRT build failed (rays and build share it).
 //! - [`lit_source`]: [`lit_source::LitSource`], the block or clutter object a row reads (the
@@ -27,3 +29,4 @@ pub mod rays;
 pub mod reach;
 pub mod rows;
 pub mod sight;
+pub mod tiles;
