@@ -18,8 +18,9 @@
 //!
 //! In data-flow order: [`build_drt`] reads [`DrtInputs`], makes the clutter bases, traces (or
 //! reuses) both ray passes, turns block texels' rays into rows (`BlockRows`), inpaints the
-//! buried ones, turns clutter texels' rays into rows (`ClutterRows`) and packs the rows into
-//! [`DeltaBlock`]s by (target, source).
+//! buried ones, turns clutter texels' rays into rows (`ClutterRows`), assembles the exact
+//! gather with its few-hit entries pooled by tile ([`crate::bake::drt::tiles`]) and packs the
+//! rows into [`DeltaBlock`]s by (target, source).
 //!
 //! Clutter texels are a box's six faces or a mesh's lightmap atlas (`mesh_atlas`); every
 //! operator here reads them by global texel index, so both kinds go through the same code. A
@@ -580,8 +581,8 @@ fn clutter_texel_rows(
             continue;
         }
         if exact {
-            // Sparse row over the direct light of the texels hit (their hit counts, weighed
-            // when the gather is written).
+            // Sparse row over the direct light of the texels hit (hit counts, made weights
+            // when the gather is assembled).
             if !hits.is_empty() {
                 out.gathered.push((x as u32, hits));
             }
