@@ -7,21 +7,22 @@
 //! entry with at most [`POOLED_MAX_HITS`] hits on a rectangle surface (a block face or a
 //! clutter box face, `t × t` texels) moves to the tile of that surface holding its texel: the
 //! row reads the tile's mean direct light with the tile's summed count. Tiles are [`TILE`] ×
-//! [`TILE`] texels, or 2 × 2 where that would span more than [`TILE_METRES`] (texels over
-//! 0.375 m), or none where 2 × 2 would (texels over 0.75 m). The rays still land where they
-//! did, on the tile, so the row's total weight is unchanged; the direct light each such ray
-//! reads is averaged over the tile instead of taken at one texel, which smooths the estimate's
-//! noise (a texel hit more often keeps its own entry, so the near field and the strongest hits
-//! stay as they were). Mesh texels are never pooled.
+//! [`TILE`] texels, fewer where that would span more than a quarter of the face's side (2 × 2
+//! at T=8, none below T=8): a fraction of the face, not a length, because nothing in a bake may
+//! depend on the scene's unit (`tests/tests/stability_geometry.rs` bakes one scene from 2.5 mm to
+//! 10 km). The rays still land where they did, on the tile, so the row's total weight is
+//! unchanged; the direct light each such ray reads is averaged over the tile instead of taken
+//! at one texel, which smooths the estimate's noise (a texel hit more often keeps its own
+//! entry, so the near field and the strongest hits stay as they were). Mesh texels are never
+//! pooled.
 //!
 //! Measured against Mitsuba at all bounces (`lfgt.py check … --bounces -1 --sample 1000`,
-//! whole level / clutter texels), before → after: the maze at T=16, 2.53 M → 0.89 M entries,
-//! 0.0227 → 0.0224 / 0.0247 → 0.0235; a generated 80-block level with many props at T=8
-//! (`gen_level.py --blocks 80 --seed 4`), 0.76 M → 0.50 M entries, 0.0427 → 0.0427 / 0.0481
-//! → 0.0480. Without the metre bound, 4 × 4 tiles on the Cornell room at T=8 (2.75 m) cost the
-//! exact gather near its box 0.0178 → 0.0202 (`drt_accuracy`'s scene-gather test, against
-//! 0.0173 with it); 2 × 2 tiles everywhere kept 1.58 M entries on the maze for no better
-//! error; pooling up to 4 hits cost error on the seed-4 props (0.0499).
+//! whole level / clutter texels), before → after: the maze at T=16 (4 × 4), 2.53 M → 0.89 M
+//! entries, 0.0227 → 0.0224 / 0.0247 → 0.0235; a generated 80-block level with many props at
+//! T=8 (2 × 2, `gen_level.py --blocks 80 --seed 4`), 0.76 M → 0.52 M entries, 0.0427 → 0.0427
+//! / 0.0481 → 0.0480. 4 × 4 tiles at T=8 cost the exact gather next to the Cornell room's box
+//! 0.0178 → 0.0202 (`drt_accuracy`'s scene-gather test; 0.0172 with 2 × 2) and pooling up to 4
+//! hits cost error on the seed-4 props (0.0499).
 //!
 //! Columns: while pooling, a tile entry's column is `n_texels + first texel of the tile`;
 //! [`TilePool::finish`] renumbers the tiles used to `n_texels + 0, 1, …` in the order of their
@@ -39,17 +40,14 @@ pub const POOLED_MAX_HITS: u32 = 2;
 /// Largest side of a tile in texels.
 pub const TILE: usize = 4;
 
-/// Largest side of a tile in metres: a surface's tiles are [`TILE`], 2 or 1 texels on a side,
-/// the largest whose extent stays within it (1 texel: nothing pooled).
-pub const TILE_METRES: f64 = 1.5;
+/// A tile spans at most `1 / FACE_FRACTION` of its face's side: a surface's tiles are
+/// [`TILE`], 2 or 1 texels on a side, the largest within it (1 texel: nothing pooled).
+pub const FACE_FRACTION: usize = 4;
 
 /// The tile side (texels) on `s`.
 fn tile_side(s: &Surface) -> usize {
-    let texel = (0..2)
-        .map(|k| (s.max[k] - s.min[k]) / s.t as f64)
-        .fold(0.0f64, f64::max);
     let mut side = TILE;
-    while side > 1 && side as f64 * texel > TILE_METRES {
+    while side > 1 && side * FACE_FRACTION > s.t {
         side /= 2;
     }
     side
@@ -191,52 +189,47 @@ mod tests {
 
     #[test]
     fn few_hit_entries_move_to_their_tile_and_the_row_keeps_its_hits() {
-        // A 5 × 5 face (texels 0..25) and two mesh texels (25, 26): tiles start at texels 0
-        // (4 × 4), 4 (1 × 4), 20 (4 × 1) and 24 (1 × 1).
-        let mut pool = TilePool::new(&geometry(5, 2));
-        // Texels 0, 1, 6 pool into tile 0; 4 into tile 4; 24 into tile 24; 3 has 5 hits and
-        // keeps its entry; mesh texel 26 is never pooled.
-        let mut row = vec![(0, 1), (1, 2), (6, 1), (4, 1), (24, 2), (3, 5), (26, 1)];
+        // An 18 × 18 face (texels 0..324; texel (i, j) is 18 j + i) and two mesh texels (324,
+        // 325): 4 × 4 tiles, 2 texels wide along the last column and row.
+        let mut pool = TilePool::new(&geometry(18, 2));
+        // Texels 0, 1, 19 pool into tile 0; 16 into tile 16 (2 × 4); 323 into tile 304 (2 × 2);
+        // 3 has 5 hits and keeps its entry; mesh texel 325 is never pooled.
+        let mut row = vec![(0, 1), (1, 2), (19, 1), (16, 1), (323, 2), (3, 5), (325, 1)];
         let before: u32 = row.iter().map(|e| e.1).sum();
         pool.pool(&mut row);
-        assert_eq!(row, vec![(3, 5), (26, 1), (27, 4), (31, 1), (51, 2)]);
+        assert_eq!(row, vec![(3, 5), (325, 1), (326, 4), (342, 1), (630, 2)]);
         assert_eq!(row.iter().map(|e| e.1).sum::<u32>(), before);
         let mut g = TexelGather {
-            rows: vec![25],
+            rows: vec![324],
             row_start: vec![0, row.len() as u32],
             cols: row.iter().map(|e| e.0).collect(),
             values: row.iter().map(|e| e.1 as f32).collect(),
             ..Default::default()
         };
         pool.finish(&mut g);
-        assert_eq!(g.cols, vec![3, 26, 27, 28, 29]);
+        assert_eq!(g.cols, vec![3, 325, 326, 327, 328]);
         assert_eq!(g.tiles.len(), 3);
         assert_eq!(
             g.tiles.texels(0),
-            &[0, 1, 2, 3, 5, 6, 7, 8, 10, 11, 12, 13, 15, 16, 17, 18]
+            &[0, 1, 2, 3, 18, 19, 20, 21, 36, 37, 38, 39, 54, 55, 56, 57]
         );
-        assert_eq!(g.tiles.texels(1), &[4, 9, 14, 19]);
-        assert_eq!(g.tiles.texels(2), &[24]);
+        assert_eq!(g.tiles.texels(1), &[16, 17, 34, 35, 52, 53, 70, 71]);
+        assert_eq!(g.tiles.texels(2), &[304, 305, 322, 323]);
     }
 
-    /// Tiles are 4, 2 or 1 texels on a side, the largest within 1.5 m.
+    /// Tiles are 4, 2 or 1 texels on a side, the largest within a quarter of the face's side,
+    /// whatever the face's size in metres.
     #[test]
-    fn tiles_shrink_on_surfaces_of_large_texels() {
-        for (size, t, side) in [
-            (4.0, 16, 4),
-            (3.0, 8, 4),
-            (4.0, 8, 2),
-            (6.0, 8, 2),
-            (7.0, 8, 1),
-        ] {
-            let mut g = geometry(t, 0);
-            g.surfaces[0].max = [size, size / 2.0];
-            assert_eq!(tile_side(&g.surfaces[0]), side, "{size} m in {t} texels");
+    fn tiles_shrink_on_coarse_faces() {
+        for (t, side) in [(32, 4), (16, 4), (12, 2), (8, 2), (7, 1), (4, 1)] {
+            for size in [0.01, 4.0, 1e4] {
+                let mut g = geometry(t, 0);
+                g.surfaces[0].max = [size, size / 2.0];
+                assert_eq!(tile_side(&g.surfaces[0]), side, "{size} m in {t} texels");
+            }
         }
-        // 7 m in 8 texels: nothing pooled.
-        let mut g = geometry(8, 0);
-        g.surfaces[0].max = [7.0, 7.0];
-        let mut pool = TilePool::new(&g);
+        // 4 texels a side: nothing pooled.
+        let mut pool = TilePool::new(&geometry(4, 0));
         let mut row = vec![(0, 1), (1, 1)];
         pool.pool(&mut row);
         assert_eq!(row, vec![(0, 1), (1, 1)]);
@@ -244,7 +237,7 @@ mod tests {
 
     #[test]
     fn rows_without_few_hit_entries_are_left_alone() {
-        let mut pool = TilePool::new(&geometry(4, 0));
+        let mut pool = TilePool::new(&geometry(16, 0));
         let mut row = vec![(5, 3), (0, 9)];
         pool.pool(&mut row);
         assert_eq!(row, vec![(5, 3), (0, 9)]);
