@@ -41,28 +41,34 @@ fn sent_len(s: &Streaming) -> usize {
     s.sent.as_ref().map_or(0, |p| p.len())
 }
 
+/// Whether `prefix` holds more than `sent` and starts with it.
+fn extends(prefix: &[u8], sent: &[u8]) -> bool {
+    prefix.len() > sent.len() && prefix[..sent.len()] == *sent
+}
+
 async fn next_chunk(mut s: Streaming) -> Option<(Result<Bytes, std::io::Error>, Streaming)> {
     loop {
         if s.done {
             return None;
         }
-        // The queue's lock is held while a job record is written to disk: look off the runtime.
+        // Off the runtime (the queue's lock is held while a job record is written to disk): the
+        // prefix, if it extends what was sent (compared there too), else the job's status.
         let (jobs, team, id) = (s.state.jobs.clone(), s.team.clone(), s.id.clone());
-        let (prefix, status) = tokio::task::spawn_blocking(move || {
-            (jobs.bundle_prefix(&team, &id), jobs.status(&team, &id))
+        let sent = s.sent.clone();
+        let next = tokio::task::spawn_blocking(move || match jobs.bundle_prefix(&team, &id) {
+            Some(prefix) if extends(&prefix, sent.as_deref().map_or(&[], |v| &v[..])) => Ok(prefix),
+            _ => Err(jobs.status(&team, &id).map(Box::new)),
         })
         .await
         .ok()?;
-        if let Some(prefix) = prefix {
-            let from = sent_len(&s);
-            let previous: &[u8] = s.sent.as_deref().map_or(&[], |v| &v[..]);
-            if prefix.len() > from && prefix[..from] == *previous {
-                let chunk = Bytes::from_owner(SharedBlob(prefix.clone())).slice(from..);
+        let status = match next {
+            Ok(prefix) => {
+                let chunk = Bytes::from_owner(SharedBlob(prefix.clone())).slice(sent_len(&s)..);
                 s.sent = Some(prefix);
                 return Some((Ok(chunk), s));
             }
-        }
-        let status = status?;
+            Err(status) => *status?,
+        };
         match status.state {
             JobState::Succeeded => {
                 s.done = true;
