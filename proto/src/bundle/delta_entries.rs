@@ -2,6 +2,9 @@
 //! encoding of a [`DeltaSource`] (kind byte with flag bits, then its index or range) that the
 //! `sh` section reuses.
 //!
+//! The writer may give each entry's own matrix one floor on its 8-bit steps ([`FlooredLeft`]);
+//! the bytes read the same either way.
+//!
 //! Invariant: bit 7 of an entry's source kind byte says a `mix` matrix follows; a reader refuses
 //! any other flag bit and any unknown source kind.
 
@@ -10,17 +13,31 @@ use crate::wire::{Reader, Writer};
 use super::matrix_codec::MatrixEncoder;
 use super::{BundleError, DeltaEntry, DeltaSource, Matrix};
 
+/// Whether [`write_entries`] gives each entry's own matrix (a dense delta, or the left factor
+/// `U_k Σ_k` of a low-rank one) one floor on its 8-bit lines' steps
+/// ([`crate::codec::CodecPolicy::BudgetFloored`]); a `mix` (`V_kᵀ`, rows of one size) never.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum FlooredLeft {
+    Yes,
+    No,
+}
+
+/// The entries, each entry's matrix under `floored`'s policy.
 pub(super) fn write_entries<'a>(
     w: &mut Writer,
     entries: &'a [DeltaEntry],
     enc: &mut MatrixEncoder<'a>,
+    floored: FlooredLeft,
 ) {
     w.u32(entries.len() as u32);
     for e in entries {
         w.u32s(&e.rows);
         // Bit 7 of the source kind: a `mix` matrix follows the entry's matrix.
         write_source(w, e.source, if e.mix.is_some() { 0x80 } else { 0 });
-        e.matrix.write(w, enc);
+        match floored {
+            FlooredLeft::Yes => enc.with_floored_steps(|enc| e.matrix.write(w, enc)),
+            FlooredLeft::No => e.matrix.write(w, enc),
+        }
         if let Some(mix) = &e.mix {
             mix.write(w, enc);
         }

@@ -12,7 +12,8 @@
 //! report do not depend on the thread count.
 
 use crate::codec::{
-    choose_encoding, read_matrix, u8_step_name, write_matrix_smallest, CodecPolicy, MatrixCodec,
+    choose_encoding, read_matrix, u8_grid_name, write_matrix_smallest, CodecPolicy, MatrixCodec,
+    U8Grid,
 };
 use crate::wire::{Reader, WireError, Writer};
 use crate::work_queue::map_in_order;
@@ -37,14 +38,14 @@ impl Matrix {
     }
 }
 
-/// One matrix as the writer encodes it: its bytes on the wire, the codec and 8-bit step it
+/// One matrix as the writer encodes it: its bytes on the wire, the codec and 8-bit grid it
 /// chose and the error that adds (what the report counts of it follows from these and the
 /// matrix's size). The bytes are shared, so a memo keeps an encoding without copying it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MatrixEncoding {
     pub bytes: std::sync::Arc<Vec<u8>>,
     pub codec: MatrixCodec,
-    pub step: u8,
+    pub grid: U8Grid,
     pub error: f64,
 }
 
@@ -87,15 +88,15 @@ pub trait EncodingMemo: Sync {
 /// Encodes one matrix under `policy`: a pure function of the matrix and the policy.
 fn encode_matrix(m: &Matrix, policy: CodecPolicy) -> MatrixEncoding {
     let (rows, cols) = (m.rows as usize, m.cols as usize);
-    let (codec, step, error) = choose_encoding(&m.data, rows, cols, policy);
+    let (codec, grid, error) = choose_encoding(&m.data, rows, cols, policy);
     // Lossless: an 8-bit matrix's q go plain or as prediction residuals, whichever is
     // smaller; both decode to the same values.
     let mut w = Writer::new();
-    let codec = write_matrix_smallest(&mut w, &m.data, rows, cols, codec, step);
+    let codec = write_matrix_smallest(&mut w, &m.data, rows, cols, codec, grid);
     MatrixEncoding {
         bytes: std::sync::Arc::new(w.bytes),
         codec,
-        step,
+        grid,
         error,
     }
 }
@@ -180,8 +181,21 @@ impl<'a> MatrixEncoder<'a> {
         write: impl FnOnce(&mut MatrixEncoder<'a>),
     ) {
         let policy = self.policy;
+        self.policy = match policy {
+            CodecPolicy::Budget(b) => CodecPolicy::Budget(b * factor),
+            CodecPolicy::BudgetFloored(b) => CodecPolicy::BudgetFloored(b * factor),
+            fixed => fixed,
+        };
+        write(self);
+        self.policy = policy;
+    }
+
+    /// Writes (inside `write`) with the current budget's 8-bit lines under one floor
+    /// ([`CodecPolicy::BudgetFloored`]; a fixed codec stays as it is).
+    pub(super) fn with_floored_steps(&mut self, write: impl FnOnce(&mut MatrixEncoder<'a>)) {
+        let policy = self.policy;
         if let CodecPolicy::Budget(b) = policy {
-            self.policy = CodecPolicy::Budget(b * factor);
+            self.policy = CodecPolicy::BudgetFloored(b);
         }
         write(self);
         self.policy = policy;
@@ -199,7 +213,7 @@ impl<'a> MatrixEncoder<'a> {
         w.bytes.extend_from_slice(&e.bytes);
         let (rows, cols) = (m.rows as usize, m.cols as usize);
         let name = if e.codec.is_u8() {
-            u8_step_name(e.step)
+            u8_grid_name(e.grid)
         } else {
             e.codec.name()
         };

@@ -182,8 +182,8 @@ pub struct CodecUsage {
 pub struct EncodeReport {
     /// Per section in file order: its name and sizes.
     pub sections: Vec<(&'static str, SectionInfo)>,
-    /// Per codec name (`f32`, `f16`, `u8` or a coarser 8-bit grid's
-    /// [`u8_step_name`](crate::codec::u8_step_name); plain and predicted 8-bit matrices count
+    /// Per codec name (`f32`, `f16`, or an 8-bit grid's
+    /// [`u8_grid_name`](crate::codec::u8_grid_name); plain and predicted 8-bit matrices count
     /// under the same name).
     pub codecs: std::collections::BTreeMap<&'static str, CodecUsage>,
     /// Largest relative RMS error a codec added to one matrix.

@@ -20,18 +20,20 @@
 //! whatever the codec, and never allocates more than the bytes it was given can fill (sizes are
 //! checked against the remaining input before any allocation).
 //!
-//! How a matrix is predicted is in `predict`, the coarser 8-bit grids and the error a codec adds
+//! How a matrix is predicted is in `predict`, the 8-bit grids and the error a codec adds
 //! ([`codec_error`]) in `quantize`; [`choose_encoding`] picks the smallest codec within a budget.
 //!
 //! # Layout
 //! This file holds the codecs ([`MatrixCodec`], its tags and sizes) and the policy that picks
 //! one ([`CodecPolicy`]), and re-exports what the files beside it define, so every public path
 //! is `codec::X`. One concept per file:
-//! - `quantize`: 8-bit lines (`offset + scale·q`) on the full or a coarser grid ([`U8_STEPS`]),
-//!   the values any codec gives back ([`round_trip`]) and the error it adds ([`codec_error`]).
+//! - `quantize`: 8-bit lines (`offset + scale·q`) on the full grid, a coarser one or with one
+//!   floor on every line's step ([`U8Grid`]), the values any codec gives back ([`round_trip`])
+//!   and the error it adds ([`codec_error`]).
 //! - `predict`: the median predictor over the texel grid, its residuals, the predictor width
 //!   ([`best_predictor_width`]) and whether the predicted form is the smaller.
-//! - `choose`: the codec and 8-bit grid a [`CodecPolicy`] gives a matrix ([`choose_encoding`]).
+//! - `choose`: the codec and 8-bit grid a [`CodecPolicy`] gives a matrix ([`choose_encoding`],
+//!   [`coarsest_floor`]).
 //! - `write`: a matrix on the wire in a given codec ([`write_matrix`]), or in the smaller of the
 //!   plain and predicted 8-bit forms ([`write_matrix_smallest`], what the bundle writer calls).
 //! - `read`: any codec back to f32 ([`read_matrix`]).
@@ -44,13 +46,13 @@ mod read;
 #[cfg(test)]
 mod tests;
 mod write;
-pub use choose::{choose_codec, choose_encoding};
+pub use choose::{choose_codec, choose_encoding, coarsest_floor};
 pub use predict::{best_predictor_width, PREDICTOR_WIDTHS};
 pub use quantize::{
-    codec_error, codec_error_step, round_trip, round_trip_step, u8_step_name, U8_STEPS,
+    codec_error, codec_error_grid, round_trip, round_trip_grid, u8_grid_name, U8Grid, U8_STEPS,
 };
 pub use read::{read_matrix, DecodedMatrix};
-pub use write::{write_matrix, write_matrix_predicted, write_matrix_smallest, write_matrix_step};
+pub use write::{write_matrix, write_matrix_grid, write_matrix_predicted, write_matrix_smallest};
 
 /// How a matrix's values are stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -181,6 +183,21 @@ pub enum CodecPolicy {
     /// Every matrix in one codec (any of the 8-bit codecs means "8-bit on the shorter side";
     /// the bundle writer then stores the q plain or predicted, whichever is smaller).
     Fixed(MatrixCodec),
-    /// Per matrix, the smallest codec whose [`codec_error`] is at most this relative RMS error.
+    /// Per matrix, the smallest codec whose [`codec_error`] is at most this relative RMS error,
+    /// 8-bit lines on their own range's grid or a coarser step of it ([`U8Grid::Step`]).
     Budget(f64),
+    /// [`CodecPolicy::Budget`] with 8-bit lines under one floor on their step
+    /// ([`U8Grid::Floor`]): for matrices whose weak lines matter to the light in proportion to
+    /// their size (the writer's choice; see `quantize`).
+    BudgetFloored(f64),
+}
+
+impl CodecPolicy {
+    /// The error budget, when the policy has one.
+    pub fn budget(self) -> Option<f64> {
+        match self {
+            CodecPolicy::Budget(b) | CodecPolicy::BudgetFloored(b) => Some(b),
+            CodecPolicy::Fixed(_) => None,
+        }
+    }
 }

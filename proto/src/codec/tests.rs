@@ -96,17 +96,17 @@ fn a_wide_matrix_of_uneven_columns_takes_8_bits_with_a_pair_per_column() {
     assert!(
         MatrixCodec::U8Columns.value_bytes(rows, cols) < MatrixCodec::F16.value_bytes(rows, cols)
     );
-    let (codec, step, error) = choose_encoding(&m, rows, cols, CodecPolicy::Budget(budget));
+    let (codec, grid, error) = choose_encoding(&m, rows, cols, CodecPolicy::Budget(budget));
     assert_eq!(codec, MatrixCodec::U8Columns);
     assert!(error <= budget);
-    assert_eq!(error, codec_error_step(&m, rows, cols, codec, step));
+    assert_eq!(error, codec_error_grid(&m, rows, cols, codec, grid));
     // The wire round trip gives back what the error was measured on.
     let mut w = Writer::default();
-    write_matrix_smallest(&mut w, &m, rows, cols, codec, step);
+    write_matrix_smallest(&mut w, &m, rows, cols, codec, grid);
     let (_, _, back, _) = decode(&w.bytes);
     assert_eq!(
         bits(&back),
-        bits(&round_trip_step(&m, rows, cols, codec, step))
+        bits(&round_trip_grid(&m, rows, cols, codec, grid))
     );
 }
 
@@ -183,14 +183,21 @@ proptest! {
         rows in 0usize..12, cols in 0usize..12,
         seed in proptest::collection::vec(-1.0e3f32..1.0e3, 144),
         per_column in any::<bool>(),
-        step in proptest::sample::select(U8_STEPS.to_vec()),
+        grid in proptest::sample::select(test_grids()),
         width in prop_oneof![0u16..20, any::<u16>()],
     ) {
         let data = &seed[..rows * cols];
         let plain = if per_column { MatrixCodec::U8Columns } else { MatrixCodec::U8Rows };
-        let (back, predicted) = predicted_and_plain(data, rows, cols, plain, step, width);
+        let (back, predicted) = predicted_and_plain(data, rows, cols, plain, grid, width);
         prop_assert_eq!(bits(&back), bits(&predicted));
     }
+}
+
+/// Every coarser step, and floors from none to wider than the tests' values.
+fn test_grids() -> Vec<U8Grid> {
+    let steps = U8_STEPS.into_iter().map(U8Grid::Step);
+    let floors = [0.0, 1e-3, 0.05, 0.7, 30.0, 5e3].map(U8Grid::Floor);
+    steps.chain(floors).collect()
 }
 
 fn bits(v: &[f32]) -> Vec<u32> {
@@ -211,15 +218,15 @@ fn predicted_and_plain(
     rows: usize,
     cols: usize,
     plain: MatrixCodec,
-    step: u8,
+    grid: U8Grid,
     width: u16,
 ) -> (Vec<f32>, Vec<f32>) {
     let mut w = Writer::new();
-    write_matrix_step(&mut w, data, rows, cols, plain, step);
+    write_matrix_grid(&mut w, data, rows, cols, plain, grid);
     let (_, _, back, codec) = decode(&w.bytes);
     assert_eq!(codec, plain);
     let mut w = Writer::new();
-    write_matrix_predicted(&mut w, data, rows, cols, plain, step, width);
+    write_matrix_predicted(&mut w, data, rows, cols, plain, grid, width);
     let predicted = plain.predicted();
     assert_eq!(w.bytes.len(), 9 + predicted.value_bytes(rows, cols));
     assert_eq!(&w.bytes[9..11], &width.to_le_bytes());
@@ -260,18 +267,18 @@ fn predicted_forms_round_trip_on_every_shape_and_width() {
     for (rows, cols) in shapes {
         let data = noisy_matrix(rows, cols, (rows * 100 + cols) as u64);
         for plain in [MatrixCodec::U8Columns, MatrixCodec::U8Rows] {
-            for step in U8_STEPS {
+            for grid in test_grids() {
                 for width in [0, 1, 2, 3, 5, 8, 12, 13, 64, 65, 1000, u16::MAX] {
                     let (back, predicted) =
-                        predicted_and_plain(&data, rows, cols, plain, step, width);
+                        predicted_and_plain(&data, rows, cols, plain, grid, width);
                     assert_eq!(
                         bits(&back),
                         bits(&predicted),
-                        "{rows}×{cols} {plain:?} step {step} width {width}"
+                        "{rows}×{cols} {plain:?} {grid:?} width {width}"
                     );
                     assert_eq!(
                         bits(&back),
-                        bits(&round_trip_step(&data, rows, cols, plain, step)),
+                        bits(&round_trip_grid(&data, rows, cols, plain, grid)),
                     );
                 }
             }
@@ -292,7 +299,7 @@ fn predicted_forms_round_trip_on_every_shape_and_width() {
 fn predicted_wire_format_is_the_documented_one() {
     let q = [0.0f32, 255.0, 25.0, 20.0, 30.0, 40.0];
     let mut w = Writer::new();
-    write_matrix_predicted(&mut w, &q, 6, 1, MatrixCodec::U8Columns, 1, 2);
+    write_matrix_predicted(&mut w, &q, 6, 1, MatrixCodec::U8Columns, U8Grid::FULL, 2);
     let mut want = vec![6, 0, 0, 0, 1, 0, 0, 0, 4, 2, 0];
     want.extend_from_slice(&0.0f32.to_le_bytes());
     want.extend_from_slice(&1.0f32.to_le_bytes());
@@ -303,7 +310,7 @@ fn predicted_wire_format_is_the_documented_one() {
     assert_eq!(decode(&w.bytes).2, q);
     // 1D: the previous value.
     let mut w = Writer::new();
-    write_matrix_predicted(&mut w, &q, 1, 6, MatrixCodec::U8Rows, 1, 0);
+    write_matrix_predicted(&mut w, &q, 1, 6, MatrixCodec::U8Rows, U8Grid::FULL, 0);
     assert_eq!(&w.bytes[8..11], &[5, 0, 0]);
     assert_eq!(
         &w.bytes[19..],
@@ -353,26 +360,26 @@ fn smooth_face_data_is_stored_predicted_and_smaller_after_zstd() {
             CodecPolicy::Budget(0.02),
             CodecPolicy::Fixed(MatrixCodec::U8Columns),
         ] {
-            let (codec, step, _) = choose_encoding(data, rows, cols, policy);
+            let (codec, grid, _) = choose_encoding(data, rows, cols, policy);
             assert_eq!(codec, plain);
-            let chosen = write_matrix_smallest(&mut Writer::new(), data, rows, cols, codec, step);
-            assert_eq!(chosen, plain.predicted(), "{plain:?} step {step}");
-            let (_, q) = quantize_matrix(data, rows, cols, plain.per_column(), step);
+            let chosen = write_matrix_smallest(&mut Writer::new(), data, rows, cols, codec, grid);
+            assert_eq!(chosen, plain.predicted(), "{plain:?} {grid:?}");
+            let (_, q) = quantize_matrix(data, rows, cols, plain.per_column(), grid);
             let lines = to_lines(&q, rows, cols, plain.per_column());
             assert_eq!(best_predictor_width(&lines, texels).0, t as u16);
             let size = |codec| {
                 let mut w = Writer::new();
-                write_matrix_step(&mut w, data, rows, cols, codec, step);
+                write_matrix_grid(&mut w, data, rows, cols, codec, grid);
                 let (.., values, _) = decode(&w.bytes);
                 (zstd::bulk::compress(&w.bytes, 9).unwrap().len(), values)
             };
             let (plain_size, plain_values) = size(plain);
             let (predicted_size, values) = size(chosen);
             assert_eq!(bits(&values), bits(&plain_values));
-            eprintln!("{plain:?} step {step}: zstd {plain_size} -> {predicted_size}");
+            eprintln!("{plain:?} {grid:?}: zstd {plain_size} -> {predicted_size}");
             assert!(
                 (predicted_size as f64) < 0.9 * plain_size as f64,
-                "{plain:?} step {step}: {predicted_size} vs {plain_size}"
+                "{plain:?} {grid:?}: {predicted_size} vs {plain_size}"
             );
         }
     }
@@ -392,17 +399,17 @@ fn noise_keeps_the_plain_form() {
     for (rows, cols) in [(64, 8), (8, 64)] {
         let codec = MatrixCodec::u8_for(rows, cols);
         assert_eq!(
-            write_matrix_smallest(&mut Writer::new(), &data, rows, cols, codec, 1),
+            write_matrix_smallest(&mut Writer::new(), &data, rows, cols, codec, U8Grid::FULL),
             codec
         );
     }
     // Non-8-bit codecs and empty matrices are left alone.
     assert_eq!(
-        write_matrix_smallest(&mut Writer::new(), &data, 64, 8, MatrixCodec::F16, 1),
+        write_matrix_smallest(&mut Writer::new(), &data, 64, 8, MatrixCodec::F16, U8Grid::FULL),
         MatrixCodec::F16
     );
     assert_eq!(
-        write_matrix_smallest(&mut Writer::new(), &[], 0, 8, MatrixCodec::U8Columns, 1),
+        write_matrix_smallest(&mut Writer::new(), &[], 0, 8, MatrixCodec::U8Columns, U8Grid::FULL),
         MatrixCodec::U8Columns
     );
 }
@@ -439,7 +446,7 @@ proptest! {
 
 proptest! {
     /// The encoder's error (computed value by value) is, to the bit, the relative RMS error of
-    /// the round-tripped matrix, for every codec and 8-bit step.
+    /// the round-tripped matrix, for every codec and 8-bit grid.
     #[test]
     fn codec_error_is_that_of_the_round_trip_to_the_bit(
         rows in 1usize..12,
@@ -462,8 +469,8 @@ proptest! {
             MatrixCodec::U8Columns,
             MatrixCodec::U8Rows,
         ] {
-            for step in U8_STEPS {
-                let back = round_trip_step(&data, rows, cols, codec, step);
+            for grid in test_grids() {
+                let back = round_trip_grid(&data, rows, cols, codec, grid);
                 let (mut diff, mut norm) = (0.0f64, 0.0f64);
                 for (a, b) in data.iter().zip(&back) {
                     let d = *b as f64 - *a as f64;
@@ -477,8 +484,111 @@ proptest! {
                 } else {
                     (diff / norm).sqrt()
                 };
-                let got = codec_error_step(&data, rows, cols, codec, step);
-                prop_assert_eq!(got.to_bits(), want.to_bits(), "{:?} step {}", codec, step);
+                let got = codec_error_grid(&data, rows, cols, codec, grid);
+                prop_assert_eq!(got.to_bits(), want.to_bits(), "{:?} {:?}", codec, grid);
+            }
+        }
+    }
+}
+
+/// A truncated SVD's left factor `U_k Σ_k` (texels × k): smooth modes whose columns shrink
+/// with σ_k from 1 to 1/100, with a little noise.
+fn left_factor(texels: usize, k: usize) -> Vec<f32> {
+    let noise = noisy_matrix(texels, k, 7);
+    (0..texels * k)
+        .map(|e| {
+            let (i, j) = (e / k, e % k);
+            let sigma = 0.01f32.powf(j as f32 / (k - 1) as f32);
+            let x = i as f32 / texels as f32;
+            sigma * ((x * (j + 1) as f32 * 3.1).sin() + 0.05 * noise[e])
+        })
+        .collect()
+}
+
+#[test]
+fn a_floor_fits_the_budget_and_codes_a_left_factor_in_fewer_bytes() {
+    let (rows, cols, budget) = (256, 40, 0.04);
+    let m = left_factor(rows, cols);
+    let stored = |policy| {
+        let (codec, grid, error) = choose_encoding(&m, rows, cols, policy);
+        assert_eq!(codec, MatrixCodec::U8Columns, "{policy:?}");
+        assert!(error <= budget, "{policy:?}: {error}");
+        assert_eq!(error, codec_error_grid(&m, rows, cols, codec, grid));
+        let mut w = Writer::new();
+        write_matrix_smallest(&mut w, &m, rows, cols, codec, grid);
+        let (.., values, _) = decode(&w.bytes);
+        assert_eq!(bits(&values), bits(&round_trip_grid(&m, rows, cols, codec, grid)));
+        (grid, zstd::bulk::compress(&w.bytes, 9).unwrap().len())
+    };
+    let (step, step_bytes) = stored(CodecPolicy::Budget(budget));
+    let (floor, floor_bytes) = stored(CodecPolicy::BudgetFloored(budget));
+    eprintln!("{step:?}: {step_bytes} B; {floor:?}: {floor_bytes} B");
+    let U8Grid::Floor(f) = floor else {
+        panic!("a floored budget gave {floor:?}")
+    };
+    assert!(f > 0.0);
+    // Measured: 5,914 → 2,346 B (Step(5) → Floor(0.0295)).
+    assert!(
+        (floor_bytes as f64) < 0.5 * step_bytes as f64,
+        "{floor_bytes} vs {step_bytes}"
+    );
+    // Every column takes the one step, so the strong ones keep more levels than the weak.
+    let (params, q) = quantize_matrix(&m, rows, cols, true, floor);
+    let column_max = |j: usize| (0..rows).map(|i| q[i * cols + j]).max().unwrap();
+    assert!(params.iter().all(|&(_, scale)| scale == f));
+    assert!(column_max(0) > 30, "{}", column_max(0));
+    assert!(column_max(cols - 1) < 2, "{}", column_max(cols - 1));
+}
+
+#[test]
+fn a_line_narrower_than_half_a_floor_is_its_midpoint() {
+    let m = vec![1.0f32, 1.05, 1.1, 50.0, 0.0, 100.0];
+    // Rows: [1.0, 1.05, 1.1] and [50, 0, 100]; a floor of 0.3 is over twice the first row's
+    // range and finer than the second's full-grid step (100 / 255).
+    let floor = U8Grid::Floor(0.3);
+    let back = round_trip_grid(&m, 2, 3, MatrixCodec::U8Rows, floor);
+    let mid = 1.0f32 + 0.5 * (1.1 - 1.0);
+    assert!((mid - 1.05).abs() < 1e-6);
+    assert_eq!(&back[..3], &[mid, mid, mid]);
+    let (params, q) = quantize_matrix(&m, 2, 3, false, floor);
+    assert_eq!(params[0], (mid, 0.3));
+    assert_eq!(params[1], (0.0, 100.0 / 255.0));
+    assert_eq!(&q[..3], &[0, 0, 0]);
+    assert_eq!(&q[3..], &[128, 0, 255]);
+}
+
+proptest! {
+    /// Floor 0 is the full grid to the bit; any floor keeps every value within half its line's
+    /// step, with q within the byte; the coarsest floor within a budget is within it.
+    #[test]
+    fn floors_stay_within_half_a_step_and_the_budget(
+        rows in 1usize..10,
+        cols in 1usize..10,
+        seed in proptest::collection::vec(-1.0e3f32..1.0e3, 100),
+        floor in 0.0f32..500.0,
+        budget in 1e-4f64..0.5,
+    ) {
+        let data = &seed[..rows * cols];
+        for codec in [MatrixCodec::U8Columns, MatrixCodec::U8Rows] {
+            prop_assert_eq!(
+                bits(&round_trip_grid(data, rows, cols, codec, U8Grid::Floor(0.0))),
+                bits(&round_trip_grid(data, rows, cols, codec, U8Grid::FULL))
+            );
+            let per_column = codec.per_column();
+            let (params, _) = quantize_matrix(data, rows, cols, per_column, U8Grid::Floor(floor));
+            let back = round_trip_grid(data, rows, cols, codec, U8Grid::Floor(floor));
+            for (k, (a, b)) in data.iter().zip(&back).enumerate() {
+                let (_, scale) = params[if per_column { k % cols } else { k / cols }];
+                prop_assert!(scale == 0.0 || scale >= floor);
+                let slack = 1e-4 * (a.abs() + scale) + 1e-6;
+                prop_assert!((a - b).abs() <= 0.5 * scale + slack, "{} {} {}", a, b, scale);
+            }
+            match coarsest_floor(data, rows, cols, codec, budget) {
+                Some((grid, e)) => {
+                    prop_assert!(e <= budget);
+                    prop_assert_eq!(e.to_bits(), codec_error_grid(data, rows, cols, codec, grid).to_bits());
+                }
+                None => prop_assert!(codec_error(data, rows, cols, codec) > budget),
             }
         }
     }

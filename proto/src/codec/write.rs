@@ -1,5 +1,5 @@
 //! Writing one matrix: `rows u32, cols u32, codec u8` then its values in the codec
-//! ([`write_matrix`], on a coarser 8-bit grid [`write_matrix_step`], predicted with a given width
+//! ([`write_matrix`], on a chosen 8-bit grid [`write_matrix_grid`], predicted with a given width
 //! [`write_matrix_predicted`]), or an 8-bit matrix in the smaller of its plain and predicted
 //! forms ([`write_matrix_smallest`], what the bundle writer calls).
 //!
@@ -9,23 +9,23 @@
 use crate::wire::Writer;
 
 use super::predict::{best_predictor_width, line_len, push_residuals, to_lines, u8_form};
-use super::quantize::quantize_matrix;
+use super::quantize::{quantize_matrix, U8Grid};
 use super::MatrixCodec;
 
 /// Writes `rows, cols, codec` and the values in `codec`.
 pub fn write_matrix(w: &mut Writer, data: &[f32], rows: usize, cols: usize, codec: MatrixCodec) {
-    write_matrix_step(w, data, rows, cols, codec, 1)
+    write_matrix_grid(w, data, rows, cols, codec, U8Grid::FULL)
 }
 
-/// [`write_matrix`] on an 8-bit grid with `step` (the bytes decode like any 8-bit matrix). A
+/// [`write_matrix`] on an 8-bit `grid` (the bytes decode like any 8-bit matrix). A
 /// predicted codec (tags 4/5) uses the predictor width of [`best_predictor_width`].
-pub fn write_matrix_step(
+pub fn write_matrix_grid(
     w: &mut Writer,
     data: &[f32],
     rows: usize,
     cols: usize,
     codec: MatrixCodec,
-    step: u8,
+    grid: U8Grid,
 ) {
     debug_assert_eq!(data.len(), rows * cols);
     match codec {
@@ -43,17 +43,17 @@ pub fn write_matrix_step(
             }
         }
         MatrixCodec::U8Columns | MatrixCodec::U8Rows => {
-            let (params, q) = quantize_matrix(data, rows, cols, codec.per_column(), step);
+            let (params, q) = quantize_matrix(data, rows, cols, codec.per_column(), grid);
             write_plain(w, rows, cols, codec, &params, &q);
         }
         MatrixCodec::U8ColumnsPredicted | MatrixCodec::U8RowsPredicted => {
-            let (params, q) = quantize_matrix(data, rows, cols, codec.per_column(), step);
+            let (params, q) = quantize_matrix(data, rows, cols, codec.per_column(), grid);
             write_predicted_from_q(w, rows, cols, codec, &params, &q, None);
         }
     }
 }
 
-/// Writes a matrix in `codec` on the grid `step`, an 8-bit one in the smaller of its plain and
+/// Writes a matrix in `codec` on the 8-bit `grid`, an 8-bit one in the smaller of its plain and
 /// predicted forms: the predicted one (tag 4/5) when the order-0 entropy of its residuals, plus
 /// the 16 bits of the width, is below that of the plain q bytes. Returns the codec written. The matrix is
 /// quantized once and its predictor width searched once: what the bundle writer calls.
@@ -63,14 +63,14 @@ pub fn write_matrix_smallest(
     rows: usize,
     cols: usize,
     codec: MatrixCodec,
-    step: u8,
+    grid: U8Grid,
 ) -> MatrixCodec {
     if !codec.is_u8() || rows * cols == 0 {
-        write_matrix_step(w, data, rows, cols, codec, step);
+        write_matrix_grid(w, data, rows, cols, codec, grid);
         return codec;
     }
     let plain = codec.unpredicted();
-    let (params, q) = quantize_matrix(data, rows, cols, plain.per_column(), step);
+    let (params, q) = quantize_matrix(data, rows, cols, plain.per_column(), grid);
     let ((chosen, width), lines) = u8_form(&q, rows, cols, plain);
     if chosen.is_predicted() {
         write_predicted(w, rows, cols, chosen, &params, &lines, width);
@@ -111,7 +111,7 @@ fn write_predicted_from_q(
     write_predicted(w, rows, cols, codec, params, &lines, width);
 }
 
-/// [`write_matrix_step`] in a predicted codec (tag 4 or 5; the 8-bit codec of the same side
+/// [`write_matrix_grid`] in a predicted codec (tag 4 or 5; the 8-bit codec of the same side
 /// otherwise) with a given predictor `width` (0: 1D).
 pub fn write_matrix_predicted(
     w: &mut Writer,
@@ -119,13 +119,13 @@ pub fn write_matrix_predicted(
     rows: usize,
     cols: usize,
     codec: MatrixCodec,
-    step: u8,
+    grid: U8Grid,
     width: u16,
 ) {
     debug_assert_eq!(data.len(), rows * cols);
     let codec = codec.predicted();
     debug_assert!(codec.is_predicted(), "{codec:?}");
-    let (params, q) = quantize_matrix(data, rows, cols, codec.per_column(), step);
+    let (params, q) = quantize_matrix(data, rows, cols, codec.per_column(), grid);
     write_predicted_from_q(w, rows, cols, codec, &params, &q, Some(width));
 }
 

@@ -6,7 +6,7 @@
 //! One entry per scene name ([`ENTRY`]: `<dir>/encodings/<key>.lfenc`): the engine build that
 //! wrote it, then the encodings of the last bundle written, each under the blake3 of the build,
 //! the codec policy, the matrix's size and its value bits. The payload: the build (u32 length,
-//! bytes), a count, then per matrix its key (32 bytes), codec tag, 8-bit step, error (f64) and
+//! bytes), a count, then per matrix its key (32 bytes), codec tag, 8-bit grid (a tag byte: 0 a step, u8; 1 a floor, f32), error (f64) and
 //! bytes (u64 length, then the bytes). Another build's memo is an empty one, which the next
 //! save replaces: a level keeps one memo however often the engine is rebuilt.
 //! Framing, verification and atomic writes are [`crate::bake::cache::entry`]'s: a stale or
@@ -37,14 +37,14 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use lightfarm_proto::bundle::{EncodingMemo, Matrix, MatrixEncoding};
-use lightfarm_proto::codec::{CodecPolicy, MatrixCodec};
+use lightfarm_proto::codec::{CodecPolicy, MatrixCodec, U8Grid};
 use lightfarm_proto::wire::{Reader, WireError, Writer};
 
 use crate::bake::cache::bundle_memo::build_identity;
 use crate::bake::cache::entry::{EntryKind, EntryStore};
 
 /// Bumped whenever the key's contents or the payload change.
-const CODE_VERSION: &str = "lightfarm-encodings-3";
+const CODE_VERSION: &str = "lightfarm-encodings-4";
 
 /// Where encoding memos live and their version.
 pub const ENTRY: EntryKind = EntryKind {
@@ -386,7 +386,7 @@ fn encode(build: &[u8], kept: &[(usize, [u8; 32], MatrixEncoding)]) -> Vec<u8> {
     w.bytes
 }
 
-/// A count, then per matrix its key, codec tag, 8-bit step, error and bytes.
+/// A count, then per matrix its key, codec tag, 8-bit grid, error and bytes.
 fn write_encodings<'a>(
     w: &mut Writer,
     encodings: impl ExactSizeIterator<Item = (&'a [u8; 32], &'a MatrixEncoding)>,
@@ -395,7 +395,16 @@ fn write_encodings<'a>(
     for (key, e) in encodings {
         w.bytes.extend_from_slice(key);
         w.u8(e.codec.tag());
-        w.u8(e.step);
+        match e.grid {
+            U8Grid::Step(step) => {
+                w.u8(0);
+                w.u8(step);
+            }
+            U8Grid::Floor(floor) => {
+                w.u8(1);
+                w.f32(floor);
+            }
+        }
         w.f64(e.error);
         w.u64(e.bytes.len() as u64);
         w.bytes.extend_from_slice(&e.bytes);
@@ -449,7 +458,11 @@ fn read_encodings(r: &mut Reader) -> Result<Encodings, WireError> {
         let key: [u8; 32] = r.take(32)?.try_into().expect("32 bytes");
         let codec =
             MatrixCodec::from_tag(r.u8()?).ok_or_else(|| WireError::Invalid("codec tag".into()))?;
-        let step = r.u8()?;
+        let grid = match r.u8()? {
+            0 => U8Grid::Step(r.u8()?),
+            1 => U8Grid::Floor(r.f32()?),
+            _ => return Err(WireError::Invalid("8-bit grid tag".into())),
+        };
         let error = r.f64()?;
         let len = usize::try_from(r.u64()?)
             .ok()
@@ -461,7 +474,7 @@ fn read_encodings(r: &mut Reader) -> Result<Encodings, WireError> {
             MatrixEncoding {
                 bytes,
                 codec,
-                step,
+                grid,
                 error,
             },
         );
