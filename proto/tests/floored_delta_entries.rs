@@ -86,7 +86,11 @@ fn only_the_drt_entries_own_matrices_take_a_floor() {
     let mut probes = probe_bundle(&mut rng, false);
     probes.probes.as_mut().unwrap().entries = a.entries.clone();
     let (_, report) = probes.encode_with(&options(budget));
-    assert!(!report.codecs.contains_key(FLOORED), "{:?}", report.codecs.keys());
+    assert!(
+        !report.codecs.contains_key(FLOORED),
+        "{:?}",
+        report.codecs.keys()
+    );
 
     // A fixed codec stays fixed.
     let fixed = EncodeOptions {

@@ -59,10 +59,11 @@ pub fn choose_encoding(
                 if u8_codec != shorter && u8_codec.value_bytes(rows, cols) >= f16_bytes {
                     continue;
                 }
+                let errors = GridErrors::new(data, rows, cols, u8_codec);
                 let fit = if floored {
-                    coarsest_floor(data, rows, cols, u8_codec, budget)
+                    floor_within(&errors, budget)
                 } else {
-                    coarsest_step(data, rows, cols, u8_codec, budget)
+                    coarsest_step(&errors, budget)
                 };
                 if let Some((grid, e)) = fit {
                     return (u8_codec, grid, e);
@@ -79,22 +80,39 @@ pub fn choose_encoding(
     (codec, U8Grid::FULL, error)
 }
 
-/// The coarsest of [`U8_STEPS`] whose error in the 8-bit `codec` is within `budget`, with
-/// that error; None when not even the full grid fits.
-fn coarsest_step(
-    data: &[f32],
+/// The error one matrix's 8-bit lines take on any grid, its lines' ranges found once.
+struct GridErrors<'a> {
+    data: &'a [f32],
     rows: usize,
     cols: usize,
-    codec: MatrixCodec,
-    budget: f64,
-) -> Option<(U8Grid, f64)> {
-    let per_column = codec.per_column();
-    let ranges = line_ranges(data, rows, cols, per_column);
+    per_column: bool,
+    ranges: Vec<(f32, f32)>,
+}
+
+impl<'a> GridErrors<'a> {
+    fn new(data: &'a [f32], rows: usize, cols: usize, codec: MatrixCodec) -> GridErrors<'a> {
+        let per_column = codec.per_column();
+        GridErrors {
+            data,
+            rows,
+            cols,
+            per_column,
+            ranges: line_ranges(data, rows, cols, per_column),
+        }
+    }
+
+    fn at(&self, grid: U8Grid) -> f64 {
+        let lines: Vec<_> = self.ranges.iter().map(|&r| line_on(r, grid)).collect();
+        u8_error(self.data, self.rows, self.cols, self.per_column, &lines)
+    }
+}
+
+/// The coarsest of [`U8_STEPS`] within `budget`, with its error; None when not even the full
+/// grid fits.
+fn coarsest_step(errors: &GridErrors, budget: f64) -> Option<(U8Grid, f64)> {
     U8_STEPS.into_iter().find_map(|step| {
-        let grid = U8Grid::Step(step);
-        let lines: Vec<_> = ranges.iter().map(|&r| line_on(r, grid)).collect();
-        let e = u8_error(data, rows, cols, per_column, &lines);
-        (e <= budget).then_some((grid, e))
+        let e = errors.at(U8Grid::Step(step));
+        (e <= budget).then_some((U8Grid::Step(step), e))
     })
 }
 
@@ -112,19 +130,22 @@ pub fn coarsest_floor(
     codec: MatrixCodec,
     budget: f64,
 ) -> Option<(U8Grid, f64)> {
-    let per_column = codec.per_column();
-    let ranges = line_ranges(data, rows, cols, per_column);
-    let error = |floor: f32| {
-        let lines: Vec<_> = ranges.iter().map(|&r| line_on(r, U8Grid::Floor(floor))).collect();
-        u8_error(data, rows, cols, per_column, &lines)
-    };
+    floor_within(&GridErrors::new(data, rows, cols, codec), budget)
+}
+
+/// [`coarsest_floor`] of the matrix `errors` measures.
+fn floor_within(errors: &GridErrors, budget: f64) -> Option<(U8Grid, f64)> {
+    let error = |floor: f32| errors.at(U8Grid::Floor(floor));
+    let ranges = &errors.ranges;
     let full = error(0.0);
-    if !(full <= budget) {
+    if full.is_nan() || full > budget {
         return None;
     }
-    let spans = ranges.iter().filter(|(lo, hi)| hi > lo).map(|(lo, hi)| hi - lo);
-    let (widest, narrowest) =
-        spans.fold((0.0f32, f32::INFINITY), |(w, n), s| (w.max(s), n.min(s)));
+    let spans = ranges
+        .iter()
+        .filter(|(lo, hi)| hi > lo)
+        .map(|(lo, hi)| hi - lo);
+    let (widest, narrowest) = spans.fold((0.0f32, f32::INFINITY), |(w, n), s| (w.max(s), n.min(s)));
     if !(widest > 0.0 && widest.is_finite()) {
         return Some((U8Grid::Floor(0.0), full));
     }

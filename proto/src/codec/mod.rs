@@ -191,13 +191,3 @@ pub enum CodecPolicy {
     /// their size (the writer's choice; see `quantize`).
     BudgetFloored(f64),
 }
-
-impl CodecPolicy {
-    /// The error budget, when the policy has one.
-    pub fn budget(self) -> Option<f64> {
-        match self {
-            CodecPolicy::Budget(b) | CodecPolicy::BudgetFloored(b) => Some(b),
-            CodecPolicy::Fixed(_) => None,
-        }
-    }
-}

@@ -14,9 +14,10 @@
 //!   range). The rounding error of a step `Δ` is about `Δ²/12` per value and an entropy coder
 //!   spends about `log2(range / Δ)` bits on it, so at a given Frobenius error a matrix costs
 //!   the fewest bits when its lines share one step: the weak (narrow) lines of a truncated
-//!   SVD's `U_k Σ_k` no longer get the strong ones' relative precision. Which matrices may take a floor is the writer's choice
-//!   ([`super::CodecPolicy::BudgetFloored`]): the Frobenius error is only a proxy of what a
-//!   matrix's error does to the light, and a floor moves the error onto the weak lines.
+//!   SVD's `U_k Σ_k` no longer get the strong ones' relative precision. Which matrices may
+//!   take a floor is the writer's choice ([`super::CodecPolicy::BudgetFloored`]): the
+//!   Frobenius error is only a proxy of what a matrix's error does to the light, and a floor
+//!   moves the error onto the weak lines.
 //!
 //! With a budget the encoder takes the coarsest grid of its family within it
 //! ([`super::choose_encoding`]). Invariant: the full grid (`Step(1)`, `Floor(0)`) puts a
@@ -110,7 +111,7 @@ pub(super) fn line_on((lo, hi): (f32, f32), grid: U8Grid) -> Line {
     if !lo.is_finite() {
         return line(0.0, 0.0, 1);
     }
-    if !(hi > lo) {
+    if hi.is_nan() || hi <= lo {
         return line(lo, 0.0, 1);
     }
     let full = (hi - lo) / 255.0;

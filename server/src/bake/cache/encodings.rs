@@ -6,9 +6,10 @@
 //! One entry per scene name ([`ENTRY`]: `<dir>/encodings/<key>.lfenc`): the engine build that
 //! wrote it, then the encodings of the last bundle written, each under the blake3 of the build,
 //! the codec policy, the matrix's size and its value bits. The payload: the build (u32 length,
-//! bytes), a count, then per matrix its key (32 bytes), codec tag, 8-bit grid (a tag byte: 0 a step, u8; 1 a floor, f32), error (f64) and
-//! bytes (u64 length, then the bytes). Another build's memo is an empty one, which the next
-//! save replaces: a level keeps one memo however often the engine is rebuilt.
+//! bytes), a count, then per matrix its key (32 bytes), codec tag, 8-bit grid (a tag byte, then
+//! for 0 a step, u8, for 1 a floor, f32), error (f64) and bytes (u64 length, then the bytes).
+//! Another build's memo is an empty one, which the next save replaces: a level keeps one memo
+//! however often the engine is rebuilt.
 //! Framing, verification and atomic writes are [`crate::bake::cache::entry`]'s: a stale or
 //! corrupt entry is an empty memo.
 //!
