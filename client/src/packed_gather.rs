@@ -19,9 +19,10 @@
 //!
 //! A gather of format 2.6 has tiles ([`GatherTiles`]): column `n_texels + i` reads the mean
 //! direct light of tile `i`. The rows read it from the padded light, whose tile lanes
-//! [`PackedGather::fill_tiles`] sets per application; by the change, [`GatherColumns::scatter_tiles`]
-//! takes each tile's mean of the change (a tile lies on one surface, so the tiles of a block's or
-//! clutter object's texels are consecutive: [`GatherColumns::tiles_of`]).
+//! [`PackedGather::fill_tiles`] sets per application; by the change,
+//! [`GatherColumns::scatter_tiles`] takes each tile's mean of the change (a tile lies on one
+//! surface, so the tiles of a block's or clutter object's texels are consecutive:
+//! [`GatherColumns::tiles_of`]). The tile table is shared by both ([`Arc`]), not copied.
 //!
 //! Invariants:
 //! - Lossless: with 8- or 16-bit weights a row is summed as `unit · Σ count · l` instead of
@@ -34,6 +35,7 @@
 //!   `row_start`), so indexing here cannot go out of bounds.
 
 use std::ops::Range;
+use std::sync::Arc;
 
 use lightfarm_proto::bundle::{gather_counts, gather_counts_u16, GatherTiles, TexelGather};
 
@@ -69,7 +71,8 @@ pub struct PackedGather {
     row_start: Vec<u32>,
     cols: Columns,
     weights: Weights,
-    tiles: TileMeans,
+    /// Shared with the [`GatherColumns`] made from it.
+    tiles: Arc<TileMeans>,
 }
 
 /// The gather's tiles ([`GatherTiles`]): column `n_texels + i` reads the mean direct light of
@@ -119,7 +122,7 @@ impl TileMeans {
 impl PackedGather {
     /// Packs `gather` over a layout of `n_texels` texels.
     pub fn new(gather: &TexelGather, n_texels: usize) -> PackedGather {
-        let tiles = TileMeans::new(&gather.tiles, n_texels);
+        let tiles = Arc::new(TileMeans::new(&gather.tiles, n_texels));
         let cols = if tiles.n_columns() <= 1 << 16 {
             Columns::U16(gather.cols.iter().map(|&c| c as u16).collect())
         } else {
@@ -257,7 +260,7 @@ impl PackedGather {
             col_start,
             rows,
             weights,
-            tiles: self.tiles.clone(),
+            tiles: Arc::clone(&self.tiles),
         }
     }
 
@@ -334,7 +337,8 @@ pub struct GatherColumns {
     col_start: Vec<u32>,
     rows: Columns,
     weights: Weights,
-    tiles: TileMeans,
+    /// The [`PackedGather`]'s, shared.
+    tiles: Arc<TileMeans>,
 }
 
 impl GatherColumns {
@@ -364,7 +368,7 @@ impl GatherColumns {
     ) -> bool {
         let n = self.tiles.n_texels;
         let light = |c: usize| self.tiles.mean(c - n, direct);
-        self.scatter_by(n + tiles.start..n + tiles.end, light, sums)
+        self.scatter_by(self.tile_columns(tiles), light, sums)
     }
 
     /// The tiles whose texels lie in `texels`, a range of whole surfaces (a block's or a

@@ -58,8 +58,8 @@ pub struct TilePool {
     n_texels: u32,
     /// Per texel, the first texel of its tile, or `u32::MAX` for a texel never pooled.
     tile_of: Vec<u32>,
-    /// Per texel, the surface grid it lies on: `(surface texel offset, t)`, for listing a
-    /// tile's texels.
+    /// Per texel, the surface grid it lies on and its tiles' side: `(surface texel offset, t,
+    /// side)`, for listing a tile's texels.
     grid_of: Vec<(u32, u32, u32)>,
     /// Per tile (by first texel), whether a row reads it.
     used: Vec<bool>,
