@@ -38,7 +38,8 @@ ROOT = Path(__file__).resolve().parent.parent
 # Metres each closed block face moves into its block: 0.2 mm, a fifth of lfgt.py's 1 mm query
 # lift, and about ten f32 steps at 1 km.
 OFFSET = 2e-4
-# Coordinates closer than this are one plane (metres).
+# Coordinates closer than this are one (metres): a face's plane in lfgt.convert's output, and
+# an overlap's extent.
 SAME = 1e-9
 FACES = {"-x": (0, 0), "+x": (0, 1), "-y": (1, 0), "+y": (1, 1), "-z": (2, 0), "+z": (2, 1)}
 
@@ -70,7 +71,8 @@ def coincident(scene):
     faces = closed_faces(scene)
     by_plane = {}
     for f in faces:
-        by_plane.setdefault((f[2], round(f[3] / SAME)), []).append(f)
+        # Coincident faces come from the same coordinate in the scene: one key, exactly.
+        by_plane.setdefault((f[2], f[3]), []).append(f)
     pairs = []
     for group in by_plane.values():
         for i, a in enumerate(group):
