@@ -15,12 +15,12 @@
 
 #![allow(clippy::needless_range_loop)]
 
+use crate::bundle::{section, BUNDLE_MAJOR, BUNDLE_MINOR};
 use crate::bundle::{
     BlockOps, Bundle, ClutterOps, CompactEntry, DeltaEntry, DeltaSource, DrtOps, GatherTiles,
     Layout, Matrix, OpeningOps, ProbeVolume, PropEntry, ShapeOps, SourceBases, SourceBasis,
     SparseRows, SurfaceInfo, TexelGather, TracedEntry, TransportOps,
 };
-use crate::bundle::{BUNDLE_MAJOR, BUNDLE_MINOR};
 use crate::container::write_container;
 
 /// A fixed-seed linear congruential generator (the client tests' `Lcg`, same sequence).
@@ -628,9 +628,24 @@ pub fn fuzz_mutations(
     focus: u32,
     mut check: impl FnMut(Mutation, &[u8]) -> bool,
 ) -> FuzzCounts {
-    let bytes = b.encode();
+    // A focus on a DRT kind only older writers wrote: the bundle as a 2.6 writer wrote it.
+    let older = [
+        section::DRT_REPLACING,
+        section::DRT_WIDE_COUNTS,
+        section::DRT_TILED_GATHER,
+    ]
+    .contains(&focus);
+    let sections = if older {
+        b.raw_sections_as_2_6()
+    } else {
+        b.raw_sections()
+    };
+    let bytes = if older {
+        join_sections(&sections)
+    } else {
+        b.encode()
+    };
     assert!(check(Mutation::Unmutated, &bytes));
-    let sections = b.raw_sections();
     assert!(check(Mutation::Unmutated, &join_sections(&sections)));
     let focus_at = sections
         .iter()

@@ -94,3 +94,13 @@ fn mutated_drt_bundles_with_gather_tiles_never_panic() {
     with_tiles(&mut b, 2);
     fuzz_decode(&mut rng, &b, section::DRT_TILED_GATHER);
 }
+
+#[test]
+fn mutated_drt_bundles_with_packed_index_lists_never_panic() {
+    let mut rng = Lcg(42);
+    let mut b = drt_bundle(&mut rng, false, true, true);
+    with_gather(&mut rng, &mut b, 700);
+    with_tiles(&mut b, 2);
+    b.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
+    fuzz_decode(&mut rng, &b, section::DRT_PACKED_LISTS);
+}

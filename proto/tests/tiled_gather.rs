@@ -1,8 +1,10 @@
 //! Format 2.6's DRT section (kind 21): an exact gather whose columns past the layout's texels
 //! read the mean direct light of tiles of texels ([`GatherTiles`]). The bundle decodes to the
-//! same gather and tiles; a gather without tiles is still written as kind 13 or 20; and every
+//! same gather and tiles; a 2.6 writer wrote a gather without tiles as kind 13 or 20; and every
 //! broken tile table or tile column is refused by name (a 2.5 reader skips kind 21 and lights
-//! by MRT, so the tiles never reach a reader that would index past its texels).
+//! by MRT, so the tiles never reach a reader that would index past its texels). Format 2.7
+//! writes kind 22 instead (the same layout, its index lists packed), which decodes to the same
+//! bundle as kind 21 and is smaller.
 
 use lightfarm_proto::bundle::{section, Bundle, GatherTiles};
 use lightfarm_proto::testing::{drt_bundle, join_sections, with_gather, with_tiles, Lcg};
@@ -16,9 +18,10 @@ fn tiled(seed: u64, max_count: u32) -> Bundle {
     b
 }
 
+/// The kind of `b`'s DRT section as a 2.6 writer wrote it.
 fn drt_kind(b: &Bundle) -> u32 {
     let kinds: Vec<u32> = b
-        .raw_sections()
+        .raw_sections_as_2_6()
         .into_iter()
         .map(|(k, _)| k)
         .filter(|k| {
@@ -47,8 +50,58 @@ fn a_tiled_gather_is_kind_21_and_decodes_to_the_same_gather_and_tiles() {
         assert!(!g.tiles.is_empty());
         assert!(g.cols.iter().any(|&c| c >= n), "some column reads a tile");
         assert_eq!(drt_kind(&b), section::DRT_TILED_GATHER);
+        let decoded = Bundle::decode(&join_sections(&b.raw_sections_as_2_6())).expect("decodes");
+        assert_eq!(decoded, b, "seed {seed}");
+    }
+}
+
+/// The payload of `b`'s DRT section in `sections`.
+fn drt_payload(sections: &[(u32, Vec<u8>)]) -> &[u8] {
+    let drt = [
+        section::DRT_REPLACING,
+        section::DRT_WIDE_COUNTS,
+        section::DRT_TILED_GATHER,
+        section::DRT_PACKED_LISTS,
+    ];
+    &sections.iter().find(|s| drt.contains(&s.0)).unwrap().1
+}
+
+#[test]
+fn the_writer_packs_every_index_list_into_kind_22_which_decodes_to_the_same_bundle() {
+    for (seed, max_count, tiles) in [(91, 4, true), (92, 700, true), (93, 200, false)] {
+        let mut rng = Lcg(seed);
+        let mut b = drt_bundle(&mut rng, false, true, true);
+        with_gather(&mut rng, &mut b, max_count);
+        if tiles {
+            with_tiles(&mut b, 2);
+        }
+        b.drt.as_mut().unwrap().replaced = vec![0, 1, 2, 7];
+        let sections = b.raw_sections();
+        assert!(sections.iter().any(|s| s.0 == section::DRT_PACKED_LISTS));
         let decoded = Bundle::decode(&b.encode()).expect("decodes");
         assert_eq!(decoded, b, "seed {seed}");
+        // Every step in this small bundle's lists is under 8,192 texels: at most two bytes an
+        // index against four. A packed list's header is 16 bytes against 8, and kind 22 holds
+        // the two tile lists even when they are empty (a 2.6 writer then wrote kind 13 or 20).
+        let d = b.drt.as_ref().unwrap();
+        let g = d.direct_gather.as_ref().unwrap();
+        let indices = d.entries.iter().map(|e| e.rows.len()).sum::<usize>()
+            + d.buried.len()
+            + d.replaced.len()
+            + g.rows.len()
+            + g.row_start.len()
+            + g.tiles.start.len()
+            + g.tiles.texels.len();
+        let lists = d.entries.len() + 6;
+        let plain_lists = if tiles { lists } else { lists - 2 };
+        let plain = drt_payload(&b.raw_sections_as_2_6()).len();
+        let packed = drt_payload(&sections).len();
+        assert!(
+            packed + 2 * indices <= plain + 16 * lists - 8 * plain_lists,
+            "seed {seed}: {plain} B plain, {packed} B packed, {indices} indices"
+        );
+        // (So small a bundle can come out larger packed, by those headers: seed 93.)
+        assert!(indices > 40, "seed {seed}: {indices} indices");
     }
 }
 
@@ -64,7 +117,7 @@ fn a_gather_without_tiles_keeps_kinds_13_and_20() {
 
 /// `b` re-encoded with its DRT section's kind replaced.
 fn relabelled(b: &Bundle, from: u32, to: u32) -> Vec<u8> {
-    let mut sections = b.raw_sections();
+    let mut sections = b.raw_sections_as_2_6();
     for s in sections.iter_mut().filter(|s| s.0 == from) {
         s.0 = to;
     }
@@ -121,9 +174,9 @@ fn broken_tiles_and_tile_columns_are_refused_by_name() {
     // Tiles without a gather.
     let mut b = tiled(87, 4);
     let t = gather_tiles(&mut b).tiles.clone();
-    let mut sections = b.raw_sections();
+    let mut sections = b.raw_sections_as_2_6();
     b.drt.as_mut().unwrap().direct_gather = None;
-    let without = b.raw_sections();
+    let without = b.raw_sections_as_2_6();
     let drt_of = |s: &[(u32, Vec<u8>)]| {
         s.iter()
             .position(|s| s.0 == section::DRT_TILED_GATHER || s.0 == section::DRT_REPLACING)

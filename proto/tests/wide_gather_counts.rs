@@ -1,15 +1,16 @@
 //! Format 2.5's DRT section (kind 20): an exact gather with a hit count over 255 keeps its
 //! weights as escaped counts (one byte, 255 followed by the rest as a varint) instead of f32;
-//! the bundle decodes to the same gather, bit for bit. A gather whose counts all fit a byte is
-//! still written as kind 13, and kind 13 refuses the escaped form (which is why it is a kind of
-//! its own: a 2.4 reader skips kind 20 and lights by MRT rather than failing).
+//! the bundle decodes to the same gather, bit for bit. A 2.6 writer wrote a gather whose counts
+//! all fit a byte as kind 13, and kind 13 refuses the escaped form (which is why it is a kind of
+//! its own: a 2.4 reader skips kind 20 and lights by MRT rather than failing). The current
+//! writer's kind 22 holds either form (`tiled_gather.rs`); its bundles decode here too.
 
 use lightfarm_proto::bundle::{section, Bundle};
-use lightfarm_proto::testing::{drt_bundle, with_gather, Lcg};
+use lightfarm_proto::testing::{drt_bundle, join_sections, with_gather, Lcg};
 
-/// `b`'s DRT section as the writer writes it: its kind and raw payload.
+/// `b`'s DRT section as a 2.6 writer wrote it: its kind and raw payload.
 fn drt_section(b: &Bundle) -> (u32, Vec<u8>) {
-    let sections = b.raw_sections();
+    let sections = b.raw_sections_as_2_6();
     let drt: Vec<_> = sections
         .into_iter()
         .filter(|(k, _)| [section::DRT_REPLACING, section::DRT_WIDE_COUNTS].contains(k))
@@ -26,6 +27,8 @@ fn counts_over_a_byte_are_written_as_kind_20_and_decode_to_the_same_gather() {
         with_gather(&mut rng, &mut b, max_count);
         let (kind, _) = drt_section(&b);
         assert_eq!(kind, section::DRT_WIDE_COUNTS, "max count {max_count}");
+        let as_2_6 = join_sections(&b.raw_sections_as_2_6());
+        assert_eq!(Bundle::decode(&as_2_6).expect("decodes"), b);
         let decoded = Bundle::decode(&b.encode()).expect("decodes");
         assert_eq!(decoded, b, "max count {max_count}");
         let g = decoded.drt.unwrap().direct_gather.unwrap();
@@ -50,13 +53,13 @@ fn kind_13_refuses_escaped_counts_and_they_take_a_byte_per_entry() {
     let mut rng = Lcg(73);
     let mut b = drt_bundle(&mut rng, false, true, true);
     with_gather(&mut rng, &mut b, 600);
-    let mut sections = b.raw_sections();
+    let mut sections = b.raw_sections_as_2_6();
     for s in sections.iter_mut() {
         if s.0 == section::DRT_WIDE_COUNTS {
             s.0 = section::DRT_REPLACING;
         }
     }
-    let relabelled = lightfarm_proto::testing::join_sections(&sections);
+    let relabelled = join_sections(&sections);
     let err = Bundle::decode(&relabelled).expect_err("kind 13 with escaped counts");
     assert!(err.to_string().contains("unknown weight form 2"), "{err}");
 

@@ -10,6 +10,7 @@
 
 use crate::wire::{Reader, Writer};
 
+use super::index_lists::{read_index_list, write_index_list, IndexLists};
 use super::matrix_codec::MatrixEncoder;
 use super::{BundleError, DeltaEntry, DeltaSource, Matrix};
 
@@ -28,10 +29,11 @@ pub(super) fn write_entries<'a>(
     entries: &'a [DeltaEntry],
     enc: &mut MatrixEncoder<'a>,
     floored: FlooredLeft,
+    lists: IndexLists,
 ) {
     w.u32(entries.len() as u32);
     for e in entries {
-        w.u32s(&e.rows);
+        write_index_list(w, &e.rows, lists);
         // Bit 7 of the source kind: a `mix` matrix follows the entry's matrix.
         write_source(w, e.source, if e.mix.is_some() { 0x80 } else { 0 });
         match floored {
@@ -83,11 +85,14 @@ pub(crate) fn read_source(r: &mut Reader, what: &str) -> Result<(DeltaSource, u8
     Ok((source, kind & 0xf0))
 }
 
-pub(super) fn read_entries(r: &mut Reader) -> Result<Vec<DeltaEntry>, BundleError> {
+pub(super) fn read_entries(
+    r: &mut Reader,
+    lists: IndexLists,
+) -> Result<Vec<DeltaEntry>, BundleError> {
     let n_entries = r.u32()? as usize;
     let mut entries = Vec::with_capacity(n_entries.min(r.remaining() / 24));
     for _ in 0..n_entries {
-        let rows = r.u32s()?;
+        let rows = read_index_list(r, lists)?;
         let (source, flags) = read_source(r, "delta entry")?;
         if flags & !0x80 != 0 {
             return Err(BundleError::Invalid(format!(

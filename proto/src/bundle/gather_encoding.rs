@@ -5,12 +5,13 @@
 //! - `0`: no gather;
 //! - `1` (1.x, still read, by `legacy_1x`): CSR as it is in memory, `rows:u32s row_start:u32s
 //!   cols:u32s values:f32s`;
-//! - `2` (2.0, what the writer uses): `rows:u32s row_start:u32s`, then the columns as
+//! - `2` (2.0, what the writer uses): `rows:u32s row_start:u32s` (in section 22 both packed,
+//!   `index_lists`), then the columns as
 //!   `len:u64` bytes of LEB128 varints, per row the first column and after it each column minus
 //!   the previous one minus 1 (the writer sorts a row by column and merges repeats, so columns
 //!   strictly ascend within a row), then `weights:u8`: `0` and `values:f32s`, or `1` and
 //!   `unit:f32 counts:u32s-length-prefixed bytes` with value = unit · count, or (format 2.5,
-//!   section 20 only) `2` and `unit:f32 n:u64 counts:u8×n len:u64` bytes of LEB128 varints, one
+//!   sections 20–22 only) `2` and `unit:f32 n:u64 counts:u8×n len:u64` bytes of LEB128 varints, one
 //!   per count byte of 255 in order, each the count minus 255. A gather weight is a hit fraction
 //!   `hits / rays`, so a unit form is exact for every bake: the writer uses `1` when every value
 //!   is `unit · count` in f32 with count ≤ 255, else `2` when it is with any count up to 2²⁴ (a
@@ -30,6 +31,7 @@
 
 use crate::wire::{Reader, WireError, Writer};
 
+use super::index_lists::{read_index_list, write_index_list, IndexLists};
 use super::{legacy_1x, BundleError, TexelGather};
 
 impl TexelGather {
@@ -76,8 +78,12 @@ impl TexelGather {
 }
 
 /// Writes `gather` (or its absence) in form 2; true when its weights took escaped counts
-/// (weight form 2), which only section 20 may hold.
-pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) -> bool {
+/// (weight form 2), which only sections 20–22 may hold.
+pub(super) fn write_gather(
+    w: &mut Writer,
+    gather: Option<&TexelGather>,
+    lists: IndexLists,
+) -> bool {
     let Some(g) = gather else {
         w.u8(0);
         return false;
@@ -97,8 +103,8 @@ pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) -> bool
         sorted = g.sorted();
         &sorted
     };
-    w.u32s(rows);
-    w.u32s(row_start);
+    write_index_list(w, rows, lists);
+    write_index_list(w, row_start, lists);
     let mut varints = Vec::with_capacity(cols.len());
     for i in 0..rows.len() {
         let mut previous: Option<u32> = None;
@@ -141,18 +147,19 @@ pub(super) fn write_gather(w: &mut Writer, gather: Option<&TexelGather>) -> bool
 const WIDEST_COUNT: f32 = 16_777_216.0;
 
 /// Reads what [`write_gather`] wrote, or the 1.x form (`legacy_1x`); weight form 2 only when
-/// `escaped_counts` (section 20).
+/// `escaped_counts` (sections 20–22).
 pub(super) fn read_gather(
     r: &mut Reader,
     escaped_counts: bool,
+    lists: IndexLists,
 ) -> Result<Option<TexelGather>, BundleError> {
     let invalid = |m: &str| BundleError::Invalid(format!("drt gather: {m}"));
     match r.u8()? {
         0 => Ok(None),
         1 => legacy_1x::read_gather_csr(r).map(Some),
         2 => {
-            let rows = r.u32s()?;
-            let row_start = r.u32s()?;
+            let rows = read_index_list(r, lists)?;
+            let row_start = read_index_list(r, lists)?;
             if row_start.len() != rows.len() + 1
                 || row_start.first() != Some(&0)
                 || row_start.windows(2).any(|w| w[1] < w[0])
@@ -290,13 +297,18 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
+    /// `g` written and read back with its index lists in either form (the same gather).
     fn round_trip(g: &TexelGather) -> TexelGather {
-        let mut w = Writer::new();
-        let escaped = write_gather(&mut w, Some(g));
-        let mut r = Reader::new(&w.bytes);
-        let out = read_gather(&mut r, escaped).unwrap().unwrap();
-        assert_eq!(r.remaining(), 0);
-        out
+        let [plain, packed] = [IndexLists::Plain, IndexLists::Packed].map(|lists| {
+            let mut w = Writer::new();
+            let escaped = write_gather(&mut w, Some(g), lists);
+            let mut r = Reader::new(&w.bytes);
+            let out = read_gather(&mut r, escaped, lists).unwrap().unwrap();
+            assert_eq!(r.remaining(), 0);
+            out
+        });
+        assert_eq!(plain, packed);
+        packed
     }
 
     #[test]
@@ -338,7 +350,8 @@ mod tests {
         ) {
             let mut b = vec![2u8];
             b.extend_from_slice(&bytes);
-            let _ = read_gather(&mut Reader::new(&b), true);
+            let _ = read_gather(&mut Reader::new(&b), true, IndexLists::Plain);
+            let _ = read_gather(&mut Reader::new(&b), true, IndexLists::Packed);
         }
 
         #[test]

@@ -18,6 +18,7 @@
 
 use crate::wire::{Reader, WireError, Writer};
 
+use super::index_lists::{read_index_list, write_index_list, IndexLists};
 use super::TexelGather;
 
 impl TexelGather {
@@ -65,15 +66,15 @@ impl GatherTiles {
         self.start.push(self.texels.len() as u32);
     }
 
-    pub(super) fn write(&self, w: &mut Writer) {
-        w.u32s(&self.start);
-        w.u32s(&self.texels);
+    pub(super) fn write(&self, w: &mut Writer, lists: IndexLists) {
+        write_index_list(w, &self.start, lists);
+        write_index_list(w, &self.texels, lists);
     }
 
-    pub(super) fn read(r: &mut Reader) -> Result<GatherTiles, WireError> {
+    pub(super) fn read(r: &mut Reader, lists: IndexLists) -> Result<GatherTiles, WireError> {
         Ok(GatherTiles {
-            start: r.u32s()?,
-            texels: r.u32s()?,
+            start: read_index_list(r, lists)?,
+            texels: read_index_list(r, lists)?,
         })
     }
 

@@ -34,6 +34,8 @@
 //!   weights as counts of one byte, escaped past 255 in kind 20.
 //! - `gather_tiles`: the tiles of texels a gather column may read the mean of ([`GatherTiles`],
 //!   section kind 21).
+//! - `index_lists`: the DRT section's texel index lists as `u32s` or packed as varints of
+//!   their steps (section kind 22).
 //! - `sh_responses`: the `sh` section ([`ShResponses`]).
 //! - `dynamic_shapes`: the dynamic objects' triangles in their own frames (section kind 19,
 //!   [`DynamicShape`]), for their direct shadows.
@@ -56,6 +58,7 @@ mod delta_entries;
 mod dynamic_shapes;
 mod gather_encoding;
 mod gather_tiles;
+mod index_lists;
 mod legacy_1x;
 mod matrix_codec;
 mod read;
@@ -93,9 +96,11 @@ pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 /// written instead of kind 13 when some count exceeds a byte: a 2.4 or older reader skips it
 /// and lights the scene by MRT alone. Minor 6 adds the DRT section whose exact gather reads tiles
 /// of texels ([`GatherTiles`], kind 21), written instead of kinds 13 and 20 when the gather has
-/// tiles: a 2.5 or older reader skips it and lights the scene by MRT alone.
+/// tiles: a 2.5 or older reader skips it and lights the scene by MRT alone. Minor 7 adds the DRT
+/// section whose texel index lists are packed as varints of their steps (kind 22), the only DRT
+/// kind it writes: a 2.6 or older reader skips it and lights the scene by MRT alone.
 pub const BUNDLE_MAJOR: u16 = 2;
-pub const BUNDLE_MINOR: u16 = 6;
+pub const BUNDLE_MINOR: u16 = 7;
 /// The oldest major version this reader decodes.
 pub const OLDEST_READABLE_MAJOR: u16 = 1;
 const READABLE_MAJORS: std::ops::RangeInclusive<u16> = OLDEST_READABLE_MAJOR..=BUNDLE_MAJOR;

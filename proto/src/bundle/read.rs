@@ -12,6 +12,7 @@ use crate::container::read_sections;
 use crate::wire::Reader;
 
 use super::delta_entries::read_entries;
+use super::index_lists::{read_index_list, IndexLists};
 use super::sections::{is_known_section, section, section_name};
 use super::{dynamic_shapes, gather_encoding, legacy_1x, sh_responses, symmetric_blocks};
 use super::{
@@ -171,13 +172,23 @@ impl Bundle {
                     }
                 }
                 section::FULL => full = Some(read_full(&mut p)?),
-                section::DRT | section::DRT_LOW_RANK => drt = Some(read_drt(&mut p, false)?),
-                section::DRT_REPLACING | section::DRT_WIDE_COUNTS | section::DRT_TILED_GATHER => {
+                section::DRT | section::DRT_LOW_RANK => {
+                    drt = Some(read_drt(&mut p, false, IndexLists::Plain)?)
+                }
+                section::DRT_REPLACING
+                | section::DRT_WIDE_COUNTS
+                | section::DRT_TILED_GATHER
+                | section::DRT_PACKED_LISTS => {
                     let wide = *kind != section::DRT_REPLACING;
-                    let mut d = read_drt(&mut p, wide)?;
-                    d.replaced = p.u32s()?;
-                    if *kind == section::DRT_TILED_GATHER {
-                        let tiles = GatherTiles::read(&mut p)?;
+                    let lists = if *kind == section::DRT_PACKED_LISTS {
+                        IndexLists::Packed
+                    } else {
+                        IndexLists::Plain
+                    };
+                    let mut d = read_drt(&mut p, wide, lists)?;
+                    d.replaced = read_index_list(&mut p, lists)?;
+                    if matches!(*kind, section::DRT_TILED_GATHER | section::DRT_PACKED_LISTS) {
+                        let tiles = GatherTiles::read(&mut p, lists)?;
                         match d.direct_gather.as_mut() {
                             Some(g) => g.tiles = tiles,
                             None if tiles.is_empty() => {}
@@ -342,7 +353,7 @@ fn read_full(r: &mut Reader) -> Result<SparseRows, BundleError> {
 }
 
 /// A DRT section's common layout; `wide_counts` for section 20 (escaped gather counts).
-fn read_drt(r: &mut Reader, wide_counts: bool) -> Result<DrtOps, BundleError> {
+fn read_drt(r: &mut Reader, wide_counts: bool, lists: IndexLists) -> Result<DrtOps, BundleError> {
     let n_clutter = r.u32()? as usize;
     let mut clutter = Vec::with_capacity(n_clutter.min(r.remaining() / 16));
     for _ in 0..n_clutter {
@@ -352,9 +363,9 @@ fn read_drt(r: &mut Reader, wide_counts: bool) -> Result<DrtOps, BundleError> {
             t_dc: Matrix::read(r, "drt clutter")?,
         });
     }
-    let entries = read_entries(r)?;
-    let buried = r.u32s()?;
-    let direct_gather = gather_encoding::read_gather(r, wide_counts)?;
+    let entries = read_entries(r, lists)?;
+    let buried = read_index_list(r, lists)?;
+    let direct_gather = gather_encoding::read_gather(r, wide_counts, lists)?;
     Ok(DrtOps {
         clutter,
         entries,
@@ -370,7 +381,7 @@ fn read_probes(r: &mut Reader) -> Result<ProbeVolume, BundleError> {
     let dims = [r.u32()?, r.u32()?, r.u32()?];
     let slot = r.u32s()?;
     let n_probes = r.u32()?;
-    let entries = read_entries(r)?;
+    let entries = read_entries(r, IndexLists::Plain)?;
     Ok(ProbeVolume {
         origin,
         spacing,

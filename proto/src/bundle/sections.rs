@@ -66,6 +66,12 @@ pub mod section {
     /// instead of kinds 13 and 20 when the gather has tiles. A 2.5 or older reader skips it and
     /// lights the scene by MRT alone.
     pub const DRT_TILED_GATHER: u32 = 21;
+    /// The DRT section of format 2.7: [`DRT_TILED_GATHER`]'s layout (its tiles always present,
+    /// possibly none) with every texel index list — the entries' rows, the buried texels, the
+    /// gather's rows and row starts, the replaced texels, the tiles' starts and texels —
+    /// packed as zigzag varints of their steps (`index_lists`); the only DRT kind a 2.7 writer
+    /// writes. A 2.6 or older reader skips it and lights the scene by MRT alone.
+    pub const DRT_PACKED_LISTS: u32 = 22;
 }
 
 /// Report name of a section kind.
@@ -85,6 +91,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::DRT_REPLACING => "drt",
         section::DRT_WIDE_COUNTS => "drt",
         section::DRT_TILED_GATHER => "drt",
+        section::DRT_PACKED_LISTS => "drt",
         section::BLOCKS_SYMMETRIC => "blocks",
         section::ROOMS => "rooms",
         section::TRANSPORT_SOURCE_BASES => "transport",

@@ -14,12 +14,13 @@ use crate::dnrt_grid::DnrtCodec;
 use crate::wire::Writer;
 
 use super::delta_entries::{write_entries, FlooredLeft};
+use super::index_lists::{write_index_list, IndexLists};
 use super::matrix_codec::{EncodingMemo, MatrixEncoder};
 use super::sections::{section, section_name};
 use super::{dynamic_shapes, gather_encoding, sh_responses, symmetric_blocks};
 use super::{
-    Bundle, CompactEntry, EncodeOptions, EncodeReport, Layout, TransportOps, BUNDLE_MAJOR,
-    BUNDLE_MINOR,
+    Bundle, CompactEntry, EncodeOptions, EncodeReport, GatherTiles, Layout, TransportOps,
+    BUNDLE_MAJOR, BUNDLE_MINOR,
 };
 
 /// Share of the transport codec budget a source basis of transport kind 3 is coded within, and
@@ -174,7 +175,25 @@ impl Bundle {
         self.encode_sections(&mut enc)
     }
 
+    /// [`Bundle::raw_sections`] with the DRT section as a 2.6 writer wrote it: kind 13, 20 or
+    /// 21, its index lists as `u32s`. For tests of what older writers wrote, which this reader
+    /// still reads.
+    pub fn raw_sections_as_2_6(&self) -> Vec<(u32, Vec<u8>)> {
+        let mut enc = MatrixEncoder::new(&EncodeOptions::default());
+        self.encode_sections_as(&mut enc, IndexLists::Plain)
+    }
+
     fn encode_sections<'a>(&'a self, enc: &mut MatrixEncoder<'a>) -> Vec<(u32, Vec<u8>)> {
+        self.encode_sections_as(enc, IndexLists::Packed)
+    }
+
+    /// Every section's payload, the DRT section's index lists in form `lists` (packed: kind 22;
+    /// plain: kind 13, 20 or 21 as a 2.6 writer chose).
+    fn encode_sections_as<'a>(
+        &'a self,
+        enc: &mut MatrixEncoder<'a>,
+        lists: IndexLists,
+    ) -> Vec<(u32, Vec<u8>)> {
         let mut sections: Vec<(u32, Vec<u8>)> = Vec::new();
         let mut w = Writer::new();
         self.layout.write(&mut w);
@@ -275,19 +294,24 @@ impl Bundle {
             // measured against the reference, the error stayed put and the section shrank by
             // 11-13% (docs/bundle-format.md, Codecs). The clutter's `T_d→c`, the entries' mixes,
             // the shapes and the transport keep each line's own grid: there a floor cost error.
-            write_entries(&mut w, &d.entries, enc, FlooredLeft::Yes);
-            w.u32s(&d.buried);
-            let wide = gather_encoding::write_gather(&mut w, d.direct_gather.as_ref());
-            w.u32s(&d.replaced);
-            let tiles = d.direct_gather.as_ref().map(|g| &g.tiles);
-            let kind = match tiles {
-                Some(t) if !t.is_empty() => {
-                    t.write(&mut w);
-                    section::DRT_TILED_GATHER
-                }
-                _ if wide => section::DRT_WIDE_COUNTS,
-                _ => section::DRT_REPLACING,
+            write_entries(&mut w, &d.entries, enc, FlooredLeft::Yes, lists);
+            write_index_list(&mut w, &d.buried, lists);
+            let wide = gather_encoding::write_gather(&mut w, d.direct_gather.as_ref(), lists);
+            write_index_list(&mut w, &d.replaced, lists);
+            let no_tiles = GatherTiles::default();
+            let tiles = d.direct_gather.as_ref().map_or(&no_tiles, |g| &g.tiles);
+            // Kind 22 (what this writer writes): kind 21's layout, the tiles always there and
+            // every texel index list packed (`index_lists`). In 2.6's plain form, the kind a
+            // 2.6 writer chose.
+            let kind = match lists {
+                IndexLists::Packed => section::DRT_PACKED_LISTS,
+                IndexLists::Plain if !tiles.is_empty() => section::DRT_TILED_GATHER,
+                IndexLists::Plain if wide => section::DRT_WIDE_COUNTS,
+                IndexLists::Plain => section::DRT_REPLACING,
             };
+            if matches!(kind, section::DRT_PACKED_LISTS | section::DRT_TILED_GATHER) {
+                tiles.write(&mut w, lists);
+            }
             sections.push((kind, w.bytes));
         }
         if let Some(p) = &self.probes {
@@ -302,7 +326,7 @@ impl Bundle {
             w.u32s(&p.slot);
             w.u32(p.n_probes);
             // Probe deltas keep each line's own grid: a floor was not measured on them.
-            write_entries(&mut w, &p.entries, enc, FlooredLeft::No);
+            write_entries(&mut w, &p.entries, enc, FlooredLeft::No, IndexLists::Plain);
             // A low-rank entry needs kind 17, which a reader that cannot apply it skips.
             let kind = if p.entries.iter().any(|e| e.mix.is_some()) {
                 section::PROBES_LOW_RANK
