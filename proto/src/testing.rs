@@ -620,7 +620,8 @@ pub struct FuzzCounts {
 /// Byte mutations and truncations of `b`'s encoding, half of those inside sections in the
 /// section of kind `focus`: 1,500 file bytes, 500 file truncations, 3,000 section bytes and
 /// 1,000 section truncations, each handed to `check` (which returns whether the bytes
-/// decoded). Panics if the bundle has no `focus` section or `check` refuses the unmutated
+/// decoded). A `focus` on kind 13, 20 or 21 mutates the bundle as a 2.6 writer wrote it
+/// ([`Bundle::raw_sections_as_2_6`]), which the current writer no longer writes. Panics if the bundle has no `focus` section or `check` refuses the unmutated
 /// encoding.
 pub fn fuzz_mutations(
     rng: &mut Lcg,
@@ -635,15 +636,12 @@ pub fn fuzz_mutations(
         section::DRT_TILED_GATHER,
     ]
     .contains(&focus);
-    let sections = if older {
-        b.raw_sections_as_2_6()
+    let (sections, bytes) = if older {
+        let sections = b.raw_sections_as_2_6();
+        let bytes = join_sections(&sections);
+        (sections, bytes)
     } else {
-        b.raw_sections()
-    };
-    let bytes = if older {
-        join_sections(&sections)
-    } else {
-        b.encode()
+        (b.raw_sections(), b.encode())
     };
     assert!(check(Mutation::Unmutated, &bytes));
     assert!(check(Mutation::Unmutated, &join_sections(&sections)));

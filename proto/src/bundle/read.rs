@@ -352,7 +352,8 @@ fn read_full(r: &mut Reader) -> Result<SparseRows, BundleError> {
     })
 }
 
-/// A DRT section's common layout; `wide_counts` for section 20 (escaped gather counts).
+/// A DRT section's common layout; `wide_counts` for sections 20–22 (escaped gather counts),
+/// `lists` the form of its texel index lists (packed in section 22).
 fn read_drt(r: &mut Reader, wide_counts: bool, lists: IndexLists) -> Result<DrtOps, BundleError> {
     let n_clutter = r.u32()? as usize;
     let mut clutter = Vec::with_capacity(n_clutter.min(r.remaining() / 16));
