@@ -441,6 +441,17 @@ pub fn with_tiles(b: &mut Bundle, max_hits: u32) {
     *g = out;
 }
 
+/// A [`drt_bundle`] in which every texel index list of the DRT section is non-empty: an exact
+/// gather with counts over 255 ([`with_gather`]), pooled by tile ([`with_tiles`]), and three
+/// replaced texels. What the kind-22 fuzz tests mutate (format 2.7, every list packed).
+pub fn drt_bundle_with_every_list(rng: &mut Lcg) -> Bundle {
+    let mut b = drt_bundle(rng, false, true, true);
+    with_gather(rng, &mut b, 700);
+    with_tiles(&mut b, 2);
+    b.drt.as_mut().expect("a DRT bundle").replaced = vec![0, 5, 9];
+    b
+}
+
 /// [`drt_bundle`]'s blocks (a: 4 texels, r = 2; b: 6 texels, r = 3) with compact transport
 /// through shared source bases (transport kind 3, section 16): block b's light through a 2 × 3
 /// basis, block a's as it is; a receives from b (k = 2), b from a and itself (k = 3).

@@ -155,6 +155,35 @@ impl<'a> Reader<'a> {
             .map(|c| u32::from_le_bytes(c.try_into().unwrap()))
             .collect())
     }
+    /// A LEB128 varint of at most [`VARINT_MAX_BYTES`] bytes (what [`push_varint`] writes for
+    /// a value below 2³⁵), refused when longer.
+    pub fn varint(&mut self) -> Result<u64, WireError> {
+        let mut v: u64 = 0;
+        for shift in (0..7 * VARINT_MAX_BYTES).step_by(7) {
+            let b = self.u8()?;
+            v |= ((b & 0x7f) as u64) << shift;
+            if b & 0x80 == 0 {
+                return Ok(v);
+            }
+        }
+        Err(WireError::Invalid(format!(
+            "varint longer than {VARINT_MAX_BYTES} bytes"
+        )))
+    }
+}
+
+/// The longest varint [`Reader::varint`] reads: 35 bits, room for a u32 or a zigzagged step
+/// between two u32s.
+pub const VARINT_MAX_BYTES: usize = 5;
+
+/// Appends `v` as a LEB128 varint: 7 bits a byte, low bits first, the top bit set on every byte
+/// but the last.
+pub fn push_varint(out: &mut Vec<u8>, mut v: u64) {
+    while v >= 0x80 {
+        out.push((v as u8) | 0x80);
+        v >>= 7;
+    }
+    out.push(v as u8);
 }
 
 /// FNV-1a 64-bit checksum (detects corruption, not tampering).

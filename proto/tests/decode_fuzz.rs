@@ -13,8 +13,8 @@
 
 use lightfarm_proto::bundle::{section, Bundle};
 use lightfarm_proto::testing::{
-    drt_bundle, factored_bundle, fuzz_mutations, probe_bundle, with_gather, with_tiles, Lcg,
-    Mutation,
+    drt_bundle, drt_bundle_with_every_list, factored_bundle, fuzz_mutations, probe_bundle,
+    with_gather, with_tiles, Lcg, Mutation,
 };
 
 /// Decodes `bytes`; a decoded bundle must pass `validate` (what the runtime checks before
@@ -98,9 +98,6 @@ fn mutated_drt_bundles_with_gather_tiles_never_panic() {
 #[test]
 fn mutated_drt_bundles_with_packed_index_lists_never_panic() {
     let mut rng = Lcg(42);
-    let mut b = drt_bundle(&mut rng, false, true, true);
-    with_gather(&mut rng, &mut b, 700);
-    with_tiles(&mut b, 2);
-    b.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
+    let b = drt_bundle_with_every_list(&mut rng);
     fuzz_decode(&mut rng, &b, section::DRT_PACKED_LISTS);
 }

@@ -29,7 +29,7 @@
 //! hold (every entry takes at least one varint byte and one weight byte); the bundle's
 //! `validate` then checks indices against the layout as for form 1.
 
-use crate::wire::{Reader, WireError, Writer};
+use crate::wire::{push_varint, Reader, WireError, Writer};
 
 use super::index_lists::{read_index_list, write_index_list, IndexLists};
 use super::{legacy_1x, BundleError, TexelGather};
@@ -113,7 +113,7 @@ pub(super) fn write_gather(
                 None => c,
                 Some(p) => c - p - 1,
             };
-            push_varint(&mut varints, gap);
+            push_varint(&mut varints, gap as u64);
             previous = Some(c);
         }
     }
@@ -133,7 +133,7 @@ pub(super) fn write_gather(
     for &c in &counts {
         w.u8(c.min(255) as u8);
         if escaped && c >= 255 {
-            push_varint(&mut extra, c - 255);
+            push_varint(&mut extra, (c - 255) as u64);
         }
     }
     if escaped {
@@ -238,24 +238,8 @@ pub(super) fn read_gather(
     }
 }
 
-fn push_varint(out: &mut Vec<u8>, mut v: u32) {
-    while v >= 0x80 {
-        out.push((v as u8) | 0x80);
-        v >>= 7;
-    }
-    out.push(v as u8);
-}
-
 fn read_varint(r: &mut Reader) -> Result<u32, WireError> {
-    let mut v: u64 = 0;
-    for shift in (0..35).step_by(7) {
-        let b = r.u8()?;
-        v |= ((b & 0x7f) as u64) << shift;
-        if b & 0x80 == 0 {
-            return u32::try_from(v).map_err(|_| WireError::Invalid("varint past u32".into()));
-        }
-    }
-    Err(WireError::Invalid("varint longer than 5 bytes".into()))
+    u32::try_from(r.varint()?).map_err(|_| WireError::Invalid("varint past u32".into()))
 }
 
 /// `(unit, counts)` when every value is exactly `unit · count` with `count ≤ 255` (the unit is

@@ -18,7 +18,7 @@
 //! Invariant: reading never panics and never allocates more indices than the bytes present
 //! can hold (every index takes at least one byte).
 
-use crate::wire::{Reader, WireError, Writer};
+use crate::wire::{push_varint, Reader, WireError, Writer};
 
 /// How a DRT section stores its texel index lists.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -40,12 +40,7 @@ pub(super) fn write_index_list(w: &mut Writer, list: &[u32], form: IndexLists) {
                 let step = x as i64 - previous - 1;
                 previous = x as i64;
                 // Zigzag: 0, −1, 1, −2, … → 0, 1, 2, 3, …
-                let mut v = ((step << 1) ^ (step >> 63)) as u64;
-                while v >= 0x80 {
-                    bytes.push((v as u8) | 0x80);
-                    v >>= 7;
-                }
-                bytes.push(v as u8);
+                push_varint(&mut bytes, ((step << 1) ^ (step >> 63)) as u64);
             }
             w.u64(list.len() as u64);
             w.u64(bytes.len() as u64);
@@ -69,20 +64,8 @@ pub(super) fn read_index_list(r: &mut Reader, form: IndexLists) -> Result<Vec<u3
             let mut list = Vec::with_capacity(n as usize);
             let mut previous = -1i64;
             for _ in 0..n {
-                let mut v = 0u64;
-                let mut shift = 0;
-                loop {
-                    let b = bytes.u8()?;
-                    v |= ((b & 0x7f) as u64) << shift;
-                    if b & 0x80 == 0 {
-                        break;
-                    }
-                    shift += 7;
-                    // A step of a u32 list zigzags to under 2^34: five bytes.
-                    if shift > 28 {
-                        return Err(invalid("varint longer than 5 bytes"));
-                    }
-                }
+                // A step of a u32 list zigzags to under 2^34: five bytes at most.
+                let v = bytes.varint()?;
                 let step = (v >> 1) as i64 ^ -((v & 1) as i64);
                 let x = previous + 1 + step;
                 let x = u32::try_from(x).map_err(|_| invalid("index outside u32"))?;

@@ -7,7 +7,9 @@
 
 use super::*;
 use crate::probes::irradiance_at;
-use lightfarm_proto::testing::{factored_bundle, fuzz_mutations, with_gather, with_tiles};
+use lightfarm_proto::testing::{
+    drt_bundle_with_every_list, factored_bundle, fuzz_mutations, with_gather, with_tiles,
+};
 
 /// Decodes `bytes`; a decoded bundle must make a runtime, which must apply every method
 /// without panicking. Returns whether the bytes decoded.
@@ -128,10 +130,7 @@ fn mutated_drt_bundles_with_gather_tiles_never_panic() {
 #[test]
 fn mutated_drt_bundles_with_packed_index_lists_never_panic() {
     let mut rng = Lcg(42);
-    let mut b = drt_bundle(&mut rng, false, true, true);
-    with_gather(&mut rng, &mut b, 700);
-    with_tiles(&mut b, 2);
-    b.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
+    let b = drt_bundle_with_every_list(&mut rng);
     fuzz_bundle(
         &mut rng,
         &b,
