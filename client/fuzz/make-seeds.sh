@@ -4,7 +4,8 @@
 # `cargo build --release`.
 # tiny-u8-format1.lfb is kept as it is: a 1.x bundle (kind-3 blocks, CSR gather), so the
 # fuzzer still reaches the reader's 1.x paths; tiny-u8-format2.0.lfb likewise: a 2.0 bundle,
-# whose DRT section is kind 11 with its index lists as u32s (2.7 writes kind 22).
+# whose DRT section is kind 11 with its index lists as u32s; tiny-u8-format2.7.lfb: a 2.7
+# bundle, whose DRT section is kind 22 with its gather in form 2 (2.8 writes kind 23).
 set -euo pipefail
 out=client/fuzz/corpus/decode
 bin=${LIGHTFARM_BIN:-./target/release/lightfarm}

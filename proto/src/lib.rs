@@ -17,6 +17,8 @@
 //!   face grids onto a canonical shape's.
 //! - [`face`]: box faces and the texel layout on each.
 //! - [`wire`]: the little-endian encoding the bundle and the operator cache share.
+//! - [`range_coder`]: an adaptive binary range coder (LZMA's) and its models, for the bundle
+//!   sections whose symbols a context predicts better than zstd's order-0 Huffman codes them.
 //! - [`dnrt_grid`]: one dynamic object's DNRT transfer grid (codecs, ranges, placement).
 //! - [`sh`], [`sh_rotation`]: the SH convention and rotation of SH coefficients.
 //! - [`work_queue`]: the bundle writer's parallel map (jobs in order on scoped threads).
@@ -38,6 +40,7 @@ pub mod container;
 pub mod dnrt_grid;
 pub mod face;
 pub mod lights;
+pub mod range_coder;
 pub mod result;
 pub mod scene;
 pub mod sh;

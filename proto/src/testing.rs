@@ -443,7 +443,8 @@ pub fn with_tiles(b: &mut Bundle, max_hits: u32) {
 
 /// A [`drt_bundle`] in which every texel index list of the DRT section is non-empty: an exact
 /// gather with counts over 255 ([`with_gather`]), pooled by tile ([`with_tiles`]), and three
-/// replaced texels. What the kind-22 fuzz tests mutate (format 2.7, every list packed).
+/// replaced texels. What the kind-22 and kind-23 fuzz tests mutate (formats 2.7 and 2.8, every
+/// list packed; in 2.8 the gather modelled).
 pub fn drt_bundle_with_every_list(rng: &mut Lcg) -> Bundle {
     let mut b = drt_bundle(rng, false, true, true);
     with_gather(rng, &mut b, 700);
@@ -632,27 +633,29 @@ pub struct FuzzCounts {
 /// section of kind `focus`: 1,500 file bytes, 500 file truncations, 3,000 section bytes and
 /// 1,000 section truncations, each handed to `check` (which returns whether the bytes
 /// decoded). A `focus` on kind 13, 20 or 21 mutates the bundle as a 2.6 writer wrote it
-/// ([`Bundle::raw_sections_as_2_6`]), which the current writer no longer writes. Panics if the bundle has no `focus` section or `check` refuses the unmutated
-/// encoding.
+/// ([`Bundle::raw_sections_as_2_6`]), on kind 22 as a 2.7 writer did
+/// ([`Bundle::raw_sections_as_2_7`]): kinds the current writer no longer writes. Panics if the
+/// bundle has no `focus` section or `check` refuses the unmutated encoding.
 pub fn fuzz_mutations(
     rng: &mut Lcg,
     b: &Bundle,
     focus: u32,
     mut check: impl FnMut(Mutation, &[u8]) -> bool,
 ) -> FuzzCounts {
-    // A focus on a DRT kind only older writers wrote: the bundle as a 2.6 writer wrote it.
-    let older = [
-        section::DRT_REPLACING,
-        section::DRT_WIDE_COUNTS,
-        section::DRT_TILED_GATHER,
-    ]
-    .contains(&focus);
-    let (sections, bytes) = if older {
-        let sections = b.raw_sections_as_2_6();
-        let bytes = join_sections(&sections);
-        (sections, bytes)
-    } else {
-        (b.raw_sections(), b.encode())
+    // A focus on a DRT kind only older writers wrote: the bundle as that writer wrote it.
+    let older = match focus {
+        section::DRT_REPLACING | section::DRT_WIDE_COUNTS | section::DRT_TILED_GATHER => {
+            Some(b.raw_sections_as_2_6())
+        }
+        section::DRT_PACKED_LISTS => Some(b.raw_sections_as_2_7()),
+        _ => None,
+    };
+    let (sections, bytes) = match older {
+        Some(sections) => {
+            let bytes = join_sections(&sections);
+            (sections, bytes)
+        }
+        None => (b.raw_sections(), b.encode()),
     };
     assert!(check(Mutation::Unmutated, &bytes));
     assert!(check(Mutation::Unmutated, &join_sections(&sections)));

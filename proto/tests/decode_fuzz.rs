@@ -101,3 +101,10 @@ fn mutated_drt_bundles_with_packed_index_lists_never_panic() {
     let b = drt_bundle_with_every_list(&mut rng);
     fuzz_decode(&mut rng, &b, section::DRT_PACKED_LISTS);
 }
+
+#[test]
+fn mutated_drt_bundles_with_a_modelled_gather_never_panic() {
+    let mut rng = Lcg(43);
+    let b = drt_bundle_with_every_list(&mut rng);
+    fuzz_decode(&mut rng, &b, section::DRT_MODELLED_GATHER);
+}

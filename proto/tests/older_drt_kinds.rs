@@ -2,7 +2,7 @@
 //! still decode, to the same [`Bundle`] a 2.6 writer's kind 13 gives. A 2.6 writer wrote kind 13
 //! (or 20, when the gather has a count over 255: `wide_gather_counts.rs`; 21 with tiles:
 //! `tiled_gather.rs`), with an empty replaced-texel list when nothing is replaced, and the
-//! current writer writes only kind 22 (`tiled_gather.rs`), so these bytes come from bundles
+//! current writer writes only kind 23 (`modelled_gather.rs`), so these bytes come from bundles
 //! already on disk (1.x files, and 2.x bundles of earlier writers).
 
 use lightfarm_proto::bundle::{section, Bundle, DeltaSource};
@@ -36,7 +36,7 @@ fn with_drt_kind(b: &Bundle, kind: u32) -> Vec<u8> {
 }
 
 #[test]
-fn the_writer_writes_only_kind_22_where_2_6_wrote_kind_13() {
+fn the_writer_writes_only_kind_23_where_2_6_wrote_kind_13() {
     let mut rng = Lcg(61);
     for (low_rank, replaced) in [(false, false), (true, false), (true, true)] {
         let mut b = bundle(&mut rng, low_rank);
@@ -44,8 +44,9 @@ fn the_writer_writes_only_kind_22_where_2_6_wrote_kind_13() {
             b.drt.as_mut().unwrap().replaced = vec![0, 5, 9];
         }
         let kinds: Vec<u32> = b.raw_sections().iter().map(|(k, _)| *k).collect();
-        assert!(kinds.contains(&section::DRT_PACKED_LISTS), "{kinds:?}");
+        assert!(kinds.contains(&section::DRT_MODELLED_GATHER), "{kinds:?}");
         for older in [
+            section::DRT_PACKED_LISTS,
             section::DRT,
             section::DRT_LOW_RANK,
             section::DRT_REPLACING,

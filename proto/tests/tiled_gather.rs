@@ -3,8 +3,8 @@
 //! same gather and tiles; a 2.6 writer wrote a gather without tiles as kind 13 or 20; and every
 //! broken tile table or tile column is refused by name (a 2.5 reader skips kind 21 and lights
 //! by MRT, so the tiles never reach a reader that would index past its texels). Format 2.7
-//! writes kind 22 instead (the same layout, its index lists packed), which decodes to the same
-//! bundle as kind 21 and is smaller.
+//! wrote kind 22 instead (the same layout, its index lists packed), which decodes to the same
+//! bundle as kind 21 and is smaller; 2.8 writes kind 23 (`modelled_gather.rs`).
 
 use lightfarm_proto::bundle::{section, Bundle, GatherTiles};
 use lightfarm_proto::testing::{drt_bundle, join_sections, with_gather, with_tiles, Lcg};
@@ -62,12 +62,13 @@ fn drt_payload(sections: &[(u32, Vec<u8>)]) -> &[u8] {
         section::DRT_WIDE_COUNTS,
         section::DRT_TILED_GATHER,
         section::DRT_PACKED_LISTS,
+        section::DRT_MODELLED_GATHER,
     ];
     &sections.iter().find(|s| drt.contains(&s.0)).unwrap().1
 }
 
 #[test]
-fn the_writer_packs_every_index_list_into_kind_22_which_decodes_to_the_same_bundle() {
+fn a_2_7_writer_packed_every_index_list_into_kind_22_which_decodes_to_the_same_bundle() {
     for (seed, max_count, tiles) in [(91, 4, true), (92, 700, true), (93, 200, false)] {
         let mut rng = Lcg(seed);
         let mut b = drt_bundle(&mut rng, false, true, true);
@@ -76,10 +77,15 @@ fn the_writer_packs_every_index_list_into_kind_22_which_decodes_to_the_same_bund
             with_tiles(&mut b, 2);
         }
         b.drt.as_mut().unwrap().replaced = vec![0, 1, 2, 7];
-        let sections = b.raw_sections();
+        let sections = b.raw_sections_as_2_7();
         assert!(sections.iter().any(|s| s.0 == section::DRT_PACKED_LISTS));
-        let decoded = Bundle::decode(&b.encode()).expect("decodes");
+        let decoded = Bundle::decode(&join_sections(&sections)).expect("decodes");
         assert_eq!(decoded, b, "seed {seed}");
+        assert_eq!(
+            Bundle::decode(&b.encode()).expect("decodes"),
+            b,
+            "seed {seed}"
+        );
         // Every step in this small bundle's lists is under 8,192 texels: at most two bytes an
         // index against four. A packed list's header is 16 bytes against 8, and kind 22 holds
         // the two tile lists even when they are empty (a 2.6 writer then wrote kind 13 or 20).

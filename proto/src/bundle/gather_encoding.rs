@@ -31,6 +31,7 @@
 
 use crate::wire::{push_varint, Reader, WireError, Writer};
 
+use super::gather_model::{self, GatherFrame};
 use super::index_lists::{read_index_list, write_index_list, IndexLists};
 use super::{legacy_1x, BundleError, TexelGather};
 
@@ -77,32 +78,42 @@ impl TexelGather {
     }
 }
 
-/// Writes `gather` (or its absence) in form 2; true when its weights took escaped counts
-/// (weight form 2), which only sections 20–22 may hold.
+/// Writes `gather` (or its absence): with `modelled` (section 23; where the layout puts the
+/// gather's rows and tiles) in form 3 when it can hold the gather ([`gather_model`]), else in
+/// form 2. True when form 2's weights took escaped counts (weight form 2), which only sections
+/// 20–23 may hold.
 pub(super) fn write_gather(
     w: &mut Writer,
     gather: Option<&TexelGather>,
     lists: IndexLists,
+    modelled: Option<GatherFrame>,
 ) -> bool {
     let Some(g) = gather else {
         w.u8(0);
         return false;
     };
-    w.u8(2);
     // The bake keeps its gather sorted: re-sort (a copy) only a gather that is not.
     let sorted;
+    let g = if g.is_sorted() {
+        g
+    } else {
+        sorted = g.sorted();
+        &sorted
+    };
+    if let Some(frame) = modelled {
+        let counts = unit_counts(&g.values, WIDEST_COUNT, |c| c as u32);
+        if gather_model::write_modelled(w, g, counts, frame) {
+            return false;
+        }
+    }
+    w.u8(2);
     let TexelGather {
         rows,
         row_start,
         cols,
         values,
         ..
-    } = if g.is_sorted() {
-        g
-    } else {
-        sorted = g.sorted();
-        &sorted
-    };
+    } = g;
     write_index_list(w, rows, lists);
     write_index_list(w, row_start, lists);
     let mut varints = Vec::with_capacity(cols.len());
@@ -147,15 +158,17 @@ pub(super) fn write_gather(
 const WIDEST_COUNT: f32 = 16_777_216.0;
 
 /// Reads what [`write_gather`] wrote, or the 1.x form (`legacy_1x`); weight form 2 only when
-/// `escaped_counts` (sections 20–22).
+/// `escaped_counts` (sections 20–23), form 3 only when `modelled` (section 23).
 pub(super) fn read_gather(
     r: &mut Reader,
     escaped_counts: bool,
     lists: IndexLists,
+    modelled: bool,
 ) -> Result<Option<TexelGather>, BundleError> {
     let invalid = |m: &str| BundleError::Invalid(format!("drt gather: {m}"));
     match r.u8()? {
         0 => Ok(None),
+        3 if modelled => gather_model::read_modelled(r).map(Some),
         1 => legacy_1x::read_gather_csr(r).map(Some),
         2 => {
             let rows = read_index_list(r, lists)?;
@@ -285,9 +298,9 @@ mod tests {
     fn round_trip(g: &TexelGather) -> TexelGather {
         let [plain, packed] = [IndexLists::Plain, IndexLists::Packed].map(|lists| {
             let mut w = Writer::new();
-            let escaped = write_gather(&mut w, Some(g), lists);
+            let escaped = write_gather(&mut w, Some(g), lists, None);
             let mut r = Reader::new(&w.bytes);
-            let out = read_gather(&mut r, escaped, lists).unwrap().unwrap();
+            let out = read_gather(&mut r, escaped, lists, false).unwrap().unwrap();
             assert_eq!(r.remaining(), 0);
             out
         });
@@ -334,8 +347,8 @@ mod tests {
         ) {
             let mut b = vec![2u8];
             b.extend_from_slice(&bytes);
-            let _ = read_gather(&mut Reader::new(&b), true, IndexLists::Plain);
-            let _ = read_gather(&mut Reader::new(&b), true, IndexLists::Packed);
+            let _ = read_gather(&mut Reader::new(&b), true, IndexLists::Plain, false);
+            let _ = read_gather(&mut Reader::new(&b), true, IndexLists::Packed, true);
         }
 
         #[test]

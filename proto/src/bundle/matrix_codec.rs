@@ -141,6 +141,13 @@ impl<'a> MatrixEncoder<'a> {
         }
     }
 
+    /// Whether this encoder only lists matrices: the bytes written through it are dropped, so
+    /// a writer may skip what holds no matrix (the exact gather, whose modelled form is the
+    /// costliest such part to code).
+    pub(super) fn is_listing(&self) -> bool {
+        matches!(self.mode, Mode::Collect(_))
+    }
+
     /// Encodes the listed matrices on `threads` threads (each the same bytes as alone) and
     /// returns an encoder that writes them, in the listed order, when the same sections are
     /// written through it.

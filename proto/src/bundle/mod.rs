@@ -32,6 +32,8 @@
 //!   [`DeltaSource`] encoding the `sh` section shares.
 //! - `gather_encoding`: how the DRT section stores the exact gather ([`TexelGather`]), its
 //!   weights as counts of one byte, escaped past 255 in kind 20.
+//! - `gather_model`: the exact gather's modelled form (section kind 23): each row's columns and
+//!   hit counts range-coded under contexts from the rows next to and above it.
 //! - `gather_tiles`: the tiles of texels a gather column may read the mean of ([`GatherTiles`],
 //!   section kind 21).
 //! - `index_lists`: the DRT section's texel index lists as `u32s` or packed as varints of
@@ -57,6 +59,7 @@ use crate::wire::WireError;
 mod delta_entries;
 mod dynamic_shapes;
 mod gather_encoding;
+mod gather_model;
 mod gather_tiles;
 mod index_lists;
 mod legacy_1x;
@@ -98,9 +101,12 @@ pub const BUNDLE_MAGIC: &[u8; 8] = crate::container::MAGIC;
 /// of texels ([`GatherTiles`], kind 21), written instead of kinds 13 and 20 when the gather has
 /// tiles: a 2.5 or older reader skips it and lights the scene by MRT alone. Minor 7 adds the DRT
 /// section whose texel index lists are packed as varints of their steps (kind 22), the only DRT
-/// kind it writes: a 2.6 or older reader skips it and lights the scene by MRT alone.
+/// kind it writes: a 2.6 or older reader skips it and lights the scene by MRT alone. Minor 8
+/// adds the DRT section whose exact gather may be range-coded under contexts from its
+/// neighbouring rows (gather form 3, kind 23), the only DRT kind it writes: a 2.7 or older
+/// reader skips it and lights the scene by MRT alone.
 pub const BUNDLE_MAJOR: u16 = 2;
-pub const BUNDLE_MINOR: u16 = 7;
+pub const BUNDLE_MINOR: u16 = 8;
 /// The oldest major version this reader decodes.
 pub const OLDEST_READABLE_MAJOR: u16 = 1;
 const READABLE_MAJORS: std::ops::RangeInclusive<u16> = OLDEST_READABLE_MAJOR..=BUNDLE_MAJOR;

@@ -173,21 +173,23 @@ impl Bundle {
                 }
                 section::FULL => full = Some(read_full(&mut p)?),
                 section::DRT | section::DRT_LOW_RANK => {
-                    drt = Some(read_drt(&mut p, false, IndexLists::Plain)?)
+                    drt = Some(read_drt(&mut p, false, IndexLists::Plain, false)?)
                 }
                 section::DRT_REPLACING
                 | section::DRT_WIDE_COUNTS
                 | section::DRT_TILED_GATHER
-                | section::DRT_PACKED_LISTS => {
+                | section::DRT_PACKED_LISTS
+                | section::DRT_MODELLED_GATHER => {
                     let wide = *kind != section::DRT_REPLACING;
-                    let lists = if *kind == section::DRT_PACKED_LISTS {
+                    let modelled = *kind == section::DRT_MODELLED_GATHER;
+                    let lists = if modelled || *kind == section::DRT_PACKED_LISTS {
                         IndexLists::Packed
                     } else {
                         IndexLists::Plain
                     };
-                    let mut d = read_drt(&mut p, wide, lists)?;
+                    let mut d = read_drt(&mut p, wide, lists, modelled)?;
                     d.replaced = read_index_list(&mut p, lists)?;
-                    if matches!(*kind, section::DRT_TILED_GATHER | section::DRT_PACKED_LISTS) {
+                    if *kind != section::DRT_REPLACING && *kind != section::DRT_WIDE_COUNTS {
                         let tiles = GatherTiles::read(&mut p, lists)?;
                         match d.direct_gather.as_mut() {
                             Some(g) => g.tiles = tiles,
@@ -352,9 +354,15 @@ fn read_full(r: &mut Reader) -> Result<SparseRows, BundleError> {
     })
 }
 
-/// A DRT section's common layout; `wide_counts` for sections 20–22 (escaped gather counts),
-/// `lists` the form of its texel index lists (packed in section 22).
-fn read_drt(r: &mut Reader, wide_counts: bool, lists: IndexLists) -> Result<DrtOps, BundleError> {
+/// A DRT section's common layout; `wide_counts` for sections 20–23 (escaped gather counts),
+/// `lists` the form of its texel index lists (packed in sections 22 and 23), `modelled` for
+/// section 23 (gather form 3).
+fn read_drt(
+    r: &mut Reader,
+    wide_counts: bool,
+    lists: IndexLists,
+    modelled: bool,
+) -> Result<DrtOps, BundleError> {
     let n_clutter = r.u32()? as usize;
     let mut clutter = Vec::with_capacity(n_clutter.min(r.remaining() / 16));
     for _ in 0..n_clutter {
@@ -366,7 +374,7 @@ fn read_drt(r: &mut Reader, wide_counts: bool, lists: IndexLists) -> Result<DrtO
     }
     let entries = read_entries(r, lists)?;
     let buried = read_index_list(r, lists)?;
-    let direct_gather = gather_encoding::read_gather(r, wide_counts, lists)?;
+    let direct_gather = gather_encoding::read_gather(r, wide_counts, lists, modelled)?;
     Ok(DrtOps {
         clutter,
         entries,

@@ -70,8 +70,13 @@ pub mod section {
     /// possibly none) with every texel index list — the entries' rows, the buried texels, the
     /// gather's rows and row starts, the replaced texels, the tiles' starts and texels —
     /// packed as zigzag varints of their steps (`index_lists`); the only DRT kind a 2.7 writer
-    /// writes. A 2.6 or older reader skips it and lights the scene by MRT alone.
+    /// writes before 2.8. A 2.6 or older reader skips it and lights the scene by MRT alone.
     pub const DRT_PACKED_LISTS: u32 = 22;
+    /// The DRT section of format 2.8: [`DRT_PACKED_LISTS`]' layout whose exact gather may be
+    /// in form 3, each row's columns and hit counts range-coded under contexts from the rows
+    /// next to and above it (`gather_model`); the only DRT kind a 2.8 writer writes. A 2.7 or
+    /// older reader skips it and lights the scene by MRT alone.
+    pub const DRT_MODELLED_GATHER: u32 = 23;
 }
 
 /// Report name of a section kind.
@@ -92,6 +97,7 @@ pub fn section_name(kind: u32) -> &'static str {
         section::DRT_WIDE_COUNTS => "drt",
         section::DRT_TILED_GATHER => "drt",
         section::DRT_PACKED_LISTS => "drt",
+        section::DRT_MODELLED_GATHER => "drt",
         section::BLOCKS_SYMMETRIC => "blocks",
         section::ROOMS => "rooms",
         section::TRANSPORT_SOURCE_BASES => "transport",

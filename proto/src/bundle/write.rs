@@ -5,15 +5,17 @@
 //!
 //! Invariant: the header always carries the writer's version ([`BUNDLE_MAJOR`].[`BUNDLE_MINOR`]),
 //! whatever sections a bundle has, so a streamed prefix and the whole bundle share their header
-//! bytes. Only current section kinds are written: blocks as kind 14, the exact gather in form 2
-//! and DRT as kind 13 (its replaced-texel list may be empty). The older kinds 3, 6 and 11 are
-//! still read ([`super::read`], [`super::legacy_1x`]) and never written.
+//! bytes. Only current section kinds are written: blocks as kind 14, DRT as kind 23 with its
+//! exact gather in form 3 (form 2 when form 3 cannot hold it). The older kinds 3, 6 and 11 are
+//! still read ([`super::read`], [`super::legacy_1x`]) and never written; the DRT kinds 13 and
+//! 20–22 only for tests ([`Bundle::raw_sections_as_2_6`], [`Bundle::raw_sections_as_2_7`]).
 
 use crate::container::{compress_section, write_container_with};
 use crate::dnrt_grid::DnrtCodec;
 use crate::wire::Writer;
 
 use super::delta_entries::{write_entries, FlooredLeft};
+use super::gather_model::GatherFrame;
 use super::index_lists::{write_index_list, IndexLists};
 use super::matrix_codec::{EncodingMemo, MatrixEncoder};
 use super::sections::{section, section_name};
@@ -30,6 +32,18 @@ use super::{
 /// needs ~0.75% on an 8-bit grid), at half they are 8-bit: grid1000 transport 23.2 → 21.5 MB.
 const BASIS_BUDGET: f64 = 0.5;
 const FACTORED_Z_BUDGET: f64 = 0.75;
+
+/// What a DRT section is written as: this writer's kind 23, or what an older writer wrote (for
+/// the tests of older readers' and this reader's compatibility).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum DrtForm {
+    /// Kind 13, 20 or 21, index lists plain.
+    AsOf2_6,
+    /// Kind 22: index lists packed, the gather in form 2.
+    AsOf2_7,
+    /// Kind 23: index lists packed, the gather in form 3 where it can be.
+    Current,
+}
 
 /// The least zstd level of a shapes or transport section larger than the container's small
 /// sections ([`crate::container::SMALL_SECTION_BYTES`], which are compressed at 19 already).
@@ -180,20 +194,30 @@ impl Bundle {
     /// still reads.
     pub fn raw_sections_as_2_6(&self) -> Vec<(u32, Vec<u8>)> {
         let mut enc = MatrixEncoder::new(&EncodeOptions::default());
-        self.encode_sections_as(&mut enc, IndexLists::Plain)
+        self.encode_sections_as(&mut enc, DrtForm::AsOf2_6)
+    }
+
+    /// [`Bundle::raw_sections`] with the DRT section as a 2.7 writer wrote it: kind 22, its
+    /// gather in form 2. For tests of what older writers wrote, which this reader still reads.
+    pub fn raw_sections_as_2_7(&self) -> Vec<(u32, Vec<u8>)> {
+        let mut enc = MatrixEncoder::new(&EncodeOptions::default());
+        self.encode_sections_as(&mut enc, DrtForm::AsOf2_7)
     }
 
     fn encode_sections<'a>(&'a self, enc: &mut MatrixEncoder<'a>) -> Vec<(u32, Vec<u8>)> {
-        self.encode_sections_as(enc, IndexLists::Packed)
+        self.encode_sections_as(enc, DrtForm::Current)
     }
 
-    /// Every section's payload, the DRT section's index lists in form `lists` (packed: kind 22;
-    /// plain: kind 13, 20 or 21 as a 2.6 writer chose).
+    /// Every section's payload, the DRT section in `form`.
     fn encode_sections_as<'a>(
         &'a self,
         enc: &mut MatrixEncoder<'a>,
-        lists: IndexLists,
+        form: DrtForm,
     ) -> Vec<(u32, Vec<u8>)> {
+        let lists = match form {
+            DrtForm::AsOf2_6 => IndexLists::Plain,
+            DrtForm::AsOf2_7 | DrtForm::Current => IndexLists::Packed,
+        };
         let mut sections: Vec<(u32, Vec<u8>)> = Vec::new();
         let mut w = Writer::new();
         self.layout.write(&mut w);
@@ -296,20 +320,25 @@ impl Bundle {
             // the shapes and the transport keep each line's own grid: there a floor cost error.
             write_entries(&mut w, &d.entries, enc, FlooredLeft::Yes, lists);
             write_index_list(&mut w, &d.buried, lists);
-            let wide = gather_encoding::write_gather(&mut w, d.direct_gather.as_ref(), lists);
+            let modelled = (form == DrtForm::Current).then(|| GatherFrame::of(&self.layout));
+            // A listing pass drops these bytes, and the gather holds no matrix: skipped there.
+            let wide = !enc.is_listing()
+                && gather_encoding::write_gather(&mut w, d.direct_gather.as_ref(), lists, modelled);
             write_index_list(&mut w, &d.replaced, lists);
             let no_tiles = GatherTiles::default();
             let tiles = d.direct_gather.as_ref().map_or(&no_tiles, |g| &g.tiles);
-            // Kind 22 (what this writer writes): kind 21's layout, the tiles always there and
-            // every texel index list packed (`index_lists`). In 2.6's plain form, the kind a
+            // Kind 23 (what this writer writes): kind 21's layout, the tiles always there, every
+            // texel index list packed (`index_lists`) and the gather modelled where it can be
+            // (`gather_model`). As of 2.7, kind 22 (no modelled gather); as of 2.6, the kind a
             // 2.6 writer chose.
-            let kind = match lists {
-                IndexLists::Packed => section::DRT_PACKED_LISTS,
-                IndexLists::Plain if !tiles.is_empty() => section::DRT_TILED_GATHER,
-                IndexLists::Plain if wide => section::DRT_WIDE_COUNTS,
-                IndexLists::Plain => section::DRT_REPLACING,
+            let kind = match form {
+                DrtForm::Current => section::DRT_MODELLED_GATHER,
+                DrtForm::AsOf2_7 => section::DRT_PACKED_LISTS,
+                DrtForm::AsOf2_6 if !tiles.is_empty() => section::DRT_TILED_GATHER,
+                DrtForm::AsOf2_6 if wide => section::DRT_WIDE_COUNTS,
+                DrtForm::AsOf2_6 => section::DRT_REPLACING,
             };
-            if matches!(kind, section::DRT_PACKED_LISTS | section::DRT_TILED_GATHER) {
+            if !matches!(kind, section::DRT_REPLACING | section::DRT_WIDE_COUNTS) {
                 tiles.write(&mut w, lists);
             }
             sections.push((kind, w.bytes));

@@ -52,17 +52,17 @@ fn replaced_texels_keep_only_their_drt_terms_and_travel_in_the_minor_3_section()
             assert!((got.radiance[x][c] - want).abs() < 1e-5, "texel {x}");
         }
     }
-    // The section is kind 22 and round-trips; a reader that does not know kind 22 skips
+    // The section is kind 23 and round-trips; a reader that does not know kind 23 skips
     // it and lights the scene by MRT alone (never MRT plus the gather).
     let sections = b.raw_sections();
     assert!(sections
         .iter()
-        .any(|(k, _)| *k == section::DRT_PACKED_LISTS));
+        .any(|(k, _)| *k == section::DRT_MODELLED_GATHER));
     let decoded = Bundle::decode(&b.encode()).expect("decodes");
     assert_eq!(decoded, b);
     let older: Vec<(u32, Vec<u8>)> = sections
         .into_iter()
-        .filter(|(k, _)| *k != section::DRT_PACKED_LISTS)
+        .filter(|(k, _)| *k != section::DRT_MODELLED_GATHER)
         .collect();
     let older = Bundle::decode(&join_sections(&older)).expect("decodes without DRT");
     assert!(older.drt.is_none());

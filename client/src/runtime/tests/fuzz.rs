@@ -137,3 +137,14 @@ fn mutated_drt_bundles_with_packed_index_lists_never_panic() {
         lightfarm_proto::bundle::section::DRT_PACKED_LISTS,
     );
 }
+
+#[test]
+fn mutated_drt_bundles_with_a_modelled_gather_never_panic() {
+    let mut rng = Lcg(43);
+    let b = drt_bundle_with_every_list(&mut rng);
+    fuzz_bundle(
+        &mut rng,
+        &b,
+        lightfarm_proto::bundle::section::DRT_MODELLED_GATHER,
+    );
+}
