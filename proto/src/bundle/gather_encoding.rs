@@ -5,18 +5,21 @@
 //! - `0`: no gather;
 //! - `1` (1.x, still read, by `legacy_1x`): CSR as it is in memory, `rows:u32s row_start:u32s
 //!   cols:u32s values:f32s`;
-//! - `2` (2.0, what the writer uses): `rows:u32s row_start:u32s` (in section 22 both packed,
+//! - `2` (2.0; what the writer uses outside section 23, and in it for a gather form 3 cannot
+//!   hold): `rows:u32s row_start:u32s` (in sections 22 and 23 both packed,
 //!   `index_lists`), then the columns as `len:u64` bytes of LEB128 varints, per row the first
 //!   column and after it each column minus the previous one minus 1 (the writer sorts a row by
 //!   column and merges repeats, so columns strictly ascend within a row), then `weights:u8`:
 //!   `0` and `values:f32s`, or `1` and `unit:f32 counts:u32s-length-prefixed bytes` with
-//!   value = unit · count, or (format 2.5, sections 20–22 only) `2` and `unit:f32 n:u64
+//!   value = unit · count, or (format 2.5, sections 20–23 only) `2` and `unit:f32 n:u64
 //!   counts:u8×n len:u64` bytes of LEB128 varints, one per count byte of 255 in order, each the
 //!   count minus 255. A gather weight is a hit fraction `hits / rays`, so a unit form is exact
 //!   for every bake: the writer uses `1` when every value is `unit · count` in f32 with
 //!   count ≤ 255, else `2` when it is with any count up to 2²⁴ (a texel close to a wall sends
 //!   hundreds of its rays to one texel there: counts reach 819 of 1,024 on a generated
-//!   80-block level), else `0`.
+//!   80-block level), else `0`;
+//! - `3` (2.8, section 23 only, what the writer uses there): each row's columns and counts
+//!   range-coded under contexts from its neighbouring rows ([`gather_model`]).
 //!
 //! Gaps between the texels a row's rays hit are small (hits cluster on the faces they see), so
 //! most columns take one byte before compression instead of four; on the maze at T=8 the
