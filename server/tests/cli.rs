@@ -195,3 +195,27 @@ fn bake_and_eval_a_scene_with_mesh_clutter() {
     assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn inspect_reports_a_bundle_and_a_reader_that_leaves_early_is_no_error() {
+    let seed = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../client/fuzz/corpus/decode/tiny-u8.lfb"
+    );
+    let report = run(lightfarm().args(["inspect", seed]));
+    assert!(report.contains("exact clutter gather"), "{report}");
+    // `lightfarm inspect B | head -1`: the pipe's reader is gone before the report is written
+    // (its end closed as soon as the process starts; decoding takes longer). println! panicked
+    // on that ("failed printing to stdout: Broken pipe"); the command now exits 0.
+    let mut child = lightfarm()
+        .args(["inspect", seed])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run lightfarm");
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("wait for lightfarm");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
