@@ -21,6 +21,8 @@
 //! zeros and [`RangeDecoder::overran`] says so); the output is a pure function of the bits and
 //! models coded.
 
+use crate::wire::VARINT_MAX_BYTES;
+
 const PROB_BITS: u32 = 11;
 const PROB_ONE: u16 = 1 << PROB_BITS;
 const MOVE_BITS: u32 = 5;
@@ -61,10 +63,11 @@ impl Default for ByteTree {
     }
 }
 
-/// Adaptive models of a LEB128 value of at most five bytes (a u32), one [`ByteTree`] per byte
-/// position.
+/// Adaptive models of a LEB128 value of at most [`VARINT_MAX_BYTES`] bytes (a u32; the
+/// bundle's plain varints, [`crate::wire::push_varint`], split a value the same way), one
+/// [`ByteTree`] per byte position.
 #[derive(Clone, Debug, Default)]
-pub struct VarintTrees([ByteTree; 5]);
+pub struct VarintTrees([ByteTree; VARINT_MAX_BYTES]);
 
 /// Encodes bits under adaptive models into bytes.
 #[derive(Debug)]

@@ -34,7 +34,7 @@
 
 use crate::wire::{push_varint, Reader, WireError, Writer};
 
-use super::gather_model::{self, GatherFrame};
+use super::gather_model::{self, GatherFrame, WIDEST_COUNT};
 use super::index_lists::{read_index_list, write_index_list, IndexLists};
 use super::{legacy_1x, BundleError, TexelGather};
 
@@ -103,8 +103,10 @@ pub(super) fn write_gather(
         sorted = g.sorted();
         &sorted
     };
+    // One unit and its counts, for form 3 and for form 2's weight forms 1 and 2.
+    let unit_counts = unit_counts(&g.values, WIDEST_COUNT as f32, |c| c as u32);
     if let Some(frame) = modelled {
-        let counts = unit_counts(&g.values, WIDEST_COUNT, |c| c as u32);
+        let counts = unit_counts.as_ref().map(|(unit, c)| (*unit, c.as_slice()));
         if gather_model::write_modelled(w, g, counts, frame) {
             return false;
         }
@@ -133,8 +135,9 @@ pub(super) fn write_gather(
     }
     w.u64(varints.len() as u64);
     w.bytes.extend_from_slice(&varints);
-    // One unit and its counts for both count forms: every count within a byte is form 1.
-    let Some((unit, counts)) = unit_counts(values, WIDEST_COUNT, |c| c as u32) else {
+    // Weights that are not counts of one unit: f32 (weight form 0); every count within a
+    // byte: form 1; else form 2.
+    let Some((unit, counts)) = unit_counts else {
         w.u8(0);
         w.f32s(values);
         return false;
@@ -156,9 +159,6 @@ pub(super) fn write_gather(
     }
     escaped
 }
-
-/// The largest count of weight form 2: every whole number up to it is an f32.
-const WIDEST_COUNT: f32 = 16_777_216.0;
 
 /// Reads what [`write_gather`] wrote, or the 1.x form (`legacy_1x`); weight form 2 only when
 /// `escaped_counts` (sections 20–23), form 3 only when `modelled` (section 23).
@@ -228,7 +228,7 @@ pub(super) fn read_gather(
                         let c = if form == 2 && c == 255 {
                             read_varint(&mut extra)?
                                 .checked_add(255)
-                                .filter(|&c| c as f32 <= WIDEST_COUNT)
+                                .filter(|&c| c <= WIDEST_COUNT)
                                 .ok_or_else(|| invalid("escaped count past 2^24"))?
                         } else {
                             c as u32

@@ -30,7 +30,8 @@
 //! DRT section 1,246,205 B; with this form the section takes 1,122,350 B, the same operators
 //! (`docs/bundle-format.md`, kind 23).
 //!
-//! Invariants: the writer and the reader walk the same code ([`code_row`] over a [`Coding`]),
+//! Invariants: the writer and the reader walk the same code ([`code_row`] over a [`Coding`],
+//! the references read from [`Prior`] rows: the writer's gather, the reader's rows so far),
 //! so what is read is what was written; reading any bytes never panics, and allocates no more
 //! entries than `entries`, which may not exceed [`MAX_ENTRIES_PER_BYTE`] per coded byte (each
 //! entry's count costs eight decisions of at least
@@ -49,8 +50,8 @@ pub(super) const MAX_ENTRIES_PER_BYTE: u64 = 46;
 /// Count buckets: none, 0–15 each their own, then one per octave up to 2²⁴.
 const BUCKETS: usize = 38;
 
-/// The largest count: every whole number up to it is an f32.
-const WIDEST_COUNT: u32 = 1 << 24;
+/// The largest count of weight form 2 and of this form: every whole number up to it is an f32.
+pub(super) const WIDEST_COUNT: u32 = 1 << 24;
 
 fn bucket(count: Option<u32>) -> usize {
     match count {
@@ -127,14 +128,16 @@ impl Coding for RangeDecoder<'_> {
     }
 }
 
-/// The rows coded so far: CSR over columns with their counts.
-struct Coded {
-    row_start: Vec<u32>,
-    cols: Vec<u32>,
-    counts: Vec<u32>,
+/// Rows in CSR over columns with their counts: the writer's gather, or what the reader has
+/// decoded so far; a row's references are read from it.
+#[derive(Clone, Copy)]
+struct Prior<'a> {
+    row_start: &'a [u32],
+    cols: &'a [u32],
+    counts: &'a [u32],
 }
 
-impl Coded {
+impl Prior<'_> {
     fn row(&self, i: usize) -> (&[u32], &[u32]) {
         let (s, e) = (self.row_start[i] as usize, self.row_start[i + 1] as usize);
         (&self.cols[s..e], &self.counts[s..e])
@@ -153,21 +156,24 @@ fn references(rows: &[u32], i: usize, stride: u32) -> (Option<usize>, Option<usi
     (a, b)
 }
 
-/// Codes row `i` (its columns and counts: the writer's `row`, None when reading) after the
-/// rows in `done`, and appends it there. `budget`: the entries the gather may still take.
+/// Codes a row (its columns and counts: the writer's `row`, None when reading) whose reference
+/// rows `refs` are in `prior`, leaving its `(column, count)` entries in `out`. `budget`: the
+/// entries the gather may still take.
 #[allow(clippy::too_many_arguments)]
 fn code_row<C: Coding>(
     c: &mut C,
     m: &mut Model,
-    done: &mut Coded,
+    prior: Prior<'_>,
     refs: (Option<usize>, Option<usize>),
     row: Option<(&[u32], &[u32])>,
     tile_base: u32,
     budget: usize,
+    out: &mut Vec<(u32, u32)>,
 ) -> Result<(), BundleError> {
+    out.clear();
     let empty: (&[u32], &[u32]) = (&[], &[]);
-    let (a_cols, a_counts) = refs.0.map_or(empty, |a| done.row(a));
-    let (b_cols, b_counts) = refs.1.map_or(empty, |b| done.row(b));
+    let (a_cols, a_counts) = refs.0.map_or(empty, |a| prior.row(a));
+    let (b_cols, b_counts) = refs.1.map_or(empty, |b| prior.row(b));
     let (row_cols, row_counts) = row.unwrap_or(empty);
     // 1. Which of the references' columns the row keeps, with the references' counts there.
     let mut kept: Vec<(u32, Option<u32>, Option<u32>)> = Vec::new();
@@ -255,11 +261,9 @@ fn code_row<C: Coding>(
                 .filter(|&n| n <= WIDEST_COUNT)
                 .ok_or_else(|| invalid("a count past 2^24"))?;
         }
-        done.cols.push(col);
-        done.counts.push(count);
+        out.push((col, count));
         left = Some(count);
     }
-    done.row_start.push(done.cols.len() as u32);
     Ok(())
 }
 
@@ -307,38 +311,42 @@ fn face_width(layout: &Layout) -> u32 {
 pub(super) fn write_modelled(
     w: &mut Writer,
     g: &TexelGather,
-    unit_counts: Option<(f32, Vec<u32>)>,
+    unit_counts: Option<(f32, &[u32])>,
     frame: GatherFrame,
 ) -> bool {
     let Some((unit, counts)) = unit_counts else {
         return false;
     };
-    if g.rows.windows(2).any(|p| p[0] >= p[1]) || counts.iter().any(|&n| n > WIDEST_COUNT) {
+    debug_assert!(counts.iter().all(|&n| n <= WIDEST_COUNT));
+    if g.rows.windows(2).any(|p| p[0] >= p[1]) {
         return false;
     }
     let GatherFrame { tile_base, stride } = frame;
     let mut e = RangeEncoder::default();
     let mut m = Model::new();
-    let mut done = Coded {
-        row_start: vec![0],
-        cols: Vec::with_capacity(g.cols.len()),
-        counts: Vec::with_capacity(g.cols.len()),
+    // The references are the gather's own earlier rows: read in place.
+    let prior = Prior {
+        row_start: &g.row_start,
+        cols: &g.cols,
+        counts,
     };
+    let mut out = Vec::new();
     for i in 0..g.rows.len() {
-        let (s, end) = (g.row_start[i] as usize, g.row_start[i + 1] as usize);
-        let row = (&g.cols[s..end], &counts[s..end]);
+        let row = prior.row(i);
+        let refs = references(&g.rows, i, stride);
         code_row(
             &mut e,
             &mut m,
-            &mut done,
-            references(&g.rows, i, stride),
+            prior,
+            refs,
             Some(row),
             tile_base,
             usize::MAX,
+            &mut out,
         )
         .expect("encoding codes the values it is handed");
+        debug_assert!(out.iter().map(|e| e.0).eq(row.0.iter().copied()));
     }
-    debug_assert_eq!(done.cols, g.cols);
     let coded = e.finish();
     w.u8(3);
     write_index_list(w, &g.rows, IndexLists::Packed);
@@ -374,35 +382,36 @@ pub(super) fn read_modelled(r: &mut Reader) -> Result<TexelGather, BundleError> 
     let entries = entries as usize;
     let mut d = RangeDecoder::new(r.take(len as usize)?);
     let mut m = Model::new();
-    let mut done = Coded {
-        row_start: Vec::with_capacity(rows.len() + 1),
-        cols: Vec::with_capacity(entries),
-        counts: Vec::with_capacity(entries),
-    };
-    done.row_start.push(0);
+    let mut row_start = Vec::with_capacity(rows.len() + 1);
+    row_start.push(0);
+    let (mut cols, mut counts) = (Vec::with_capacity(entries), Vec::with_capacity(entries));
+    let mut out = Vec::new();
     for i in 0..rows.len() {
-        let budget = entries - done.cols.len();
+        let prior = Prior {
+            row_start: &row_start,
+            cols: &cols,
+            counts: &counts,
+        };
+        let refs = references(&rows, i, stride);
+        let budget = entries - cols.len();
         code_row(
-            &mut d,
-            &mut m,
-            &mut done,
-            references(&rows, i, stride),
-            None,
-            tile_base,
-            budget,
+            &mut d, &mut m, prior, refs, None, tile_base, budget, &mut out,
         )?;
         if d.overran() {
             return Err(invalid("coded bytes end before its rows"));
         }
+        cols.extend(out.iter().map(|e| e.0));
+        counts.extend(out.iter().map(|e| e.1));
+        row_start.push(cols.len() as u32);
     }
-    if done.cols.len() != entries {
+    if cols.len() != entries {
         return Err(invalid("fewer entries than it declares"));
     }
     Ok(TexelGather {
         rows,
-        row_start: done.row_start,
-        values: done.counts.iter().map(|&n| unit * n as f32).collect(),
-        cols: done.cols,
+        row_start,
+        values: counts.iter().map(|&n| unit * n as f32).collect(),
+        cols,
         tiles: Default::default(),
     })
 }
