@@ -29,12 +29,18 @@
 //! (checked once). The code is the same and so are the answers, bit for bit (no operation
 //! changes its result; Rust fuses no multiply-add unless told to); the wider sets give the
 //! inlined traversal, box and triangle tests three-operand forms and, with AVX-512VL, 32
-//! vector registers instead of 16. The closures the traversal calls are marked
+//! vector registers instead of 16. One part differs on purpose: their box test fuses its
+//! multiply and subtract (`bvh8`'s `hits_fused`), which moves a slab distance by a rounding
+//! step, far inside the boxes' padding, so it changes no hit (bundles `cmp`-identical on
+//! cornell_mesh, ball_corridor and the maze). The closures the traversal calls are marked
 //! `#[inline(always)]`, since a closure left out of line is compiled for the baseline whatever
 //! its caller is. On the bench's triangle rays (maze, one thread, interleaved): baseline 8.3,
 //! AVX2 8.6, AVX-512 8.9 Mrays/s; `bench --throughput` side by side with Embree 0.91-0.92 : 1
 //! on the baseline and 0.94-1.00 : 1 on AVX-512. (An eight-lane AVX box test on top measured
-//! no faster.)
+//! no faster.) With the fused box test, two hit children handled without the sort and
+//! cache-line-aligned nodes, six interleaved runs each: 7.23 → 7.50 Mrays/s (medians, on a
+//! slower day), and against Embree three runs 0.98, 0.95, 0.97 : 1 where the old binary gave
+//! 0.94, 0.96 beside them.
 //!
 //! Layout: [`bvh8`] owns the tree and its traversal; `packet` the four-lane triangle test;
 //! this file the primitives' tests and the choice among hits.
@@ -616,7 +622,7 @@ impl Tracer {
         );
         // Beyond the closest sure hit by more than both margins: a sure miss.
         let far_of = |best: &Option<SureHit>| best.map_or(limit, |(_, t, m, _)| t + m);
-        bvh.traverse_leaves(
+        bvh.traverse_leaves::<COPY>(
             of,
             df,
             reach,
@@ -689,7 +695,7 @@ impl Tracer {
         // The closest so far: its value and primitive (the lower index wins equal values, so
         // the answer does not depend on the order the traversal visits leaves in).
         let mut best: Option<(f32, u32)> = None;
-        bvh.traverse(v3(o), v3(d), reach, |id| {
+        bvh.traverse::<0>(v3(o), v3(d), reach, |id| {
             let index = bvh.primitive_indices[id];
             let Some(value) = self.exact_value(index, o, d, tmax, lit_normal_sign) else {
                 return f32::INFINITY;
@@ -783,7 +789,7 @@ impl Tracer {
         let (of, df) = (v3(from), v3(d));
         let (epsilon, limit) = (self.epsilon as f32, tmax as f32);
         // A hit returns -1, which ends the traversal.
-        bvh.traverse(
+        bvh.traverse::<COPY>(
             of,
             df,
             limit,
