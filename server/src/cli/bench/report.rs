@@ -273,7 +273,7 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
                 let _ = writeln!(
                     w,
                     "- **Ray throughput** ({}, {} triangles, {} rays, one thread): ours {:.2} Mrays/s \
-                     on the triangles, Embree {:.2} Mrays/s: ours : Embree = {:.2} : 1 ({:.2} Mrays/s \
+                     on the triangles, Embree {:.2} Mrays/s: ours : Embree = {:.3} : 1 ({:.2} Mrays/s \
                      on our native rectangles){}.",
                     t.scene,
                     t.triangles,
@@ -469,17 +469,22 @@ pub fn markdown(results: &BenchResults, plots: &[PlotFiles], markdown_path: &Pat
                     .map(|r| format!("{r:.2}"))
                     .collect();
                 if !per_round.is_empty() {
+                    let order = if t.rounds.iter().any(|r| r.embree_first) {
+                        "each tracing both, ours first in the first round and the order \
+                         alternating"
+                    } else {
+                        "each tracing ours and then Embree"
+                    };
                     let _ = writeln!(
                         w,
-                        "\nMedians of {} rounds, each tracing ours and then Embree; ours : Embree \
-                         per round {}.",
+                        "\nMedians of {} rounds, {order}; ours : Embree per round {}.",
                         per_round.len(),
                         per_round.join(", ")
                     );
                 }
                 let _ = writeln!(
                     w,
-                    "\nours : Embree = **{:.2} : 1** on the same triangles and rays; hit \
+                    "\nours : Embree = **{:.3} : 1** on the same triangles and rays; hit \
                      distances agree on {:.2}% of the rays; Embree's BVH build {:.3} s.\n",
                     t.ours_to_embree().unwrap_or(f64::NAN),
                     100.0 * t.agreement.unwrap_or(f64::NAN),
@@ -554,7 +559,7 @@ pub fn summary(results: &BenchResults) -> String {
         let _ = match t.embree_rays_per_second {
             Some(e) => write!(
                 s,
-                "\nrays/s: ours {:.0}, Embree {:.0}, ours:Embree = {:.2} (median of {} rounds)",
+                "\nrays/s: ours {:.0}, Embree {:.0}, ours:Embree = {:.3} (median of {} rounds)",
                 t.ours_triangles_rays_per_second,
                 e,
                 t.ours_to_embree().unwrap_or(f64::NAN),

@@ -28,6 +28,10 @@ pub struct ThroughputRound {
     pub ours_triangles_rays_per_second: f64,
     pub ours_native_rays_per_second: f64,
     pub embree_rays_per_second: Option<f64>,
+    /// Embree traced before ours in this round (false in results written before the order
+    /// alternated).
+    #[serde(default)]
+    pub embree_first: bool,
 }
 
 impl ThroughputRound {
@@ -170,10 +174,12 @@ fn write_f32(path: &Path, values: impl Iterator<Item = f32>) -> anyhow::Result<(
     crate::cli::write_atomic(path, &bytes)
 }
 
-/// Rounds of the comparison: each traces the rays with ours (best of 3) and then Embree (its
+/// Rounds of the comparison: each traces the rays with ours (best of 3) and Embree (its
 /// script's best of 3), so both sides of a round's ratio share the machine's state of the
-/// moment; the ratio reported is the median of the rounds' ratios.
-pub const ROUNDS: usize = 5;
+/// moment; the ratio reported is the median of the rounds' ratios. Which goes first
+/// alternates (ours in round 0, whose distances Embree's agreement is checked against): on
+/// this shared machine the second of two runs side by side tends to run slower.
+pub const ROUNDS: usize = 9;
 
 /// Measures both tracers on `g`, [`ROUNDS`] rounds side by side; exports to `dir` and runs
 /// `python script dir` each round for Embree unless `python_and_script` is None.
@@ -216,18 +222,24 @@ pub fn measure_throughput(
         }
     };
     for round in 0..ROUNDS {
+        let embree_first = round % 2 == 1 && embree.is_some();
+        let early = match embree {
+            Some((python, script)) if embree_first => Some(run_embree(python, script, dir)),
+            _ => None,
+        };
         let (distances, ours_triangles) = trace_all(&triangle_tracer, &rays);
         let (_, ours_native) = trace_all(&native_tracer, &rays);
         let mut measured = ThroughputRound {
             ours_triangles_rays_per_second: ours_triangles,
             ours_native_rays_per_second: ours_native,
             embree_rays_per_second: None,
+            embree_first,
         };
         if let Some((python, script)) = embree {
             if round == 0 {
                 write_f32(&dir.join("obvhs_t.f32"), distances.into_iter())?;
             }
-            match run_embree(python, script, dir) {
+            match early.unwrap_or_else(|| run_embree(python, script, dir)) {
                 Ok(v) => {
                     measured.embree_rays_per_second = v["rays_per_second"].as_f64();
                     out.embree_build_seconds = v["build_seconds"].as_f64();
