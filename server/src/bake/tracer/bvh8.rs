@@ -18,11 +18,10 @@
 //! Units and frames: world metres, the boxes as given (callers pad them). Invariant: the box
 //! test is conservative for any box it reaches — a ray whose segment `[0, tmax]` touches a
 //! child's box (to within f32 rounding of the slab distances, or of `o · inv` in the fused
-//! test) visits that child, including rays
-//! parallel to a slab (a zero direction component is replaced by ±1e-30 before inverting, so
-//! the slab test stays finite and ordered). Which slots a ray visits depends on the tree, so
-//! callers that want an answer independent of it must make their choice among hits
-//! order-independent (the tracer does).
+//! test) visits that child, including rays parallel to a slab (a zero direction component is
+//! replaced by ±1e-30 before inverting, so the slab test stays finite and ordered). Which
+//! slots a ray visits depends on the tree, so callers that want an answer independent of it
+//! must make their choice among hits order-independent (the tracer does).
 
 use glam::{Vec3A, Vec4};
 use obvhs::{aabb::Aabb, bvh2::builder::build_bvh2, Boundable, BvhBuildParams};
@@ -417,8 +416,8 @@ fn fma_detected() -> bool {
 /// The children of `node` the ray reaches before `tmax` (bit per lane) and each lane's entry
 /// distance, four lanes at a time (an eight-lane AVX copy of this test measured no faster:
 /// 7.7-7.9 against 7.9-8.6 Mrays/s on the bench's triangle rays; an eight-lane fused one,
-/// 5.7 against 7.3, slower still). `COPY` ≥ 1 ([`Bvh8::traverse`], FMA checked there) takes
-/// [`hits_fused`].
+/// 5.7 against 7.3, slower still). `COPY` ≥ 1 takes [`hits_fused`] (FMA checked by
+/// [`Bvh8::traverse_leaves`]).
 #[inline(always)]
 fn hits<const COPY: u8>(node: &Node, ray: &RayConstants, tmax: f32) -> (u32, [f32; W]) {
     #[cfg(target_arch = "x86_64")]

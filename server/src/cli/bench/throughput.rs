@@ -177,8 +177,9 @@ fn write_f32(path: &Path, values: impl Iterator<Item = f32>) -> anyhow::Result<(
 /// Rounds of the comparison: each traces the rays with ours (best of 3) and Embree (its
 /// script's best of 3), so both sides of a round's ratio share the machine's state of the
 /// moment; the ratio reported is the median of the rounds' ratios. Which goes first
-/// alternates (ours in round 0, whose distances Embree's agreement is checked against): on
-/// this shared machine the second of two runs side by side tends to run slower.
+/// alternates (ours in round 0, whose distances Embree's agreement is checked against), so
+/// neither side always runs second: bakes timed side by side on this shared machine ran
+/// slower second.
 pub const ROUNDS: usize = 9;
 
 /// Measures both tracers on `g`, [`ROUNDS`] rounds side by side; exports to `dir` and runs
