@@ -526,7 +526,7 @@ fn main() -> anyhow::Result<()> {
             generator,
         }),
         Command::Schema => {
-            println!(
+            lightfarm_server::say!(
                 "{}",
                 serde_json::to_string_pretty(&lightfarm_proto::scene::scene_schema())?
             );

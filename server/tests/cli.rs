@@ -1,4 +1,5 @@
 //! The CLI contract other tools depend on: `bake`, `eval`, `reference`, `compare`, `schema`,
+//! `inspect` (a report whose reader has left is no error),
 //! run as processes on a small scene.
 
 use std::path::{Path, PathBuf};
@@ -196,19 +197,11 @@ fn bake_and_eval_a_scene_with_mesh_clutter() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-#[test]
-fn inspect_reports_a_bundle_and_a_reader_that_leaves_early_is_no_error() {
-    let seed = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../client/fuzz/corpus/decode/tiny-u8.lfb"
-    );
-    let report = run(lightfarm().args(["inspect", seed]));
-    assert!(report.contains("exact clutter gather"), "{report}");
-    // `lightfarm inspect B | head -1`: the pipe's reader is gone before the report is written
-    // (its end closed as soon as the process starts; decoding takes longer). println! panicked
-    // on that ("failed printing to stdout: Broken pipe"); the command now exits 0.
-    let mut child = lightfarm()
-        .args(["inspect", seed])
+/// Runs `cmd` with its stdout's reader gone before anything is written (`lightfarm … | head`
+/// with a reader that has already left): the command must finish as it would and exit 0, no
+/// panic ("failed printing to stdout: Broken pipe" was what `println!` gave).
+fn run_with_stdout_closed(cmd: &mut Command) {
+    let mut child = cmd
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -216,6 +209,33 @@ fn inspect_reports_a_bundle_and_a_reader_that_leaves_early_is_no_error() {
     drop(child.stdout.take());
     let out = child.wait_with_output().expect("wait for lightfarm");
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
-    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(out.status.success(), "{cmd:?}: {stderr}");
+    assert!(!stderr.contains("panicked"), "{cmd:?}: {stderr}");
+}
+
+#[test]
+fn reports_whose_reader_left_early_are_no_error() {
+    let seed = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../client/fuzz/corpus/decode/tiny-u8.lfb"
+    );
+    let report = run(lightfarm().args(["inspect", seed]));
+    assert!(report.contains("exact clutter gather"), "{report}");
+    run_with_stdout_closed(lightfarm().args(["inspect", seed]));
+    // A bake whose report has no reader still writes its bundle.
+    let dir = workdir().join("closed-stdout");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (scene, _) = write_scene(&dir);
+    let bundle = dir.join("out.lfb");
+    run_with_stdout_closed(
+        lightfarm()
+            .arg("bake")
+            .arg(&scene)
+            .arg("-o")
+            .arg(&bundle)
+            .arg("--no-cache"),
+    );
+    assert!(bundle.exists());
+    run(lightfarm().arg("inspect").arg(&bundle));
+    let _ = std::fs::remove_dir_all(&dir);
 }

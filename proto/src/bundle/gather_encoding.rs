@@ -104,9 +104,9 @@ pub(super) fn write_gather(
         &sorted
     };
     // One unit and its counts, for form 3 and for form 2's weight forms 1 and 2.
-    let unit_counts = unit_counts(&g.values, WIDEST_COUNT as f32, |c| c as u32);
+    let counted = unit_counts(&g.values, WIDEST_COUNT as f32, |c| c as u32);
     if let Some(frame) = modelled {
-        let counts = unit_counts.as_ref().map(|(unit, c)| (*unit, c.as_slice()));
+        let counts = counted.as_ref().map(|(unit, c)| (*unit, c.as_slice()));
         if gather_model::write_modelled(w, g, counts, frame) {
             return false;
         }
@@ -137,7 +137,7 @@ pub(super) fn write_gather(
     w.bytes.extend_from_slice(&varints);
     // Weights that are not counts of one unit: f32 (weight form 0); every count within a
     // byte: form 1; else form 2.
-    let Some((unit, counts)) = unit_counts else {
+    let Some((unit, counts)) = counted else {
         w.u8(0);
         w.f32s(values);
         return false;

@@ -82,7 +82,7 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
                     scene.name,
                     memo.path(key).display()
                 );
-                println!(
+                crate::say!(
                     "bundle={} bytes={} bake_seconds={:.3}",
                     args.out.display(),
                     bytes.len(),
@@ -227,7 +227,7 @@ pub fn run(args: BakeArgs) -> anyhow::Result<()> {
             stages.join(", ")
         );
         let total: f64 = report.stage_seconds.iter().map(|(_, s)| s).sum();
-        println!(
+        crate::say!(
             "bundle={} bytes={} bake_seconds={total:.3}",
             args.out.display(),
             report.bundle_bytes

@@ -100,10 +100,11 @@ pub fn run(args: CompareArgs) -> anyhow::Result<()> {
             args.b.display()
         );
     }
-    println!(
+    crate::say!(
         "matched_texels={} unmatched_texels={}",
-        c.matched, c.unmatched
+        c.matched,
+        c.unmatched
     );
-    println!("relative_l2={:.6} p95={:.6}", c.relative_l2, c.p95);
+    crate::say!("relative_l2={:.6} p95={:.6}", c.relative_l2, c.p95);
     Ok(())
 }

@@ -237,7 +237,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             Ways::Both,
             args.radius,
         )?;
-        println!(
+        crate::say!(
             "update=one-light direct light: lights={} texels={} every_sample_ms={:.4} \
              adaptive_rel_l2={:.2e}",
             lights.lights.len(),
@@ -246,7 +246,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             t.direct_error
         );
         for (name, way) in [("full", t.full), ("update", t.update)] {
-            println!(
+            crate::say!(
                 "update=one-light light={moved} way={name} method={method:?} bounces={} \
                  frames={frames} direct_ms={:.4} operator_ms={:.4} total_ms={:.4}",
                 mode_name(mode),
@@ -255,7 +255,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
                 way.total_ms
             );
         }
-        println!(
+        crate::say!(
             "update=one-light light={moved} reach={} texels_reached={}/{} rooms_reached={} \
              prepare_ms={:.2}",
             if t.has_rooms {
@@ -269,7 +269,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             t.prepare_ms
         );
         if let Some(s) = t.settling {
-            println!(
+            crate::say!(
                 "update=one-light light={moved} bounces=feedback budget={} lag_rel_l2: \
                  update={:.2e} full={:.2e}; update rel_l1={:.2e} estimated={:.2e}; settled \
                  after {} calls (median {:.4} ms) to rel_l2={:.2e} rel_l1={:.2e} \
@@ -289,7 +289,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
                 s.surface_max
             );
         }
-        println!(
+        crate::say!(
             "update=one-light light={moved} method={method:?} bounces={} frames={frames} \
              blocks_projected={}/{} drift_rel_l2={:.2e} speedup={:.1} median_ms={:.4}",
             mode_name(mode),
@@ -303,7 +303,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     }
     // Direct light (every light, texel-averaged as `eval` feeds the operators), computed once
     // on this thread; the frames below time the operators alone.
-    println!(
+    crate::say!(
         "direct light: lights={} texels={} direct_ms={direct_ms:.4}",
         lights.lights.len(),
         runtime.n_texels()
@@ -332,7 +332,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     for (mode, t) in timed.iter().zip(&results) {
         // The bound: one pass over the operators per one-bounce application.
         let bound_ms = t.bounces as f64 * t.operator_bytes as f64 / bandwidth * 1e3;
-        println!(
+        crate::say!(
             "method={method:?} bounces={} applications={} threads={} frames={} median_ms={:.4} \
              p10_ms={:.4} p90_ms={:.4} operator_bytes={} read_bandwidth_gbs={:.2} \
              bound_ms={bound_ms:.4}",
@@ -362,7 +362,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             frames,
         )?;
         for (mode, t) in modes.iter().zip(&moving) {
-            println!(
+            crate::say!(
                 "moving light={} radius_m={MOVING_RADIUS} frames={frames} method={method:?} \
                  bounces={} threads=1 median_ms={:.4} mean_applications={:.2} \
                  worst_rel_l2={:.2e}",
@@ -376,7 +376,7 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     }
     if modes.contains(&Bounces::Feedback) {
         let (to_1pct, to_01pct) = feedback_frames(&mut runtime, &direct, method)?;
-        println!(
+        crate::say!(
             "method={method:?} feedback_frames_to_1pct={} feedback_frames_to_0.1pct={} \
              (after the lights switch on, against Converged at 1e-5)",
             fmt_frames(to_1pct),

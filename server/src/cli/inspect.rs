@@ -1,8 +1,6 @@
 //! `lightfarm inspect BUNDLE`: what a bundle holds, section by section and operator by
 //! operator (sizes, ranks, values), for people sizing a bake.
 
-use std::fmt::Write as _;
-use std::io::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -25,19 +23,14 @@ impl Tally {
 pub fn run(path: PathBuf) -> anyhow::Result<()> {
     let bytes = std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
     let bundle = Bundle::decode(&bytes).with_context(|| format!("{}", path.display()))?;
-    // The whole report, then one write: `inspect B | head` closes the pipe early, which is
-    // not an error (println! panicked on it).
-    let mut out = String::new();
-    writeln!(
-        out,
+    crate::say!(
         "{}: {} bytes, {} texels, {} blocks, {} shapes",
         path.display(),
         bytes.len(),
         bundle.layout.n_texels(),
         bundle.blocks.len(),
         bundle.shapes.len()
-    )
-    .expect("writing to a String");
+    );
     let (mut u_b, mut t_db, mut u_r) = (Tally::default(), Tally::default(), Tally::default());
     for (k, s) in bundle.shapes.iter().enumerate() {
         let users = bundle.blocks.iter().filter(|b| b.shape as usize == k);
@@ -50,13 +43,12 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
             u_r.add(&o.u_r);
         }
         let q: Vec<u32> = s.openings.iter().map(|o| o.u_r.cols).collect();
-        writeln!(
-            out,
+        crate::say!(
             "  shape {}: {} texels, rank {}, opening ranks {q:?}, {blocks} blocks ({turned} rotated or mirrored)",
             &s.key[..s.key.len().min(12)],
             s.u_b.rows,
             s.u_b.cols
-        ).expect("writing to a String");
+        );
     }
     let (mut transport, mut bases) = (Tally::default(), Tally::default());
     match &bundle.transport {
@@ -75,19 +67,18 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
         }
         None => {}
     }
-    let line = |out: &mut String, name: &str, t: &Tally| {
-        writeln!(
-            out,
+    let line = |name: &str, t: &Tally| {
+        crate::say!(
             "  {name:<28} {:>6} matrices {:>10} values",
-            t.matrices, t.values
+            t.matrices,
+            t.values
         )
-        .expect("writing to a String")
     };
-    line(&mut out, "U_b", &u_b);
-    line(&mut out, "T_d→b", &t_db);
-    line(&mut out, "U_r (openings)", &u_r);
-    line(&mut out, "transport", &transport);
-    line(&mut out, "transport source bases", &bases);
+    line("U_b", &u_b);
+    line("T_d→b", &t_db);
+    line("U_r (openings)", &u_r);
+    line("transport", &transport);
+    line("transport source bases", &bases);
     if let Some(d) = &bundle.drt {
         let mut t_dc = Tally::default();
         d.clutter.iter().for_each(|c| t_dc.add(&c.t_dc));
@@ -105,19 +96,17 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
                 tally.add(mix);
             }
         }
-        line(&mut out, "T_d→c", &t_dc);
-        line(&mut out, "ΔU_b and C_b (from blocks)", &from_block);
-        line(&mut out, "ΔU_c (from clutter)", &from_clutter);
-        line(&mut out, "exact gather (low rank)", &from_direct);
+        line("T_d→c", &t_dc);
+        line("ΔU_b and C_b (from blocks)", &from_block);
+        line("ΔU_c (from clutter)", &from_clutter);
+        line("exact gather (low rank)", &from_direct);
         if let Some(g) = &d.direct_gather {
-            writeln!(
-                out,
+            crate::say!(
                 "  {:<28} {:>6} rows     {:>10} values",
                 "exact clutter gather",
                 g.rows.len(),
                 g.values.len()
-            )
-            .expect("writing to a String");
+            );
         }
     }
     if let Some(p) = &bundle.probes {
@@ -128,25 +117,21 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
                 probes.add(mix);
             }
         });
-        line(&mut out, &format!("probes ({})", p.n_probes), &probes);
+        line(&format!("probes ({})", p.n_probes), &probes);
     }
     for g in bundle.dnrt.as_deref().unwrap_or(&[]) {
-        writeln!(
-            out,
+        crate::say!(
             "  {:<28} {:>17} bytes",
             format!("dnrt grid \"{}\"", g.object),
             g.data_bytes()
-        )
-        .expect("writing to a String");
+        );
     }
     for s in &bundle.dynamic_shapes {
-        writeln!(
-            out,
+        crate::say!(
             "  {:<28} {:>6} triangles",
             format!("shape of \"{}\"", s.object),
             s.triangles.len()
-        )
-        .expect("writing to a String");
+        );
     }
     if let Some(sh) = &bundle.sh {
         let (mut from_block, mut from_clutter) = (Tally::default(), Tally::default());
@@ -159,20 +144,11 @@ pub fn run(path: PathBuf) -> anyhow::Result<()> {
             t.add(&e.y);
             t.add(&e.z);
         }
-        line(&mut out, "SH responses (from blocks)", &from_block);
-        line(&mut out, "SH responses (from clutter)", &from_clutter);
+        line("SH responses (from blocks)", &from_block);
+        line("SH responses (from clutter)", &from_clutter);
     }
     if let Some(f) = &bundle.full {
-        writeln!(
-            out,
-            "  {:<28} {:>17} values",
-            "full (sparse)",
-            f.values.len()
-        )
-        .expect("writing to a String");
+        crate::say!("  {:<28} {:>17} values", "full (sparse)", f.values.len());
     }
-    match std::io::stdout().lock().write_all(out.as_bytes()) {
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
-        r => r.context("cannot write to stdout"),
-    }
+    Ok(())
 }

@@ -522,9 +522,9 @@ fn write_outputs(args: &BenchArgs) -> anyhow::Result<()> {
     }
     super::write_atomic(&markdown_path, markdown.as_bytes())?;
     if let Some(results) = &results {
-        println!("{}", report::summary(results));
+        crate::say!("{}", report::summary(results));
     }
-    println!("markdown: {}", markdown_path.display());
+    crate::say!("markdown: {}", markdown_path.display());
     Ok(())
 }
 
