@@ -20,8 +20,10 @@ fn run(cmd: &mut Command) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
-fn workdir() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("lf-cli-{}", std::process::id()));
+/// A directory of the test `name`'s own (tests run in parallel and remove theirs at the end;
+/// one shared directory let a test's clean-up delete another's files mid-run).
+fn workdir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lf-cli-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
@@ -45,7 +47,7 @@ fn write_scene(dir: &Path) -> (PathBuf, PathBuf) {
 
 #[test]
 fn bake_eval_reference_compare_round_trip() {
-    let dir = workdir();
+    let dir = workdir("round-trip");
     let (scene, lights) = write_scene(&dir);
     let bundle = dir.join("out.lfb");
     run(lightfarm()
@@ -106,8 +108,7 @@ fn bake_eval_reference_compare_round_trip() {
 
 #[test]
 fn bad_scene_is_refused_with_the_offending_field() {
-    let dir = workdir().join("bad");
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = workdir("bad");
     let scene = dir.join("scene.json");
     std::fs::write(&scene, r#"{ "format": "lightfarm.scene/1", "name": "x", "blocks": [ { "id": "a", "min": [0,3,0], "max": [4,0,4], "albedo": [0.5,0.5,0.5] } ] }"#).unwrap();
     let out = lightfarm()
@@ -155,8 +156,7 @@ fn schema_describes_the_scene_format() {
 /// atlas PNG is written.
 #[test]
 fn bake_and_eval_a_scene_with_mesh_clutter() {
-    let dir = workdir().join("mesh");
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = workdir("mesh");
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell_mesh");
     for f in ["short_box.gltf", "short_box.bin", "lights.json"] {
         std::fs::copy(src.join(f), dir.join(f)).unwrap();
@@ -223,8 +223,7 @@ fn reports_whose_reader_left_early_are_no_error() {
     assert!(report.contains("exact clutter gather"), "{report}");
     run_with_stdout_closed(lightfarm().args(["inspect", seed]));
     // A bake whose report has no reader still writes its bundle.
-    let dir = workdir().join("closed-stdout");
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = workdir("closed-stdout");
     let (scene, _) = write_scene(&dir);
     let bundle = dir.join("out.lfb");
     run_with_stdout_closed(
