@@ -9,9 +9,12 @@
 //! - [`evaluate`]: a bundle applied to a light set through the client (the `eval` command,
 //!   the bench and the service's evaluate endpoint share it); no HTTP, no file I/O.
 //! - [`export`]: the lit level as glTF (`lightfarm export`, the service's preview); no HTTP.
+//! - [`stdout`]: [`say!`], the `println!` of the commands and the service that survives a
+//!   reader that has gone.
 
 pub mod bake;
 pub mod cli;
 pub mod evaluate;
 pub mod export;
 pub mod service;
+pub mod stdout;

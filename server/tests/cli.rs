@@ -1,6 +1,6 @@
 //! The CLI contract other tools depend on: `bake`, `eval`, `reference`, `compare`, `schema`,
-//! `inspect` (a report whose reader has left is no error),
-//! run as processes on a small scene.
+//! `inspect` (a report whose reader has left is no error), `serve` (up with its stdout's reader
+//! gone), run as processes on a small scene.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -236,5 +236,63 @@ fn reports_whose_reader_left_early_are_no_error() {
     );
     assert!(bundle.exists());
     run(lightfarm().arg("inspect").arg(&bundle));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_service_serves_with_its_stdout_reader_gone() {
+    use std::io::{BufRead, Read, Write};
+    // The pipe's reader is closed before the service starts, so its "listening" line is
+    // written to a pipe without a reader (it used to panic there and exit).
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let dir = workdir("serve-closed-stdout");
+    let mut child = lightfarm()
+        .args(["serve", "--addr", "127.0.0.1:0", "--data"])
+        .arg(dir.join("data"))
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .env("RUST_BACKTRACE", "0")
+        .spawn()
+        .expect("run lightfarm serve");
+    // The address, from the log line on stderr (colour codes dropped).
+    let mut log = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut addr = None;
+    let mut line = String::new();
+    while addr.is_none() && log.read_line(&mut line).unwrap() > 0 {
+        let plain: String = line
+            .split('\x1b')
+            .enumerate()
+            .map(|(i, s)| {
+                if i == 0 {
+                    s
+                } else {
+                    s.split_once('m').map_or("", |p| p.1)
+                }
+            })
+            .collect();
+        addr = plain
+            .split_once("listening on http://")
+            .map(|(_, a)| a.split_whitespace().next().unwrap().to_string());
+        line.clear();
+    }
+    let addr = addr.expect("the service logs its address");
+    let healthz = || {
+        let mut stream = std::net::TcpStream::connect(&addr).expect("the service is up");
+        stream
+            .write_all(b"GET /healthz HTTP/1.1\r\nHost: lightfarm\r\nConnection: close\r\n\r\n")
+            .unwrap();
+        let mut answer = String::new();
+        stream.read_to_string(&mut answer).unwrap();
+        assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    };
+    healthz();
+    // The line is written just after the log line, and a panic there took the process down a
+    // moment later (while other threads still answered): still up well after it.
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    assert!(child.try_wait().unwrap().is_none(), "the service exited");
+    healthz();
+    child.kill().unwrap();
+    child.wait().unwrap();
     let _ = std::fs::remove_dir_all(&dir);
 }

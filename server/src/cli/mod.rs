@@ -11,8 +11,8 @@
 //! - [`bench`](mod@bench) (`bench/`): speed against error, its parts listed in its own module doc.
 //! - [`progress_bar`]: the terminal progress bar the long commands share.
 //!
-//! The commands print their reports with [`say!`](crate::say) (this file), never `println!`:
-//! a reader that has gone (`lightfarm inspect B | head`) is no error.
+//! The commands print their reports with [`say!`](crate::say) ([`crate::stdout`]), never
+//! `println!`: a reader that has gone (`lightfarm inspect B | head`) is no error.
 
 pub mod bake;
 pub mod bench;
@@ -33,28 +33,6 @@ pub mod worker;
 use std::path::Path;
 
 use anyhow::Context;
-
-/// `println!` for the commands' reports on stdout. When stdout's reader has gone (`lightfarm
-/// inspect B | head`), the line is dropped and the command goes on to finish its work and exit
-/// as it would; `println!` panics there ("failed printing to stdout: Broken pipe"). Any other
-/// error writing stdout still panics, as with `println!`.
-#[macro_export]
-macro_rules! say {
-    ($($arg:tt)*) => {
-        $crate::cli::say_line(::std::format_args!($($arg)*))
-    };
-}
-
-/// What [`say!`](crate::say) runs: one line to stdout, a closed pipe ignored.
-pub fn say_line(line: std::fmt::Arguments<'_>) {
-    use std::io::Write;
-    match writeln!(std::io::stdout().lock(), "{line}") {
-        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
-            panic!("failed printing to stdout: {e}")
-        }
-        _ => {}
-    }
-}
 
 /// Reads a file to a string, naming it in the error.
 pub fn read_text(path: &Path) -> anyhow::Result<String> {

@@ -161,7 +161,7 @@ async fn farm_backend(
 pub async fn serve(config: ServiceConfig) -> anyhow::Result<()> {
     let running = start(config).await?;
     tracing::info!("listening on http://{}", running.addr);
-    println!("lightfarm: listening on http://{}", running.addr);
+    crate::say!("lightfarm: listening on http://{}", running.addr);
     let stop = running.stop.clone();
     tokio::spawn(async move {
         let ctrl_c = tokio::signal::ctrl_c();

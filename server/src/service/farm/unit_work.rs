@@ -119,7 +119,7 @@ impl WorkerContext {
             return;
         };
         if report.removed_files > 0 {
-            println!(
+            crate::say!(
                 "lightfarm worker {}: trimmed operator cache: removed {} files ({} bytes), {} bytes kept (budget {budget})",
                 self.name, report.removed_files, report.removed_bytes, report.bytes
             );
@@ -301,9 +301,11 @@ pub async fn handle_unit(ctx: Arc<WorkerContext>, message: jetstream::Message) {
         return;
     }
     let delivered = message.info().map(|i| i.delivered).unwrap_or(1);
-    println!(
+    crate::say!(
         "lightfarm worker {}: started unit {} of job {} (delivery {delivered})",
-        ctx.name, unit.unit, unit.job
+        ctx.name,
+        unit.unit,
+        unit.job
     );
     let started = Instant::now();
     let keep_alive = KeepAlive::start(&message);
@@ -319,9 +321,11 @@ pub async fn handle_unit(ctx: Arc<WorkerContext>, message: jetstream::Message) {
     let seconds = started.elapsed().as_secs_f64();
     let done = match outcome {
         Outcome::Cancelled => {
-            println!(
+            crate::say!(
                 "lightfarm worker {}: cancelled unit {} of job {}",
-                ctx.name, unit.unit, unit.job
+                ctx.name,
+                unit.unit,
+                unit.job
             );
             let _ = message.ack_with(AckKind::Term).await;
             return;
@@ -343,9 +347,11 @@ pub async fn handle_unit(ctx: Arc<WorkerContext>, message: jetstream::Message) {
         tracing::warn!("{e}; the unit will be delivered again");
         return;
     }
-    println!(
+    crate::say!(
         "lightfarm worker {}: finished unit {} of job {} in {seconds:.2} s",
-        ctx.name, unit.unit, unit.job
+        ctx.name,
+        unit.unit,
+        unit.job
     );
     if let Err(e) = message.double_ack().await {
         tracing::warn!("ack of unit {}: {e}", unit.unit);

@@ -115,7 +115,7 @@ pub async fn run(options: WorkerOptions) -> Result<(), FarmError> {
 
     let coordinators = tokio::spawn(coordinator_lane(ctx.clone()));
     let units = tokio::spawn(unit_lane(ctx.clone()));
-    println!("lightfarm worker {name}: ready ({threads} threads)");
+    crate::say!("lightfarm worker {name}: ready ({threads} threads)");
     tokio::select! {
         r = coordinators => r.map_err(|e| FarmError::nats("coordinator lane", e))?,
         r = units => r.map_err(|e| FarmError::nats("unit lane", e))?,
