@@ -141,7 +141,12 @@ pub enum BundleCodec {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Settings {
-    /// Texels along each edge of a block face (T×T texels per closed face).
+    /// Texels along each edge of a block face (T×T texels per closed face, whatever the face's
+    /// size: a 30 m × 1.2 m wall at T=16 has texels 1.9 m × 7.5 cm). Texels much wider than a
+    /// light's distance to the surfaces near it blur that light's bounce: in a closed 30 × 1.2
+    /// × 4 m box with a point light 0.5 m from a wall, the one-bounce indirect light at texel
+    /// centres is off from Mitsuba's by 56%, 43% and 10% (relative L2) at T = 8, 16, 32, where
+    /// generated levels of 2–6 m rooms at T = 8 are within 3–4% at all bounces.
     pub texels_per_face: u32,
     /// Cosine-weighted rays traced per texel for every operator.
     pub rays_per_texel: u32,
