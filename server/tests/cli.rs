@@ -246,17 +246,27 @@ fn the_service_serves_with_its_stdout_reader_gone() {
     // written to a pipe without a reader (it used to panic there and exit).
     let (reader, writer) = std::io::pipe().unwrap();
     drop(reader);
+    /// Kills the service when the test ends, passed or failed.
+    struct Service(std::process::Child);
+    impl Drop for Service {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
     let dir = workdir("serve-closed-stdout");
-    let mut child = lightfarm()
-        .args(["serve", "--addr", "127.0.0.1:0", "--data"])
-        .arg(dir.join("data"))
-        .stdout(writer)
-        .stderr(std::process::Stdio::piped())
-        .env("RUST_BACKTRACE", "0")
-        .spawn()
-        .expect("run lightfarm serve");
+    let mut service = Service(
+        lightfarm()
+            .args(["serve", "--addr", "127.0.0.1:0", "--data"])
+            .arg(dir.join("data"))
+            .stdout(writer)
+            .stderr(std::process::Stdio::piped())
+            .env("RUST_BACKTRACE", "0")
+            .spawn()
+            .expect("run lightfarm serve"),
+    );
     // The address, from the log line on stderr (colour codes dropped).
-    let mut log = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut log = std::io::BufReader::new(service.0.stderr.take().unwrap());
     let mut addr = None;
     let mut line = String::new();
     while addr.is_none() && log.read_line(&mut line).unwrap() > 0 {
@@ -290,9 +300,11 @@ fn the_service_serves_with_its_stdout_reader_gone() {
     // The line is written just after the log line, and a panic there took the process down a
     // moment later (while other threads still answered): still up well after it.
     std::thread::sleep(std::time::Duration::from_millis(500));
-    assert!(child.try_wait().unwrap().is_none(), "the service exited");
+    assert!(
+        service.0.try_wait().unwrap().is_none(),
+        "the service exited"
+    );
     healthz();
-    child.kill().unwrap();
-    child.wait().unwrap();
+    drop(service);
     let _ = std::fs::remove_dir_all(&dir);
 }
