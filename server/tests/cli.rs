@@ -197,17 +197,23 @@ fn bake_and_eval_a_scene_with_mesh_clutter() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The writing end of a pipe whose reader is already closed: every write to it fails with
+/// `BrokenPipe`, from the first.
+fn reader_gone() -> std::io::PipeWriter {
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    writer
+}
+
 /// Runs `cmd` with its stdout's reader gone before anything is written (`lightfarm … | head`
 /// with a reader that has already left): the command must finish as it would and exit 0, no
 /// panic ("failed printing to stdout: Broken pipe" was what `println!` gave).
 fn run_with_stdout_closed(cmd: &mut Command) {
-    let mut child = cmd
-        .stdout(std::process::Stdio::piped())
+    let out = cmd
+        .stdout(reader_gone())
         .stderr(std::process::Stdio::piped())
-        .spawn()
+        .output()
         .expect("run lightfarm");
-    drop(child.stdout.take());
-    let out = child.wait_with_output().expect("wait for lightfarm");
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{cmd:?}: {stderr}");
     assert!(!stderr.contains("panicked"), "{cmd:?}: {stderr}");
@@ -242,10 +248,7 @@ fn reports_whose_reader_left_early_are_no_error() {
 #[test]
 fn the_service_serves_with_its_stdout_reader_gone() {
     use std::io::{BufRead, Read, Write};
-    // The pipe's reader is closed before the service starts, so its "listening" line is
-    // written to a pipe without a reader (it used to panic there and exit).
-    let (reader, writer) = std::io::pipe().unwrap();
-    drop(reader);
+    // Its "listening" line goes to a pipe without a reader (it used to panic there and exit).
     /// Kills the service when the test ends, passed or failed.
     struct Service(std::process::Child);
     impl Drop for Service {
@@ -259,29 +262,19 @@ fn the_service_serves_with_its_stdout_reader_gone() {
         lightfarm()
             .args(["serve", "--addr", "127.0.0.1:0", "--data"])
             .arg(dir.join("data"))
-            .stdout(writer)
+            .stdout(reader_gone())
             .stderr(std::process::Stdio::piped())
             .env("RUST_BACKTRACE", "0")
+            .env("NO_COLOR", "1")
             .spawn()
             .expect("run lightfarm serve"),
     );
-    // The address, from the log line on stderr (colour codes dropped).
+    // The address, from the log line on stderr (plain: `NO_COLOR`).
     let mut log = std::io::BufReader::new(service.0.stderr.take().unwrap());
     let mut addr = None;
     let mut line = String::new();
     while addr.is_none() && log.read_line(&mut line).unwrap() > 0 {
-        let plain: String = line
-            .split('\x1b')
-            .enumerate()
-            .map(|(i, s)| {
-                if i == 0 {
-                    s
-                } else {
-                    s.split_once('m').map_or("", |p| p.1)
-                }
-            })
-            .collect();
-        addr = plain
+        addr = line
             .split_once("listening on http://")
             .map(|(_, a)| a.split_whitespace().next().unwrap().to_string());
         line.clear();
