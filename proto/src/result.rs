@@ -3,6 +3,8 @@
 //!
 //! Invariant: texels are identified by `(surface, index)`; surfaces are named
 //! `block:<id>/<face>` and `clutter:<id>`; the order is stable for a given scene and settings.
+//! A long block baked as pieces has several layout surfaces per face name, its indices
+//! running on from one piece to the next ([`Layout::surface_first_index`]).
 //! Radiance in W/(sr·m²) per RGB channel.
 
 use std::collections::HashMap;
@@ -41,9 +43,9 @@ impl ResultFile {
             .map(|t| ((t.surface.as_str(), t.index), t))
             .collect();
         let mut out = vec![None; layout.n_texels()];
-        for s in &layout.surfaces {
+        for (s, first) in layout.surfaces.iter().zip(layout.surface_first_index()) {
             for k in 0..s.texel_count {
-                if let Some(&t) = records.get(&(s.name.as_str(), k)) {
+                if let Some(&t) = records.get(&(s.name.as_str(), first + k)) {
                     out[(s.texel_offset + k) as usize] = Some(t);
                 }
             }

@@ -142,13 +142,12 @@ pub enum BundleCodec {
 #[serde(deny_unknown_fields, default)]
 pub struct Settings {
     /// Texels along each edge of a block face (T×T texels per closed face, whatever the face's
-    /// size: a 30 m × 1.2 m wall at T=16 has texels 1.9 m × 7.5 cm). Texels much wider than a
-    /// light's distance to the surfaces near it blur that light's bounce: in a closed 30 × 1.2
-    /// × 4 m box with a point light 0.5 m from a wall, the one-bounce indirect light at texel
-    /// centres is off from Mitsuba's by 56%, 43% and 10% (relative L2) at T = 8, 16, 32, where
-    /// generated levels of 2–6 m rooms at T = 8 are within 3–4% at all bounces. Build a long
-    /// room from blocks of a few metres open to each other: that box as six 5 m blocks at T =
-    /// 16 is within 5.2% at one bounce and 3.3% at all bounces.
+    /// size). Texels much wider than a light's distance to the surfaces near it blur that
+    /// light's bounce, so the bake cuts a block more than 4 (and at most 64) times as long as
+    /// its narrowest other side into pieces of the room's scale (open to each other; their
+    /// texels keep the block's surface names). A closed 30 × 1.2 × 4 m box with a point light 0.5 m from a
+    /// wall was off Mitsuba's indirect light by 56% at one bounce and 28% at all bounces at T
+    /// = 8 as one block; baked as 7 pieces it is within 6.0% and 3.4%.
     pub texels_per_face: u32,
     /// Cosine-weighted rays traced per texel for every operator.
     pub rays_per_texel: u32,
@@ -348,6 +347,34 @@ pub struct Block {
     /// Per-face albedo overrides.
     #[serde(default)]
     pub face_albedo: BTreeMap<Face, [f64; 3]>,
+    /// Set only by the bake engine when it bakes a long block as several pieces (the server's
+    /// `bake::scene::pieces`): which block of the scene this one is a piece of, so that its
+    /// texels keep that block's surface names. Never read from or written to JSON.
+    #[serde(skip)]
+    pub piece: Option<BlockPiece>,
+}
+
+/// Where a piece lies in the block it was cut from ([`Block::piece`]): the block is cut into
+/// `cells[0] × cells[1] × cells[2]` equal boxes and this piece is box `cell`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlockPiece {
+    /// The scene block's id.
+    pub of: String,
+    pub cell: [u32; 3],
+    pub cells: [u32; 3],
+    /// The block's extent over `cells`, the same bits for every piece: the extent the piece's
+    /// shape operators are keyed and baked by, so the pieces share them (their own
+    /// `max − min` differ from it, and from each other, by the rounding of the cuts).
+    pub extent: [f64; 3],
+}
+
+impl BlockPiece {
+    /// Among the pieces whose face `face` is part of the block's face `face` (those on that
+    /// side), this piece's index, row-major over the face's tangent axes.
+    pub fn index_on_face(&self, face: Face) -> u32 {
+        let (u, v) = face.tangent_axes();
+        self.cell[v] * self.cells[u] + self.cell[u]
+    }
 }
 
 impl Block {
@@ -595,7 +622,20 @@ impl Scene {
         }
         let mut seen = HashSet::new();
         for block in &self.blocks {
-            check_id("block", &block.id, &mut seen)?;
+            match &block.piece {
+                None => check_id("block", &block.id, &mut seen)?,
+                // A piece of a long block the engine cut ([`Block::piece`]): the scene block's
+                // id is checked once, at its first piece; the piece's own id is
+                // `<block id>/<n>`.
+                Some(piece) => {
+                    if !seen.contains(&format!("block:{}", piece.of)) {
+                        check_id("block", &piece.of, &mut seen)?;
+                    }
+                    if !seen.insert(format!("piece:{}", block.id)) {
+                        return Err(invalid(format!("block \"{}\"", block.id), "duplicate id"));
+                    }
+                }
+            }
             let object = format!("block \"{}\"", block.id);
             check_box(&object, &block.min, &block.max, "")?;
             check_albedo(&object, "albedo", &block.albedo)?;

@@ -1199,6 +1199,7 @@ proptest! {
                 open: open.iter().copied().collect(),
                 albedo,
                 face_albedo: Default::default(),
+                piece: None,
             }],
             clutter: vec![],
             dynamic: vec![],

@@ -6,7 +6,11 @@ Texel ordering (``proto/src/face.rs``, ``server/src/bake/scene/geometry.rs``): t
 the second (both ascending lightfarm world axes; ``frames.tangent_axes``), its centre at
 ``min + (i + ½, j + ½)·extent/T``. A block face is the surface ``block:<id>/<face>`` (indices
 ``0 … T²−1``); a clutter box is one surface ``clutter:<id>`` holding its six faces in canonical
-order (``-x +x -y +y -z +z``), face ``f`` at indices ``f·T² + j·T + i``.
+order (``-x +x -y +y -z +z``), face ``f`` at indices ``f·T² + j·T + i``. A long block the
+engine baked as pieces (``server/src/bake/scene/pieces.rs``) has ``n_u·n_v`` grids of ``T×T``
+on a face (``n_u·T`` texel centres along its first tangent axis, ``n_v·T`` along the
+second): its image tile stays ``T×T``, each pixel the mean of the ``n_u·n_v`` texels it covers
+(found from the texels' positions).
 
 Image layout (Blender images: pixel row 0 at the bottom, UV (0, 0) the bottom-left corner):
 the six faces are ``T×T`` tiles on a 3 × 2 grid (face ``f`` in column ``f mod 3``, row
@@ -82,16 +86,60 @@ def records_by_surface(result):
     return surfaces
 
 
+def _face_grid(face, records):
+    """The distinct texel-centre coordinates of a block face's records along its two tangent
+    axes, ascending (rounded to 1e-6 of the largest, so one grid line is one value)."""
+    u, v = frames.tangent_axes(face)
+    scale = max((abs(x) for r in records for x in r["position"]), default=1.0) or 1.0
+
+    def key(x):
+        return round(x / scale, 6)
+    return (sorted({key(r["position"][u]) for r in records}),
+            sorted({key(r["position"][v]) for r in records}), key)
+
+
+def _pooled(face, records, t):
+    """A block face's records (``n_u·n_v`` grids of ``T×T``: a long block baked as pieces)
+    pooled into ``T×T`` records in index order, each the mean of the texels it covers; None
+    when they do not form such a grid."""
+    us, vs, key = _face_grid(face, records)
+    if len(us) % t or len(vs) % t or len(us) * len(vs) != len(records):
+        return None
+    u, v = frames.tangent_axes(face)
+    rank_u = {x: k for k, x in enumerate(us)}
+    rank_v = {x: k for k, x in enumerate(vs)}
+    nu, nv = len(us) // t, len(vs) // t
+    sums = [{"direct": [0.0] * 3, "indirect": [0.0] * 3, "albedo": [0.0] * 3}
+            for _ in range(t * t)]
+    for r in records:
+        i = rank_u[key(r["position"][u])] // nu
+        j = rank_v[key(r["position"][v])] // nv
+        cell = sums[j * t + i]
+        for field in ("direct", "indirect", "albedo"):
+            cell[field] = [a + b for a, b in zip(cell[field], r[field])]
+    n = nu * nv
+    return [{field: [x / n for x in values] for field, values in cell.items()} | {"index": k}
+            for k, cell in enumerate(sums)]
+
+
 def box_faces(key, surfaces, texels_per_face):
     """{face: [texel records in index order]} of the block or clutter box ``key``
     (``("block" | "clutter", id)``) from ``records_by_surface``: a block's faces
-    ``block:<id>/<face>`` with ``T²`` texels, a clutter box's surface ``clutter:<id>`` cut into
-    six faces of ``T²`` texels. None when the result has none."""
+    ``block:<id>/<face>`` with ``T²`` texels (a face of a long block baked as pieces pooled
+    into ``T²``, module doc), a clutter box's surface ``clutter:<id>`` cut into six faces of
+    ``T²`` texels. None when the result has none."""
     t2 = texels_per_face * texels_per_face
     kind, object_id = key
     if kind == "block":
-        faces = {face: surfaces[f"block:{object_id}/{face}"] for face in frames.FACES
-                 if len(surfaces.get(f"block:{object_id}/{face}", ())) == t2}
+        faces = {}
+        for face in frames.FACES:
+            records = surfaces.get(f"block:{object_id}/{face}", ())
+            if len(records) == t2:
+                faces[face] = records
+            elif records and len(records) % t2 == 0:
+                pooled = _pooled(face, records, texels_per_face)
+                if pooled is not None:
+                    faces[face] = pooled
         return faces or None
     records = surfaces.get(f"clutter:{object_id}", ())
     if len(records) != 6 * t2:
@@ -120,15 +168,21 @@ def texels_by_face(result, texels_per_face, meshes=()):
 
 
 def texels_per_face(result):
-    """T, from the size of block face surfaces (all block faces have ``T²`` texels)."""
-    counts = {}
+    """T, from the block faces' texel grids: the fewest texel centres along a tangent axis
+    of any block face (a face has ``T`` along each, or ``n·T`` along an axis a long block was
+    cut on, module doc; no block is cut along all three axes on its own)."""
+    faces = {}
     for record in result["texels"]:
-        if record["surface"].startswith("block:"):
-            counts[record["surface"]] = counts.get(record["surface"], 0) + 1
-    if not counts:
-        return 0
-    n = max(counts.values())
-    return int(round(n ** 0.5))
+        name = record["surface"]
+        if name.startswith("block:"):
+            faces.setdefault(name, []).append(record)
+    sides = []
+    for name, records in faces.items():
+        face = name.rpartition("/")[2]
+        if face in frames.FACES:
+            us, vs, _ = _face_grid(face, records)
+            sides.append(min(len(us), len(vs)))
+    return min(sides, default=0)
 
 
 def texel_value(record, mode):

@@ -16,8 +16,8 @@ mesh reported by name; a 422 shown on the object it names; the service down as a
 a mesh clutter uploaded as GLB with a ``lightmap`` UV layer made for it (``TEXCOORD_1``); mesh
 clutter lightmaps (an icosphere with generated UVs, a cylinder with an artist's Lightmap Pack
 UVs, kept) against ``lightfarm eval``: every texel's pixel within 1/255, its cell where the
-engine's own atlas (``eval --f16``) puts it, its UV mapping to its world position; opening
-another file mid-bake (the timer stops watching, no traceback); the maze round trip through
+engine's own atlas (``eval --f16``) puts it, its UV mapping to its world position; a long block
+baked as pieces pooled into its faces' tiles; opening another file mid-bake (the timer stops watching, no traceback); the maze round trip through
 import and export.
 """
 
@@ -222,6 +222,53 @@ def uv_at(obj, polygon, point):
     m = np.array([[c[u], c[v], 1.0] for c in corners[:3]])
     coeff = np.linalg.solve(m, np.array(uvs[:3]))
     return np.array([point[u], point[v], 1.0]) @ coeff
+
+
+class LongBlock(unittest.TestCase):
+    def test_a_long_block_baked_as_pieces_pools_into_its_faces_tiles(self):
+        """A 30 x 1.2 x 4 m room is baked as 7 pieces (``bake/scene/pieces.rs``): its long
+        faces have 7 grids of T x T texels under one name. T is still found, and each pixel of
+        a long face's T x T tile is the mean of the 7 texels it covers."""
+        work = tempfile.mkdtemp(prefix="lf-long-")
+        scene = {"format": "lightfarm.scene/1", "name": "long",
+                 "settings": {"texels_per_face": 4, "rays_per_texel": 64},
+                 "blocks": [{"id": "hall", "min": [0, 0, 0], "max": [30, 1.2, 4],
+                             "albedo": [0.6, 0.6, 0.6]}]}
+        lights = {"lights": [{"kind": "point", "position": [2, 0.6, 0.5],
+                              "intensity": [5, 5, 5]}], "poses": []}
+        paths = {name: os.path.join(work, name) for name in
+                 ("scene.json", "lights.json", "bundle.lfb", "result.json")}
+        for name, document in (("scene.json", scene), ("lights.json", lights)):
+            with open(paths[name], "w") as out:
+                json.dump(document, out)
+        subprocess.run([LIGHTFARM, "bake", paths["scene.json"], "--out", paths["bundle.lfb"],
+                        "--no-cache"], check=True, stdout=subprocess.DEVNULL)
+        subprocess.run([LIGHTFARM, "eval", paths["bundle.lfb"], "--lights", paths["lights.json"],
+                        "-o", paths["result.json"]], check=True, stdout=subprocess.DEVNULL)
+        with open(paths["result.json"]) as f:
+            result = json.load(f)
+        surfaces = records_by_surface(result)
+        self.assertEqual(len(surfaces["block:hall/-y"]), 7 * 16)
+        self.assertEqual(len(surfaces["block:hall/-x"]), 16)
+        self.assertEqual(texels_per_face(result), 4)
+        faces = texels_by_face(result, 4)[("block", "hall")]
+        self.assertEqual(sorted(faces), sorted(frames.FACES))
+        for face, records in faces.items():
+            self.assertEqual(len(records), 16, face)
+        # Floor (-y: tangent axes x, z) pixel (i, j): the texels with x in [7.5 i, 7.5 (i+1)),
+        # z in [j, j + 1).
+        floor = surfaces["block:hall/-y"]
+        for j in range(4):
+            for i in range(4):
+                inside = [r for r in floor if 7.5 * i < r["position"][0] < 7.5 * (i + 1)
+                          and j < r["position"][2] < j + 1]
+                self.assertEqual(len(inside), 7)
+                want = [sum(r[k][c] for r in inside) / 7 for c in range(3)
+                        for k in ("indirect",)]
+                got = faces["-y"][4 * j + i]["indirect"]
+                for a, b in zip(got, want):
+                    self.assertAlmostEqual(a, b, places=12)
+                self.assertGreater(got[0], 0.0)
 
 
 class TwoRooms(unittest.TestCase):

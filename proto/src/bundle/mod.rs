@@ -460,4 +460,21 @@ impl Layout {
     pub fn n_texels(&self) -> usize {
         self.positions.len()
     }
+
+    /// Per surface, the index (RESULT.json's `index`, within the surface's name) of its first
+    /// texel: the texels of the surfaces before it with the same name. A name appears more than
+    /// once when the engine baked a long block as pieces (each piece's face is a surface named
+    /// after the block's face); otherwise every surface starts at 0.
+    pub fn surface_first_index(&self) -> Vec<u32> {
+        let mut seen: std::collections::HashMap<&str, u32> = std::collections::HashMap::new();
+        self.surfaces
+            .iter()
+            .map(|s| {
+                let next = seen.entry(s.name.as_str()).or_insert(0);
+                let first = *next;
+                *next += s.texel_count;
+                first
+            })
+            .collect()
+    }
 }

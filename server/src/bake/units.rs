@@ -32,6 +32,7 @@ use crate::bake::pipeline::stages::{dnrt_grid, mrt_transport, SplitShapes};
 use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
 use crate::bake::scene::mesh::load_mesh;
+use crate::bake::scene::pieces::baked_scene;
 use crate::bake::tracer::Tracer;
 use crate::bake::BakeError;
 
@@ -102,6 +103,8 @@ impl UnitScene {
     /// Validates `scene` (its mesh files under `scene_dir`) and makes its shape plan.
     pub fn new(scene: Scene, scene_dir: &Path) -> Result<UnitScene, BakeError> {
         scene.validate()?;
+        // Long blocks are baked as pieces (`scene::pieces`), as `bake` does.
+        let scene = baked_scene(&scene);
         let shapes = shape_plan(&scene);
         Ok(UnitScene {
             scene,

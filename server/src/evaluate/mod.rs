@@ -164,7 +164,7 @@ pub fn evaluate_frame(
     };
     let layout = &runtime.bundle().layout;
     let mut texels = Vec::with_capacity(layout.n_texels());
-    for surface in &layout.surfaces {
+    for (surface, first) in layout.surfaces.iter().zip(layout.surface_first_index()) {
         let is_clutter = !surface.name.starts_with("block:");
         // MRT without a probe volume models the blocks only.
         if method == Method::Mrt && is_clutter && probe_lit.is_none() {
@@ -175,7 +175,7 @@ pub fn evaluate_frame(
             let f = |v: [f32; 3]| v.map(|x| x as f64);
             texels.push(TexelRecord {
                 surface: surface.name.clone(),
-                index: k as u32,
+                index: first + k as u32,
                 position: f(layout.positions[t]),
                 normal: f(layout.normals[t]),
                 albedo: f(layout.albedo[t]),

@@ -130,10 +130,10 @@ pub fn texel_areas(bundle: &[u8]) -> HashMap<(String, u32), f64> {
     let bundle = lightfarm_client::decode(bundle).expect("decode");
     let layout = &bundle.layout;
     let mut out = HashMap::new();
-    for s in &layout.surfaces {
+    for (s, first) in layout.surfaces.iter().zip(layout.surface_first_index()) {
         for k in 0..s.texel_count {
             let size = layout.texel_size[(s.texel_offset + k) as usize];
-            out.insert((s.name.clone(), k), size[0] as f64 * size[1] as f64);
+            out.insert((s.name.clone(), first + k), size[0] as f64 * size[1] as f64);
         }
     }
     out

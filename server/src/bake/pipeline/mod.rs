@@ -31,6 +31,7 @@ use crate::bake::memory::release_freed;
 use crate::bake::mrt::shape::{ShapeError, ShapeOperators};
 use crate::bake::progress::Progress;
 use crate::bake::scene::geometry::{Geometry, GeometryError};
+use crate::bake::scene::pieces::baked_scene;
 use crate::bake::sh::responses::ShResponseStats;
 use crate::bake::transport::build::TransportStats;
 use stages::{stage_follows, LateStage};
@@ -140,6 +141,9 @@ fn bake_once(
     progress: &dyn Progress,
 ) -> Result<(Bundle, BakeReport), BakeError> {
     scene.validate()?;
+    // Long blocks are baked as pieces (`scene::pieces`); every stage sees the pieces.
+    let cut = baked_scene(scene);
+    let scene = &cut;
     // An overridden transport is the scene's from here on: the shapes' specs depend on it
     // (`ShapeSpec::lightfield_rows`).
     let overridden;

@@ -150,7 +150,15 @@ pub fn shape_plan(scene: &Scene) -> ShapePlan {
     let specs: Vec<ShapeSpec> = scene
         .blocks
         .iter()
-        .map(|b| ShapeSpec::for_block(&b.aabb(), &b.open, &scene.settings, &scene.light_regions))
+        .map(|b| {
+            let mut spec =
+                ShapeSpec::for_block(&b.aabb(), &b.open, &scene.settings, &scene.light_regions);
+            // Pieces of a long block share their shape (`bake::scene::pieces`).
+            if let Some(piece) = &b.piece {
+                spec.extent = piece.extent;
+            }
+            spec
+        })
         .collect();
     let mut unique: Vec<String> = Vec::new();
     let mut unique_specs = Vec::new();

@@ -342,9 +342,12 @@ pub fn layout_of(scene: &Scene, g: &Geometry) -> Layout {
     let mut surfaces: Vec<SurfaceInfo> = Vec::new();
     for s in &g.surfaces {
         let n = s.n_texels as u32;
+        let block_face = matches!(s.owner, SurfaceOwner::Block { .. });
         match surfaces.last_mut() {
-            // Clutter boxes: six faces, one surface name.
-            Some(last) if last.name == s.name => last.texel_count += n,
+            // Clutter boxes: six faces, one surface name. Block faces stay one surface each,
+            // also where pieces of a long block (`bake::scene::pieces`) share a face's name:
+            // each piece's face lies in its own room.
+            Some(last) if last.name == s.name && !block_face => last.texel_count += n,
             _ => surfaces.push(SurfaceInfo {
                 name: s.name.clone(),
                 texel_offset: s.texel_offset as u32,

@@ -19,11 +19,12 @@
 use std::ops::Range;
 use std::path::Path;
 
-use lightfarm_proto::scene::{Aabb, Scene, Transform};
+use lightfarm_proto::scene::{Aabb, Block, Scene, Transform};
 use lightfarm_proto::Face;
 
 use crate::bake::scene::mesh::{self, MeshError, TriangleMesh};
 use crate::bake::scene::mesh_atlas::{closed_pieces, AtlasError, MeshAtlas};
+use crate::bake::scene::pieces::baked_scene;
 
 /// Who owns a lit surface.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -288,6 +289,39 @@ impl Geometry {
         albedo: impl Fn(Face) -> [f64; 3],
         t: usize,
     ) -> Range<usize> {
+        self.add_block_faces(block, id, aabb, closed, albedo, t, |_| 0)
+    }
+
+    /// Adds scene block `b` ([`Geometry::add_block`]); a piece of a long block
+    /// ([`crate::bake::scene::pieces`]) takes its block's surface names, its texel indices
+    /// following on from the pieces before it on each face.
+    pub fn add_scene_block(&mut self, b: usize, block: &Block, t: usize) -> Range<usize> {
+        let (id, piece) = match &block.piece {
+            Some(piece) => (piece.of.as_str(), Some(piece)),
+            None => (block.id.as_str(), None),
+        };
+        self.add_block_faces(
+            b,
+            id,
+            &block.aabb(),
+            &block.closed_faces(),
+            |f| block.face_albedo(f),
+            t,
+            |f| piece.map_or(0, |p| p.index_on_face(f) * (t * t) as u32),
+        )
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn add_block_faces(
+        &mut self,
+        block: usize,
+        id: &str,
+        aabb: &Aabb,
+        closed: &[Face],
+        albedo: impl Fn(Face) -> [f64; 3],
+        t: usize,
+        index_offset: impl Fn(Face) -> u32,
+    ) -> Range<usize> {
         let start = self.texels.len();
         for face in closed {
             let normal_sign = if face.is_max_side() { -1.0 } else { 1.0 };
@@ -298,7 +332,7 @@ impl Geometry {
                 face.axis(),
                 normal_sign,
                 t,
-                0,
+                index_offset(*face),
                 albedo(*face),
             );
         }
@@ -306,19 +340,16 @@ impl Geometry {
     }
 
     /// The blocks alone (what MRT transport sees); block texels come first in every geometry
-    /// of a scene, so their indices agree with [`Geometry::from_scene`].
+    /// of a scene, so their indices agree with [`Geometry::from_scene`]. Long blocks are
+    /// the pieces the bake cuts them into ([`baked_scene`], which leaves a scene it has cut
+    /// as it is), so every caller sees the bake's texels.
     pub fn blocks_only(scene: &Scene) -> Geometry {
+        let cut = baked_scene(scene);
+        let scene = &cut;
         let t = scene.settings.texels_per_face as usize;
         let mut g = Geometry::default();
         for (b, block) in scene.blocks.iter().enumerate() {
-            let range = g.add_block(
-                b,
-                &block.id,
-                &block.aabb(),
-                &block.closed_faces(),
-                |f| block.face_albedo(f),
-                t,
-            );
+            let range = g.add_scene_block(b, block, t);
             g.block_texels.push(range);
         }
         g
