@@ -23,6 +23,8 @@ Invariant: every texel of a face maps to exactly one interior pixel of its tile,
 a texel's centre is that pixel's centre.
 """
 
+import math
+
 from . import frames
 
 
@@ -168,21 +170,22 @@ def texels_by_face(result, texels_per_face, meshes=()):
 
 
 def texels_per_face(result):
-    """T, from the block faces' texel grids: the fewest texel centres along a tangent axis
-    of any block face (a face has ``T`` along each, or ``n·T`` along an axis a long block was
-    cut on, module doc; no block is cut along all three axes on its own)."""
+    """T, from the block faces' texel grids: the greatest common divisor of the texel
+    centres along every block face's tangent axes (a face has ``T`` along each, or ``n·T``
+    along an axis a long block was cut on, module doc; a block cut on all three axes by its
+    neighbours has no side of ``T``, the rest of the level does)."""
     faces = {}
     for record in result["texels"]:
         name = record["surface"]
         if name.startswith("block:"):
             faces.setdefault(name, []).append(record)
-    sides = []
+    t = 0
     for name, records in faces.items():
         face = name.rpartition("/")[2]
         if face in frames.FACES:
             us, vs, _ = _face_grid(face, records)
-            sides.append(min(len(us), len(vs)))
-    return min(sides, default=0)
+            t = math.gcd(t, len(us), len(vs))
+    return t
 
 
 def texel_value(record, mode):
