@@ -12,7 +12,9 @@
 //!   lightfield rows make the rank keep what neighbours need through a lightfield transport;
 //!   for a traced transport, the default, `Out`'s rows averaged over directions per cell:
 //!   `ShapeSpec::lightfield_rows`, `exit_rows`).
-//!   `L_imp = P S V_r` (texels × r), `U_b = F L_imp` (texels × r), `T_d→b = V_rᵀ S⁻¹ Pᵀ` (r × texels).
+//!   `L_imp = P S V_r` (texels × r), `U_b = F L_imp` (texels × r), `T_d→b = V_rᵀ S⁻¹ Pᵀ` (r × texels);
+//!   then (ours, [`crate::bake::mrt::flux`]) the coefficients are turned so that the first
+//!   alone carries the rebuilt light's flux, which the bundle's 8-bit `T_d→b` then keeps.
 //! - Per opening: `In_o ≈ U_r,o W_o` truncated to q (U_r: texels × q, W: q × LF) and
 //!   `OutImp_o = Out_o L_imp` (LF × r).
 //!
@@ -33,13 +35,14 @@ use crate::bake::math::matrix::{narrow, widen};
 use crate::bake::math::sampling::{
     sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose,
 };
+use crate::bake::mrt::flux::flux_first;
 use crate::bake::mrt::lightfield::LightfieldFrame;
 use crate::bake::mrt::lighting_prior::{build_prior, prior_light_positions};
 use crate::bake::scene::geometry::{Geometry, Primitive};
 use crate::bake::tracer::Tracer;
 
 /// Bump when operator math changes: it is part of every cache key.
-pub const SHAPE_CODE_VERSION: &str = "shape-ops/5";
+pub const SHAPE_CODE_VERSION: &str = "shape-ops/6";
 
 /// What identifies a shape's operators.
 #[derive(Clone, Debug, PartialEq)]
@@ -601,13 +604,19 @@ pub fn bake_shape(
     }
     let svd = truncated_svd(m_ext.as_ref(), spec.tolerance).map_err(low_rank)?;
     let r = svd.s.len();
-    let l_imp = &p_s * &svd.v; // texels × r
-    let u_b = &f * &l_imp;
-    // T_d→b = V_rᵀ S⁻¹ Pᵀ
+    let mut l_imp = &p_s * &svd.v; // texels × r
+                                   // T_d→b = V_rᵀ S⁻¹ Pᵀ
     let v_s_inv = Mat::from_fn(r, prior.basis.ncols(), |i, j| {
         svd.v[(j, i)] / prior.singular_values[j]
     });
-    let t_db = &v_s_inv * prior.basis.transpose();
+    let mut t_db = &v_s_inv * prior.basis.transpose();
+    let area: Vec<f64> = g
+        .texels
+        .iter()
+        .map(|t| g.surfaces[t.surface as usize].texel_area())
+        .collect();
+    flux_first(&mut t_db, &mut l_imp, &area);
+    let u_b = &f * &l_imp;
 
     let mut openings = Vec::new();
     for (k, face) in spec.open.iter().enumerate() {
