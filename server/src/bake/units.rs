@@ -104,7 +104,7 @@ impl UnitScene {
     pub fn new(scene: Scene, scene_dir: &Path) -> Result<UnitScene, BakeError> {
         scene.validate()?;
         // Long blocks are baked as pieces (`scene::pieces`), as `bake` does.
-        let scene = baked_scene(&scene);
+        let scene = baked_scene(&scene).into_owned();
         let shapes = shape_plan(&scene);
         Ok(UnitScene {
             scene,

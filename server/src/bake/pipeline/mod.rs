@@ -143,7 +143,7 @@ fn bake_once(
     scene.validate()?;
     // Long blocks are baked as pieces (`scene::pieces`); every stage sees the pieces.
     let cut = baked_scene(scene);
-    let scene = &cut;
+    let scene: &Scene = &cut;
     // An overridden transport is the scene's from here on: the shapes' specs depend on it
     // (`ShapeSpec::lightfield_rows`).
     let overridden;

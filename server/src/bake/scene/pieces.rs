@@ -33,6 +33,8 @@
 //! so neighbouring pieces' faces coincide bit for bit); a piece has the block's albedo and
 //! per-face albedo, its outer faces the block's open/closed state, its cut faces open.
 
+use std::borrow::Cow;
+
 use lightfarm_proto::scene::{Block, BlockPiece, Opening, Scene, SceneError};
 use lightfarm_proto::Face;
 
@@ -49,23 +51,23 @@ pub const MAX_PIECES_PER_AXIS: u32 = 16;
 
 /// The scene as the bake engine bakes it: `scene` with every long block cut into pieces (see
 /// the module doc), blocks in the scene's order with each cut block's pieces in its place.
-/// Other fields unchanged; a scene whose openings do not resolve is returned unchanged (its
-/// bake reports why).
-pub fn baked_scene(scene: &Scene) -> Scene {
-    let mut out = scene.clone();
+/// Other fields unchanged; a scene with nothing to cut (already cut, or whose openings do not
+/// resolve: its bake reports why) is borrowed as it is, not copied.
+pub fn baked_scene(scene: &Scene) -> Cow<'_, Scene> {
     let Ok(cells) = cells(scene) else {
-        return out;
+        return Cow::Borrowed(scene);
     };
     if cells.iter().all(|n| *n == [1, 1, 1]) {
-        return out;
+        return Cow::Borrowed(scene);
     }
+    let mut out = scene.clone();
     out.blocks = scene
         .blocks
         .iter()
         .zip(&cells)
         .flat_map(|(b, n)| pieces(b, *n))
         .collect();
-    out
+    Cow::Owned(out)
 }
 
 /// Pieces along each axis of each block of `scene` (1 where it is not cut): per block and
@@ -237,7 +239,7 @@ mod tests {
             block("r", [0.0, 0.0, 10.0], [6.0, 3.0, 12.0], &[]),
             block("cube", [20.0, 0.0, 0.0], [21.0, 1.0, 1.0], &[]),
         ]);
-        assert_eq!(baked_scene(&s), s);
+        assert!(matches!(baked_scene(&s), Cow::Borrowed(_)));
     }
 
     #[test]
@@ -246,7 +248,7 @@ mod tests {
         // pieces along x; z (4 m) is 3.3 times 1.2 m, under the limit.
         let b = block("hall", [0.0, 0.0, 0.0], [30.0, 1.2, 4.0], &[Face::PosX]);
         assert_eq!(wanted(&b), [7, 1, 1]);
-        let s = baked_scene(&scene(vec![b.clone()]));
+        let s = baked_scene(&scene(vec![b.clone()])).into_owned();
         assert_eq!(s.blocks.len(), 7);
         s.validate().unwrap();
         let mut volume = 0.0;
@@ -301,7 +303,7 @@ mod tests {
             }
         }
         // Cutting again changes nothing.
-        assert_eq!(baked_scene(&s), s);
+        assert!(matches!(baked_scene(&s), Cow::Borrowed(_)));
     }
 
     #[test]
