@@ -107,6 +107,47 @@ pub fn check_against_reference(
     c
 }
 
+/// A scene of closed-off blocks `(id, min, max, open faces as JSON list items)` of one grey
+/// albedo `rho`, at `texels_per_face`, `rays_per_texel` and `tolerance`.
+pub fn grey_blocks(
+    name: &str,
+    blocks: &[(&str, [f64; 3], [f64; 3], &str)],
+    rho: f64,
+    (texels_per_face, rays_per_texel, tolerance): (u32, u32, f64),
+) -> Scene {
+    let blocks: Vec<String> = blocks
+        .iter()
+        .map(|(id, min, max, open)| {
+            format!(
+                r#"{{"id": "{id}", "min": {min:?}, "max": {max:?}, "open": [{open}],
+                     "albedo": [{rho}, {rho}, {rho}]}}"#
+            )
+        })
+        .collect();
+    Scene::from_json(&format!(
+        r#"{{"format": "lightfarm.scene/1", "name": "{name}",
+            "settings": {{"texels_per_face": {texels_per_face}, "rays_per_texel": {rays_per_texel},
+                          "tolerance": {tolerance}}},
+            "blocks": [{}]}}"#,
+        blocks.join(",")
+    ))
+    .expect("scene")
+}
+
+/// `Σ π L_ind A` (red channel) over a bundle's texels, each with its own area (a closed grey
+/// level's indirect flux).
+pub fn indirect_flux(bundle: &lightfarm_client::Bundle, result: &ResultFile) -> f64 {
+    result
+        .by_layout_texel(&bundle.layout)
+        .iter()
+        .zip(&bundle.layout.texel_size)
+        .map(|(t, size)| {
+            let t = t.expect("every texel has a record");
+            std::f64::consts::PI * t.indirect[0] * size[0] as f64 * size[1] as f64
+        })
+        .sum()
+}
+
 /// Largest `indirect / (albedo × max direct seen)` over texels and channels: ≤ 1 for any
 /// one-bounce solution (a perfect reflector cannot return more than the brightest direct light).
 pub fn energy_ratio(result: &ResultFile) -> f64 {

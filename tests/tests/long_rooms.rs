@@ -8,7 +8,8 @@
 //!   series `ρ²·4πI/(1−ρ)` of indirect flux over all bounces (`ρ²·4πI` at one bounce), however
 //!   many cuts the light crosses: a long box, and a hall under a shaft with a closet, where a
 //!   cut forced across an opening made the shaft's pieces six times as tall as deep until they
-//!   were cut again (they lost 10% of the light at all bounces against Mitsuba before);
+//!   were cut again (they lost 10% of the light at all bounces against Mitsuba before, most
+//!   of it to the 8-bit `T_d→b`'s rounding, which `tests/quantised_flux.rs` covers);
 //! - the long box texel by texel against the reference solver at one bounce;
 //! - the result keeps the scene's names: texels named `block:<id>/<face>` of the scene's blocks,
 //!   `(surface, index)` unique.
@@ -22,29 +23,16 @@ use lightfarm_proto::result::ResultFile;
 use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::evaluate::evaluate;
-use lightfarm_tests::{bake_scene, check_against_reference, reference_of};
+use lightfarm_tests::{
+    bake_scene, check_against_reference, grey_blocks, indirect_flux, reference_of,
+};
 
 const RHO: f64 = 0.8;
 const INTENSITY: f64 = 1.0;
 
 /// A scene of closed-off blocks `(id, min, max, open faces)` of albedo [`RHO`] at T = 8.
 fn scene(blocks: &[(&str, [f64; 3], [f64; 3], &str)]) -> Scene {
-    let blocks: Vec<String> = blocks
-        .iter()
-        .map(|(id, min, max, open)| {
-            format!(
-                r#"{{"id": "{id}", "min": {min:?}, "max": {max:?}, "open": [{open}],
-                     "albedo": [{RHO}, {RHO}, {RHO}]}}"#
-            )
-        })
-        .collect();
-    Scene::from_json(&format!(
-        r#"{{"format": "lightfarm.scene/1", "name": "long",
-            "settings": {{"texels_per_face": 8, "rays_per_texel": 512, "tolerance": 0.001}},
-            "blocks": [{}]}}"#,
-        blocks.join(",")
-    ))
-    .expect("scene")
+    grey_blocks("long", blocks, RHO, (8, 512, 0.001))
 }
 
 /// The 30 × 1.2 × 4 m box.
@@ -58,19 +46,6 @@ fn light(at: [f64; 3]) -> LightSet {
              "intensity": [{INTENSITY}, {INTENSITY}, {INTENSITY}]}}], "poses": []}}"#
     ))
     .expect("lights")
-}
-
-/// `Σ π L_ind A` (red channel) over the bundle's texels, each with its own area.
-fn indirect_flux(bundle: &lightfarm_client::Bundle, result: &ResultFile) -> f64 {
-    let by_texel = result.by_layout_texel(&bundle.layout);
-    by_texel
-        .iter()
-        .zip(&bundle.layout.texel_size)
-        .map(|(t, size)| {
-            let t = t.expect("every texel has a record");
-            PI * t.indirect[0] * size[0] as f64 * size[1] as f64
-        })
-        .sum()
 }
 
 /// Bakes `scene`, relights it by `lights` at one bounce and at all, and checks the flux

@@ -13,12 +13,12 @@ use std::f64::consts::PI;
 
 use lightfarm_client::{Bounces, Method};
 use lightfarm_proto::lights::LightSet;
-use lightfarm_proto::result::ResultFile;
 use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::bake::pipeline::encoding::encode_options;
 use lightfarm_server::bake::progress::NoProgress;
 use lightfarm_server::bake::{bake, BakeOptions};
 use lightfarm_server::evaluate::evaluate;
+use lightfarm_tests::{grey_blocks, indirect_flux};
 
 const RHO: f64 = 0.8;
 const INTENSITY: f64 = 1.0;
@@ -31,12 +31,8 @@ fn shaft(n: [usize; 3]) -> Scene {
         for j in 0..n[1] {
             for k in 0..n[2] {
                 let at = [i, j, k];
-                let min: Vec<f64> = (0..3)
-                    .map(|a| size[a] * at[a] as f64 / n[a] as f64)
-                    .collect();
-                let max: Vec<f64> = (0..3)
-                    .map(|a| size[a] * (at[a] + 1) as f64 / n[a] as f64)
-                    .collect();
+                let min = std::array::from_fn(|a| size[a] * at[a] as f64 / n[a] as f64);
+                let max = std::array::from_fn(|a| size[a] * (at[a] + 1) as f64 / n[a] as f64);
                 let mut open = Vec::new();
                 for (a, axis) in ["x", "y", "z"].iter().enumerate() {
                     if at[a] > 0 {
@@ -46,34 +42,15 @@ fn shaft(n: [usize; 3]) -> Scene {
                         open.push(format!("\"+{axis}\""));
                     }
                 }
-                blocks.push(format!(
-                    r#"{{"id": "s{i}_{j}_{k}", "min": {min:?}, "max": {max:?},
-                        "open": [{}], "albedo": [{RHO}, {RHO}, {RHO}]}}"#,
-                    open.join(", ")
-                ));
+                blocks.push((format!("s{i}_{j}_{k}"), min, max, open.join(", ")));
             }
         }
     }
-    Scene::from_json(&format!(
-        r#"{{"format": "lightfarm.scene/1", "name": "shaft",
-            "settings": {{"texels_per_face": 8, "rays_per_texel": 1024, "tolerance": 0.0001}},
-            "blocks": [{}]}}"#,
-        blocks.join(",")
-    ))
-    .expect("scene")
-}
-
-/// `Σ π L_ind A` (red channel) over the bundle's texels, each with its own area.
-fn indirect_flux(bundle: &lightfarm_client::Bundle, result: &ResultFile) -> f64 {
-    result
-        .by_layout_texel(&bundle.layout)
+    let blocks: Vec<(&str, [f64; 3], [f64; 3], &str)> = blocks
         .iter()
-        .zip(&bundle.layout.texel_size)
-        .map(|(t, size)| {
-            let t = t.expect("every texel has a record");
-            PI * t.indirect[0] * size[0] as f64 * size[1] as f64
-        })
-        .sum()
+        .map(|(id, min, max, open)| (id.as_str(), *min, *max, open.as_str()))
+        .collect();
+    grey_blocks("shaft", &blocks, RHO, (8, 1024, 0.0001))
 }
 
 #[test]
