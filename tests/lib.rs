@@ -50,19 +50,42 @@ pub fn room_with_box(texels: u32, rays: u32) -> Scene {
 }
 
 /// Bakes with the given transport and an optional dense operator.
+fn bake_bundle(
+    scene: &Scene,
+    dir: &Path,
+    transport: Transport,
+    full: bool,
+) -> (lightfarm_proto::bundle::Bundle, BakeReport) {
+    let options = BakeOptions {
+        cache: None,
+        full,
+        transport: Some(transport),
+    };
+    bake(scene, dir, &options, &NoProgress).expect("bake")
+}
+
+/// Bakes with the given transport and an optional dense operator, stored losslessly (f32).
 pub fn bake_scene(
     scene: &Scene,
     dir: &Path,
     transport: Transport,
     full: bool,
 ) -> (Vec<u8>, BakeReport) {
-    let options = BakeOptions {
-        cache: None,
-        full,
-        transport: Some(transport),
-    };
-    let (bundle, report) = bake(scene, dir, &options, &NoProgress).expect("bake");
+    let (bundle, report) = bake_bundle(scene, dir, transport, full);
     (bundle.encode(), report)
+}
+
+/// [`bake_scene`], stored as `lightfarm bake` stores it (the scene's codecs: 8 bits where it
+/// fits the scene's codec budget) rather than losslessly, for tests of what a game receives.
+pub fn bake_scene_stored(
+    scene: &Scene,
+    dir: &Path,
+    transport: Transport,
+    full: bool,
+) -> (Vec<u8>, BakeReport) {
+    let (bundle, report) = bake_bundle(scene, dir, transport, full);
+    let stored = lightfarm_server::bake::pipeline::encoding::encode_options(&scene.settings, None);
+    (bundle.encode_with(&stored).0, report)
 }
 
 /// Applies a bundle as a game would.

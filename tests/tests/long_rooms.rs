@@ -13,6 +13,8 @@
 //! - the long box texel by texel against the reference solver at one bounce;
 //! - the result keeps the scene's names: texels named `block:<id>/<face>` of the scene's blocks,
 //!   `(surface, index)` unique.
+//!
+//! Bundles are stored as a bake stores them (8-bit codecs), as a game receives them.
 
 use std::collections::HashSet;
 use std::f64::consts::PI;
@@ -24,7 +26,7 @@ use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::evaluate::evaluate;
 use lightfarm_tests::{
-    bake_scene, check_against_reference, grey_blocks, indirect_flux, reference_of,
+    bake_scene_stored, check_against_reference, grey_blocks, indirect_flux, reference_of,
 };
 
 const RHO: f64 = 0.8;
@@ -51,7 +53,7 @@ fn light(at: [f64; 3]) -> LightSet {
 /// Bakes `scene`, relights it by `lights` at one bounce and at all, and checks the flux
 /// against the geometric series within 3%; returns the bundle and its one-bounce result.
 fn check_flux(label: &str, scene: &Scene, lights: &LightSet) -> (Vec<u8>, ResultFile) {
-    let (bytes, report) = bake_scene(scene, &std::env::temp_dir(), Transport::Traced, false);
+    let (bytes, report) = bake_scene_stored(scene, &std::env::temp_dir(), Transport::Traced, false);
     eprintln!("{label}: {} blocks baked", report.blocks);
     let phi = 4.0 * PI * INTENSITY;
     let mut one = None;

@@ -14,11 +14,8 @@ use std::f64::consts::PI;
 use lightfarm_client::{Bounces, Method};
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::scene::{Scene, Transport};
-use lightfarm_server::bake::pipeline::encoding::encode_options;
-use lightfarm_server::bake::progress::NoProgress;
-use lightfarm_server::bake::{bake, BakeOptions};
 use lightfarm_server::evaluate::evaluate;
-use lightfarm_tests::{grey_blocks, indirect_flux};
+use lightfarm_tests::{bake_scene_stored, grey_blocks, indirect_flux};
 
 const RHO: f64 = 0.8;
 const INTENSITY: f64 = 1.0;
@@ -61,17 +58,9 @@ fn a_closed_shaft_of_28_blocks_keeps_the_geometric_series_at_a_tight_tolerance()
              "intensity": [{INTENSITY}, {INTENSITY}, {INTENSITY}]}}], "poses": []}}"#
     ))
     .expect("lights");
-    let options = BakeOptions {
-        cache: None,
-        full: false,
-        transport: Some(Transport::Traced),
-    };
-    let (bundle, report) =
-        bake(&scene, &std::env::temp_dir(), &options, &NoProgress).expect("bake");
+    let (bytes, report) =
+        bake_scene_stored(&scene, &std::env::temp_dir(), Transport::Traced, false);
     assert_eq!(report.blocks, 28);
-    // Stored as a bake stores it (the scene's codecs: 8-bit where it fits the budget), not
-    // losslessly as `lightfarm_tests::bake_scene` does.
-    let (bytes, _) = bundle.encode_with(&encode_options(&scene.settings, None));
     let phi = 4.0 * PI * INTENSITY;
     for (mode, want, within) in [
         (Bounces::One, RHO * RHO * phi, 0.015),
