@@ -171,6 +171,19 @@ pub fn indirect_flux(bundle: &lightfarm_client::Bundle, result: &ResultFile) -> 
         .sum()
 }
 
+/// Asserts a closed level's indirect `flux` within `within` (relative) of the geometric series'
+/// `want`, printing both under `label`.
+pub fn check_flux_against(label: &str, flux: f64, want: f64, within: f64) {
+    eprintln!(
+        "{label}: flux {flux:.5} vs {want:.5} ({:+.2}%)",
+        100.0 * (flux / want - 1.0)
+    );
+    assert!(
+        (flux - want).abs() <= within * want,
+        "{label}: indirect flux {flux} vs the geometric series {want}"
+    );
+}
+
 /// Largest `indirect / (albedo × max direct seen)` over texels and channels: ≤ 1 for any
 /// one-bounce solution (a perfect reflector cannot return more than the brightest direct light).
 pub fn energy_ratio(result: &ResultFile) -> f64 {

@@ -26,7 +26,8 @@ use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::evaluate::evaluate;
 use lightfarm_tests::{
-    bake_scene_stored, check_against_reference, grey_blocks, indirect_flux, reference_of,
+    bake_scene_stored, check_against_reference, check_flux_against, grey_blocks, indirect_flux,
+    reference_of,
 };
 
 const RHO: f64 = 0.8;
@@ -64,14 +65,7 @@ fn check_flux(label: &str, scene: &Scene, lights: &LightSet) -> (Vec<u8>, Result
         let bundle = lightfarm_client::decode(&bytes).expect("decode");
         let r = evaluate(bundle.clone(), lights, Method::Mrt, mode).expect("evaluate");
         let flux = indirect_flux(&bundle, &r);
-        eprintln!(
-            "{label} {mode:?}: flux {flux:.5} vs {want:.5} ({:+.2}%)",
-            100.0 * (flux / want - 1.0)
-        );
-        assert!(
-            (flux - want).abs() <= 0.03 * want,
-            "{label} {mode:?}: indirect flux {flux} vs the geometric series {want}"
-        );
+        check_flux_against(&format!("{label} {mode:?}"), flux, want, 0.03);
         if mode == Bounces::One {
             one = Some(r);
         }

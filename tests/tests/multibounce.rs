@@ -19,7 +19,7 @@ use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::bake::reference::{reference, ReferenceSettings};
 use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::evaluate::evaluate;
-use lightfarm_tests::{bake_scene, bake_scene_stored};
+use lightfarm_tests::{bake_scene, bake_scene_stored, check_flux_against};
 
 const RHO: f64 = 0.5;
 const SIDE: f64 = 2.0;
@@ -93,14 +93,7 @@ fn assert_flux(label: &str, result: &ResultFile, bounces: BounceCount) {
         "{label}: negative or non-finite indirect light"
     );
     let (flux, want) = (indirect_flux(result), expected(bounces));
-    eprintln!(
-        "{label} ({bounces} bounces): flux {flux:.5} vs {want:.5} ({:+.2}%)",
-        100.0 * (flux / want - 1.0)
-    );
-    assert!(
-        (flux - want).abs() <= 0.03 * want,
-        "{label} ({bounces} bounces): indirect flux {flux} vs the geometric series {want}"
-    );
+    check_flux_against(&format!("{label} ({bounces} bounces)"), flux, want, 0.03);
 }
 
 #[test]

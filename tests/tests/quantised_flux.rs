@@ -15,7 +15,7 @@ use lightfarm_client::{Bounces, Method};
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::evaluate::evaluate;
-use lightfarm_tests::{bake_scene_stored, grey_blocks, indirect_flux};
+use lightfarm_tests::{bake_scene_stored, check_flux_against, grey_blocks, indirect_flux};
 
 const RHO: f64 = 0.8;
 const INTENSITY: f64 = 1.0;
@@ -69,13 +69,6 @@ fn a_closed_shaft_of_28_blocks_keeps_the_geometric_series_at_a_tight_tolerance()
         let bundle = lightfarm_client::decode(&bytes).expect("decode");
         let r = evaluate(bundle.clone(), &lights, Method::Mrt, mode).expect("evaluate");
         let flux = indirect_flux(&bundle, &r);
-        eprintln!(
-            "{mode:?}: flux {flux:.5} vs {want:.5} ({:+.2}%)",
-            100.0 * (flux / want - 1.0)
-        );
-        assert!(
-            (flux - want).abs() <= within * want,
-            "{mode:?}: indirect flux {flux} vs the geometric series {want}"
-        );
+        check_flux_against(&format!("{mode:?}"), flux, want, within);
     }
 }
