@@ -64,8 +64,21 @@ fn bake_bundle(
     bake(scene, dir, &options, &NoProgress).expect("bake")
 }
 
-/// Bakes with the given transport and an optional dense operator, stored losslessly (f32).
+/// Bakes with the given transport and an optional dense operator, stored as `lightfarm bake`
+/// stores it ([`stored`]: the scene's codecs), so that tests see what a game receives.
 pub fn bake_scene(
+    scene: &Scene,
+    dir: &Path,
+    transport: Transport,
+    full: bool,
+) -> (Vec<u8>, BakeReport) {
+    let (bundle, report) = bake_bundle(scene, dir, transport, full);
+    (stored(scene, &bundle), report)
+}
+
+/// [`bake_scene`] stored losslessly (f32), for the few tests about what the operators hold
+/// before the codec rounds them.
+pub fn bake_scene_lossless(
     scene: &Scene,
     dir: &Path,
     transport: Transport,
@@ -75,17 +88,12 @@ pub fn bake_scene(
     (bundle.encode(), report)
 }
 
-/// [`bake_scene`], stored as `lightfarm bake` stores it (the scene's codecs: 8 bits where it
-/// fits the scene's codec budget) rather than losslessly, for tests of what a game receives.
-pub fn bake_scene_stored(
-    scene: &Scene,
-    dir: &Path,
-    transport: Transport,
-    full: bool,
-) -> (Vec<u8>, BakeReport) {
-    let (bundle, report) = bake_bundle(scene, dir, transport, full);
-    let stored = lightfarm_server::bake::pipeline::encoding::encode_options(&scene.settings, None);
-    (bundle.encode_with(&stored).0, report)
+/// `bundle`'s bytes as `lightfarm bake` writes them for `scene`: its codecs (8 bits where a
+/// matrix fits the scene's codec budget), so a bake done here by other means compares with
+/// [`bake_scene`]'s bytes.
+pub fn stored(scene: &Scene, bundle: &lightfarm_proto::bundle::Bundle) -> Vec<u8> {
+    let options = lightfarm_server::bake::pipeline::encoding::encode_options(&scene.settings, None);
+    bundle.encode_with(&options).0
 }
 
 /// Applies a bundle as a game would.

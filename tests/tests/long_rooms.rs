@@ -26,7 +26,7 @@ use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::evaluate::evaluate;
 use lightfarm_tests::{
-    bake_scene_stored, check_against_reference, check_flux_against, grey_blocks, indirect_flux,
+    bake_scene, check_against_reference, check_flux_against, grey_blocks, indirect_flux,
     reference_of,
 };
 
@@ -54,7 +54,7 @@ fn light(at: [f64; 3]) -> LightSet {
 /// Bakes `scene`, relights it by `lights` at one bounce and at all, and checks the flux
 /// against the geometric series within 3%; returns the bundle and its one-bounce result.
 fn check_flux(label: &str, scene: &Scene, lights: &LightSet) -> (Vec<u8>, ResultFile) {
-    let (bytes, report) = bake_scene_stored(scene, &std::env::temp_dir(), Transport::Traced, false);
+    let (bytes, report) = bake_scene(scene, &std::env::temp_dir(), Transport::Traced, false);
     eprintln!("{label}: {} blocks baked", report.blocks);
     let phi = 4.0 * PI * INTENSITY;
     let mut one = None;

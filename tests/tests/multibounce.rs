@@ -19,7 +19,7 @@ use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::bake::reference::{reference, ReferenceSettings};
 use lightfarm_server::bake::scene::geometry::Geometry;
 use lightfarm_server::evaluate::evaluate;
-use lightfarm_tests::{bake_scene, bake_scene_stored, check_flux_against};
+use lightfarm_tests::{bake_scene, check_flux_against};
 
 const RHO: f64 = 0.5;
 const SIDE: f64 = 2.0;
@@ -110,7 +110,7 @@ fn closed_box_matches_the_geometric_series_for_the_reference_full_mrt_and_drt() 
             let r = reference(&g, &lights.lights, &settings, &|_| {});
             assert_flux(&format!("reference {label}"), &r, bounces);
         }
-        let (bytes, _) = bake_scene_stored(&scene, &dir, Transport::Lightfield, true);
+        let (bytes, _) = bake_scene(&scene, &dir, Transport::Lightfield, true);
         let methods: &[Method] = if clutter {
             &[Method::Full, Method::Drt]
         } else {

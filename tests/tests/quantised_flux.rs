@@ -15,7 +15,7 @@ use lightfarm_client::{Bounces, Method};
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::scene::{Scene, Transport};
 use lightfarm_server::evaluate::evaluate;
-use lightfarm_tests::{bake_scene_stored, check_flux_against, grey_blocks, indirect_flux};
+use lightfarm_tests::{bake_scene, check_flux_against, grey_blocks, indirect_flux};
 
 const RHO: f64 = 0.8;
 const INTENSITY: f64 = 1.0;
@@ -58,8 +58,7 @@ fn a_closed_shaft_of_28_blocks_keeps_the_geometric_series_at_a_tight_tolerance()
              "intensity": [{INTENSITY}, {INTENSITY}, {INTENSITY}]}}], "poses": []}}"#
     ))
     .expect("lights");
-    let (bytes, report) =
-        bake_scene_stored(&scene, &std::env::temp_dir(), Transport::Traced, false);
+    let (bytes, report) = bake_scene(&scene, &std::env::temp_dir(), Transport::Traced, false);
     assert_eq!(report.blocks, 28);
     let phi = 4.0 * PI * INTENSITY;
     for (mode, want, within) in [

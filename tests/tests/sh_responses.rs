@@ -30,9 +30,15 @@ fn box_lights() -> LightSet {
     LightSet::from_json(r#"{ "lights": [ { "kind": "point", "position": [0.8, 2.4, 1.0], "intensity": [6, 6, 6] } ] }"#).unwrap()
 }
 
-/// Bakes (lightfield transport, no dense operator) and decodes.
-fn bake_decoded(scene: &Scene, dir: &std::path::Path) -> (Vec<u8>, Bundle) {
-    let (bytes, _) = bake_scene(scene, dir, Transport::Lightfield, false);
+/// Bakes (lightfield transport, no dense operator) and decodes: stored as a bake stores it, or
+/// `lossless` (f32, for the tests of what the section holds before a codec rounds it).
+fn bake_decoded(scene: &Scene, dir: &std::path::Path, lossless: bool) -> (Vec<u8>, Bundle) {
+    let bake = if lossless {
+        bake_scene_lossless
+    } else {
+        bake_scene
+    };
+    let (bytes, _) = bake(scene, dir, Transport::Lightfield, false);
     let bundle = Bundle::decode(&bytes).expect("decode");
     (bytes, bundle)
 }
@@ -98,7 +104,7 @@ fn tilted(n: [f32; 3], degrees: f64) -> [f64; 3] {
 fn sh_irradiance_at_the_geometric_normal_matches_scalar_drt_on_cornell() {
     let (mut scene, lights) = load_scene("cornell", 8, 1024);
     scene.settings.sh_responses = true;
-    let (_, bundle) = bake_decoded(&scene, &scene_dir("cornell"));
+    let (_, bundle) = bake_decoded(&scene, &scene_dir("cornell"), false);
     let layout = bundle.layout.clone();
     let blocks: Vec<bool> = (0..layout.n_texels())
         .map(|t| is_block(&bundle, t))
@@ -129,7 +135,7 @@ fn sh_matches_brute_force_and_shades_tilted_normals_on_a_box_on_a_floor() {
     let dir = scene_dir("cornell");
     let scene = room_with_box(8, 1024);
     let lights = box_lights();
-    let (_, bundle) = bake_decoded(&scene, &dir);
+    let (_, bundle) = bake_decoded(&scene, &dir, false);
     let layout = bundle.layout.clone();
     let blocks: Vec<bool> = (0..layout.n_texels())
         .map(|t| is_block(&bundle, t))
@@ -219,8 +225,8 @@ fn without_the_setting_there_is_no_sh_section_and_nothing_else_changes() {
     assert!(!serde_json::to_string(&off.settings)
         .unwrap()
         .contains("sh_responses"));
-    let (off_bytes, off_bundle) = bake_decoded(&off, &dir);
-    let (on_bytes, mut on_bundle) = bake_decoded(&on, &dir);
+    let (off_bytes, off_bundle) = bake_decoded(&off, &dir, true);
+    let (on_bytes, mut on_bundle) = bake_decoded(&on, &dir, true);
     assert!(off_bundle.sh.is_none());
     let minor = |b: &[u8]| u16::from_le_bytes([b[10], b[11]]);
     // Every bundle carries the writer's minor version (a streamed prefix and the whole bundle
@@ -253,7 +259,7 @@ fn without_the_setting_there_is_no_sh_section_and_nothing_else_changes() {
 #[test]
 fn sh_section_round_trips_in_every_codec_and_validation_names_the_problem() {
     let dir = scene_dir("cornell");
-    let (bytes, bundle) = bake_decoded(&room_with_box(4, 128), &dir);
+    let (bytes, bundle) = bake_decoded(&room_with_box(4, 128), &dir, true);
     let sh = bundle.sh.clone().unwrap();
     assert!(sh
         .entries
@@ -263,7 +269,7 @@ fn sh_section_round_trips_in_every_codec_and_validation_names_the_problem() {
         .entries
         .iter()
         .any(|e| matches!(e.source, DeltaSource::Block(_))));
-    // f32 is lossless (`bake_scene` encodes f32).
+    // f32 is lossless (the bundle was baked losslessly).
     assert_eq!(Bundle::decode(&bundle.encode()).unwrap(), bundle);
     assert_eq!(Bundle::decode(&bytes).unwrap(), bundle);
     for (codec, budget) in [(MatrixCodec::F16, 1e-3), (MatrixCodec::U8Columns, 0.05)] {
