@@ -20,6 +20,13 @@ keeps each room's faces in front of its neighbours' by far more than f32's round
 scale; the query points (1 mm off the texel, lfgt.py's) stay inside. Clutter, dynamic objects
 and lights are lfgt.py's, untouched.
 
+lfgt.py reads clutter and dynamic-object meshes from OBJ files only; here glTF and GLB meshes
+are read too (`gltf_triangles`: the default scene's node hierarchy, triangle primitives, as
+the bake reads them), so mesh levels such as `scenes/cornell_mesh` can be checked. A glTF
+whose primitives carry colours of their own (a base colour factor other than white,
+`COLOR_0`, a base-colour texture) is refused: the converter gives a mesh one albedo, the
+object's `albedo` setting, which is what the bake gives uncoloured primitives.
+
 Usage (the same arguments as lfgt.py, with its Python; see README's "Checking the reference"):
   gt_check.py check SCENE.json LIGHTS.json RESULT.json [lfgt.py check options]
   gt_check.py convert SCENE.json LIGHTS.json -o GTSCENE.json
@@ -108,6 +115,147 @@ def separated(lfgt):
     return convert
 
 
+GLTF_COMPONENTS = {5121: ("B", 1), 5123: ("H", 2), 5125: ("I", 4), 5126: ("f", 4)}
+GLTF_WIDTHS = {"SCALAR": 1, "VEC3": 3}
+
+
+def gltf_document(path):
+    """(json, [buffer bytes]) of a .gltf (buffers from files beside it or data URIs) or .glb."""
+    import base64
+    import struct
+
+    raw = Path(path).read_bytes()
+    bin_chunk = None
+    if raw[:4] == b"glTF":
+        length, at = struct.unpack_from("<I", raw, 8)[0], 12
+        doc = None
+        while at + 8 <= length:
+            size, kind = struct.unpack_from("<II", raw, at)
+            chunk = raw[at + 8 : at + 8 + size]
+            if kind == 0x4E4F534A:
+                doc = json.loads(chunk)
+            elif kind == 0x004E4942:
+                bin_chunk = chunk
+            at += 8 + size
+        if doc is None:
+            raise SystemExit(f"gt_check: {path}: GLB without a JSON chunk")
+    else:
+        doc = json.loads(raw)
+    buffers = []
+    for i, b in enumerate(doc.get("buffers", [])):
+        uri = b.get("uri")
+        if uri is None:
+            if bin_chunk is None:
+                raise SystemExit(f"gt_check: {path}: buffer {i} has no uri and no GLB chunk")
+            buffers.append(bin_chunk)
+        elif uri.startswith("data:"):
+            buffers.append(base64.b64decode(uri.split(",", 1)[1]))
+        else:
+            from urllib.parse import unquote
+
+            buffers.append((Path(path).parent / unquote(uri)).read_bytes())
+    return doc, buffers
+
+
+def gltf_accessor(doc, buffers, index):
+    """Accessor `index` as a list of tuples (or of numbers for SCALAR)."""
+    import struct
+
+    acc = doc["accessors"][index]
+    if "sparse" in acc or acc.get("normalized"):
+        raise SystemExit("gt_check: sparse or normalized glTF accessors are not read")
+    fmt, size = GLTF_COMPONENTS[acc["componentType"]]
+    width = GLTF_WIDTHS[acc["type"]]
+    view = doc["bufferViews"][acc["bufferView"]]
+    data = buffers[view["buffer"]]
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    stride = view.get("byteStride") or size * width
+    out = []
+    for k in range(acc["count"]):
+        v = struct.unpack_from("<" + fmt * width, data, start + k * stride)
+        out.append(v[0] if width == 1 else v)
+    return out
+
+
+def node_matrix(node):
+    """A node's local matrix, row-major 4 × 4 (glTF stores `matrix` column-major)."""
+    if "matrix" in node:
+        m = node["matrix"]
+        return [[m[c * 4 + r] for c in range(4)] for r in range(4)]
+    t = node.get("translation", [0, 0, 0])
+    x, y, z, w = node.get("rotation", [0, 0, 0, 1])
+    s = node.get("scale", [1, 1, 1])
+    r = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ]
+    return [[r[i][j] * s[j] for j in range(3)] + [t[i]] for i in range(3)] + [[0, 0, 0, 1]]
+
+
+def mat_mul(a, b):
+    return [[sum(a[i][k] * b[k][j] for k in range(4)) for j in range(4)] for i in range(4)]
+
+
+def gltf_triangles(path):
+    """(vertices, faces) of a glTF/GLB in its own frame: every triangle primitive of the
+    default scene (else the first), node transforms applied down the hierarchy, as
+    `server/src/bake/scene/mesh.rs` reads it. Coloured primitives are refused (module doc)."""
+    doc, buffers = gltf_document(path)
+    scenes = doc.get("scenes", [])
+    if not scenes:
+        raise SystemExit(f"gt_check: {path}: glTF has no scene")
+    scene = scenes[doc.get("scene", 0)]
+    identity = [[float(i == j) for j in range(4)] for i in range(4)]
+    stack = [(n, identity) for n in scene.get("nodes", [])]
+    vs, fs = [], []
+    while stack:
+        n, parent = stack.pop()
+        node = doc["nodes"][n]
+        world = mat_mul(parent, node_matrix(node))
+        if "mesh" in node:
+            for prim in doc["meshes"][node["mesh"]]["primitives"]:
+                if prim.get("mode", 4) != 4 or "POSITION" not in prim["attributes"]:
+                    continue
+                material = doc.get("materials", [])[prim["material"]] if "material" in prim else {}
+                pbr = material.get("pbrMetallicRoughness", {})
+                if (
+                    "COLOR_0" in prim["attributes"]
+                    or "baseColorTexture" in pbr
+                    or any(x != 1 for x in pbr.get("baseColorFactor", [1, 1, 1, 1])[:3])
+                ):
+                    raise SystemExit(
+                        f"gt_check: {path}: a primitive has colours of its own; "
+                        "the converter gives a mesh one albedo"
+                    )
+                pos = gltf_accessor(doc, buffers, prim["attributes"]["POSITION"])
+                first = len(vs)
+                for p in pos:
+                    vs.append([sum(world[i][k] * (list(p) + [1])[k] for k in range(4)) for i in range(3)])
+                idx = (
+                    gltf_accessor(doc, buffers, prim["indices"])
+                    if "indices" in prim
+                    else list(range(len(pos)))
+                )
+                if any(i >= len(pos) for i in idx):
+                    raise SystemExit(f"gt_check: {path}: a glTF index is out of range")
+                for k in range(0, len(idx) - 2, 3):
+                    fs.append([first + idx[k], first + idx[k + 1], first + idx[k + 2]])
+        stack.extend((c, world) for c in node.get("children", []))
+    return vs, fs
+
+
+def with_gltf(load_obj):
+    """lfgt.load_obj, reading `.gltf` and `.glb` files through `gltf_triangles`."""
+
+    def load(path):
+        if str(path).lower().endswith((".gltf", ".glb")):
+            return gltf_triangles(path)
+        return load_obj(path)
+
+    return load
+
+
 def main(argv):
     if len(argv) >= 3 and argv[1] == "coincident":
         scene = json.load(open(argv[2]))
@@ -122,6 +270,7 @@ def main(argv):
     import lfgt  # noqa: E402 (found at run time)
 
     lfgt.convert = separated(lfgt)
+    lfgt.load_obj = with_gltf(lfgt.load_obj)
     sys.argv = ["lfgt.py"] + argv[1:]
     lfgt.main()
     return 0

@@ -205,3 +205,163 @@ fn convert_moves_each_closed_block_face_into_its_block_and_nothing_else() {
     assert_eq!(overlapping(b), 0);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A glTF of two triangle primitives (one indexed, one not: its fourth vertex is left over)
+/// under a node hierarchy (a parent turned and moved, a child scaled and moved), its buffer
+/// in a file beside it (`.gltf`) or in the binary chunk (`.glb`).
+fn write_gltf(dir: &Path) -> PathBuf {
+    let positions: [[f32; 3]; 4] = [
+        [0.0, 0.0, 0.0],
+        [0.4, 0.0, 0.0],
+        [0.0, 0.3, 0.0],
+        [0.0, 0.0, 0.5],
+    ];
+    let indices: [u16; 6] = [0, 1, 2, 0, 3, 1];
+    let mut bin: Vec<u8> = positions
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    bin.extend(indices.iter().flat_map(|i| i.to_le_bytes()));
+    bin.resize(bin.len().next_multiple_of(4), 0);
+    let doc = |uri: Option<&str>| {
+        let mut buffer = json!({"byteLength": bin.len()});
+        if let Some(uri) = uri {
+            buffer["uri"] = json!(uri);
+        }
+        json!({
+            "asset": {"version": "2.0"},
+            "scene": 0,
+            "scenes": [{"nodes": [0]}],
+            "nodes": [
+                {"translation": [0.2, 0.1, 0.3], "rotation": [0.0, 0.38268343, 0.0, 0.92387953], "children": [1]},
+                {"mesh": 0, "translation": [0.1, 0.0, 0.0], "scale": [1.0, 2.0, 1.5]}
+            ],
+            "meshes": [{"primitives": [
+                {"attributes": {"POSITION": 0}, "indices": 1},
+                {"attributes": {"POSITION": 0}}
+            ]}],
+            "buffers": [buffer],
+            "bufferViews": [
+                {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+                {"buffer": 0, "byteOffset": 48, "byteLength": 12}
+            ],
+            "accessors": [
+                {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+                 "min": [0.0, 0.0, 0.0], "max": [0.4, 0.3, 0.5]},
+                {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}
+            ]
+        })
+    };
+    std::fs::create_dir_all(dir).unwrap();
+    std::fs::write(dir.join("prop.bin"), &bin).unwrap();
+    let gltf = dir.join("prop.gltf");
+    std::fs::write(&gltf, doc(Some("prop.bin")).to_string()).unwrap();
+    let mut json_chunk = doc(None).to_string().into_bytes();
+    json_chunk.resize(json_chunk.len().next_multiple_of(4), b' ');
+    let mut glb = Vec::new();
+    glb.extend(b"glTF");
+    glb.extend(2u32.to_le_bytes());
+    glb.extend(((12 + 8 + json_chunk.len() + 8 + bin.len()) as u32).to_le_bytes());
+    glb.extend((json_chunk.len() as u32).to_le_bytes());
+    glb.extend(b"JSON");
+    glb.extend(&json_chunk);
+    glb.extend((bin.len() as u32).to_le_bytes());
+    glb.extend(b"BIN\0");
+    glb.extend(&bin);
+    std::fs::write(dir.join("prop.glb"), glb).unwrap();
+    gltf
+}
+
+/// Triangles in a loader-independent order (by corners rounded to 0.1 mm; the test's are far
+/// apart), to compare two loaders' output.
+fn triangle_set(triangles: impl Iterator<Item = [[f64; 3]; 3]>) -> Vec<[[f64; 3]; 3]> {
+    let key = |t: &[[f64; 3]; 3]| t.map(|p| p.map(|x| (x * 1e4).round() as i64));
+    let mut out: Vec<[[f64; 3]; 3]> = triangles.collect();
+    out.sort_by_key(key);
+    out
+}
+
+#[test]
+fn convert_reads_gltf_and_glb_clutter_as_the_bake_does() {
+    let dir = scratch("gltf");
+    let (scene, lights) = write_level(&dir);
+    let gltf = write_gltf(&dir);
+    let transform = json!({"translation": [0.5, 0.0, 0.6], "rotation": [0.0, 0.0, 0.0, 1.0], "scale": [1.0, 1.0, 1.0]});
+    for name in ["prop.gltf", "prop.glb"] {
+        let mut level: Value =
+            serde_json::from_str(&std::fs::read_to_string(&scene).unwrap()).unwrap();
+        level["clutter"] = json!([{"id": "prop", "mesh": name, "transform": transform, "albedo": [0.5, 0.5, 0.5]}]);
+        let with_mesh = dir.join(format!("scene-{name}.json"));
+        std::fs::write(&with_mesh, level.to_string()).unwrap();
+        let out = dir.join(format!("out-{name}.json"));
+        run(&[
+            script().to_str().unwrap(),
+            "convert",
+            with_mesh.to_str().unwrap(),
+            lights.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        let converted: Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        let meshes = converted["meshes"].as_array().unwrap();
+        // 17 closed block faces, then the prop.
+        assert_eq!(meshes.len(), 18, "{name}");
+        let prop = &meshes[17];
+        assert_eq!(prop["albedo"], json!([0.5, 0.5, 0.5]));
+        let v = vertices(prop);
+        let ours = triangle_set(prop["faces"].as_array().unwrap().iter().map(|f| {
+            let f: Vec<usize> = f
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|i| i.as_u64().unwrap() as usize)
+                .collect();
+            [v[f[0]], v[f[1]], v[f[2]]]
+        }));
+        let parsed: lightfarm_proto::scene::Transform =
+            serde_json::from_value(transform.clone()).unwrap();
+        let bake =
+            lightfarm_server::bake::scene::mesh::load_mesh("prop", &dir, name, &parsed).unwrap();
+        assert_eq!(
+            bake.triangles.len(),
+            3,
+            "{name}: two indexed triangles and one unindexed"
+        );
+        // The bake's glTF reader composes node transforms in f32: 1e-8 m apart.
+        let theirs = triangle_set(bake.triangles.iter().copied());
+        assert_eq!(ours.len(), theirs.len(), "{name}");
+        for (a, b) in ours.iter().zip(&theirs) {
+            for (p, q) in a.iter().zip(b) {
+                for k in 0..3 {
+                    assert!((p[k] - q[k]).abs() < 1e-6, "{name}: {a:?} against {b:?}");
+                }
+            }
+        }
+    }
+    // A primitive with a colour of its own is refused, not given the object's albedo.
+    let mut doc: Value = serde_json::from_str(&std::fs::read_to_string(&gltf).unwrap()).unwrap();
+    doc["materials"] = json!([{"pbrMetallicRoughness": {"baseColorFactor": [0.9, 0.2, 0.2, 1.0]}}]);
+    doc["meshes"][0]["primitives"][0]["material"] = json!(0);
+    std::fs::write(dir.join("red.gltf"), doc.to_string()).unwrap();
+    let mut level: Value = serde_json::from_str(&std::fs::read_to_string(&scene).unwrap()).unwrap();
+    level["clutter"] = json!([{"id": "prop", "mesh": "red.gltf", "albedo": [0.5, 0.5, 0.5]}]);
+    let red = dir.join("scene-red.json");
+    std::fs::write(&red, level.to_string()).unwrap();
+    let out = Command::new("python3")
+        .args([
+            script().to_str().unwrap(),
+            "convert",
+            red.to_str().unwrap(),
+            lights.to_str().unwrap(),
+            "-o",
+            dir.join("red.json").to_str().unwrap(),
+        ])
+        .env("LF_GROUNDTRUTH", groundtruth())
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("colours of its own"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
