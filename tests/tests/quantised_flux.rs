@@ -7,7 +7,10 @@
 //! `ρ²·4πI` at one bounce and `ρ²·4πI/(1−ρ)` over all bounces. The bundle stores each shape's
 //! `T_d→b` in 8 bits a row at a time; before its coefficients were turned so that one row
 //! alone carries the flux, that rounding gave this level +5.5% at one bounce (all bounces
-//! multiply it by about `1/(1−ρ)`); turned, +0.5% at one bounce and +2.6% at all.
+//! multiply it by about `1/(1−ρ)`); turned, +0.5% at one bounce and +2.6% at all. The rest
+//! was the transport's 8-bit `Z'` and source bases (+0.19% and +0.74% with the transport
+//! stored losslessly); turned as well (`lightfarm_server::bake::transport::flux`), +0.09% and
+//! +0.75%, which the bounds below hold (the all-bounce one fails without that turn).
 
 use std::f64::consts::PI;
 
@@ -62,8 +65,8 @@ fn a_closed_shaft_of_28_blocks_keeps_the_geometric_series_at_a_tight_tolerance()
     assert_eq!(report.blocks, 28);
     let phi = 4.0 * PI * INTENSITY;
     for (mode, want, within) in [
-        (Bounces::One, RHO * RHO * phi, 0.015),
-        (Bounces::default(), RHO * RHO * phi / (1.0 - RHO), 0.04),
+        (Bounces::One, RHO * RHO * phi, 0.005),
+        (Bounces::default(), RHO * RHO * phi / (1.0 - RHO), 0.015),
     ] {
         let bundle = lightfarm_client::decode(&bytes).expect("decode");
         let r = evaluate(bundle.clone(), &lights, Method::Mrt, mode).expect("evaluate");

@@ -42,9 +42,10 @@ use crate::bake::transport::source_bases::FactoringStats;
 /// Bumped whenever the transport computed for the same inputs, or its payload, changes (2: the
 /// shared entry framing; 3: each target block's operators an entry of their own; 4: the
 /// compaction in f32, as the bundle ships it; 5: the lightfield `T_prop` in f32, as the bake holds
-/// it; 6: the compaction with its sources' shared bases, and their statistics). In every key, and
+/// it; 6: the compaction with its sources' shared bases, and their statistics; 7: the
+/// compaction turned so that one row carries the flux, `transport::flux`). In every key, and
 /// every entry's version tag.
-const CODE_VERSION: &str = "lightfarm-transport-6";
+const CODE_VERSION: &str = "lightfarm-transport-7";
 
 /// Where transport entries live and their version.
 pub const ENTRY: EntryKind = EntryKind {

@@ -37,29 +37,61 @@ pub fn flux_first(t_db: &mut Mat<f64>, l_imp: &mut Mat<f64>, area: &[f64]) {
     let w: Vec<f64> = (0..r)
         .map(|j| (0..n).map(|x| l_imp[(x, j)] * area[x]).sum())
         .collect();
-    let norm = w.iter().map(|v| v * v).sum::<f64>().sqrt();
-    if norm.is_nan() || norm <= 0.0 {
-        return;
+    if let Some(turn) = Turn::onto_first(&w) {
+        for x in 0..n {
+            turn.column(t_db, x);
+            turn.row(l_imp, x, 0);
+        }
     }
-    // v = ŵ + s e₀ (s the sign of ŵ₀: no cancellation); H = I − 2 v vᵀ / vᵀv maps ŵ to −s e₀,
-    // and coefficient 0 is then negated when s = 1, so that ŵ goes to +e₀. H = Hᵀ = H⁻¹.
-    let s = if w[0] >= 0.0 { 1.0 } else { -1.0 };
-    let mut v: Vec<f64> = w.iter().map(|x| x / norm).collect();
-    v[0] += s;
-    let scale = 2.0 / v.iter().map(|x| x * x).sum::<f64>();
-    for x in 0..n {
-        // Column x of T: T ← H T, then row 0 times −s.
-        let dot = scale * (0..r).map(|j| v[j] * t_db[(j, x)]).sum::<f64>();
-        for j in 0..r {
-            t_db[(j, x)] -= dot * v[j];
+}
+
+/// The orthogonal turn `D H` of a coefficient space that maps the direction of a flux vector
+/// `w` onto `+e₀` (`H = I − 2 v vᵀ / vᵀv` with `v = ŵ + s e₀`, `s` the sign of `ŵ₀` so nothing
+/// cancels, and `D` negating coefficient 0 when `s = 1`). A factorisation `L · M` with the
+/// space between them is turned as `L ← L H D`, `M ← D H M` ([`Turn::row`], [`Turn::column`]):
+/// the product is unchanged, and `wᵀ M ← ‖w‖ e₀ᵀ (D H M)`, so only `M`'s first row carries
+/// what `w` weighs.
+pub struct Turn {
+    v: Vec<f64>,
+    scale: f64,
+    s: f64,
+}
+
+impl Turn {
+    /// The turn of `w`, or None when `w` is zero or not finite (nothing to turn).
+    pub fn onto_first(w: &[f64]) -> Option<Turn> {
+        let norm = w.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if norm.is_nan() || norm <= 0.0 || !norm.is_finite() {
+            return None;
         }
-        t_db[(0, x)] *= -s;
-        // Row x of L_imp: L ← L H, then column 0 times −s.
-        let dot = scale * (0..r).map(|j| l_imp[(x, j)] * v[j]).sum::<f64>();
+        // v = ŵ + s e₀; H = I − 2 v vᵀ / vᵀv maps ŵ to −s e₀, and coefficient 0 is then
+        // negated when s = 1, so that ŵ goes to +e₀. H = Hᵀ = H⁻¹.
+        let s = if w[0] >= 0.0 { 1.0 } else { -1.0 };
+        let mut v: Vec<f64> = w.iter().map(|x| x / norm).collect();
+        v[0] += s;
+        let scale = 2.0 / v.iter().map(|x| x * x).sum::<f64>();
+        Some(Turn { v, scale, s })
+    }
+
+    /// Column `x` of `m` (the right factor, coefficients as its rows) turned: `D H m[:, x]`.
+    pub fn column(&self, m: &mut Mat<f64>, x: usize) {
+        let r = self.v.len();
+        let dot = self.scale * (0..r).map(|j| self.v[j] * m[(j, x)]).sum::<f64>();
         for j in 0..r {
-            l_imp[(x, j)] -= dot * v[j];
+            m[(j, x)] -= dot * self.v[j];
         }
-        l_imp[(x, 0)] *= -s;
+        m[(0, x)] *= -self.s;
+    }
+
+    /// Row `x` of `m` (the left factor, coefficients as its columns from `first`) turned:
+    /// `m[x, first..first + r] H D`.
+    pub fn row(&self, m: &mut Mat<f64>, x: usize, first: usize) {
+        let r = self.v.len();
+        let dot = self.scale * (0..r).map(|j| m[(x, first + j)] * self.v[j]).sum::<f64>();
+        for j in 0..r {
+            m[(x, first + j)] -= dot * self.v[j];
+        }
+        m[(x, first)] *= -self.s;
     }
 }
 

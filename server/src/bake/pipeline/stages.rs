@@ -39,6 +39,7 @@ use crate::bake::transport::build::{
     lightfield_transport, BlockBox, MrtTransport, TracedTransport, TransportStats,
 };
 use crate::bake::transport::compaction::{compact_consuming, TargetPart};
+use crate::bake::transport::flux::flux_first_transport;
 use crate::bake::transport::source::TransportSource;
 use crate::bake::transport::source_bases::factor_sources;
 
@@ -439,8 +440,19 @@ pub fn mrt_transport(
         )?;
         stats.compact_ranks = compact.iter().map(|c| c.y.cols as usize).collect();
         let rank: Vec<usize> = per_block.iter().map(|s| s.rank()).collect();
-        let (factored, factoring) = factor_sources(compact, &rank, settings.tolerance)?;
+        let (mut factored, factoring) = factor_sources(compact, &rank, settings.tolerance)?;
         stats.factoring = factoring;
+        let area: Vec<Vec<f64>> = block_geometry
+            .block_texels
+            .iter()
+            .map(|texels| {
+                block_geometry.texels[texels.clone()]
+                    .iter()
+                    .map(|t| block_geometry.surfaces[t.surface as usize].texel_area())
+                    .collect()
+            })
+            .collect();
+        flux_first_transport(&mut factored, &area, &rank);
         (None, Some(factored))
     } else {
         // The bundle ships the transport itself: all of it stays.

@@ -6,6 +6,8 @@
 //! - [`compaction`]: per target block, the low-rank form the runtime applies (ours).
 //! - [`source_bases`]: per source block, a row basis shared by its receivers (bundle
 //!   transport kind 3, ours).
+//! - [`flux`]: the compact transport turned so that one row of each stored factor carries
+//!   the flux it delivers (ours).
 //! - [`source`]: where DRT's inpainting reads the transport into a few blocks (held, or
 //!   read from the cache block by block).
 //!
@@ -13,5 +15,6 @@
 
 pub mod build;
 pub mod compaction;
+pub mod flux;
 pub mod source;
 pub mod source_bases;
