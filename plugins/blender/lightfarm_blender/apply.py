@@ -132,7 +132,6 @@ def apply_result(result, objects, mode, bl_scene, mesh_lightmaps=None):
         raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
     mesh_lightmaps = mesh_lightmaps or {}
     t = texels_per_face(result)
-    layout = BoxLightmap(t) if t else None
     surfaces = records_by_surface(result)
     scale = bl_scene.unit_settings.scale_length or 1.0
     lit, problems = [], []
@@ -161,6 +160,7 @@ def apply_result(result, objects, mode, bl_scene, mesh_lightmaps=None):
             problems.append((name, f"{key[0]} \"{key[1]}\" {why}; not lit"))
             continue
         lo, hi = box.min, box.max
+        layout = BoxLightmap.for_faces(faces, t)
         image = _image(f"lightmap {name}", layout.width, layout.height)
         values = {face: [texel_value(r, mode) for r in records]
                   for face, records in faces.items()}

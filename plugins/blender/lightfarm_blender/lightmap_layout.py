@@ -9,15 +9,16 @@ the second (both ascending lightfarm world axes; ``frames.tangent_axes``), its c
 order (``-x +x -y +y -z +z``), face ``f`` at indices ``f·T² + j·T + i``. A long block the
 engine baked as pieces (``server/src/bake/scene/pieces.rs``) has ``n_u·n_v`` grids of ``T×T``
 on a face (``n_u·T`` texel centres along its first tangent axis, ``n_v·T`` along the
-second): its image tile stays ``T×T``, each pixel the mean of the ``n_u·n_v`` texels it covers
-(found from the texels' positions).
+second): its image tile is ``n_u·T × n_v·T``, one pixel per texel, so the lightmap keeps the
+resolution the bake gave it (the grid is found from the texels' positions).
 
 Image layout (Blender images: pixel row 0 at the bottom, UV (0, 0) the bottom-left corner):
-the six faces are ``T×T`` tiles on a 3 × 2 grid (face ``f`` in column ``f mod 3``, row
-``f div 3``), each with a one-pixel border repeating its edge texels, so bilinear filtering
-never mixes faces; texel ``(i, j)`` is pixel ``(tile x + i, tile y + j)``, the face's first
-tangent axis running along image x. One extra row at the top stays black: polygons with no
-texels (open faces) are mapped there.
+the six faces are tiles on a 3 × 2 grid (face ``f`` in column ``f mod 3``, row ``f div 3``;
+a column as wide and a row as tall as its largest tile), each with a one-pixel border
+repeating its edge texels, so bilinear filtering never mixes faces; texel ``(i, j)`` of a face
+``w`` texels wide is its ``j·w + i``-th and pixel ``(tile x + i, tile y + j)``, the face's
+first tangent axis running along image x. One extra row at the top stays black: polygons with
+no texels (open faces) are mapped there.
 
 Invariant: every texel of a face maps to exactly one interior pixel of its tile, and the UV of
 a texel's centre is that pixel's centre.
@@ -29,23 +30,45 @@ from . import frames
 
 
 class BoxLightmap:
-    """The image layout of one box with ``T×T`` texels per face."""
+    """The image layout of one box: ``T×T`` texels per face, or ``sizes[face]`` = (texels along
+    the first tangent axis, along the second) for the faces given."""
 
-    def __init__(self, texels_per_face):
+    def __init__(self, texels_per_face, sizes=None):
         self.t = texels_per_face
-        self.pitch = texels_per_face + 2
-        self.width = 3 * self.pitch
-        self.height = 2 * self.pitch + 1
+        self.sizes = {face: (texels_per_face, texels_per_face) for face in frames.FACES}
+        self.sizes.update(sizes or {})
+        slots = [frames.FACES.index(face) for face in frames.FACES]
+        columns = [max(self.sizes[f][0] for f, k in zip(frames.FACES, slots) if k % 3 == c) + 2
+                   for c in range(3)]
+        rows = [max(self.sizes[f][1] for f, k in zip(frames.FACES, slots) if k // 3 == r) + 2
+                for r in range(2)]
+        self.column_x = [1 + sum(columns[:c]) for c in range(3)]
+        self.row_y = [1 + sum(rows[:r]) for r in range(2)]
+        self.width = sum(columns)
+        self.height = sum(rows) + 1
+
+    def size(self):
+        """(width, height) of the image in pixels."""
+        return self.width, self.height
+
+    @classmethod
+    def for_faces(cls, faces, texels_per_face):
+        """The layout of a box's ``faces`` (``box_faces``): each face's tile as large as its
+        texel grid."""
+        sizes = {face: face_size(face, records, texels_per_face)
+                 for face, records in faces.items()}
+        return cls(texels_per_face, sizes)
 
     def tile_origin(self, face):
         """Pixel (x, y) of texel (0, 0) of ``face``."""
         slot = frames.FACES.index(face)
-        return (slot % 3) * self.pitch + 1, (slot // 3) * self.pitch + 1
+        return self.column_x[slot % 3], self.row_y[slot // 3]
 
     def texel_pixel(self, face, index):
-        """Pixel (x, y) of texel ``index`` (``j·T + i``) of ``face``."""
+        """Pixel (x, y) of texel ``index`` (``j·w + i``, ``w`` the face's width) of ``face``."""
         x0, y0 = self.tile_origin(face)
-        return x0 + index % self.t, y0 + index // self.t
+        w = self.sizes[face][0]
+        return x0 + index % w, y0 + index // w
 
     def uv(self, face, point, lo, hi):
         """UV of a lightfarm-frame point on ``face`` of the box ``lo``–``hi``."""
@@ -53,7 +76,8 @@ class BoxLightmap:
         s = (point[u] - lo[u]) / (hi[u] - lo[u])
         t = (point[v] - lo[v]) / (hi[v] - lo[v])
         x0, y0 = self.tile_origin(face)
-        return (x0 + s * self.t) / self.width, (y0 + t * self.t) / self.height
+        w, h = self.sizes[face]
+        return (x0 + s * w) / self.width, (y0 + t * h) / self.height
 
     def unlit_uv(self):
         """UV of the black row, for polygons without texels."""
@@ -61,18 +85,19 @@ class BoxLightmap:
 
     def pixels(self, faces):
         """RGBA floats (``width·height·4``, rows bottom to top) from ``faces``: face name ->
-        list of ``T²`` RGB values in texel index order. Borders repeat the edge texels;
-        missing faces and the top row are black."""
+        list of the face's ``w·h`` RGB values in texel index order. Borders repeat the edge
+        texels; missing faces, the rest of a tile larger than its face and the top row are
+        black."""
         out = [0.0] * (self.width * self.height * 4)
         for k in range(self.width * self.height):
             out[4 * k + 3] = 1.0
-        t = self.t
         for face, values in faces.items():
             x0, y0 = self.tile_origin(face)
-            for y in range(-1, t + 1):
-                for x in range(-1, t + 1):
-                    i, j = min(max(x, 0), t - 1), min(max(y, 0), t - 1)
-                    rgb = values[j * t + i]
+            w, h = self.sizes[face]
+            for y in range(-1, h + 1):
+                for x in range(-1, w + 1):
+                    i, j = min(max(x, 0), w - 1), min(max(y, 0), h - 1)
+                    rgb = values[j * w + i]
                     at = 4 * ((y0 + y) * self.width + x0 + x)
                     out[at:at + 3] = rgb
         return out
@@ -100,35 +125,40 @@ def _face_grid(face, records):
             sorted({key(r["position"][v]) for r in records}), key)
 
 
-def _pooled(face, records, t):
+def _gridded(face, records, t):
     """A block face's records (``n_u·n_v`` grids of ``T×T``: a long block baked as pieces)
-    pooled into ``T×T`` records in index order, each the mean of the texels it covers; None
-    when they do not form such a grid."""
+    as one grid of ``n_u·T × n_v·T`` records in its index order (``j·n_u·T + i``, ``i`` along
+    the face's first tangent axis), each record's ``index`` its place there; None when they do
+    not form such a grid."""
     us, vs, key = _face_grid(face, records)
     if len(us) % t or len(vs) % t or len(us) * len(vs) != len(records):
         return None
     u, v = frames.tangent_axes(face)
     rank_u = {x: k for k, x in enumerate(us)}
     rank_v = {x: k for k, x in enumerate(vs)}
-    nu, nv = len(us) // t, len(vs) // t
-    sums = [{"direct": [0.0] * 3, "indirect": [0.0] * 3, "albedo": [0.0] * 3}
-            for _ in range(t * t)]
+    grid = [None] * len(records)
     for r in records:
-        i = rank_u[key(r["position"][u])] // nu
-        j = rank_v[key(r["position"][v])] // nv
-        cell = sums[j * t + i]
-        for field in ("direct", "indirect", "albedo"):
-            cell[field] = [a + b for a, b in zip(cell[field], r[field])]
-    n = nu * nv
-    return [{field: [x / n for x in values] for field, values in cell.items()} | {"index": k}
-            for k, cell in enumerate(sums)]
+        k = rank_v[key(r["position"][v])] * len(us) + rank_u[key(r["position"][u])]
+        if grid[k] is not None:
+            return None
+        grid[k] = dict(r, index=k)
+    return grid
+
+
+def face_size(face, records, t):
+    """(texels along ``face``'s first tangent axis, along its second) of a box face's records
+    (``box_faces``): ``T × T``, or a long block's pieces' grid."""
+    if len(records) == t * t:
+        return t, t
+    us, vs, _ = _face_grid(face, records)
+    return len(us), len(vs)
 
 
 def box_faces(key, surfaces, texels_per_face):
     """{face: [texel records in index order]} of the block or clutter box ``key``
     (``("block" | "clutter", id)``) from ``records_by_surface``: a block's faces
-    ``block:<id>/<face>`` with ``T²`` texels (a face of a long block baked as pieces pooled
-    into ``T²``, module doc), a clutter box's surface ``clutter:<id>`` cut into six faces of
+    ``block:<id>/<face>`` with ``T²`` texels (a face of a long block baked as pieces: its
+    whole grid, module doc), a clutter box's surface ``clutter:<id>`` cut into six faces of
     ``T²`` texels. None when the result has none."""
     t2 = texels_per_face * texels_per_face
     kind, object_id = key
@@ -139,9 +169,9 @@ def box_faces(key, surfaces, texels_per_face):
             if len(records) == t2:
                 faces[face] = records
             elif records and len(records) % t2 == 0:
-                pooled = _pooled(face, records, texels_per_face)
-                if pooled is not None:
-                    faces[face] = pooled
+                grid = _gridded(face, records, texels_per_face)
+                if grid is not None:
+                    faces[face] = grid
         return faces or None
     records = surfaces.get(f"clutter:{object_id}", ())
     if len(records) != 6 * t2:

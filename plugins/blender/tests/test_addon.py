@@ -17,7 +17,7 @@ a mesh clutter uploaded as GLB with a ``lightmap`` UV layer made for it (``TEXCO
 clutter lightmaps (an icosphere with generated UVs, a cylinder with an artist's Lightmap Pack
 UVs, kept) against ``lightfarm eval``: every texel's pixel within 1/255, its cell where the
 engine's own atlas (``eval --f16``) puts it, its UV mapping to its world position; a long block
-baked as pieces pooled into its faces' tiles; opening another file mid-bake (the timer stops watching, no traceback); the maze round trip through
+baked as pieces keeping every texel in its faces' tiles; opening another file mid-bake (the timer stops watching, no traceback); the maze round trip through
 import and export.
 """
 
@@ -225,10 +225,11 @@ def uv_at(obj, polygon, point):
 
 
 class LongBlock(unittest.TestCase):
-    def test_a_long_block_baked_as_pieces_pools_into_its_faces_tiles(self):
+    def test_a_long_block_baked_as_pieces_keeps_every_texel_in_its_faces_tiles(self):
         """A 30 x 1.2 x 4 m room is baked as 7 pieces (``bake/scene/pieces.rs``): its long
-        faces have 7 grids of T x T texels under one name. T is still found, and each pixel of
-        a long face's T x T tile is the mean of the 7 texels it covers."""
+        faces have 7 grids of T x T texels under one name. T is still found, and a long face's
+        tile holds all 7·T x T texels, one pixel each, in position order, with its UVs on
+        them."""
         work = tempfile.mkdtemp(prefix="lf-long-")
         scene = {"format": "lightfarm.scene/1", "name": "long",
                  "settings": {"texels_per_face": 4, "rays_per_texel": 64},
@@ -253,22 +254,68 @@ class LongBlock(unittest.TestCase):
         self.assertEqual(texels_per_face(result), 4)
         faces = texels_by_face(result, 4)[("block", "hall")]
         self.assertEqual(sorted(faces), sorted(frames.FACES))
+        layout = BoxLightmap.for_faces(faces, 4)
+        # -x, +x: tangent axes (y, z); -y, +y: (x, z); -z, +z: (x, y).
+        sizes = {"-x": (4, 4), "+x": (4, 4), "-y": (28, 4), "+y": (28, 4),
+                 "-z": (28, 4), "+z": (28, 4)}
+        self.assertEqual(layout.sizes, sizes)
         for face, records in faces.items():
-            self.assertEqual(len(records), 16, face)
-        # Floor (-y: tangent axes x, z) pixel (i, j): the texels with x in [7.5 i, 7.5 (i+1)),
-        # z in [j, j + 1).
-        floor = surfaces["block:hall/-y"]
+            self.assertEqual(len(records), sizes[face][0] * sizes[face][1], face)
+        # Floor (-y): texel (i, j) is the one at x = (i + 1/2)·30/28, z = j + 1/2, unchanged.
+        floor = faces["-y"]
+        original = {tuple(round(x, 6) for x in r["position"]): r
+                    for r in surfaces["block:hall/-y"]}
+        values = {face: [r["indirect"] for r in records] for face, records in faces.items()}
+        pixels = layout.pixels(values)
+        lo, hi = [0.0, 0.0, 0.0], [30.0, 1.2, 4.0]
         for j in range(4):
-            for i in range(4):
-                inside = [r for r in floor if 7.5 * i < r["position"][0] < 7.5 * (i + 1)
-                          and j < r["position"][2] < j + 1]
-                self.assertEqual(len(inside), 7)
-                want = [sum(r[k][c] for r in inside) / 7 for c in range(3)
-                        for k in ("indirect",)]
-                got = faces["-y"][4 * j + i]["indirect"]
-                for a, b in zip(got, want):
-                    self.assertAlmostEqual(a, b, places=12)
-                self.assertGreater(got[0], 0.0)
+            for i in range(28):
+                k = 28 * j + i
+                r = floor[k]
+                self.assertAlmostEqual(r["position"][0], (i + 0.5) * 30 / 28, places=5)
+                self.assertAlmostEqual(r["position"][2], j + 0.5, places=5)
+                self.assertEqual(r["indirect"],
+                                 original[tuple(round(x, 6) for x in r["position"])]["indirect"])
+                x, y = layout.texel_pixel("-y", k)
+                at = 4 * (y * layout.width + x)
+                self.assertEqual(pixels[at:at + 3], r["indirect"])
+                # The UV of the texel's centre lands on its pixel.
+                u, v = layout.uv("-y", r["position"], lo, hi)
+                self.assertEqual((int(u * layout.width), int(v * layout.height)), (x, y))
+        self.assertGreater(floor[0]["indirect"][0], 0.0)
+
+
+    def test_a_long_block_applied_in_blender_shows_every_texel(self):
+        """The same kind of room built in Blender, baked through the service and applied:
+        its lightmap holds every texel of its long faces at its pixel, within 1/255 of
+        ``lightfarm eval``, the UVs on them."""
+        scene = fresh_scene()
+        scene.name = "long_hall"
+        # lightfarm (x, y, z) = (0–30, 0–1.2, 0–4): Blender y = −z, z = y.
+        cube("hall", (0, -4, 0), (30, 0, 1.2), scene_export.BLOCKS,
+             [material("grey", (0.6, 0.6, 0.6))])
+        point_light("lamp", (2.0, -0.5, 0.6), 10.0 * 4 * 3.141592653589793, (1.0, 1.0, 1.0))
+        state = run_bake(scene)
+        self.assertEqual(state.state, "succeeded", state.message)
+        state.mode = "emission"
+        self.assertEqual(bpy.ops.lightfarm.apply(), {"FINISHED"})
+        export = scene_export.export_scene(scene)
+        expected = cli_eval(bake_status(state.bake_id)["bundle"], export.lights)
+        t = texels_per_face(expected)
+        self.assertEqual(t, FAST["texels_per_face"])
+        faces = texels_by_face(expected, t)[("block", "hall")]
+        layout = BoxLightmap.for_faces(faces, t)
+        # Cut along x only: the faces along it are n·T texels long.
+        n = layout.sizes["-y"][0] // t
+        self.assertGreater(n, 1)
+        for face in ("-y", "+y", "-z", "+z"):
+            self.assertEqual(layout.sizes[face], (n * t, t), face)
+        worst, checked = check_box_lightmap(self, bpy.data.objects["hall"], faces, layout,
+                                            "emission")
+        self.assertEqual(checked, (4 * n + 2) * t * t)
+        self.assertLessEqual(worst, TOLERANCE)
+        print(f"\n  long hall ({n} pieces): {checked} texels, max |pixel - eval| = {worst:.3g}",
+              end="")
 
 
 class TwoRooms(unittest.TestCase):
@@ -325,44 +372,52 @@ class TwoRooms(unittest.TestCase):
         expected = cli_eval(bundle_hash, export.lights, bounces=bounces)
         t = texels_per_face(expected)
         self.assertEqual(t, FAST["texels_per_face"])
-        layout = BoxLightmap(t)
         by_object = texels_by_face(expected, t)
         self.assertEqual(set(by_object), {("block", "room_a"), ("block", "room_b"),
                                           ("clutter", "pillar")})
         worst, checked = 0.0, 0
         for (kind, name), faces in by_object.items():
-            obj = bpy.data.objects[name]
-            image = lightmap_image(obj)
-            self.assertEqual(tuple(image.size), (layout.width, layout.height))
-            self.assertEqual(obj.data.uv_layers.get("lightmap") is not None, True)
-            pixels = list(image.pixels)
-            polygon_of = {}
-            for polygon in obj.data.polygons:
-                centre = frames.to_lightfarm(obj.matrix_world @ polygon.center)
-                normal_axis = {0: 0, 1: 2, 2: 1}[max(range(3),
-                                                     key=lambda a: abs(polygon.normal[a]))]
-                for face in faces:
-                    lo_hi = faces[face][0]["position"][frames.face_axis(face)]
-                    if (frames.face_axis(face) == normal_axis
-                            and abs(centre[normal_axis] - lo_hi) < 1e-4):
-                        polygon_of[face] = polygon
-            for face, records in faces.items():
-                self.assertIn(face, polygon_of, f"{name} {face}: no polygon")
-                for record in records:
-                    # A clutter box numbers its six faces' texels on (f·T² + j·T + i).
-                    x, y = layout.texel_pixel(face, record["index"] % (t * t))
-                    at = 4 * (y * layout.width + x)
-                    want = texel_value(record, mode)
-                    for c in range(3):
-                        worst = max(worst, abs(pixels[at + c] - want[c]))
-                    # Orientation: the mesh's UV at the texel's centre lands on that pixel.
-                    uv = uv_at(obj, polygon_of[face], record["position"])
-                    self.assertEqual((int(uv[0] * layout.width), int(uv[1] * layout.height)),
-                                     (x, y), f"{record['surface']} #{record['index']}")
-                    checked += 1
+            layout = BoxLightmap.for_faces(faces, t)
+            self.assertEqual((layout.width, layout.height), BoxLightmap(t).size())
+            w, n = check_box_lightmap(self, bpy.data.objects[name], faces, layout, mode)
+            worst, checked = max(worst, w), checked + n
         self.assertEqual(checked, (5 + 5 + 6) * t * t)
         self.assertLessEqual(worst, TOLERANCE)
         print(f"\n  {mode}: {checked} texels, max |pixel - eval| = {worst:.3g}", end="")
+
+
+def check_box_lightmap(test, obj, faces, layout, mode):
+    """Checks ``obj``'s applied lightmap against ``faces`` (``texels_by_face``'s, laid out
+    as ``layout``): the image's size, and for every texel the UV of its centre on the
+    polygon of its face landing on its pixel. Returns (the largest |pixel − texel value|,
+    texels checked)."""
+    image = lightmap_image(obj)
+    test.assertEqual(tuple(image.size), (layout.width, layout.height))
+    test.assertEqual(obj.data.uv_layers.get("lightmap") is not None, True)
+    pixels = list(image.pixels)
+    polygon_of = {}
+    for polygon in obj.data.polygons:
+        centre = frames.to_lightfarm(obj.matrix_world @ polygon.center)
+        normal_axis = {0: 0, 1: 2, 2: 1}[max(range(3), key=lambda a: abs(polygon.normal[a]))]
+        for face in faces:
+            lo_hi = faces[face][0]["position"][frames.face_axis(face)]
+            if frames.face_axis(face) == normal_axis and abs(centre[normal_axis] - lo_hi) < 1e-4:
+                polygon_of[face] = polygon
+    worst, checked = 0.0, 0
+    for face, records in faces.items():
+        test.assertIn(face, polygon_of, f"{obj.name} {face}: no polygon")
+        for k, record in enumerate(records):
+            x, y = layout.texel_pixel(face, k)
+            at = 4 * (y * layout.width + x)
+            want = texel_value(record, mode)
+            for c in range(3):
+                worst = max(worst, abs(pixels[at + c] - want[c]))
+            # Orientation: the mesh's UV at the texel's centre lands on that pixel.
+            uv = uv_at(obj, polygon_of[face], record["position"])
+            test.assertEqual((int(uv[0] * layout.width), int(uv[1] * layout.height)),
+                             (x, y), f"{record['surface']} #{record['index']}")
+            checked += 1
+    return worst, checked
 
 
 class BadInput(unittest.TestCase):
