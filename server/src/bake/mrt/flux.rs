@@ -61,7 +61,7 @@ impl Turn {
     /// The turn of `w`, or None when `w` is zero or not finite (nothing to turn).
     pub fn onto_first(w: &[f64]) -> Option<Turn> {
         let norm = w.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if norm.is_nan() || norm <= 0.0 || !norm.is_finite() {
+        if !(norm.is_finite() && norm > 0.0) {
             return None;
         }
         // v = ŵ + s e₀; H = I − 2 v vᵀ / vᵀv maps ŵ to −s e₀, and coefficient 0 is then
