@@ -36,10 +36,13 @@ their area, how many differ in albedo). lfgt.py is found in `$LF_GROUNDTRUTH` or
 `../shared/groundtruth` beside the repository.
 """
 
+import base64
 import json
 import os
+import struct
 import sys
 from pathlib import Path
+from urllib.parse import unquote
 
 ROOT = Path(__file__).resolve().parent.parent
 # Metres each closed block face moves into its block: 0.2 mm, a fifth of lfgt.py's 1 mm query
@@ -121,9 +124,6 @@ GLTF_WIDTHS = {"SCALAR": 1, "VEC3": 3}
 
 def gltf_document(path):
     """(json, [buffer bytes]) of a .gltf (buffers from files beside it or data URIs) or .glb."""
-    import base64
-    import struct
-
     raw = Path(path).read_bytes()
     bin_chunk = None
     if raw[:4] == b"glTF":
@@ -151,19 +151,25 @@ def gltf_document(path):
         elif uri.startswith("data:"):
             buffers.append(base64.b64decode(uri.split(",", 1)[1]))
         else:
-            from urllib.parse import unquote
-
             buffers.append((Path(path).parent / unquote(uri)).read_bytes())
     return doc, buffers
 
 
 def gltf_accessor(doc, buffers, index):
     """Accessor `index` as a list of tuples (or of numbers for SCALAR)."""
-    import struct
-
     acc = doc["accessors"][index]
-    if "sparse" in acc or acc.get("normalized"):
-        raise SystemExit("gt_check: sparse or normalized glTF accessors are not read")
+    if (
+        "sparse" in acc
+        or acc.get("normalized")
+        or "bufferView" not in acc
+        or acc["componentType"] not in GLTF_COMPONENTS
+        or acc["type"] not in GLTF_WIDTHS
+    ):
+        raise SystemExit(
+            f"gt_check: glTF accessor {index} ({acc.get('type')}, component type "
+            f"{acc.get('componentType')}) is not read: float positions and unsigned indices "
+            "in buffer views only"
+        )
     fmt, size = GLTF_COMPONENTS[acc["componentType"]]
     width = GLTF_WIDTHS[acc["type"]]
     view = doc["bufferViews"][acc["bufferView"]]

@@ -37,10 +37,10 @@ class BoxLightmap:
         self.t = texels_per_face
         self.sizes = {face: (texels_per_face, texels_per_face) for face in frames.FACES}
         self.sizes.update(sizes or {})
-        slots = [frames.FACES.index(face) for face in frames.FACES]
-        columns = [max(self.sizes[f][0] for f, k in zip(frames.FACES, slots) if k % 3 == c) + 2
+        # Face f (its slot in frames.FACES) sits in column f mod 3, row f div 3.
+        columns = [max(self.sizes[f][0] for k, f in enumerate(frames.FACES) if k % 3 == c) + 2
                    for c in range(3)]
-        rows = [max(self.sizes[f][1] for f, k in zip(frames.FACES, slots) if k // 3 == r) + 2
+        rows = [max(self.sizes[f][1] for k, f in enumerate(frames.FACES) if k // 3 == r) + 2
                 for r in range(2)]
         self.column_x = [1 + sum(columns[:c]) for c in range(3)]
         self.row_y = [1 + sum(rows[:r]) for r in range(2)]
