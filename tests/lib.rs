@@ -49,8 +49,10 @@ pub fn room_with_box(texels: u32, rays: u32) -> Scene {
     scene
 }
 
-/// Bakes with the given transport and an optional dense operator.
-fn bake_bundle(
+/// Bakes with the given transport and an optional dense operator: the bundle as the bake
+/// made it (`.encode()` stores it losslessly, in f32, for the few tests about what the
+/// operators hold before a codec rounds them; [`bake_scene`] stores it as a bake does).
+pub fn bake_bundle(
     scene: &Scene,
     dir: &Path,
     transport: Transport,
@@ -74,18 +76,6 @@ pub fn bake_scene(
 ) -> (Vec<u8>, BakeReport) {
     let (bundle, report) = bake_bundle(scene, dir, transport, full);
     (stored(scene, &bundle), report)
-}
-
-/// [`bake_scene`] stored losslessly (f32), for the few tests about what the operators hold
-/// before the codec rounds them.
-pub fn bake_scene_lossless(
-    scene: &Scene,
-    dir: &Path,
-    transport: Transport,
-    full: bool,
-) -> (Vec<u8>, BakeReport) {
-    let (bundle, report) = bake_bundle(scene, dir, transport, full);
-    (bundle.encode(), report)
 }
 
 /// `bundle`'s bytes as `lightfarm bake` writes them for `scene`: its codecs (8 bits where a

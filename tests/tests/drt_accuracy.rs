@@ -144,7 +144,9 @@ fn wholly_buried_floor_is_finite_and_dark(mode: lightfarm_proto::scene::SceneGat
     // (Delta: 6.3e-3 of the brightest visible texel, measured), under the crate where no one
     // sees it; zeroing it would need the runtime to drop those texels' MRT light (`replaced`),
     // which the coefficient-space solve does not model.
-    let (bundle, _) = bake_scene_lossless(&scene, &dir, Transport::Lightfield, false);
+    let bundle = bake_bundle(&scene, &dir, Transport::Lightfield, false)
+        .0
+        .encode();
     let drt = apply(&bundle, &lights(), Method::Drt);
     assert!(drt
         .texels

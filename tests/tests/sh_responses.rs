@@ -33,12 +33,13 @@ fn box_lights() -> LightSet {
 /// Bakes (lightfield transport, no dense operator) and decodes: stored as a bake stores it, or
 /// `lossless` (f32, for the tests of what the section holds before a codec rounds it).
 fn bake_decoded(scene: &Scene, dir: &std::path::Path, lossless: bool) -> (Vec<u8>, Bundle) {
-    let bake = if lossless {
-        bake_scene_lossless
+    let bytes = if lossless {
+        bake_bundle(scene, dir, Transport::Lightfield, false)
+            .0
+            .encode()
     } else {
-        bake_scene
+        bake_scene(scene, dir, Transport::Lightfield, false).0
     };
-    let (bytes, _) = bake(scene, dir, Transport::Lightfield, false);
     let bundle = Bundle::decode(&bytes).expect("decode");
     (bytes, bundle)
 }

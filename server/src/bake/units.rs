@@ -17,6 +17,7 @@
 //! `UnitScene`; at 1,000 blocks (1,338 units) remaking them per unit, three times for a DRT
 //! unit, was most of the farm's time.
 
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
@@ -104,7 +105,12 @@ impl UnitScene {
     pub fn new(scene: Scene, scene_dir: &Path) -> Result<UnitScene, BakeError> {
         scene.validate()?;
         // Long blocks are baked as pieces (`scene::pieces`), as `bake` does.
-        let scene = baked_scene(&scene).into_owned();
+        // A scene with nothing to cut is kept as it is, not copied.
+        let cut = match baked_scene(&scene) {
+            Cow::Owned(cut) => Some(cut),
+            Cow::Borrowed(_) => None,
+        };
+        let scene = cut.unwrap_or(scene);
         let shapes = shape_plan(&scene);
         Ok(UnitScene {
             scene,

@@ -610,11 +610,7 @@ pub fn bake_shape(
         svd.v[(j, i)] / prior.singular_values[j]
     });
     let mut t_db = &v_s_inv * prior.basis.transpose();
-    let area: Vec<f64> = g
-        .texels
-        .iter()
-        .map(|t| g.surfaces[t.surface as usize].texel_area())
-        .collect();
+    let area: Vec<f64> = (0..g.texels.len()).map(|x| g.texel_area(x)).collect();
     flux_first(&mut t_db, &mut l_imp, &area);
     let u_b = &f * &l_imp;
 

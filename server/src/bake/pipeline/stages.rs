@@ -446,9 +446,9 @@ pub fn mrt_transport(
             .block_texels
             .iter()
             .map(|texels| {
-                block_geometry.texels[texels.clone()]
-                    .iter()
-                    .map(|t| block_geometry.surfaces[t.surface as usize].texel_area())
+                texels
+                    .clone()
+                    .map(|x| block_geometry.texel_area(x))
                     .collect()
             })
             .collect();

@@ -526,6 +526,11 @@ impl Geometry {
         s.texel_offset + s.local_texel(p)
     }
 
+    /// Area of texel `x` (square metres): its surface's texel area.
+    pub fn texel_area(&self, x: usize) -> f64 {
+        self.surfaces[self.texels[x].surface as usize].texel_area()
+    }
+
     /// Largest absolute coordinate (sets ray epsilons).
     pub fn scale(&self) -> f64 {
         let mut m: f64 = 1e-3;
