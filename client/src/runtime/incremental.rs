@@ -152,7 +152,7 @@ impl Sparse {
         self.active.then(|| self.nonzero[k].as_slice())
     }
 
-    fn new(rt: &Runtime) -> Sparse {
+    pub(super) fn new(rt: &Runtime) -> Sparse {
         let units = rt.texel_units();
         let n_blocks = rt.blocks.len();
         let n_clutter = units.len() - n_blocks;
@@ -554,36 +554,18 @@ impl Runtime {
         result
     }
 
-    /// One bounce of `delta` into `change` in work that follows the change (the stages of
-    /// [`Runtime::apply_once`] with [`Sparse`] active): the reach and the planar copy of the
-    /// input visit each unit once, `change` is cleared only where the last call wrote it, and
-    /// the albedo touches only the units written. Every value equals the full application's
-    /// (up to the sign of zeros): what is skipped multiplies, copies or scales zeros.
-    /// With `spans`, the input is zero outside them and only their texels are read for the
-    /// reach (units listed in ascending order either way).
-    pub(super) fn apply_once_sparse(
+    /// The first step of a sparse application (one bounce by the change, or the probes): finds
+    /// the units `input` reaches (every unit with a non-zero value; with `spans`, on their
+    /// texels alone) into `self.reach` and `sparse.reached`, clears `ld` where the last such
+    /// call (or a full copy) filled it, copies the input into `ld` on the reached units only
+    /// (`sparse.in_ld`), and finds each reached block's runs of non-zero input.
+    pub(super) fn load_sparse_input(
         &mut self,
-        method: Method,
+        sparse: &mut Sparse,
         delta: &[[f32; 3]],
         spans: Option<&[Range<usize>]>,
-        change: &mut [[f32; 3]],
     ) {
         let n = self.n_texels;
-        let mut sparse = self.sparse.take().unwrap_or_else(|| Sparse::new(self));
-        // The last call's light.
-        if sparse.change_everywhere {
-            change.fill([0.0; 3]);
-            sparse.change_everywhere = false;
-        } else {
-            for &u in &sparse.written {
-                change[sparse.ranges[u].clone()].fill([0.0; 3]);
-            }
-        }
-        for &u in &sparse.written {
-            sparse.marked[u] = false;
-        }
-        sparse.written.clear();
-        // The reach, and the input's planar copy on the reached units alone.
         let reach = self.reach.as_mut().expect("apply_delta sets the reach");
         sparse.reached.clear();
         match spans {
@@ -623,7 +605,6 @@ impl Runtime {
                 }
             }
         }
-        self.blocks_projected += reach.blocks.iter().filter(|r| **r).count();
         if self.ld_everywhere {
             self.ld.fill(0.0);
             self.ld_everywhere = false;
@@ -647,6 +628,40 @@ impl Runtime {
             }
         }
         sparse.in_ld.clone_from(&sparse.reached);
+    }
+
+    /// One bounce of `delta` into `change` in work that follows the change (the stages of
+    /// [`Runtime::apply_once`] with [`Sparse`] active): the reach and the planar copy of the
+    /// input visit each unit once, `change` is cleared only where the last call wrote it, and
+    /// the albedo touches only the units written. Every value equals the full application's
+    /// (up to the sign of zeros): what is skipped multiplies, copies or scales zeros.
+    /// With `spans`, the input is zero outside them and only their texels are read for the
+    /// reach (units listed in ascending order either way).
+    pub(super) fn apply_once_sparse(
+        &mut self,
+        method: Method,
+        delta: &[[f32; 3]],
+        spans: Option<&[Range<usize>]>,
+        change: &mut [[f32; 3]],
+    ) {
+        let mut sparse = self.sparse.take().unwrap_or_else(|| Sparse::new(self));
+        // The last call's light.
+        if sparse.change_everywhere {
+            change.fill([0.0; 3]);
+            sparse.change_everywhere = false;
+        } else {
+            for &u in &sparse.written {
+                change[sparse.ranges[u].clone()].fill([0.0; 3]);
+            }
+        }
+        for &u in &sparse.written {
+            sparse.marked[u] = false;
+        }
+        sparse.written.clear();
+        // The reach, and the input's planar copy on the reached units alone.
+        self.load_sparse_input(&mut sparse, delta, spans);
+        let reach = self.reach.as_ref().expect("apply_delta sets the reach");
+        self.blocks_projected += reach.blocks.iter().filter(|r| **r).count();
         // What is written: MRT's blocks, marked here (MRT skips the others); the delta entries'
         // and the gather's rows, marked by those stages as they scatter.
         // Written: the reached blocks and the blocks transport carries their light into (what

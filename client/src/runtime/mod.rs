@@ -31,7 +31,8 @@
 //! texel of normal-mapped surfaces, from the bundle's `sh` section.
 //!
 //! [`Runtime::apply_probes`] (needs the bundle's probe volume): MRT step 1 and, when the bundle
-//! has a DRT section, DRT step 2 (the same code as `apply`, so the same `b` and `c`), then for
+//! has a DRT section, DRT step 2 (the same code as `apply`, so the same `b` and `c`) on the
+//! blocks and clutter objects the probe entries read, then for
 //! every probe entry and each of its rows i: `field[rows[i]] += matrix.row(i) · x` per channel
 //! (`matrix.row(i) · (mix · x)` for a low-rank entry), `x` as in DRT step 3 and `rows[i] =
 //! probe · 9 + coefficient`. No albedo: a probe holds
@@ -72,7 +73,9 @@
 //!   `add_drt_deltas` or `add_deltas_of` a kind of entry, `drop_replaced`, `add_direct_gather`) and `GatherByChange`, the
 //!   gather's entries by the texel they read, for relighting by the change.
 //! - `full`: [`Method::Full`], the sparse dense-bounce operator.
-//! - `probes`: [`Runtime::apply_probes`], the probe volume's SH radiance.
+//! - `probes`: [`Runtime::apply_probes`], the probe volume's SH radiance from the blocks and
+//!   clutter objects its entries read, and [`Runtime::apply_probes_delta`], the field of a
+//!   change of light added where the probes read it.
 //! - `sh_apply`: [`Runtime::apply_sh`] and [`ShLight`], SH incident radiance per texel.
 //! - `kernels`: planar views of the scratch, the packed matrix-vector products, the block loop.
 //! - `krylov`: the restarted GMRES of [`Bounces::Converged`].
@@ -251,6 +254,11 @@ pub enum ApplyError {
     )]
     NonFinite { bounce: u32 },
     #[error(
+        "probe field holds {got} probes but the bundle's probe volume has {expected}; fill it \
+         with apply_probes before adding a change with apply_probes_delta"
+    )]
+    ProbeFieldSize { expected: usize, got: usize },
+    #[error(
         "bounces: apply_delta with Feedback needs Mrt or Drt (the Full operator has no units to \
          shoot by); use One, Fixed(n), Converged or Warm with Full"
     )]
@@ -321,6 +329,9 @@ pub struct Runtime {
     /// non-zero (made on the first such call); `ld_everywhere`: a full copy filled `ld`.
     sparse: Option<incremental::Sparse>,
     ld_everywhere: bool,
+    /// [`Runtime::apply_probes`]: the blocks and clutter objects the probe entries read (made
+    /// with the runtime; taken out while the probes run).
+    probe_sources: Option<probes::ProbeSources>,
     /// [`Runtime::apply_delta`] over more bounces: the bounce-by-bounce sum's state (module
     /// `delta_bounces`, made on the first such call).
     chain: Option<delta_bounces::Chain>,
@@ -525,6 +536,7 @@ impl Runtime {
             gather_by_change: None,
             sparse: None,
             ld_everywhere: true,
+            probe_sources: None,
             chain: None,
             progress: None,
             level_light: 0.0,
@@ -540,6 +552,7 @@ impl Runtime {
         if runtime.bundle.drt.is_none() {
             runtime.prepare_reduced();
         }
+        runtime.probe_sources = Some(probes::ProbeSources::new(&runtime));
         Ok(runtime)
     }
 

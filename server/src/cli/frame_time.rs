@@ -268,6 +268,16 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             t.rooms_reached,
             t.prepare_ms
         );
+        if let Some(p) = t.probes {
+            crate::say!(
+                "update=one-light light={moved} probes={} full_ms={:.4} update_ms={:.4} \
+                 drift_rel_l2={:.2e}",
+                p.probes,
+                p.full_ms,
+                p.update_ms,
+                p.drift
+            );
+        }
         if let Some(s) = t.settling {
             crate::say!(
                 "update=one-light light={moved} bounces=feedback budget={} lag_rel_l2: \

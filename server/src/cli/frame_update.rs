@@ -51,11 +51,12 @@ use std::ops::Range;
 use lightfarm_client::{
     direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in, direct_scale,
     every_sample_by_reach, relative_l1, relative_l2, Bounces, DirectLight, IndirectLight, Light,
-    Method, Occluders, ReachDirect, Runtime, TexelSpan,
+    Method, Occluders, ProbeField, ReachDirect, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Layout;
 
-use crate::evaluate::DIRECT_SAMPLES_PER_EDGE;
+use super::frame_probes::{ProbeTimes, ProbeWay};
+use crate::evaluate::{is_bounced, DIRECT_SAMPLES_PER_EDGE};
 
 /// Radius of the moving light's path by default, metres (5 mm a frame).
 pub const PATH_RADIUS: f64 = 0.1;
@@ -97,6 +98,9 @@ pub struct UpdateTimes {
     /// `feedback` only ([`Settling`]): how far each way lagged behind all bounces after the
     /// last frame, and the update's settling once the light stops.
     pub settling: Option<Settling>,
+    /// With a probe volume (not with `warm`): keeping the probe field up to date both ways
+    /// ([`super::frame_probes`]).
+    pub probes: Option<ProbeTimes>,
 }
 
 /// With [`Bounces::Feedback`] both ways lag behind all bounces while the light moves (the
@@ -377,6 +381,12 @@ pub fn time_update(
     if let Some((rt, _, total)) = warm_way.as_mut() {
         rt.apply(method, bounces, total, &mut update_out)?;
     }
+    // The probe field both ways keep (the full way's in `full_field`), from frame 0's light.
+    let mut probe_way = match by_change.as_mut() {
+        Some(rt) => ProbeWay::new(rt, &direct0, &update_out, is_bounced(bounces))?,
+        None => None,
+    };
+    let mut full_field = ProbeField::default();
     let (mut full, mut update) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
     let (mut projected, mut reached, mut rooms) = (Vec::new(), Vec::new(), Vec::new());
     let mut total = 0;
@@ -392,6 +402,9 @@ pub fn time_update(
             runtime.apply(method, bounces, &direct, &mut full_out)?;
             full[0].push((mid - start).as_secs_f64() * 1e3);
             full[1].push(mid.elapsed().as_secs_f64() * 1e3);
+            if let (true, Some(p)) = (both, probe_way.as_mut()) {
+                p.full_frame(runtime, &direct, &full_out, &mut full_field)?;
+            }
             last_direct = direct;
         }
         // Update: where the moved light reaches, its direct light there and the change from
@@ -435,11 +448,20 @@ pub fn time_update(
         };
         update[0].push((mid - start).as_secs_f64() * 1e3);
         update[1].push(mid.elapsed().as_secs_f64() * 1e3);
+        if let (Some(p), Some(rt)) = (probe_way.as_mut(), by_change.as_mut()) {
+            p.update_frame(rt, &change, &change_spans, &update_out)?;
+        }
         projected.push(d.blocks_projected as f64);
         reached.push(spans_before.iter().map(|s| s.texels.len()).sum::<usize>() as f64);
         rooms.push(reach.as_ref().map_or(0, |r| r.rooms_reached()) as f64);
         total = total.max(d.blocks_total);
     }
+    // The update's probe field against the field of its own leaving light (the last frame's
+    // direct light, every light, and the update's indirect light).
+    let probes = match probe_way {
+        Some(p) => Some(p.finish(runtime, &last_direct, &update_out)?),
+        None => None,
+    };
     // Feedback: how far both lag behind all bounces, then the update settling.
     let mut settling = None;
     let mut drift = relative_l2(&update_out.radiance, &full_out.radiance);
@@ -514,6 +536,7 @@ pub fn time_update(
         has_rooms,
         prepare_ms,
         settling,
+        probes,
     })
 }
 

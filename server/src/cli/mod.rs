@@ -5,7 +5,8 @@
 //! # Layout
 //! - [`bake`], [`inspect`], [`eval`] (with [`eval_sh`] and [`lightmap_files`]),
 //!   [`reference`](mod@reference), [`compare`], [`frame_time`] (with [`frame_update`]:
-//!   `--update one-light`, and [`frame_moving`]: the bounce modes while a light moves),
+//!   `--update one-light`, its probe volume's part [`frame_probes`], and [`frame_moving`]: the
+//!   bounce modes while a light moves),
 //!   [`export`] (the lit level as glTF): the offline commands.
 //! - [`serve`], [`worker`]: the bake service and a farm worker.
 //! - [`bench`](mod@bench) (`bench/`): speed against error, its parts listed in its own module doc.
@@ -21,6 +22,7 @@ pub mod eval;
 pub mod eval_sh;
 pub mod export;
 pub mod frame_moving;
+pub mod frame_probes;
 pub mod frame_time;
 pub mod frame_update;
 pub mod inspect;

@@ -1,6 +1,7 @@
-//! Tests of `Runtime::apply_probes` (`runtime/probes.rs`): the probe bundles of [`super`]
-//! against a dense f64 reference of the probe field (here), the errors, the encode/decode round
-//! trip and probe sections `validate` refuses as `decode` does.
+//! Tests of `Runtime::apply_probes` and `Runtime::apply_probes_delta` (`runtime/probes.rs`): the
+//! probe bundles of [`super`] against a dense f64 reference of the probe field (here), fields
+//! made by the change against the new light's, the errors, the encode/decode round trip and
+//! probe sections `validate` refuses as `decode` does.
 
 use super::*;
 use crate::probes::irradiance_at;
@@ -216,11 +217,168 @@ fn low_rank_probe_entries_match_the_dense_reference() {
     assert_each_refused(&good, &breaks, whole);
 }
 
+/// A field made by the change is the new light's within float rounding, whatever the entries
+/// (dense or low rank, with or without clutter, a block no entry reads), and with relighting by
+/// the change between the calls (both share the sparse scratch); a change on texels no entry
+/// reads leaves the field as it was, bit for bit; a field of another size is refused and left
+/// as it was.
+#[test]
+fn probes_by_the_change_equal_the_new_lights() {
+    let mut rng = Lcg(37);
+    let mut bundles = Vec::new();
+    for drt in [true, false] {
+        bundles.push(probe_bundle(&mut rng, drt));
+        bundles.push(low_rank_probe_bundle(&mut rng, drt, &[1, 2]));
+    }
+    // Block 1 read by no entry: its texels are no source. With block 0 and the box, the
+    // sources hold 8 of the 14 texels (`apply_probes` copies the whole light); with block 0
+    // alone, 4 (it copies the sources' texels alone).
+    for keep_clutter in [true, false] {
+        let mut unread = probe_bundle(&mut rng, true);
+        let p = unread.probes.as_mut().unwrap();
+        p.entries.retain(|e| match e.source {
+            DeltaSource::Block(k) => k == 0,
+            _ => keep_clutter,
+        });
+        bundles.push(unread);
+    }
+    let mut moved = 0;
+    for (case, b) in bundles.into_iter().enumerate() {
+        let n = b.layout.n_texels();
+        let block_1 = {
+            let first = b.blocks[1].texel_offset as usize;
+            first..first + b.shapes[b.blocks[1].shape as usize].u_b.rows as usize
+        };
+        let reads_block_1 = b
+            .probes
+            .as_ref()
+            .unwrap()
+            .entries
+            .iter()
+            .any(|e| matches!(e.source, DeltaSource::Block(1)));
+        let mut rt = Runtime::new(b.clone());
+        let mut fresh = Runtime::new(b.clone());
+        // The texels probes read (blocks a 0..4 and b 4..10, the box 10..14).
+        let read: &[(usize, usize)] = match case {
+            0 | 1 => &[(0, 14)],
+            2 | 3 => &[(0, 10)],
+            4 => &[(0, 4), (10, 14)],
+            _ => &[(0, 4)],
+        };
+        let spans: Vec<(usize, usize)> = rt
+            .probe_source_spans()
+            .iter()
+            .map(|r| (r.start, r.end))
+            .collect();
+        assert_eq!(spans, read, "case {case}");
+        let old = direct(&mut rng, n);
+        let mut field = ProbeField::default();
+        rt.apply_probes(&old, &mut field).unwrap();
+        let mut indirect = IndirectLight::default();
+        let method = if rt.has_drt() {
+            Method::Drt
+        } else {
+            Method::Mrt
+        };
+        rt.apply(method, Bounces::One, &old, &mut indirect).unwrap();
+        let mut light = old.clone();
+        let mut last_want = field.clone();
+        // Three changes in a row: block 1's texels, a run across blocks, nothing but zeros.
+        let spans = [block_1.clone(), n / 3..n - 2, 0..n];
+        for (step, span) in spans.iter().enumerate() {
+            let mut change = DirectLight {
+                radiance: vec![[0.0; 3]; n],
+            };
+            if step < 2 {
+                for t in span.clone() {
+                    change.radiance[t] = [rng.range(-0.5, 0.5), rng.range(-0.5, 0.5), 0.25];
+                    for ch in 0..3 {
+                        light.radiance[t][ch] += change.radiance[t][ch];
+                    }
+                }
+            }
+            // Relighting by the change first, as a game does, then the probes.
+            rt.apply_delta_in(
+                method,
+                Bounces::One,
+                &change,
+                std::slice::from_ref(span),
+                &mut indirect,
+            )
+            .unwrap();
+            let before = field.clone();
+            rt.apply_probes_delta(&change, std::slice::from_ref(span), &mut field)
+                .unwrap();
+            let mut want = ProbeField::default();
+            fresh.apply_probes(&light, &mut want).unwrap();
+            assert_probes_close(&want, &reference_probes(&b, &light.radiance));
+            let scale = want.as_slice().iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            for (i, (g, w)) in field.as_slice().iter().zip(want.as_slice()).enumerate() {
+                assert!(
+                    (g - w).abs() <= 1e-5 * scale,
+                    "case {case} step {step} value {i}: {g} by the change, {w} of the new light"
+                );
+            }
+            // The field moves exactly when the new light's does (a change on texels no
+            // entry reads, or of zeros, leaves it as it was, bit for bit).
+            assert_eq!(
+                field == before,
+                want == last_want,
+                "case {case} step {step}: the field by the change moved as the new light's did"
+            );
+            assert!(
+                step != 2 || field == before,
+                "case {case}: zeros changed the field"
+            );
+            assert!(step != 0 || reads_block_1 || field == before, "case {case}");
+            moved += usize::from(field != before);
+            last_want = want;
+            // The indirect light by the change is still the new light's.
+            let mut whole = IndirectLight::default();
+            fresh
+                .apply(method, Bounces::One, &light, &mut whole)
+                .unwrap();
+            for (a, w) in indirect.radiance.iter().zip(&whole.radiance) {
+                for ch in 0..3 {
+                    assert!(
+                        (a[ch] - w[ch]).abs() <= 1e-4 * (1.0 + w[ch].abs()),
+                        "case {case}"
+                    );
+                }
+            }
+        }
+        // A field of another size is refused and left as it was.
+        let mut other = ProbeField::default();
+        let err = rt
+            .apply_probes_delta(&old, std::slice::from_ref(&(0..n)), &mut other)
+            .unwrap_err();
+        assert_eq!(
+            err,
+            ApplyError::ProbeFieldSize {
+                expected: N_PROBES,
+                got: 0
+            }
+        );
+        assert!(err.to_string().contains("apply_probes"), "{err}");
+        assert_eq!(other.n_probes(), 0);
+        let short = direct(&mut rng, n - 1);
+        let kept = field.clone();
+        assert!(matches!(
+            rt.apply_probes_delta(&short, std::slice::from_ref(&(0..n - 1)), &mut field),
+            Err(ApplyError::DirectLength { .. })
+        ));
+        assert_eq!(field, kept);
+    }
+    // Both changes moved the field of each of the first four bundles at least.
+    assert!(moved >= 8, "{moved} changes moved a field");
+}
+
 #[test]
 fn probes_without_the_section_are_an_error() {
     let mut rng = Lcg(32);
     let mut rt = Runtime::new(drt_bundle(&mut rng, true, true, false));
     assert!(!rt.has_probes() && rt.probe_volume().is_none());
+    assert!(rt.probe_source_spans().is_empty());
     let n = rt.n_texels();
     let mut field = ProbeField::default();
     let err = rt
