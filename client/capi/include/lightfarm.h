@@ -15,6 +15,11 @@
 #define LF_DIRECT_SAMPLES_PER_EDGE 4
 
 /**
+ * Floats per probe in `lf_runtime_probe_field`'s buffer: 3 channels × 9 SH coefficients.
+ */
+#define LF_PROBE_FLOATS 27
+
+/**
  * What an `lf_*` call returned (as `int32_t`).
  */
 enum LfStatus
@@ -388,6 +393,85 @@ int64_t lf_runtime_surface(const LfRuntime *rt,
  * other thread may use `rt` or write them during the call.
  */
 int32_t lf_runtime_set_poses(LfRuntime *rt, const LfPose *poses, size_t n_poses);
+
+/**
+ * Number of probes in the bundle's probe volume (0 without one, and for NULL). A bundle has a
+ * probe volume when its scene has dynamic objects (or asks for one).
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`.
+ */
+size_t lf_runtime_probe_count(const LfRuntime *rt);
+
+/**
+ * Fills the runtime's probe field from the light leaving the texels, `leaving_rgb` (`3 x
+ * texels` floats, texel-major RGB in layout order).
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_LENGTH` or
+ * `LF_STATUS_MISSING_OPERATOR` (the bundle has no probe volume).
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call; `leaving_rgb` must be NULL or point to `leaving_len` readable floats.
+ */
+int32_t lf_runtime_apply_probes(LfRuntime *rt, const float *leaving_rgb, size_t leaving_len);
+
+/**
+ * Adds to the runtime's probe field the field of a change of leaving light, `change_rgb`
+ * (`3 x texels` floats, new minus old), read on the texels of `spans` only (whatever it holds
+ * elsewhere is taken as zero): e.g. a moved light's change of direct light on its reach before
+ * and after (`lf_runtime_light_direct`), plus, with more than one bounce, the change of
+ * indirect light `lf_runtime_apply_delta_in_spans` added. The field then equals
+ * `lf_runtime_apply_probes` of the new light within float rounding, and only the probe
+ * entries reading a texel of the spans run.
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_LENGTH` (also when no
+ * `lf_runtime_apply_probes` has filled the field yet), `LF_STATUS_BAD_INDEX` (a span outside
+ * the layout) or `LF_STATUS_MISSING_OPERATOR` (no probe volume).
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call; `change_rgb` must be NULL or point to `change_len` readable floats, `spans` to
+ * `n_spans` readable `LfTexelSpan`s.
+ */
+int32_t lf_runtime_apply_probes_delta_in_spans(LfRuntime *rt,
+                                               const float *change_rgb,
+                                               size_t change_len,
+                                               const LfTexelSpan *spans,
+                                               size_t n_spans);
+
+/**
+ * Copies the runtime's probe field into `out`: `LF_PROBE_FLOATS` floats per probe, value
+ * `(probe * 3 + channel) * 9 + coefficient` (real SH to order 2, world frame, y up, in the
+ * order of `lightfarm_proto::sh`: Y00, Y1-1, Y10, Y11, Y2-2, Y2-1, Y20, Y21, Y22), `len` =
+ * `LF_PROBE_FLOATS x lf_runtime_probe_count` exactly.
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_LENGTH` (also before the
+ * field is filled) or `LF_STATUS_MISSING_OPERATOR` (no probe volume).
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`; `out` must be NULL or point to
+ * `len` writable floats; no other thread may use either during the call.
+ */
+int32_t lf_runtime_probe_field(const LfRuntime *rt, float *out, size_t len);
+
+/**
+ * Irradiance (RGB, W/m²) from the runtime's probe field at `position` (3 floats, world
+ * metres) on a surface of normal `normal` (3 floats, any length but zero): the probes around
+ * the point interpolated, as `lightfarm eval` lights a dynamic object (the nearest probe
+ * within three grid steps outside the volume, else zero). Written to `out_rgb` (3 floats).
+ *
+ * Returns `LF_STATUS_OK`, `LF_STATUS_NULL_POINTER`, `LF_STATUS_BAD_LENGTH` (before the field
+ * is filled) or `LF_STATUS_MISSING_OPERATOR` (no probe volume).
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`; `position` and `normal` must be
+ * NULL or point to 3 readable floats, `out_rgb` to 3 writable floats.
+ */
+int32_t lf_runtime_probe_irradiance(const LfRuntime *rt,
+                                    const float *position,
+                                    const float *normal,
+                                    float *out_rgb);
 
 /**
  * Writes the texel spans the point light at `position` (3 floats, world metres) can reach to

@@ -39,6 +39,12 @@
 //!    it carries their shadows; recompute the direct light near an object after moving it */
 //! LfPose ball = { "red_ball", { 2.2f, 0.45f, 0.5f }, { 0.0f, 0.0f, 0.0f, 1.0f } };
 //! lf_runtime_set_poses(rt, &ball, 1);
+//! /* and their own light, from the probe volume (lf_runtime_probe_count(rt) > 0): the light
+//!    leaving the texels (direct, plus indirect with more than one bounce) fills it, a change of
+//!    that light on given spans keeps it up to date, then irradiance at a point and normal */
+//! lf_runtime_apply_probes(rt, leaving, n);
+//! lf_runtime_apply_probes_delta_in_spans(rt, change, n, spans, n_spans);
+//! float e[3]; lf_runtime_probe_irradiance(rt, ball.translation, up, e);
 //! lf_runtime_free(rt);
 //! ```
 //!
@@ -49,6 +55,9 @@
 //! - [`direct`]: [`LfPointLight`] and direct light from point lights at every texel.
 //! - [`poses`]: [`LfPose`] and [`lf_runtime_set_poses`]: the dynamic objects placed for the
 //!   direct light's shadows.
+//! - [`probes`]: the probe volume dynamic objects are shaded from: filled from the light
+//!   leaving the texels ([`lf_runtime_apply_probes`]) or by its change where the probes read it
+//!   ([`lf_runtime_apply_probes_delta_in_spans`]), read as a buffer or as irradiance at a point.
 //! - [`reach`]: one moving light: the [`LfTexelSpan`]s a point light can reach, direct
 //!   light on given spans only or on the light's own reach ([`lf_runtime_light_direct`]),
 //!   and relighting by a change that lies in given spans
@@ -84,6 +93,7 @@ pub mod last_error;
 pub mod layout;
 pub mod method;
 pub mod poses;
+pub mod probes;
 pub mod reach;
 pub mod runtime;
 pub mod status;
@@ -98,6 +108,10 @@ pub use layout::{
 };
 pub use method::LfMethod;
 pub use poses::{lf_runtime_set_poses, LfPose};
+pub use probes::{
+    lf_runtime_apply_probes, lf_runtime_apply_probes_delta_in_spans, lf_runtime_probe_count,
+    lf_runtime_probe_field, lf_runtime_probe_irradiance, LF_PROBE_FLOATS,
+};
 pub use reach::{
     lf_runtime_apply_delta_in_spans, lf_runtime_direct_in_spans, lf_runtime_light_direct,
     lf_runtime_light_reach, LfTexelSpan,

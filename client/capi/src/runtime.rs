@@ -17,7 +17,7 @@
 use lightfarm_client::{
     direct_from_point_lights_adaptive_in, direct_scale, frame_occluders, occluders_with_poses,
     Applied, Atlas, Bounces, DirectLight, IndirectLight, Light, Occluders, PosedObjects,
-    ReachDirect, Runtime, TexelSpan,
+    ProbeField, ReachDirect, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Bundle;
 use lightfarm_proto::lights::Pose;
@@ -31,7 +31,7 @@ use crate::status::CapiError;
 
 /// A loaded bundle ready to apply every frame (opaque to C).
 pub struct LfRuntime {
-    runtime: Runtime,
+    pub(crate) runtime: Runtime,
     /// Shadow-ray geometry of the bundle, for direct light from point lights.
     level: Occluders,
     /// The level's occluders with the dynamic objects at their poses (`lf_runtime_set_poses`;
@@ -41,7 +41,7 @@ pub struct LfRuntime {
     /// surface atlases: the image `lightfarm eval` writes).
     atlas: Atlas,
     /// Scratch: the caller's direct light, one RGB value per texel.
-    direct: DirectLight,
+    pub(crate) direct: DirectLight,
     /// Scratch: the indirect light `apply` writes, one RGB value per texel.
     indirect: IndirectLight,
     /// The bounce mode of `lf_runtime_apply` (all bounces until `lf_runtime_set_bounces`).
@@ -61,9 +61,11 @@ pub struct LfRuntime {
     /// Scratch of `lf_runtime_apply_delta_in_spans` (sized on its first call): the change of
     /// direct light, zero outside `span_delta_at` (its last call's spans), and the change's
     /// indirect light, zero everywhere between calls.
-    span_delta: DirectLight,
-    span_delta_at: Vec<Range<usize>>,
+    pub(crate) span_delta: DirectLight,
+    pub(crate) span_delta_at: Vec<Range<usize>>,
     span_change: IndirectLight,
+    /// The probe field of `lf_runtime_apply_probes` (empty until its first call).
+    pub(crate) probes: ProbeField,
 }
 
 impl LfRuntime {
@@ -96,6 +98,7 @@ impl LfRuntime {
             span_delta: DirectLight::default(),
             span_delta_at: Vec::new(),
             span_change: IndirectLight::default(),
+            probes: ProbeField::default(),
         })
     }
 
@@ -116,19 +119,7 @@ impl LfRuntime {
         check_rgb_len(self, "indirect_rgb", indirect.len())?;
         let texels = self.runtime.n_texels();
         check_spans(spans, texels)?;
-        if self.span_delta.radiance.len() != texels {
-            self.span_delta.radiance = vec![[0.0; 3]; texels];
-            self.span_change.radiance = vec![[0.0; 3]; texels];
-        }
-        for r in self.span_delta_at.drain(..) {
-            self.span_delta.radiance[r].fill([0.0; 3]);
-        }
-        let (delta, _) = delta.as_chunks::<3>();
-        for s in spans {
-            let r = s.start as usize..s.end as usize;
-            self.span_delta.radiance[r.clone()].copy_from_slice(&delta[r.clone()]);
-            self.span_delta_at.push(r);
-        }
+        self.span_input(delta, spans);
         let applied = self.runtime.apply_delta_in(
             method,
             self.bounces,
@@ -150,6 +141,25 @@ impl LfRuntime {
             None => add(0..texels),
         }
         Ok(())
+    }
+
+    /// Copies a change of light (`3 x texels` floats, checked) on the texels of `spans` (checked)
+    /// into `span_delta`, which is zero elsewhere, and lists them in `span_delta_at`.
+    pub(crate) fn span_input(&mut self, delta: &[f32], spans: &[LfTexelSpan]) {
+        let texels = self.runtime.n_texels();
+        if self.span_delta.radiance.len() != texels {
+            self.span_delta.radiance = vec![[0.0; 3]; texels];
+            self.span_change.radiance = vec![[0.0; 3]; texels];
+        }
+        for r in self.span_delta_at.drain(..) {
+            self.span_delta.radiance[r].fill([0.0; 3]);
+        }
+        let (delta, _) = delta.as_chunks::<3>();
+        for s in spans {
+            let r = s.start as usize..s.end as usize;
+            self.span_delta.radiance[r.clone()].copy_from_slice(&delta[r.clone()]);
+            self.span_delta_at.push(r);
+        }
     }
 
     /// The client runtime (its bundle holds the layout direct light is computed on).

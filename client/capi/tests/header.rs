@@ -77,6 +77,12 @@ fn generated_header_declares_every_entry_point_and_type() {
         "LF_STATUS_PANIC = -7,",
         "LF_STATUS_BAD_INDEX = -10,",
         "#define LF_DIRECT_SAMPLES_PER_EDGE 4",
+        "#define LF_PROBE_FLOATS 27",
+        "size_t lf_runtime_probe_count(const LfRuntime *rt);",
+        "int32_t lf_runtime_apply_probes(LfRuntime *rt, const float *leaving_rgb, size_t leaving_len);",
+        "int32_t lf_runtime_apply_probes_delta_in_spans(LfRuntime *rt,",
+        "int32_t lf_runtime_probe_field(const LfRuntime *rt, float *out, size_t len);",
+        "int32_t lf_runtime_probe_irradiance(const LfRuntime *rt,",
         "#include <stddef.h>",
     ] {
         assert!(

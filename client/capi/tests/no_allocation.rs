@@ -96,3 +96,53 @@ fn layout_queries_allocate_nothing() {
     // SAFETY: from lf_runtime_new, freed once.
     unsafe { lf_runtime_free(rt) };
 }
+
+/// The probe calls allocate nothing once the field is filled and a change of the same spans has
+/// been added once (the runtime keeps the field and the scratch of both ways), and repeat bit
+/// for bit.
+#[test]
+fn probe_calls_allocate_nothing_after_the_first() {
+    let mut rng = lightfarm_proto::testing::Lcg(43);
+    let bytes = lightfarm_proto::testing::probe_bundle(&mut rng, true).encode();
+    // SAFETY: `bytes` is live for the call.
+    let rt = unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) };
+    assert!(!rt.is_null());
+    // SAFETY: live runtime.
+    let (n, probes) = unsafe { (lf_runtime_texel_count(rt), lf_runtime_probe_count(rt)) };
+    let light: Vec<f32> = (0..3 * n).map(|k| (k % 5) as f32 * 0.5).collect();
+    let change: Vec<f32> = (0..3 * n).map(|k| (k % 3) as f32 * 0.125).collect();
+    let spans = [LfTexelSpan {
+        start: 1,
+        end: n as u32 - 1,
+        in_sight: 0,
+    }];
+    let (mut first, mut second) = (
+        vec![0.0f32; probes * LF_PROBE_FLOATS],
+        vec![0.0f32; probes * LF_PROBE_FLOATS],
+    );
+    let (p, nrm, mut e) = ([0.5f32, 0.75, -0.75], [0.0f32, 1.0, 0.0], [0.0f32; 3]);
+    // SAFETY (every block below): live runtime; every buffer holds the length passed with it.
+    let frame = |out: &mut [f32], e: &mut [f32; 3]| unsafe {
+        [
+            lf_runtime_apply_probes(rt, light.as_ptr(), light.len()),
+            lf_runtime_apply_probes_delta_in_spans(
+                rt,
+                change.as_ptr(),
+                change.len(),
+                spans.as_ptr(),
+                1,
+            ),
+            lf_runtime_probe_field(rt, out.as_mut_ptr(), out.len()),
+            lf_runtime_probe_irradiance(rt, p.as_ptr(), nrm.as_ptr(), e.as_mut_ptr()),
+        ]
+    };
+    assert_eq!(frame(&mut first, &mut e), [0; 4], "the first frame works");
+    let before = allocs();
+    let statuses = frame(&mut second, &mut e);
+    assert_eq!(allocs(), before, "a probe call allocated");
+    assert_eq!(statuses, [0; 4]);
+    assert_eq!(first, second, "the same frame gives the same bits");
+    assert!(first.iter().any(|&v| v != 0.0) && e.iter().any(|&v| v > 0.0));
+    // SAFETY: from lf_runtime_new, freed once.
+    unsafe { lf_runtime_free(rt) };
+}
