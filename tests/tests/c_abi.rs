@@ -8,7 +8,9 @@
 //! and that its moved light, relit through the one-light path (reach and direct light there,
 //! `lf_runtime_light_direct`, bit-identical to `lf_runtime_direct_in_spans` on its spans; then
 //! `lf_runtime_apply_delta_in_spans`), agrees with relighting everything, and moved back in
-//! `LF_BOUNCES_FEEDBACK` settles (`lf_runtime_feedback_due`) to the first answer.
+//! `LF_BOUNCES_FEEDBACK` settles (`lf_runtime_feedback_due`) to the first answer; and, on
+//! `ball_corridor` (a dynamic object, so a probe volume), that the probe field it fills from
+//! the light leaving the texels and its irradiance at a point are the Rust client's.
 //!
 //! The library is found beside this test binary: `lightfarm-client-capi` is a dev-dependency
 //! of this crate, so cargo builds its cdylib into `target/<profile>/deps/` (and, when the capi
@@ -245,6 +247,11 @@ fn c_example_matches_the_rust_client() {
         number(line, "engine_checksum"),
         sum(&engine_indirect.radiance),
     );
+    assert_eq!(
+        field(line, "probes"),
+        "0",
+        "the Cornell box has no dynamic object"
+    );
     // Light 0 moved and relit by its change (reach, direct light there, apply_delta) against
     // relighting everything, both at all bounces to the default tolerance 1e-3.
     assert!(field(line, "moved_spans").parse::<usize>().unwrap() >= 1);
@@ -273,6 +280,80 @@ fn c_example_matches_the_rust_client() {
         lag > 0.0 && left <= 1e-3 && left < lag,
         "estimated lag {lag:.2e}, left {left:.2e}"
     );
+
+    // A level with a dynamic object: the probe volume through the C ABI (fed direct plus
+    // indirect light at all bounces) is the Rust client's.
+    let (scene, _) = load_scene("ball_corridor", 8, 256);
+    let (ball_bytes, _) = bake_scene(
+        &scene,
+        &scene_dir("ball_corridor"),
+        Transport::Lightfield,
+        false,
+    );
+    let ball_path = dir.join("ball_corridor.lfb");
+    std::fs::write(&ball_path, &ball_bytes).unwrap();
+    let ball_lights = dir.join("ball_lights.txt");
+    std::fs::write(&ball_lights, "2.6 2.2 1.3 12 12 12\n").unwrap();
+    let bundle = lightfarm_client::decode(&ball_bytes).unwrap();
+    let occluders = Occluders::from_layout(&bundle.layout);
+    let light = [Light {
+        kind: LightKind::Point,
+        position: [2.6f32, 2.2, 1.3].map(f64::from),
+        intensity: [12.0; 3],
+    }];
+    let direct = direct_from_point_lights_averaged(
+        &bundle.layout,
+        &occluders,
+        &light,
+        lightfarm::LF_DIRECT_SAMPLES_PER_EDGE,
+    );
+    let (p0, n0) = (bundle.layout.positions[0], bundle.layout.normals[0]);
+    let mut runtime = Runtime::try_new(bundle).unwrap();
+    let method = if runtime.has_drt() {
+        Method::Drt
+    } else {
+        Method::Mrt
+    };
+    let mut indirect = IndirectLight::default();
+    runtime
+        .apply(method, Bounces::default(), &direct, &mut indirect)
+        .unwrap();
+    let leaving = lightfarm_client::DirectLight {
+        radiance: direct
+            .radiance
+            .iter()
+            .zip(&indirect.radiance)
+            .map(|(d, i)| [d[0] + i[0], d[1] + i[1], d[2] + i[2]])
+            .collect(),
+    };
+    let mut probes = lightfarm_client::ProbeField::default();
+    runtime.apply_probes(&leaving, &mut probes).unwrap();
+    let at: [f32; 3] = std::array::from_fn(|c| p0[c] + 0.25 * n0[c]);
+    let e = lightfarm_client::irradiance_at(runtime.probe_volume().unwrap(), &probes, at, n0);
+    let output = example(&exe)
+        .arg(&ball_path)
+        .arg(&ball_lights)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "apply failed on ball_corridor: {}{stdout}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let line = stdout.lines().next().expect("one output line");
+    eprintln!("C example, ball_corridor: {line}");
+    assert_eq!(
+        field(line, "probes").parse::<usize>().unwrap(),
+        probes.n_probes()
+    );
+    assert!(probes.n_probes() > 0);
+    let field_sum: f64 = probes.as_slice().iter().map(|&v| v as f64).sum();
+    assert!(field_sum > 0.0);
+    assert_close("probe_checksum", number(line, "probe_checksum"), field_sum);
+    let e_sum = e.iter().map(|&v| v as f64).sum::<f64>();
+    assert!(e_sum > 0.0, "light reaches the probes above texel 0");
+    assert_close("probe_irradiance", number(line, "probe_irradiance"), e_sum);
 
     // A file that is not a bundle: exit status 1 and the library's reason on stderr.
     let garbage = dir.join("garbage.lfb");

@@ -14,12 +14,15 @@
  *
  *   texels=N method=drt|mrt applications=A checksum=S max=M direct_checksum=D surfaces=K
  *   first_surface=NAME atlas=WxH engine_direct_checksum=ED engine_checksum=E
- *   moved_spans=MS moved_error=ME light_direct_same=B feedback_calls=FC feedback_error=FE
- *   feedback_lag=FL feedback_left=FR
+ *   probes=P [probe_checksum=PC probe_irradiance=PE] moved_spans=MS moved_error=ME
+ *   light_direct_same=B feedback_calls=FC feedback_error=FE feedback_lag=FL feedback_left=FR
  *
  * with S the sum of every output float, M the largest, D the sum of the direct light, ED the
  * sum of the engine's direct light and E the sum of the engine path's indirect-light atlas
- * (sums in double, in buffer or row order); then moves light 0 by 0.25 m and relights by the
+ * (sums in double, in buffer or row order); P the probes of the bundle's probe volume (for
+ * dynamic objects), fed the light leaving the texels (direct plus indirect), PC the sum of the
+ * field's floats and PE the irradiance 0.25 m above texel 0 (sum of R, G and B); then moves
+ * light 0 by 0.25 m and relights by the
  * change (MS: the spans it reaches, ME: relative L2 against relighting everything, B: 1 when
  * the one-call direct light of a light's reach is the two-call one), and moves it back in
  * LF_BOUNCES_FEEDBACK until nothing is due (FC: the calls after the change, FE: relative L2
@@ -152,6 +155,54 @@ static int engine_path(LfRuntime *rt, int32_t method, const LfPointLight *lights
     result = 0;
 out:
     free(pos); free(nrm); free(rho); free(direct); free(indirect); free(xy); free(image);
+    return result;
+}
+
+/* The probe volume dynamic objects are lit from, when the bundle has one: fed the light leaving
+ * the texels (direct plus the indirect light of the first application, all bounces), read back
+ * whole and as irradiance 0.25 m above texel 0 along its normal. Prints " probes=P" and, with
+ * P > 0, " probe_checksum=PC probe_irradiance=PE" (PC the sum of the field's floats, PE the
+ * sum of the three channels). Returns 0, or 1 on error. */
+static int probe_part(LfRuntime *rt, const float *direct, const float *indirect,
+                      size_t n_floats) {
+    size_t probes = lf_runtime_probe_count(rt), i;
+    float *leaving, *field, pos[3], nrm[3], at[3], e[3];
+    double field_sum = 0.0;
+    int result = 1;
+
+    printf(" probes=%zu", probes);
+    if (probes == 0) return 0;
+    leaving = malloc(n_floats * sizeof *leaving);
+    field = malloc(probes * LF_PROBE_FLOATS * sizeof *field);
+    if (!leaving || !field) {
+        fprintf(stderr, "out of memory\n");
+        goto out;
+    }
+    for (i = 0; i < n_floats; i++) leaving[i] = direct[i] + indirect[i];
+    if (lf_runtime_apply_probes(rt, leaving, n_floats) != LF_STATUS_OK ||
+        lf_runtime_probe_field(rt, field, probes * LF_PROBE_FLOATS) != LF_STATUS_OK ||
+        /* texel 0's centre and normal: the first 3 floats of each layout query */
+        lf_runtime_texel_positions(rt, leaving, n_floats) != LF_STATUS_OK) {
+        result = fail();
+        goto out;
+    }
+    memcpy(pos, leaving, sizeof pos);
+    if (lf_runtime_texel_normals(rt, leaving, n_floats) != LF_STATUS_OK) {
+        result = fail();
+        goto out;
+    }
+    memcpy(nrm, leaving, sizeof nrm);
+    for (i = 0; i < 3; i++) at[i] = pos[i] + 0.25f * nrm[i];
+    if (lf_runtime_probe_irradiance(rt, at, nrm, e) != LF_STATUS_OK) {
+        result = fail();
+        goto out;
+    }
+    for (i = 0; i < probes * LF_PROBE_FLOATS; i++) field_sum += field[i];
+    printf(" probe_checksum=%.6e probe_irradiance=%.6e", field_sum,
+           (double)e[0] + (double)e[1] + (double)e[2]);
+    result = 0;
+out:
+    free(leaving); free(field);
     return result;
 }
 
@@ -413,7 +464,9 @@ int main(int argc, char **argv) {
     printf("texels=%zu method=%s applications=%u checksum=%.6e max=%.6e direct_checksum=%.6e ",
            n_floats / 3, method == LF_METHOD_DRT ? "drt" : "mrt",
            (unsigned)lf_runtime_last_bounces(rt), checksum, max, direct_checksum);
-    if (check_surfaces(rt) || engine_path(rt, method, lights, n_lights)) return 1;
+    if (check_surfaces(rt) || engine_path(rt, method, lights, n_lights) ||
+        probe_part(rt, direct, indirect, n_floats))
+        return 1;
     at_load = malloc(n_floats * sizeof *at_load);
     if (!at_load) { fprintf(stderr, "out of memory\n"); return 1; }
     memcpy(at_load, indirect, n_floats * sizeof *at_load);
