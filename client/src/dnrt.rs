@@ -28,10 +28,14 @@
 //! `c_j` and `l_j` into 3 values per grid point (3 · n_sh with convolution; one or two
 //! multiply-adds per stored value); applying to receivers allocates nothing.
 
+use std::ops::Range;
+
 use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::dnrt_grid::{DnrtGrid, DnrtGridError, DnrtNormals, SLOTS};
 use lightfarm_proto::sh::SH_COEFFS;
 use lightfarm_proto::sh_rotation::{mul_vec, quaternion_matrix, transpose, ShRotation};
+
+use crate::surface_bounds::SurfaceBounds;
 
 /// Why DNRT could not be applied.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -344,6 +348,37 @@ impl<'a> DnrtInstance<'a> {
     pub fn apply_texels(&self, layout: &Layout, out: &mut [[f32; 3]]) -> Result<(), DnrtError> {
         self.apply_gbuffer(&layout.positions, &layout.normals, &layout.albedo, out)
     }
+
+    /// How far from [`DnrtInstance::centre_world`] a receiver can be and still be shaded: the
+    /// outer cube's half diagonal, with room for f32 rounding (a texel farther away gets zero).
+    pub fn reach_radius(&self) -> f32 {
+        self.volume.grid.outer_half_extent * 3f32.sqrt() * (1.0 + 1e-4)
+    }
+
+    /// [`DnrtInstance::apply_texels`] on the surfaces that may hold a texel within the object's
+    /// reach ([`SurfaceBounds::near`] of [`DnrtInstance::reach_radius`]; `bounds` made from
+    /// `layout`, `ranges` scratch): the same values (every other texel would add a zero), at a
+    /// cost that follows the object's neighbourhood rather than the level.
+    pub fn apply_texels_near(
+        &self,
+        layout: &Layout,
+        bounds: &SurfaceBounds,
+        ranges: &mut Vec<Range<usize>>,
+        out: &mut [[f32; 3]],
+    ) -> Result<(), DnrtError> {
+        self.check_gbuffer(layout.positions.len(), &layout.normals, &layout.albedo, out)?;
+        bounds.near(self.centre_world, self.reach_radius(), ranges);
+        for r in ranges.iter() {
+            let r = r.start.min(out.len())..r.end.min(out.len());
+            self.apply_gbuffer(
+                &layout.positions[r.clone()],
+                &layout.normals[r.clone()],
+                &layout.albedo[r.clone()],
+                &mut out[r],
+            )?;
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]
@@ -510,6 +545,70 @@ mod tests {
             .apply_gbuffer(&positions, &normals[..3], &albedo, &mut out)
             .unwrap_err();
         assert!(err.to_string().contains("\"probe\""), "{err}");
+    }
+
+    /// The texels near the object get what the whole layout's pass gives them, bit for bit,
+    /// and the rest nothing: on a layout of many surfaces spread over 80 m, posed at several
+    /// places and turns (including astride two surfaces and off every texel).
+    #[test]
+    fn texels_near_the_object_are_the_whole_passes() {
+        use lightfarm_proto::bundle::SurfaceInfo;
+        let grid = affine_grid(4, 4, DnrtPlacement::Quadratic);
+        let volume = DnrtVolume::new(&grid).unwrap();
+        // 40 surfaces of 25 texels, each a 5 × 5 patch of 0.2 m texels, strung along x (a
+        // surface every 2 m), the receivers facing every which way.
+        let (mut positions, mut normals, mut surfaces) = (Vec::new(), Vec::new(), Vec::new());
+        for s in 0..40u32 {
+            surfaces.push(SurfaceInfo {
+                name: format!("block:b{s}/-y"),
+                texel_offset: 25 * s,
+                texel_count: 25,
+            });
+            for i in 0..25 {
+                let (u, v) = ((i % 5) as f32 * 0.2, (i / 5) as f32 * 0.2);
+                positions.push([2.0 * s as f32 + u, 0.1 * (s % 3) as f32 + v, v - 0.4]);
+                let a = 0.3 * (s + i) as f32;
+                normals.push([a.cos(), -0.8, a.sin()]);
+            }
+        }
+        let n = positions.len();
+        let layout = Layout {
+            surfaces,
+            albedo: vec![[0.5, 0.6, 0.7]; n],
+            positions,
+            normals,
+            ..Layout::default()
+        };
+        let bounds = SurfaceBounds::new(&layout);
+        let mut ranges = Vec::new();
+        let mut shaded_somewhere = 0;
+        for (translation, rotation) in [
+            ([3.5, 0.6, 0.0], [0.0, 0.0, 0.0, 1.0]),
+            ([41.0, 1.2, -0.2], [0.0, 0.38, 0.0, 0.92]),
+            ([15.0, -0.5, 0.3], [0.3, 0.1, -0.2, 0.9]),
+            ([200.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]),
+        ] {
+            let inst = DnrtInstance::new(
+                &volume,
+                translation,
+                rotation,
+                [[0.3; 9]; 3],
+                [[0.05; 9]; 3],
+            );
+            let mut whole = vec![[1.0f32; 3]; n];
+            inst.apply_texels(&layout, &mut whole).unwrap();
+            let mut near = vec![[1.0f32; 3]; n];
+            inst.apply_texels_near(&layout, &bounds, &mut ranges, &mut near)
+                .unwrap();
+            let bits = |v: &[[f32; 3]]| -> Vec<u32> {
+                v.iter().flatten().map(|x| (x + 0.0).to_bits()).collect()
+            };
+            assert_eq!(bits(&near), bits(&whole), "pose at {translation:?}");
+            let visited: usize = ranges.iter().map(|r| r.len()).sum();
+            assert!(visited < n / 4, "{visited} of {n} texels visited");
+            shaded_somewhere += whole.iter().filter(|o| o[0] != 1.0).count();
+        }
+        assert!(shaded_somewhere > 10, "the poses shade some texels");
     }
 
     /// With a convolution grid the receiver's own normal selects the value, in the object

@@ -57,7 +57,10 @@
 //!   [`Runtime::apply_sh`], per-texel SH incident radiance for normal-mapped surfaces
 //!   ([`ShLight::shade`] at a perturbed normal).
 //! - [`dnrt`]: Deferred Neighbouring Radiance Transfer: a dynamic object's reflection and
-//!   occlusion on the receivers around it (G-buffer or lightmap texels), from its baked grid.
+//!   occlusion on the receivers around it (G-buffer or lightmap texels, the latter on the
+//!   surfaces within its reach only), from its baked grid.
+//! - [`surface_bounds`]: [`SurfaceBounds`], the box of each surface's texel centres: the
+//!   surfaces within reach of a point.
 //! - [`probes`]: the probe field ([`ProbeField`]: n_probes × 3 channels × 9 SH coefficients)
 //!   and [`irradiance_at`], trilinear probe interpolation and irradiance for any point and
 //!   normal (dynamic objects, clutter).
@@ -97,6 +100,7 @@ pub mod reach_direct;
 pub mod runtime;
 #[cfg(feature = "fetch")]
 pub mod service;
+pub mod surface_bounds;
 mod texel_samples;
 
 pub use compare::{relative_l1, relative_l2};
@@ -123,6 +127,7 @@ pub use runtime::{
 };
 #[cfg(feature = "fetch")]
 pub use service::{ServiceClient, ServiceError};
+pub use surface_bounds::SurfaceBounds;
 
 /// Decodes and validates a bundle (`Bundle::decode`): `Ok` only for a bundle [`Runtime::new`]
 /// accepts; never panics.

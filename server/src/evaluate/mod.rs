@@ -21,7 +21,7 @@
 use lightfarm_client::{
     direct_scale, every_sample_by_reach, frame_occluders, irradiance_at, occluders_with_poses,
     Applied, Bounces, Bundle, DirectLight, IndirectLight, Method, Occluders, ProbeField,
-    ReachDirect, Runtime,
+    ReachDirect, Runtime, SurfaceBounds,
 };
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
@@ -151,11 +151,14 @@ pub fn evaluate_frame(
     // An object's own light probe sits at its centre, inside it: the level and the other
     // objects shadow it, not its own triangles.
     let dnrt = match &field {
-        Some(field) => dnrt_delta(runtime.bundle(), field, bounced, &level, lights)?,
+        Some(field) => {
+            let bounds = SurfaceBounds::new(&runtime.bundle().layout);
+            dnrt_delta(runtime.bundle(), &bounds, field, bounced, &level, lights)?
+        }
         None => None,
     };
-    if let Some(change) = &dnrt {
-        bounce_object_light(&mut runtime, method, bounces, change, &mut indirect)?;
+    if let Some((change, spans)) = &dnrt {
+        bounce_object_light(&mut runtime, method, bounces, change, spans, &mut indirect)?;
     }
     let shaded = if shade_posed {
         shade_objects(runtime.bundle(), field.as_ref(), occluders, lights, scale)
@@ -185,7 +188,7 @@ pub fn evaluate_frame(
                         (Some(lit), true) => lit[t],
                         _ => indirect.radiance[t],
                     };
-                    let add = dnrt.as_ref().map_or([0.0; 3], |d| d.radiance[t]);
+                    let add = dnrt.as_ref().map_or([0.0; 3], |(d, _)| d.radiance[t]);
                     f([0, 1, 2].map(|c| base[c] + add[c]))
                 },
             });

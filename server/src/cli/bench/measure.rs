@@ -18,7 +18,9 @@
 use std::collections::HashMap;
 use std::time::Instant;
 
-use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, ProbeField, Runtime};
+use lightfarm_client::{
+    Bounces, Bundle, IndirectLight, Method, Occluders, ProbeField, Runtime, SurfaceBounds,
+};
 use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{compare, ResultFile};
@@ -427,18 +429,28 @@ fn time_apply(
     let mut times = Vec::new();
     let mut sink = IndirectLight::default();
     let mut field = ProbeField::default();
+    // Made at load, like the runtime.
+    let bounds = SurfaceBounds::new(&runtime.bundle().layout);
     for _ in 0..frames.clamp(3, 50) {
         // The answer the objects' bounced light is added to, as eval adds it (not timed).
         sink.radiance.clone_from(&answer.radiance);
         let start = Instant::now();
         runtime.apply_probes(&leaving, &mut field)?;
-        let delta = dnrt_delta(runtime.bundle(), &field, bounced, &occluders, lights)?;
-        if let Some(change) = &delta {
+        let delta = dnrt_delta(
+            runtime.bundle(),
+            &bounds,
+            &field,
+            bounced,
+            &occluders,
+            lights,
+        )?;
+        if let Some((change, spans)) = &delta {
             bounce_object_light(
                 &mut runtime,
                 method.client_method(),
                 bounces,
                 change,
+                spans,
                 &mut sink,
             )?;
         }
