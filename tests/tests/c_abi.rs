@@ -318,14 +318,7 @@ fn c_example_matches_the_rust_client() {
     runtime
         .apply(method, Bounces::default(), &direct, &mut indirect)
         .unwrap();
-    let leaving = lightfarm_client::DirectLight {
-        radiance: direct
-            .radiance
-            .iter()
-            .zip(&indirect.radiance)
-            .map(|(d, i)| [d[0] + i[0], d[1] + i[1], d[2] + i[2]])
-            .collect(),
-    };
+    let leaving = lightfarm_server::evaluate::leaving_light(&direct, &indirect);
     let mut probes = lightfarm_client::ProbeField::default();
     runtime.apply_probes(&leaving, &mut probes).unwrap();
     let at: [f32; 3] = std::array::from_fn(|c| p0[c] + 0.25 * n0[c]);

@@ -58,9 +58,10 @@ pub struct LfRuntime {
     reach_spans: Vec<TexelSpan>,
     /// The direct light's clamp scale (`direct_scale`: a pass over every texel, made once).
     direct_scale: f64,
-    /// Scratch of `lf_runtime_apply_delta_in_spans` (sized on its first call): the change of
-    /// direct light, zero outside `span_delta_at` (its last call's spans), and the change's
-    /// indirect light, zero everywhere between calls.
+    /// Scratch of `lf_runtime_apply_delta_in_spans` and `lf_runtime_apply_probes_delta_in_spans`
+    /// (sized on the first such call, `span_input`): the change of light, zero outside
+    /// `span_delta_at` (the last call's spans), and the change's indirect light, zero everywhere
+    /// between calls.
     pub(crate) span_delta: DirectLight,
     pub(crate) span_delta_at: Vec<Range<usize>>,
     span_change: IndirectLight,

@@ -19,7 +19,7 @@ use std::time::Instant;
 use lightfarm_client::{DirectLight, IndirectLight, ProbeField, Runtime};
 
 use super::frame_update::median;
-use crate::evaluate::leaving_light;
+use crate::evaluate::{leaving_light, merge_spans};
 
 /// The probe volume's figures of one `--update one-light` run (medians over frames, ms).
 #[derive(Clone, Copy, Debug)]
@@ -126,7 +126,7 @@ impl ProbeWay {
                 Some(ranges) => ranges.collect(),
                 None => std::iter::once(0..runtime.n_texels()).collect(),
             };
-            merge(&mut written);
+            merge_spans(&mut written);
             let written = intersection(&written, runtime.probe_source_spans());
             for r in &written {
                 for t in r.clone() {
@@ -141,7 +141,7 @@ impl ProbeWay {
                 }
             }
             self.spans.extend(written);
-            merge(&mut self.spans);
+            merge_spans(&mut self.spans);
         }
         runtime.apply_probes_delta(&self.change, &self.spans, &mut self.field)?;
         self.times.push(start.elapsed().as_secs_f64() * 1e3);
@@ -198,19 +198,6 @@ fn intersection(a: &[Range<usize>], b: &[Range<usize>]) -> Vec<Range<usize>> {
     out
 }
 
-/// Sorts `spans` and joins the ranges that overlap or touch.
-fn merge(spans: &mut Vec<Range<usize>>) {
-    spans.sort_unstable_by_key(|r| r.start);
-    let mut out: Vec<Range<usize>> = Vec::with_capacity(spans.len());
-    for r in spans.drain(..) {
-        match out.last_mut() {
-            Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
-            _ => out.push(r),
-        }
-    }
-    *spans = out;
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -229,12 +216,5 @@ mod tests {
             intersection(&[0..10, 30..35], &[10..20, 35..36]),
             Vec::<Range<usize>>::new()
         );
-    }
-
-    #[test]
-    fn merging_joins_overlapping_and_touching_ranges() {
-        let mut s = vec![10..20, 0..5, 5..7, 15..30, 40..41];
-        merge(&mut s);
-        assert_eq!(s, vec![0..7, 10..30, 40..41]);
     }
 }

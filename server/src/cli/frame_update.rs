@@ -33,6 +33,10 @@
 //! two agree: within float rounding for one or a fixed number of bounces, within the tolerance
 //! per frame for `all`.
 //!
+//! With a probe volume (a scene with dynamic objects) both ways also keep the probe field up to
+//! date, `apply_probes` of the whole leaving light against `apply_probes_delta` of its change
+//! ([`super::frame_probes`], one more line: `probes=… full_ms=… update_ms=… drift_rel_l2=…`).
+//!
 //! With `feedback` both ways start from all bounces (the full way after `FEEDBACK_WARM_UP`
 //! frames of whole-level feedback on the first frame's lights) and lag behind them while the
 //! light moves: the update relights by the change with `Feedback` (one sparse bounce of the

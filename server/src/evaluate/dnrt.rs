@@ -69,15 +69,8 @@ pub fn dnrt_delta(
         instance.apply_texels_near(&bundle.layout, bounds, &mut ranges, &mut out)?;
         spans.extend_from_slice(&ranges);
     }
-    spans.sort_unstable_by_key(|r| r.start);
-    let mut merged: Vec<Range<usize>> = Vec::with_capacity(spans.len());
-    for r in spans {
-        match merged.last_mut() {
-            Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
-            _ => merged.push(r),
-        }
-    }
-    Ok(Some((DirectLight { radiance: out }, merged)))
+    super::merge_spans(&mut spans);
+    Ok(Some((DirectLight { radiance: out }, spans)))
 }
 
 /// The point lights' irradiance SH at posed object `i`'s centre `centre` (its light-probe

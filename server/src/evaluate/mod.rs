@@ -11,12 +11,15 @@
 //! ([`bounce_object_light`]). One bounce reproduces the papers' light exactly.
 //!
 //! # Layout
-//! - here: [`evaluate`] and its pieces ([`operator_direct`], [`leaving_light`]).
+//! - here: [`evaluate`] and its pieces ([`operator_direct`], [`leaving_light`],
+//!   [`merge_spans`]).
 //! - [`dnrt`]: the light posed dynamic objects add and take away.
 //! - [`objects`]: the light leaving the posed objects' own surfaces, for drawing them.
 //! - [`sh`]: SH incident radiance per texel (bundle section `sh`).
 //!
 //! Invariant: no file I/O and no HTTP here; callers read bundles and write results.
+
+use std::ops::Range;
 
 use lightfarm_client::{
     direct_scale, every_sample_by_reach, frame_occluders, irradiance_at, occluders_with_poses,
@@ -203,6 +206,20 @@ pub fn is_bounced(bounces: Bounces) -> bool {
     !matches!(bounces, Bounces::One | Bounces::Fixed(1))
 }
 
+/// Sorts texel ranges and joins those that overlap or touch: ascending, disjoint (what
+/// `Runtime::apply_delta_in` and `Runtime::apply_probes_delta` take).
+pub fn merge_spans(spans: &mut Vec<Range<usize>>) {
+    spans.sort_unstable_by_key(|r| r.start);
+    let mut out: Vec<Range<usize>> = Vec::with_capacity(spans.len());
+    for r in spans.drain(..) {
+        match out.last_mut() {
+            Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
+            _ => out.push(r),
+        }
+    }
+    *spans = out;
+}
+
 /// The radiance leaving the texels: direct plus indirect.
 pub fn leaving_light(direct: &DirectLight, indirect: &IndirectLight) -> DirectLight {
     DirectLight {
@@ -212,5 +229,20 @@ pub fn leaving_light(direct: &DirectLight, indirect: &IndirectLight) -> DirectLi
             .zip(&indirect.radiance)
             .map(|(d, i)| [d[0] + i[0], d[1] + i[1], d[2] + i[2]])
             .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn merging_spans_joins_overlapping_and_touching_ranges() {
+        let mut s = vec![10..20, 0..5, 5..7, 15..30, 40..41];
+        merge_spans(&mut s);
+        assert_eq!(s, vec![0..7, 10..30, 40..41]);
+        let mut empty: Vec<Range<usize>> = Vec::new();
+        merge_spans(&mut empty);
+        assert!(empty.is_empty());
     }
 }
