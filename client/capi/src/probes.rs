@@ -114,17 +114,7 @@ pub unsafe extern "C" fn lf_runtime_apply_probes_delta_in_spans(
         check_rgb_len(rt, "change_rgb", change.len())?;
         let texels = rt.runtime.n_texels();
         check_spans(spans, texels)?;
-        let needed = rt
-            .runtime()
-            .probe_volume()
-            .map_or(0, |v| v.n_probes as usize);
-        if needed > 0 && rt.probes.n_probes() != needed {
-            return Err(CapiError::TooFew {
-                what: "the probe field (lf_runtime_apply_probes fills it)",
-                needed,
-                got: rt.probes.n_probes(),
-            });
-        }
+        // A field not filled yet is the runtime's `ProbeFieldSize` (status.rs: `not_filled`).
         rt.span_input(change, spans);
         let LfRuntime {
             runtime,
@@ -162,11 +152,7 @@ pub unsafe extern "C" fn lf_runtime_probe_field(
         let n = volume.n_probes as usize * LF_PROBE_FLOATS;
         let field = rt.probes.as_slice();
         if field.len() != n {
-            return Err(CapiError::TooFew {
-                what: "the probe field (lf_runtime_apply_probes fills it)",
-                needed: n,
-                got: field.len(),
-            });
+            return Err(not_filled(n, field.len()));
         }
         if len != n {
             return Err(CapiError::TooFew {
@@ -214,16 +200,23 @@ pub unsafe extern "C" fn lf_runtime_probe_irradiance(
         let volume = rt.runtime().probe_volume().ok_or_else(no_probes)?;
         let needed = volume.n_probes as usize;
         if rt.probes.n_probes() != needed {
-            return Err(CapiError::TooFew {
-                what: "the probe field (lf_runtime_apply_probes fills it)",
-                needed,
-                got: rt.probes.n_probes(),
-            });
+            return Err(not_filled(needed, rt.probes.n_probes()));
         }
         let e = irradiance_at(volume, &rt.probes, [p[0], p[1], p[2]], [n[0], n[1], n[2]]);
         out.copy_from_slice(&e);
         Ok(())
     })
+}
+
+/// The error of a call that needs the probe field before `lf_runtime_apply_probes` filled it
+/// (`needed` and `got` in the call's unit: probes, or floats); `Runtime::apply_probes_delta`'s
+/// `ProbeFieldSize` maps to it too.
+pub(crate) fn not_filled(needed: usize, got: usize) -> CapiError {
+    CapiError::TooFew {
+        what: "the probe field (lf_runtime_apply_probes fills it)",
+        needed,
+        got,
+    }
 }
 
 /// The error of a probe call on a bundle without a probe volume.

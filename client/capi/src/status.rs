@@ -126,7 +126,8 @@ impl CapiError {
 impl From<ApplyError> for CapiError {
     /// `DirectLength` cannot reach here (lengths are checked before `apply`), but is mapped
     /// to `CapiError::BadLength` all the same; nor can `NoBounces` (C cannot ask for zero
-    /// bounces), which falls to `MissingOperator`.
+    /// bounces), which falls to `MissingOperator`. `ProbeFieldSize` (a change added before
+    /// `lf_runtime_apply_probes` filled the field) is `TooFew` (`probes::not_filled`).
     fn from(e: ApplyError) -> CapiError {
         match e {
             ApplyError::DirectLength { expected, got } => CapiError::BadLength {
@@ -141,6 +142,9 @@ impl From<ApplyError> for CapiError {
             }
             ApplyError::BadTolerance(t) => CapiError::BadTolerance(t),
             e @ ApplyError::DeltaFeedback => CapiError::BounceMode(e),
+            ApplyError::ProbeFieldSize { expected, got } => {
+                crate::probes::not_filled(expected, got)
+            }
             other => CapiError::MissingOperator(other),
         }
     }

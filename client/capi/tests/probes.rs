@@ -53,6 +53,24 @@ fn probes_through_the_c_abi_are_the_runtimes() {
     let status = unsafe { lf_runtime_probe_field(rt.0, out.as_mut_ptr(), out.len()) };
     assert_eq!(status, LfStatus::BadLength as i32);
     assert!(last_error().contains("lf_runtime_apply_probes fills it"));
+    let (zeros, all) = (
+        vec![0.0f32; 3 * n],
+        [LfTexelSpan {
+            start: 0,
+            end: n as u32,
+            in_sight: 0,
+        }],
+    );
+    // SAFETY: readable for their lengths.
+    let status = unsafe {
+        lf_runtime_apply_probes_delta_in_spans(rt.0, zeros.as_ptr(), zeros.len(), all.as_ptr(), 1)
+    };
+    assert_eq!(status, LfStatus::BadLength as i32);
+    assert_eq!(
+        last_error(),
+        "lf_runtime_apply_probes_delta_in_spans: the probe field (lf_runtime_apply_probes fills \
+         it) holds 0 but 7 are needed"
+    );
 
     let old = light(&mut rng, n);
     // SAFETY: `old.len()` readable floats.

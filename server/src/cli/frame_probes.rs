@@ -127,7 +127,7 @@ impl ProbeWay {
                 None => std::iter::once(0..runtime.n_texels()).collect(),
             };
             merge_spans(&mut written);
-            let written = intersection(&written, runtime.probe_source_spans());
+            let written = intersection(&written, read);
             for r in &written {
                 for t in r.clone() {
                     let (now, was) = (indirect.radiance[t], &mut self.indirect[t]);

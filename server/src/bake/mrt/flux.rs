@@ -34,15 +34,21 @@ use faer::Mat;
 pub fn flux_first(t_db: &mut Mat<f64>, l_imp: &mut Mat<f64>, area: &[f64]) {
     let (r, n) = (t_db.nrows(), t_db.ncols());
     assert_eq!((l_imp.nrows(), l_imp.ncols(), area.len()), (n, r, n));
-    let w: Vec<f64> = (0..r)
-        .map(|j| (0..n).map(|x| l_imp[(x, j)] * area[x]).sum())
-        .collect();
+    let w = flux_weights(l_imp, area);
     if let Some(turn) = Turn::onto_first(&w) {
         for x in 0..n {
             turn.column(t_db, x);
             turn.row(l_imp, x, 0);
         }
     }
+}
+
+/// Each column's flux under texel areas `area`: `mᵀ area` (`m` texels × columns), every
+/// column's terms summed in texel order.
+pub fn flux_weights(m: &Mat<f64>, area: &[f64]) -> Vec<f64> {
+    (0..m.ncols())
+        .map(|j| (0..m.nrows()).map(|x| m[(x, j)] * area[x]).sum())
+        .collect()
 }
 
 /// The orthogonal turn `D H` of a coefficient space that maps the direction of a flux vector

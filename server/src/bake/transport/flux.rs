@@ -27,7 +27,7 @@ use rayon::prelude::*;
 use lightfarm_proto::bundle::SourceBases;
 
 use crate::bake::math::matrix::{from_matrix, to_matrix};
-use crate::bake::mrt::flux::Turn;
+use crate::bake::mrt::flux::{flux_weights, Turn};
 
 /// Turns `transport` (module doc) under `area[b]`, block b's texel areas in its texel order;
 /// `rank[b]`: block b's shape rank (the width of its columns in a `Z'` without a basis).
@@ -40,9 +40,7 @@ pub fn flux_first_transport(transport: &mut SourceBases, area: &[Vec<f64>], rank
             let (mut y, mut z) = (from_matrix(&e.y), from_matrix(&e.z));
             let a = &area[e.target_block as usize];
             assert_eq!(y.nrows(), a.len(), "block {}: texel areas", e.target_block);
-            let w: Vec<f64> = (0..y.ncols())
-                .map(|i| (0..y.nrows()).map(|x| a[x] * y[(x, i)]).sum())
-                .collect();
+            let w = flux_weights(&y, a);
             if let Some(turn) = Turn::onto_first(&w) {
                 for x in 0..y.nrows() {
                     turn.row(&mut y, x, 0);
@@ -71,9 +69,7 @@ pub fn flux_first_transport(transport: &mut SourceBases, area: &[Vec<f64>], rank
         .collect();
     for (e, (y, z)) in transport.entries.iter().zip(&turned) {
         let a = &area[e.target_block as usize];
-        let flux_y: Vec<f64> = (0..y.ncols())
-            .map(|i| (0..y.nrows()).map(|x| a[x] * y[(x, i)]).sum())
-            .collect();
+        let flux_y = flux_weights(y, a);
         let mut at = 0;
         for &s in &e.sources {
             if let Some(i) = basis_of[s as usize] {
