@@ -74,6 +74,15 @@ impl DnrtVolume {
     pub fn object(&self) -> &str {
         &self.grid.object
     }
+
+    /// The grid's centre (its bounding sphere's, object frame) in the world at a pose
+    /// (`translation`, quaternion `rotation` `[x, y, z, w]`): what
+    /// [`DnrtInstance::centre_world`] gives, without contracting the grid.
+    pub fn centre_world(&self, translation: [f64; 3], rotation: [f64; 4]) -> [f32; 3] {
+        let r = quaternion_matrix(rotation);
+        let rc = mul_vec(&r, self.grid.centre.map(|x| x as f64));
+        std::array::from_fn(|k| (rc[k] + translation[k]) as f32)
+    }
 }
 
 /// One posed object with this frame's lighting, ready to shade receivers.
@@ -119,8 +128,6 @@ impl<'a> DnrtInstance<'a> {
         };
         let c = rotate(irradiance, 1.0);
         let l = rotate(hidden, std::f64::consts::PI);
-        let centre = volume.grid.centre.map(|x| x as f64);
-        let rc = mul_vec(&r, centre);
         let n_sh = volume.grid.n_sh as usize;
         let convolution = volume.grid.normals == DnrtNormals::Convolution;
         let out_terms = if convolution { n_sh } else { 1 };
@@ -144,7 +151,7 @@ impl<'a> DnrtInstance<'a> {
         DnrtInstance {
             volume,
             to_object: rt.map(|row| row.map(|x| x as f32)),
-            centre_world: std::array::from_fn(|k| (rc[k] + translation[k]) as f32),
+            centre_world: volume.centre_world(translation, rotation),
             c,
             contracted,
             out_terms,

@@ -59,6 +59,9 @@
 //! - [`dnrt`]: Deferred Neighbouring Radiance Transfer: a dynamic object's reflection and
 //!   occlusion on the receivers around it (G-buffer or lightmap texels, the latter on the
 //!   surfaces within its reach only), from its baked grid.
+//! - [`object_light`]: [`ObjectLight`], posed dynamic objects' light on the lightmap per frame
+//!   (each object's DNRT on the surfaces within its reach, fed by the probe field and the
+//!   point lights at its centre) and its bounces through the operators.
 //! - [`surface_bounds`]: [`SurfaceBounds`], the box of each surface's texel centres: the
 //!   surfaces within reach of a point.
 //! - [`probes`]: the probe field ([`ProbeField`]: n_probes × 3 channels × 9 SH coefficients)
@@ -92,6 +95,7 @@ pub mod light_buffer;
 pub mod light_reach;
 pub mod light_sh;
 pub mod lightmap;
+pub mod object_light;
 pub mod occluders;
 pub mod packed;
 pub mod packed_gather;
@@ -118,12 +122,13 @@ pub use light_sh::point_light_irradiance_sh;
 pub use lightfarm_proto::bundle::{Bundle, BundleError};
 pub use lightfarm_proto::lights::Light;
 pub use lightmap::{auto_exposure, Atlas};
+pub use object_light::{ObjectLight, ObjectLightError};
 pub use occluders::Occluders;
 pub use probes::{irradiance_at, irradiance_sh_at, radiance_sh_at, ProbeField};
 pub use reach_direct::{direct_from_point_lights_by_reach, every_sample_by_reach, ReachDirect};
 pub use runtime::{
-    Applied, ApplyError, Bounces, DeltaApplied, IndirectLight, Method, Runtime, ShLight,
-    DEFAULT_TOLERANCE, MAX_BOUNCES,
+    merge_spans, Applied, ApplyError, Bounces, DeltaApplied, IndirectLight, Method, Runtime,
+    ShLight, DEFAULT_TOLERANCE, MAX_BOUNCES,
 };
 #[cfg(feature = "fetch")]
 pub use service::{ServiceClient, ServiceError};

@@ -17,9 +17,9 @@
 
 use crate::bundle::{section, BUNDLE_MAJOR, BUNDLE_MINOR};
 use crate::bundle::{
-    BlockOps, Bundle, ClutterOps, CompactEntry, DeltaEntry, DeltaSource, DrtOps, GatherTiles,
-    Layout, Matrix, OpeningOps, ProbeVolume, PropEntry, ShapeOps, SourceBases, SourceBasis,
-    SparseRows, SurfaceInfo, TexelGather, TracedEntry, TransportOps,
+    BlockOps, Bundle, ClutterOps, CompactEntry, DeltaEntry, DeltaSource, DrtOps, DynamicShape,
+    GatherTiles, Layout, Matrix, OpeningOps, ProbeVolume, PropEntry, ShapeOps, SourceBases,
+    SourceBasis, SparseRows, SurfaceInfo, TexelGather, TracedEntry, TransportOps,
 };
 use crate::container::write_container;
 
@@ -529,6 +529,58 @@ pub fn probe_bundle(rng: &mut Lcg, drt: bool) -> Bundle {
         entries,
     });
     b
+}
+
+/// A closed cube of half-size `half` about the origin (12 triangles): a dynamic object's
+/// shape.
+pub fn cube(id: &str, half: f32) -> DynamicShape {
+    DynamicShape {
+        object: id.into(),
+        albedo: [0.5; 3],
+        triangles: hexahedron(|i| [0, 1, 2].map(|b| if i >> b & 1 == 0 { -half } else { half })),
+    }
+}
+
+/// [`probe_bundle`] without DRT (texels on the x axis at x = 0, 1, …, 13 facing +z, a probe
+/// volume) with a dynamic object `ball` (a [`cube`] of half-size 0.3 m) and its DNRT grid:
+/// 5³ points of positive reflection and smaller occlusion terms varying with the point, inner
+/// and outer half-extents 0.6 and 1.5 m; albedo a fifth of `probe_bundle`'s.
+pub fn ball_bundle() -> Bundle {
+    use crate::dnrt_grid::{DnrtCodec, DnrtGrid, DnrtNormals, DnrtPlacement, SLOTS};
+    let mut bundle = probe_bundle(&mut Lcg(11), false);
+    let (n, n_sh) = (5usize, 9usize);
+    let values: Vec<f64> = (0..n * n * n * SLOTS * n_sh)
+        .map(|k| {
+            let (slot, s) = (k / n_sh % SLOTS, k % n_sh);
+            let v = 0.02 + 0.001 * (k % 37) as f64 / (1 + s) as f64;
+            if slot == 3 {
+                0.3 * v
+            } else {
+                v
+            }
+        })
+        .collect();
+    let grid = DnrtGrid::encode_values(
+        "ball",
+        [0.0; 3],
+        0.3,
+        0.6,
+        1.5,
+        n as u32,
+        n_sh as u32,
+        DnrtPlacement::Regular,
+        DnrtNormals::Intermediate,
+        DnrtCodec::F32,
+        vec![[0.0, 0.0]; 2 * n_sh],
+        &values,
+    );
+    bundle.dnrt = Some(vec![grid]);
+    bundle.dynamic_shapes = vec![cube("ball", 0.3)];
+    // Dark enough that all bounces of the random operators converge.
+    for a in &mut bundle.layout.albedo {
+        *a = a.map(|x| 0.2 * x);
+    }
+    bundle
 }
 
 /// `n` texels in a row on the floor face of block `strip` (1 m apart, albedo (0.5, 0.6, 0.7)):

@@ -21,10 +21,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use lightfarm_client::{
-    direct_from_point_lights, direct_from_point_lights_averaged, Atlas, Bounces, IndirectLight,
-    Light, Method, Occluders, Runtime,
+    direct_from_point_lights, direct_from_point_lights_averaged, frame_occluders,
+    occluders_with_poses, Atlas, Bounces, IndirectLight, Light, Method, ObjectLight, Occluders,
+    Runtime,
 };
-use lightfarm_proto::lights::LightKind;
+use lightfarm_proto::lights::{LightKind, LightSet, Pose};
 use lightfarm_proto::scene::Transport;
 use lightfarm_tests::*;
 
@@ -281,8 +282,9 @@ fn c_example_matches_the_rust_client() {
         "estimated lag {lag:.2e}, left {left:.2e}"
     );
 
-    // A level with a dynamic object: the probe volume through the C ABI (fed direct plus
-    // indirect light at all bounces) is the Rust client's.
+    // A level with a dynamic object, placed as its light set places it: the probe volume
+    // through the C ABI (fed direct plus indirect light at all bounces) and the object's own
+    // light and its bounces are the Rust client's.
     let (scene, _) = load_scene("ball_corridor", 8, 256);
     let (ball_bytes, _) = bake_scene(
         &scene,
@@ -301,14 +303,39 @@ fn c_example_matches_the_rust_client() {
         position: [2.6f32, 2.2, 1.3].map(f64::from),
         intensity: [12.0; 3],
     }];
+    // The scene's pose, in the f32 C passes.
+    let pose: Pose = {
+        let set: LightSet = serde_json::from_str(
+            &std::fs::read_to_string(scene_dir("ball_corridor").join("lights.json")).unwrap(),
+        )
+        .unwrap();
+        let mut p = set.poses[0].clone();
+        p.translation = p.translation.map(|x| x as f32 as f64);
+        p.rotation = p.rotation.map(|x| x as f32 as f64);
+        p
+    };
+    let t = pose.translation;
+    let q = pose.rotation;
+    let pose_arg = format!(
+        "{},{},{},{},{},{},{},{}",
+        pose.id,
+        t[0] as f32,
+        t[1] as f32,
+        t[2] as f32,
+        q[0] as f32,
+        q[1] as f32,
+        q[2] as f32,
+        q[3] as f32
+    );
+    let posed = occluders_with_poses(&occluders, &bundle, std::slice::from_ref(&pose));
     let direct = direct_from_point_lights_averaged(
         &bundle.layout,
-        &occluders,
+        frame_occluders(&occluders, posed.as_ref()),
         &light,
         lightfarm::LF_DIRECT_SAMPLES_PER_EDGE,
     );
     let (p0, n0) = (bundle.layout.positions[0], bundle.layout.normals[0]);
-    let mut runtime = Runtime::try_new(bundle).unwrap();
+    let mut runtime = Runtime::try_new(bundle.clone()).unwrap();
     let method = if runtime.has_drt() {
         Method::Drt
     } else {
@@ -323,9 +350,21 @@ fn c_example_matches_the_rust_client() {
     runtime.apply_probes(&leaving, &mut probes).unwrap();
     let at: [f32; 3] = std::array::from_fn(|c| p0[c] + 0.25 * n0[c]);
     let e = lightfarm_client::irradiance_at(runtime.probe_volume().unwrap(), &probes, at, n0);
+    let mut objects = ObjectLight::new(&bundle).unwrap();
+    let poses = [pose];
+    objects
+        .update(&bundle, &probes, true, &occluders, &light, &poses)
+        .unwrap();
+    let mut bounced = IndirectLight {
+        radiance: vec![[0.0; 3]; bundle.layout.n_texels()],
+    };
+    objects
+        .bounce(&mut runtime, method, Bounces::default(), &mut bounced)
+        .unwrap();
     let output = example(&exe)
         .arg(&ball_path)
         .arg(&ball_lights)
+        .arg(&pose_arg)
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout);
@@ -347,6 +386,23 @@ fn c_example_matches_the_rust_client() {
     let e_sum = e.iter().map(|&v| v as f64).sum::<f64>();
     assert!(e_sum > 0.0, "light reaches the probes above texel 0");
     assert_close("probe_irradiance", number(line, "probe_irradiance"), e_sum);
+    let spans: usize = field(line, "object_spans").parse().unwrap();
+    assert_eq!(spans, objects.spans().len());
+    assert!(spans > 0, "the ball lights the floor around it");
+    let object_sum = sum(&objects.light().radiance);
+    assert!(object_sum != 0.0);
+    assert_close(
+        "object_checksum",
+        number(line, "object_checksum"),
+        object_sum,
+    );
+    let bounce_sum = sum(&bounced.radiance);
+    assert!(bounce_sum != 0.0);
+    assert_close(
+        "object_bounce_checksum",
+        number(line, "object_bounce_checksum"),
+        bounce_sum,
+    );
 
     // A file that is not a bundle: exit status 1 and the library's reason on stderr.
     let garbage = dir.join("garbage.lfb");

@@ -1,9 +1,11 @@
 /* Applies an operator bundle through the lightfarm C ABI, as a C engine would.
  *
- *   apply BUNDLE.lfb LIGHTS.txt
+ *   apply BUNDLE.lfb LIGHTS.txt [POSE]
  *
  * LIGHTS.txt holds one point light per line, "x y z r g b" (position in metres, radiant
- * intensity in W/sr per channel); blank lines and lines starting with '#' are skipped.
+ * intensity in W/sr per channel); blank lines and lines starting with '#' are skipped. POSE,
+ * "id,x,y,z,qx,qy,qz,qw", places that dynamic object of the bundle (translation in metres,
+ * rotation quaternion) before anything is lit.
  *
  * Loads the bundle, computes direct light from the lights, applies DRT if the bundle has it
  * (else MRT), then does it again the way an engine with its own direct light does: reads the
@@ -14,14 +16,17 @@
  *
  *   texels=N method=drt|mrt applications=A checksum=S max=M direct_checksum=D surfaces=K
  *   first_surface=NAME atlas=WxH engine_direct_checksum=ED engine_checksum=E
- *   probes=P [probe_checksum=PC probe_irradiance=PE] moved_spans=MS moved_error=ME
+ *   probes=P [probe_checksum=PC probe_irradiance=PE [object_spans=OS object_checksum=OC
+ *   object_bounce_checksum=OB]] moved_spans=MS moved_error=ME
  *   light_direct_same=B feedback_calls=FC feedback_error=FE feedback_lag=FL feedback_left=FR
  *
  * with S the sum of every output float, M the largest, D the sum of the direct light, ED the
  * sum of the engine's direct light and E the sum of the engine path's indirect-light atlas
  * (sums in double, in buffer or row order); P the probes of the bundle's probe volume (for
  * dynamic objects), fed the light leaving the texels (direct plus indirect), PC the sum of the
- * field's floats and PE the irradiance 0.25 m above texel 0 (sum of R, G and B); then moves
+ * field's floats and PE the irradiance 0.25 m above texel 0 (sum of R, G and B); with POSE,
+ * the placed object's own light on the texels around it (OS: its spans, OC: the sum of its
+ * floats) and the sum OB of its bounces; then moves
  * light 0 by 0.25 m and relights by the
  * change (MS: the spans it reaches, ME: relative L2 against relighting everything, B: 1 when
  * the one-call direct light of a light's reach is the two-call one), and moves it back in
@@ -163,7 +168,55 @@ out:
  * whole and as irradiance 0.25 m above texel 0 along its normal. Prints " probes=P" and, with
  * P > 0, " probe_checksum=PC probe_irradiance=PE" (PC the sum of the field's floats, PE the
  * sum of the three channels). Returns 0, or 1 on error. */
-static int probe_part(LfRuntime *rt, const float *direct, const float *indirect,
+/* The placed objects' own light around them and its bounces (see the top comment); prints
+ * " object_spans=OS object_checksum=OC object_bounce_checksum=OB". Returns 0, or 1 on error. */
+static int object_part(LfRuntime *rt, int32_t method, const LfPointLight *lights,
+                       long n_lights, size_t n_floats) {
+    size_t capacity = 0, count = 0, i, k;
+    LfTexelSpan *spans = NULL;
+    float *light = calloc(n_floats, sizeof *light), *bounced = malloc(n_floats * sizeof *bounced);
+    double light_sum = 0.0, bounce_sum = 0.0;
+    int32_t status;
+    int result = 1;
+
+    if (!light || !bounced) {
+        fprintf(stderr, "out of memory\n");
+        goto out;
+    }
+    /* First ask how many spans, then make room for them. */
+    status = lf_runtime_object_light(rt, lights, (size_t)n_lights, NULL, 0, &count, light,
+                                     n_floats);
+    if (status == LF_STATUS_BAD_LENGTH && count > 0) {
+        capacity = count;
+        spans = malloc(capacity * sizeof *spans);
+        if (!spans) { fprintf(stderr, "out of memory\n"); goto out; }
+        status = lf_runtime_object_light(rt, lights, (size_t)n_lights, spans, capacity, &count,
+                                         light, n_floats);
+    }
+    if (status != LF_STATUS_OK) {
+        result = fail();
+        goto out;
+    }
+    for (k = 0; k < count; k++)
+        for (i = 3 * (size_t)spans[k].start; i < 3 * (size_t)spans[k].end; i++)
+            light_sum += light[i];
+    /* Its bounces alone: added to zeros (an engine adds them to its indirect light). */
+    memset(bounced, 0, n_floats * sizeof *bounced);
+    if (lf_runtime_bounce_object_light(rt, method, bounced, n_floats) != LF_STATUS_OK) {
+        result = fail();
+        goto out;
+    }
+    for (i = 0; i < n_floats; i++) bounce_sum += bounced[i];
+    printf(" object_spans=%zu object_checksum=%.6e object_bounce_checksum=%.6e", count,
+           light_sum, bounce_sum);
+    result = 0;
+out:
+    free(spans); free(light); free(bounced);
+    return result;
+}
+
+static int probe_part(LfRuntime *rt, int32_t method, const LfPointLight *lights,
+                      long n_lights, int posed, const float *direct, const float *indirect,
                       size_t n_floats) {
     size_t probes = lf_runtime_probe_count(rt), i;
     float *leaving, *field, pos[3], nrm[3], at[3], e[3];
@@ -200,7 +253,7 @@ static int probe_part(LfRuntime *rt, const float *direct, const float *indirect,
     for (i = 0; i < probes * LF_PROBE_FLOATS; i++) field_sum += field[i];
     printf(" probe_checksum=%.6e probe_irradiance=%.6e", field_sum,
            (double)e[0] + (double)e[1] + (double)e[2]);
-    result = 0;
+    result = posed ? object_part(rt, method, lights, n_lights, n_floats) : 0;
 out:
     free(leaving); free(field);
     return result;
@@ -428,8 +481,8 @@ int main(int argc, char **argv) {
     int32_t method, status;
     double checksum = 0.0, direct_checksum = 0.0, max = 0.0;
 
-    if (argc != 3) {
-        fprintf(stderr, "usage: %s BUNDLE.lfb LIGHTS.txt\n", argv[0]);
+    if (argc != 3 && argc != 4) {
+        fprintf(stderr, "usage: %s BUNDLE.lfb LIGHTS.txt [id,x,y,z,qx,qy,qz,qw]\n", argv[0]);
         return 2;
     }
     bytes = read_file(argv[1], &len);
@@ -442,6 +495,19 @@ int main(int argc, char **argv) {
     if (!rt) return fail();
     /* At load: what relighting by the change needs, so the first moved light is not slow. */
     if (lf_runtime_prepare_delta(rt) != LF_STATUS_OK) return fail();
+    if (argc == 4) {
+        /* The dynamic object, placed before direct light so that it carries its shadow. */
+        char id[128];
+        LfPose pose;
+        if (sscanf(argv[3], "%127[^,],%f,%f,%f,%f,%f,%f,%f", id, &pose.translation[0],
+                   &pose.translation[1], &pose.translation[2], &pose.rotation[0],
+                   &pose.rotation[1], &pose.rotation[2], &pose.rotation[3]) != 8) {
+            fprintf(stderr, "%s: not id,x,y,z,qx,qy,qz,qw\n", argv[3]);
+            return 2;
+        }
+        pose.id = id;
+        if (lf_runtime_set_poses(rt, &pose, 1) != LF_STATUS_OK) return fail();
+    }
 
     n_floats = 3 * lf_runtime_texel_count(rt);
     direct = malloc(n_floats * sizeof *direct);
@@ -465,7 +531,7 @@ int main(int argc, char **argv) {
            n_floats / 3, method == LF_METHOD_DRT ? "drt" : "mrt",
            (unsigned)lf_runtime_last_bounces(rt), checksum, max, direct_checksum);
     if (check_surfaces(rt) || engine_path(rt, method, lights, n_lights) ||
-        probe_part(rt, direct, indirect, n_floats))
+        probe_part(rt, method, lights, n_lights, argc == 4, direct, indirect, n_floats))
         return 1;
     at_load = malloc(n_floats * sizeof *at_load);
     if (!at_load) { fprintf(stderr, "out of memory\n"); return 1; }

@@ -47,7 +47,7 @@ enum LfStatus
   LF_STATUS_BAD_METHOD = -3,
   /**
    * The bundle lacks the operators of the requested method (DRT without clutter, FULL
-   * without `--full`).
+   * without `--full`), its probe volume, or a DNRT grid for a placed dynamic object.
    */
   LF_STATUS_MISSING_OPERATOR = -4,
   /**
@@ -172,16 +172,6 @@ typedef struct {
 } LfPointLight;
 
 /**
- * Where a dynamic object is this frame: its id (NUL-terminated UTF-8, the scene's
- * `dynamic[].id`), translation (world metres) and rotation quaternion `[x, y, z, w]`.
- */
-typedef struct {
-  const char *id;
-  float translation[3];
-  float rotation[4];
-} LfPose;
-
-/**
  * A run of texels in layout order: `start` (inclusive) to `end` (exclusive).
  */
 typedef struct {
@@ -194,6 +184,16 @@ typedef struct {
    */
   uint8_t in_sight;
 } LfTexelSpan;
+
+/**
+ * Where a dynamic object is this frame: its id (NUL-terminated UTF-8, the scene's
+ * `dynamic[].id`), translation (world metres) and rotation quaternion `[x, y, z, w]`.
+ */
+typedef struct {
+  const char *id;
+  float translation[3];
+  float rotation[4];
+} LfPose;
 
 #ifdef __cplusplus
 extern "C" {
@@ -368,6 +368,60 @@ int64_t lf_runtime_surface(const LfRuntime *rt,
                            size_t cap,
                            uint32_t *texel_offset,
                            uint32_t *texel_count);
+
+/**
+ * This frame's light of the dynamic objects placed with `lf_runtime_set_poses`, from the
+ * `n_lights` point `lights` and the probe field (see the module doc): writes the texel spans
+ * it lies in to `out_spans` (ascending, disjoint; their number to `*out_count`) and the light
+ * on those spans to `out_rgb` (`out_len` = `3 x texels` floats; every other texel keeps its
+ * value). Add it to the frame's indirect light; with more than one bounce, add its bounces
+ * too (`lf_runtime_bounce_object_light`). No object placed: no span.
+ *
+ * Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, `out_count`, `lights` with
+ * `n_lights > 0`, `out_rgb` with `out_len > 0`, or `out_spans` when spans are to be
+ * written), `LF_STATUS_INVALID_LIGHT`, `LF_STATUS_BAD_LENGTH` (`out_len` is not `3 x texels`,
+ * `capacity` is below the number of spans (`*out_count` then holds the number needed), or the
+ * probe field is not filled yet), `LF_STATUS_MISSING_OPERATOR` (the bundle has no probe
+ * volume, or no DNRT grid for a placed object) or `LF_STATUS_PANIC`. On an error neither
+ * `out_spans` nor `out_rgb` is written. Allocates per object and call (its grid contracted
+ * with the frame's light).
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call. `lights` must be NULL or point to `n_lights` readable `LfPointLight`s; `out_spans`
+ * NULL or `capacity` writable `LfTexelSpan`s; `out_count` NULL or writable; `out_rgb` NULL or
+ * `out_len` writable floats; none overlapping another.
+ */
+int32_t lf_runtime_object_light(LfRuntime *rt,
+                                const LfPointLight *lights,
+                                size_t n_lights,
+                                LfTexelSpan *out_spans,
+                                size_t capacity,
+                                size_t *out_count,
+                                float *out_rgb,
+                                size_t out_len);
+
+/**
+ * Adds to `indirect_rgb` (`3 x texels` floats) the bounces of the last
+ * `lf_runtime_object_light`'s light through the operators of `method`, in the runtime's
+ * bounce mode less one (the objects' reflection is a bounce already): nothing with
+ * `LF_BOUNCES_ONE`, else the light's own bounces converged to the mode's tolerance (the
+ * default one with `LF_BOUNCES_FEEDBACK`: the light is the frame's whole light, not a change
+ * to carry over frames). Only what the light reaches is computed and written (as
+ * `lf_runtime_apply_delta_in_spans` on its spans); before any object light, nothing.
+ *
+ * Returns `LF_STATUS_OK`, or the statuses of `lf_runtime_apply_delta_in_spans`.
+ * `indirect_rgb` is changed only on success.
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call; `indirect_rgb` must be NULL or point to `indirect_len` readable and writable
+ * floats no other thread writes during the call.
+ */
+int32_t lf_runtime_bounce_object_light(LfRuntime *rt,
+                                       int32_t method,
+                                       float *indirect_rgb,
+                                       size_t indirect_len);
 
 /**
  * Places the bundle's dynamic objects: from now on `lf_runtime_direct_from_point_lights`,

@@ -45,6 +45,10 @@
 //! lf_runtime_apply_probes(rt, leaving, n);
 //! lf_runtime_apply_probes_delta_in_spans(rt, change, n, spans, n_spans);
 //! float e[3]; lf_runtime_probe_irradiance(rt, ball.translation, up, e);
+//! /* what the placed objects reflect onto and hide from the texels around them (from the
+//!    field), added to the frame's indirect light on its spans, and its bounces */
+//! lf_runtime_object_light(rt, lights, n_lights, spans, capacity, &n_spans, object_rgb, n);
+//! lf_runtime_bounce_object_light(rt, method, indirect, n);
 //! lf_runtime_free(rt);
 //! ```
 //!
@@ -55,6 +59,9 @@
 //! - [`direct`]: [`LfPointLight`] and direct light from point lights at every texel.
 //! - [`poses`]: [`LfPose`] and [`lf_runtime_set_poses`]: the dynamic objects placed for the
 //!   direct light's shadows.
+//! - [`objects`]: the placed dynamic objects' own light on the texels around them (DNRT,
+//!   [`lf_runtime_object_light`], from the probe field and the point lights) and its bounces
+//!   ([`lf_runtime_bounce_object_light`]).
 //! - [`probes`]: the probe volume dynamic objects are shaded from: filled from the light
 //!   leaving the texels ([`lf_runtime_apply_probes`]) or by its change where the probes read it
 //!   ([`lf_runtime_apply_probes_delta_in_spans`]), read as a buffer or as irradiance at a point.
@@ -92,6 +99,7 @@ pub mod direct;
 pub mod last_error;
 pub mod layout;
 pub mod method;
+pub mod objects;
 pub mod poses;
 pub mod probes;
 pub mod reach;
@@ -107,6 +115,7 @@ pub use layout::{
     lf_runtime_texel_sizes,
 };
 pub use method::LfMethod;
+pub use objects::{lf_runtime_bounce_object_light, lf_runtime_object_light};
 pub use poses::{lf_runtime_set_poses, LfPose};
 pub use probes::{
     lf_runtime_apply_probes, lf_runtime_apply_probes_delta_in_spans, lf_runtime_probe_count,

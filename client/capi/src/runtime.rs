@@ -16,8 +16,8 @@
 
 use lightfarm_client::{
     direct_from_point_lights_adaptive_in, direct_scale, frame_occluders, occluders_with_poses,
-    Applied, Atlas, Bounces, DirectLight, IndirectLight, Light, Occluders, PosedObjects,
-    ProbeField, ReachDirect, Runtime, TexelSpan,
+    Applied, Atlas, Bounces, DirectLight, IndirectLight, Light, ObjectLight, Occluders,
+    PosedObjects, ProbeField, ReachDirect, Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Bundle;
 use lightfarm_proto::lights::Pose;
@@ -33,7 +33,7 @@ use crate::status::CapiError;
 pub struct LfRuntime {
     pub(crate) runtime: Runtime,
     /// Shadow-ray geometry of the bundle, for direct light from point lights.
-    level: Occluders,
+    pub(crate) level: Occluders,
     /// The level's occluders with the dynamic objects at their poses (`lf_runtime_set_poses`;
     /// None: no object placed).
     posed: Option<PosedObjects>,
@@ -45,7 +45,7 @@ pub struct LfRuntime {
     /// Scratch: the indirect light `apply` writes, one RGB value per texel.
     indirect: IndirectLight,
     /// The bounce mode of `lf_runtime_apply` (all bounces until `lf_runtime_set_bounces`).
-    bounces: Bounces,
+    pub(crate) bounces: Bounces,
     /// What the last successful application (`lf_runtime_apply`, or a delta call) did.
     last: Applied,
     /// A point light's reach over the bundle's rooms, with the occluders of each room (None:
@@ -67,6 +67,11 @@ pub struct LfRuntime {
     span_change: IndirectLight,
     /// The probe field of `lf_runtime_apply_probes` (empty until its first call).
     pub(crate) probes: ProbeField,
+    /// The poses of the last successful `lf_runtime_set_poses` (none at load).
+    pub(crate) poses: Vec<Pose>,
+    /// The posed objects' light (`lf_runtime_object_light`; None until its first call, which
+    /// decodes the bundle's DNRT grids).
+    pub(crate) objects: Option<ObjectLight>,
 }
 
 impl LfRuntime {
@@ -100,6 +105,8 @@ impl LfRuntime {
             span_delta_at: Vec::new(),
             span_change: IndirectLight::default(),
             probes: ProbeField::default(),
+            poses: Vec::new(),
+            objects: None,
         })
     }
 
@@ -129,6 +136,42 @@ impl LfRuntime {
             &mut self.span_change,
         )?;
         self.last = applied.applied;
+        self.add_span_change(indirect);
+        Ok(())
+    }
+
+    /// `lf_runtime_bounce_object_light` once its pointer is a slice (`indirect`: `3 x texels`
+    /// floats, checked): the last object light's bounces (`ObjectLight::bounce`, the runtime's
+    /// bounce mode) added where the runtime wrote them. On an error `indirect` is unchanged.
+    pub(crate) fn bounce_object_light(
+        &mut self,
+        method: i32,
+        indirect: &mut [f32],
+    ) -> Result<(), CapiError> {
+        let method = LfMethod::from_raw(method)?.method();
+        check_rgb_len(self, "indirect_rgb", indirect.len())?;
+        self.size_span_scratch();
+        let Some(objects) = &self.objects else {
+            return Ok(());
+        };
+        let bounced = objects.bounce(
+            &mut self.runtime,
+            method,
+            self.bounces,
+            &mut self.span_change,
+        );
+        if let Some(applied) = bounced? {
+            self.last = applied.applied;
+            self.add_span_change(indirect);
+        }
+        Ok(())
+    }
+
+    /// Adds the indirect light of the last delta application (`span_change`, zero where the
+    /// runtime did not write) to C's `indirect` (`3 x texels` floats) where it was written, and
+    /// zeroes it again there.
+    fn add_span_change(&mut self, indirect: &mut [f32]) {
+        let texels = self.runtime.n_texels();
         let (indirect, _) = indirect.as_chunks_mut::<3>();
         let change = &mut self.span_change.radiance;
         let mut add = |r: Range<usize>| {
@@ -141,17 +184,21 @@ impl LfRuntime {
             Some(ranges) => ranges.for_each(add),
             None => add(0..texels),
         }
-        Ok(())
     }
 
-    /// Copies a change of light (`3 x texels` floats, checked) on the texels of `spans` (checked)
-    /// into `span_delta`, which is zero elsewhere, and lists them in `span_delta_at`.
-    pub(crate) fn span_input(&mut self, delta: &[f32], spans: &[LfTexelSpan]) {
+    /// Sizes the span scratch (`span_delta`, `span_change`: zeros) on its first use.
+    fn size_span_scratch(&mut self) {
         let texels = self.runtime.n_texels();
         if self.span_delta.radiance.len() != texels {
             self.span_delta.radiance = vec![[0.0; 3]; texels];
             self.span_change.radiance = vec![[0.0; 3]; texels];
         }
+    }
+
+    /// Copies a change of light (`3 x texels` floats, checked) on the texels of `spans` (checked)
+    /// into `span_delta`, which is zero elsewhere, and lists them in `span_delta_at`.
+    pub(crate) fn span_input(&mut self, delta: &[f32], spans: &[LfTexelSpan]) {
+        self.size_span_scratch();
         for r in self.span_delta_at.drain(..) {
             self.span_delta.radiance[r].fill([0.0; 3]);
         }
@@ -188,6 +235,7 @@ impl LfRuntime {
     /// with them in the rooms they touch; no pose, the level's alone. The clamp scale stays
     /// the level's.
     pub(crate) fn set_poses(&mut self, poses: &[Pose]) {
+        self.poses = poses.to_vec();
         self.posed = occluders_with_poses(&self.level, self.runtime.bundle(), poses);
         self.reach = self.new_reach();
     }

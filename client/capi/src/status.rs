@@ -5,7 +5,7 @@
 //! [`CapiError`] maps to exactly one failure code through [`CapiError::status`], and its
 //! `Display` text is what [`crate::lf_last_error`] hands to C.
 
-use lightfarm_client::{ApplyError, BundleError};
+use lightfarm_client::{ApplyError, BundleError, ObjectLightError};
 
 /// What an `lf_*` call returned (as `int32_t`).
 #[repr(i32)]
@@ -22,7 +22,7 @@ pub enum LfStatus {
     /// The method is not one of `LfMethod`.
     BadMethod = -3,
     /// The bundle lacks the operators of the requested method (DRT without clutter, FULL
-    /// without `--full`).
+    /// without `--full`), its probe volume, or a DNRT grid for a placed dynamic object.
     MissingOperator = -4,
     /// A light has a non-finite position or a negative or non-finite intensity.
     InvalidLight = -5,
@@ -92,6 +92,9 @@ pub enum CapiError {
     NotConverging(ApplyError),
     #[error(transparent)]
     MissingOperator(ApplyError),
+    /// A placed dynamic object without its DNRT grid (`lf_runtime_object_light`).
+    #[error(transparent)]
+    ObjectLight(ObjectLightError),
     #[error("lights[{index}]: {reason}")]
     InvalidLight { index: usize, reason: &'static str },
     #[error("poses[{index}]: {reason}")]
@@ -114,7 +117,7 @@ impl CapiError {
                 LfStatus::BadBounces
             }
             CapiError::NotConverging(_) => LfStatus::NotConverging,
-            CapiError::MissingOperator(_) => LfStatus::MissingOperator,
+            CapiError::MissingOperator(_) | CapiError::ObjectLight(_) => LfStatus::MissingOperator,
             CapiError::InvalidLight { .. } => LfStatus::InvalidLight,
             CapiError::InvalidPose { .. } => LfStatus::InvalidPose,
             CapiError::BadBundle(_) => LfStatus::BadBundle,
@@ -146,6 +149,21 @@ impl From<ApplyError> for CapiError {
                 crate::probes::not_filled(expected, got)
             }
             other => CapiError::MissingOperator(other),
+        }
+    }
+}
+
+impl From<ObjectLightError> for CapiError {
+    /// A field not filled yet is `TooFew` (`probes::not_filled`), a bundle without a probe
+    /// volume `MissingOperator` as for the probe calls; the rest (no grid for a placed object)
+    /// `ObjectLight`.
+    fn from(e: ObjectLightError) -> CapiError {
+        match e {
+            ObjectLightError::FieldSize { expected, got } => {
+                crate::probes::not_filled(expected, got)
+            }
+            ObjectLightError::NoProbeVolume => CapiError::from(ApplyError::MissingProbes),
+            other => CapiError::ObjectLight(other),
         }
     }
 }

@@ -83,6 +83,25 @@ fn nonzero_runs(light: &[[f32; 3]], runs: &mut Vec<Range<usize>>) {
     }
 }
 
+/// Sorts texel ranges and joins those that overlap or touch, in place: ascending, disjoint
+/// (what [`Runtime::apply_delta_in`] and [`Runtime::apply_probes_delta`] take), holding the
+/// same texels. Allocates nothing.
+pub fn merge_spans(spans: &mut Vec<Range<usize>>) {
+    spans.sort_unstable_by_key(|r| r.start);
+    let mut kept = 0usize;
+    for i in 0..spans.len() {
+        let r = spans[i].clone();
+        match kept.checked_sub(1).map(|k| &mut spans[k]) {
+            Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
+            _ => {
+                spans[kept] = r;
+                kept += 1;
+            }
+        }
+    }
+    spans.truncate(kept);
+}
+
 /// Which blocks and clutter objects an application's input reaches (see the module doc).
 #[derive(Clone, Debug, Default)]
 pub(super) struct Reach {

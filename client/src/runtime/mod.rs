@@ -138,7 +138,7 @@ mod reduced_drt;
 mod sh_apply;
 mod warm;
 
-pub use incremental::DeltaApplied;
+pub use incremental::{merge_spans, DeltaApplied};
 use krylov::{Krylov, Unsolved};
 use packed_ops::{BlockSlots, PackedOps};
 pub use sh_apply::ShLight;

@@ -16,10 +16,10 @@
 use std::ops::Range;
 use std::time::Instant;
 
-use lightfarm_client::{DirectLight, IndirectLight, ProbeField, Runtime};
+use lightfarm_client::{merge_spans, DirectLight, IndirectLight, ProbeField, Runtime};
 
 use super::frame_update::median;
-use crate::evaluate::{leaving_light, merge_spans};
+use crate::evaluate::leaving_light;
 
 /// The probe volume's figures of one `--update one-light` run (medians over frames, ms).
 #[derive(Clone, Copy, Debug)]

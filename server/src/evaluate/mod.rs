@@ -8,32 +8,26 @@
 //! probe volume (MRT's clutter shading, DNRT's input) is fed the radiance leaving the texels,
 //! direct plus indirect, and a dynamic object reflects the point lights plus the probes'
 //! irradiance, and the light the objects add and take away bounces on through the operators
-//! ([`bounce_object_light`]). One bounce reproduces the papers' light exactly.
+//! (`lightfarm_client::ObjectLight`). One bounce reproduces the papers' light exactly.
 //!
 //! # Layout
-//! - here: [`evaluate`] and its pieces ([`operator_direct`], [`leaving_light`],
-//!   [`merge_spans`]).
-//! - [`dnrt`]: the light posed dynamic objects add and take away.
+//! - here: [`evaluate`] and its pieces ([`operator_direct`], [`leaving_light`]).
 //! - [`objects`]: the light leaving the posed objects' own surfaces, for drawing them.
 //! - [`sh`]: SH incident radiance per texel (bundle section `sh`).
 //!
 //! Invariant: no file I/O and no HTTP here; callers read bundles and write results.
 
-use std::ops::Range;
-
 use lightfarm_client::{
     direct_scale, every_sample_by_reach, frame_occluders, irradiance_at, occluders_with_poses,
-    Applied, Bounces, Bundle, DirectLight, IndirectLight, Method, Occluders, ProbeField,
-    ReachDirect, Runtime, SurfaceBounds,
+    Applied, Bounces, Bundle, DirectLight, IndirectLight, Method, ObjectLight, Occluders,
+    ProbeField, ReachDirect, Runtime,
 };
 use lightfarm_proto::lights::LightSet;
 use lightfarm_proto::result::{ResultFile, TexelRecord};
 
-pub mod dnrt;
 pub mod objects;
 pub mod sh;
 
-pub use dnrt::{bounce_object_light, dnrt_delta};
 pub use objects::{shade_objects, ShadedObject};
 
 /// Direct light is averaged over a 4×4 grid per texel before it enters the operators.
@@ -151,18 +145,25 @@ pub fn evaluate_frame(
                 .collect(),
         );
     }
-    // An object's own light probe sits at its centre, inside it: the level and the other
-    // objects shadow it, not its own triangles.
+    // The posed objects' DNRT light (an object's own light probe sits at its centre, inside
+    // it: the level and the other objects shadow it, not its own triangles), and its bounces.
     let dnrt = match &field {
-        Some(field) => {
-            let bounds = SurfaceBounds::new(&runtime.bundle().layout);
-            dnrt_delta(runtime.bundle(), &bounds, field, bounced, &level, lights)?
+        Some(field) if !lights.poses.is_empty() => {
+            let bundle = runtime.bundle();
+            let mut objects = ObjectLight::new(bundle)?;
+            objects.update(
+                bundle,
+                field,
+                bounced,
+                &level,
+                &lights.lights,
+                &lights.poses,
+            )?;
+            objects.bounce(&mut runtime, method, bounces, &mut indirect)?;
+            Some(objects)
         }
-        None => None,
+        _ => None,
     };
-    if let Some((change, spans)) = &dnrt {
-        bounce_object_light(&mut runtime, method, bounces, change, spans, &mut indirect)?;
-    }
     let shaded = if shade_posed {
         shade_objects(runtime.bundle(), field.as_ref(), occluders, lights, scale)
     } else {
@@ -191,7 +192,7 @@ pub fn evaluate_frame(
                         (Some(lit), true) => lit[t],
                         _ => indirect.radiance[t],
                     };
-                    let add = dnrt.as_ref().map_or([0.0; 3], |(d, _)| d.radiance[t]);
+                    let add = dnrt.as_ref().map_or([0.0; 3], |o| o.light().radiance[t]);
                     f([0, 1, 2].map(|c| base[c] + add[c]))
                 },
             });
@@ -206,20 +207,6 @@ pub fn is_bounced(bounces: Bounces) -> bool {
     !matches!(bounces, Bounces::One | Bounces::Fixed(1))
 }
 
-/// Sorts texel ranges and joins those that overlap or touch: ascending, disjoint (what
-/// `Runtime::apply_delta_in` and `Runtime::apply_probes_delta` take).
-pub fn merge_spans(spans: &mut Vec<Range<usize>>) {
-    spans.sort_unstable_by_key(|r| r.start);
-    let mut out: Vec<Range<usize>> = Vec::with_capacity(spans.len());
-    for r in spans.drain(..) {
-        match out.last_mut() {
-            Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
-            _ => out.push(r),
-        }
-    }
-    *spans = out;
-}
-
 /// The radiance leaving the texels: direct plus indirect.
 pub fn leaving_light(direct: &DirectLight, indirect: &IndirectLight) -> DirectLight {
     DirectLight {
@@ -229,20 +216,5 @@ pub fn leaving_light(direct: &DirectLight, indirect: &IndirectLight) -> DirectLi
             .zip(&indirect.radiance)
             .map(|(d, i)| [d[0] + i[0], d[1] + i[1], d[2] + i[2]])
             .collect(),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn merging_spans_joins_overlapping_and_touching_ranges() {
-        let mut s = vec![10..20, 0..5, 5..7, 15..30, 40..41];
-        merge_spans(&mut s);
-        assert_eq!(s, vec![0..7, 10..30, 40..41]);
-        let mut empty: Vec<Range<usize>> = Vec::new();
-        merge_spans(&mut empty);
-        assert!(empty.is_empty());
     }
 }

@@ -613,3 +613,37 @@ fn feedback_by_the_change_is_refused_for_the_full_operator() {
         assert!(rt.set_feedback_tolerance(bad).is_err(), "{bad}");
     }
 }
+
+#[test]
+fn merging_spans_joins_overlapping_and_touching_ranges() {
+    let mut s = vec![10..20, 0..5, 5..7, 15..30, 40..41, 12..13];
+    merge_spans(&mut s);
+    assert_eq!(s, vec![0..7, 10..30, 40..41]);
+    let mut empty: Vec<std::ops::Range<usize>> = Vec::new();
+    merge_spans(&mut empty);
+    assert!(empty.is_empty());
+    // Against a mark per texel, on random lists.
+    let mut rng = Lcg(7);
+    let mut below = |n: u32| (rng.next_u32() % n) as usize;
+    for _ in 0..200 {
+        let mut spans: Vec<_> = (0..below(12))
+            .map(|_| {
+                let a = below(60);
+                a..a + below(8)
+            })
+            .collect();
+        let mut marked = [false; 70];
+        for r in &spans {
+            marked[r.clone()].fill(true);
+        }
+        merge_spans(&mut spans);
+        let mut again = [false; 70];
+        for (k, r) in spans.iter().enumerate() {
+            again[r.clone()].fill(true);
+            if k > 0 {
+                assert!(spans[k - 1].end < r.start, "{spans:?}");
+            }
+        }
+        assert_eq!(marked, again, "{spans:?}");
+    }
+}

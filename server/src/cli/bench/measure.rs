@@ -19,7 +19,7 @@ use std::collections::HashMap;
 use std::time::Instant;
 
 use lightfarm_client::{
-    Bounces, Bundle, IndirectLight, Method, Occluders, ProbeField, Runtime, SurfaceBounds,
+    Bounces, Bundle, IndirectLight, Method, ObjectLight, Occluders, ProbeField, Runtime,
 };
 use lightfarm_proto::bounces::BounceCount;
 use lightfarm_proto::lights::LightSet;
@@ -32,9 +32,7 @@ use crate::bake::progress::NoProgress;
 use crate::bake::{bake, BakeOptions, BakeReport};
 use crate::cli::frame_time::time_frames;
 use crate::cli::frame_update::median;
-use crate::evaluate::{
-    bounce_object_light, dnrt_delta, evaluate, is_bounced, leaving_light, operator_direct,
-};
+use crate::evaluate::{evaluate, is_bounced, leaving_light, operator_direct};
 
 /// A method as the bench names it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -429,30 +427,19 @@ fn time_apply(
     let mut times = Vec::new();
     let mut sink = IndirectLight::default();
     let mut field = ProbeField::default();
-    // Made at load, like the runtime.
-    let bounds = SurfaceBounds::new(&runtime.bundle().layout);
+    // Made at load, like the runtime: the grids decoded, the surfaces bounded.
+    let mut objects = ObjectLight::new(runtime.bundle())?;
     for _ in 0..frames.clamp(3, 50) {
         // The answer the objects' bounced light is added to, as eval adds it (not timed).
         sink.radiance.clone_from(&answer.radiance);
         let start = Instant::now();
         runtime.apply_probes(&leaving, &mut field)?;
-        let delta = dnrt_delta(
-            runtime.bundle(),
-            &bounds,
-            &field,
-            bounced,
-            &occluders,
-            lights,
-        )?;
-        if let Some((change, spans)) = &delta {
-            bounce_object_light(
-                &mut runtime,
-                method.client_method(),
-                bounces,
-                change,
-                spans,
-                &mut sink,
-            )?;
+        if !lights.poses.is_empty() {
+            let bundle = runtime.bundle();
+            let (l, p) = (&lights.lights, &lights.poses);
+            objects.update(bundle, &field, bounced, &occluders, l, p)?;
+            let method = method.client_method();
+            objects.bounce(&mut runtime, method, bounces, &mut sink)?;
         }
         times.push(start.elapsed().as_secs_f64() * 1e3);
     }
