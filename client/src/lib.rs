@@ -58,7 +58,8 @@
 //!   ([`ShLight::shade`] at a perturbed normal).
 //! - [`dnrt`]: Deferred Neighbouring Radiance Transfer: a dynamic object's reflection and
 //!   occlusion on the receivers around it (G-buffer or lightmap texels, the latter on the
-//!   surfaces within its reach only), from its baked grid.
+//!   surfaces within its reach only, [`DnrtNear`] contracting the grid only where they read
+//!   it), from its baked grid.
 //! - [`object_light`]: [`ObjectLight`], posed dynamic objects' light on the lightmap per frame
 //!   (each object's DNRT on the surfaces within its reach, fed by the probe field and the
 //!   point lights at its centre) and its bounces through the operators.
@@ -113,7 +114,7 @@ pub use direct::{
     direct_from_point_lights_adaptive_in, direct_from_point_lights_averaged, direct_scale,
     point_irradiance, DirectLight, TexelSpan,
 };
-pub use dnrt::{DnrtError, DnrtInstance, DnrtVolume};
+pub use dnrt::{DnrtError, DnrtInstance, DnrtNear, DnrtVolume};
 pub use dynamic_shadows::{frame_occluders, occluders_with_poses, posed_triangles, PosedObjects};
 #[cfg(feature = "fetch")]
 pub use fetch::{BundleFetcher, FetchError, Fetched};

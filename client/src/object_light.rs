@@ -36,7 +36,7 @@ use lightfarm_proto::lights::{Light, Pose};
 use lightfarm_proto::sh::SH_COEFFS;
 
 use crate::direct::DirectLight;
-use crate::dnrt::{DnrtError, DnrtInstance, DnrtVolume};
+use crate::dnrt::{DnrtError, DnrtNear, DnrtVolume};
 use crate::dynamic_shadows::{frame_occluders, occluders_with_poses};
 use crate::light_sh::point_light_irradiance_sh;
 use crate::occluders::Occluders;
@@ -146,7 +146,7 @@ impl ObjectLight {
                 }
             }
             let hidden = radiance_sh_at(volume, field, centre);
-            let instance = DnrtInstance::new(dnrt, pose.translation, pose.rotation, lit, hidden);
+            let mut instance = DnrtNear::new(dnrt, pose.translation, pose.rotation, lit, hidden);
             let out = &mut self.light.radiance;
             instance.apply_texels_near(&bundle.layout, &self.bounds, &mut self.ranges, out)?;
             self.spans.extend_from_slice(&self.ranges);
@@ -215,6 +215,7 @@ fn lights_at_object(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dnrt::DnrtInstance;
     use lightfarm_proto::lights::LightKind;
     use lightfarm_proto::testing::{ball_bundle, cube};
 

@@ -26,7 +26,18 @@
 //! non-finite position or a zero normal adds nothing. The grid is decoded to f32 once
 //! ([`DnrtVolume::new`]); [`DnrtInstance::new`] (once per object and frame) contracts it with
 //! `c_j` and `l_j` into 3 values per grid point (3 · n_sh with convolution; one or two
-//! multiply-adds per stored value); applying to receivers allocates nothing.
+//! multiply-adds per stored value); applying to receivers allocates nothing. [`DnrtNear`]
+//! contracts only the points the lightmap texels near the object read, the same values.
+//!
+//! # Layout
+//! - this file: the decoded grid ([`DnrtVolume`]), a posed object under this frame's light
+//!   ([`DnrtInstance`]: contraction, lookup, shading of G-buffers and lightmap texels).
+//! - `near`: [`DnrtNear`], the lightmap texels near an object shaded from the grid points they
+//!   read alone.
+
+mod near;
+
+pub use near::DnrtNear;
 
 use std::ops::Range;
 
@@ -94,12 +105,25 @@ pub struct DnrtInstance<'a> {
     centre_world: [f32; 3],
     /// Irradiance SH per channel in the object frame.
     c: [[f32; SH_COEFFS]; 3],
+    /// The hidden radiance's SH per channel in the object frame, times π.
+    l: [[f32; SH_COEFFS]; 3],
     /// Per grid point and channel, `Σ_j c_j t_j − π Σ_j l_j k_j` (1 value), or with
-    /// convolution the same per t (n_sh values): contracted once per frame, point-major.
+    /// convolution the same per t (n_sh values): contracted once per frame, point-major
+    /// (by [`DnrtNear`] only at the points its receivers read).
     contracted: Vec<f32>,
     /// Values per channel in `contracted`.
     out_terms: usize,
     convolution: bool,
+}
+
+/// Where one receiver reads a DNRT grid ([`DnrtInstance::lookup`]).
+struct Lookup {
+    /// Object-frame point (grid coordinates' frame) the grid is interpolated at.
+    local: [f32; 3],
+    /// `(n_o·n)₊` (1 with convolution) times the fade.
+    k: f32,
+    /// Length of the receiver's normal.
+    n_len: f32,
 }
 
 impl<'a> DnrtInstance<'a> {
@@ -109,6 +133,22 @@ impl<'a> DnrtInstance<'a> {
     /// (`L(ω) = Σ l_j Y_j(ω)`, ω the direction looked in); coefficients beyond the grid's SH
     /// count are ignored.
     pub fn new(
+        volume: &'a DnrtVolume,
+        translation: [f64; 3],
+        rotation: [f64; 4],
+        irradiance: [[f32; SH_COEFFS]; 3],
+        hidden: [[f32; SH_COEFFS]; 3],
+    ) -> DnrtInstance<'a> {
+        let mut instance =
+            DnrtInstance::uncontracted(volume, translation, rotation, irradiance, hidden);
+        for p in 0..instance.n_points() {
+            instance.contract_point(p);
+        }
+        instance
+    }
+
+    /// [`DnrtInstance::new`] with every contracted value 0 (none computed yet).
+    fn uncontracted(
         volume: &'a DnrtVolume,
         translation: [f64; 3],
         rotation: [f64; 4],
@@ -128,42 +168,52 @@ impl<'a> DnrtInstance<'a> {
         };
         let c = rotate(irradiance, 1.0);
         let l = rotate(hidden, std::f64::consts::PI);
-        let n_sh = volume.grid.n_sh as usize;
         let convolution = volume.grid.normals == DnrtNormals::Convolution;
-        let out_terms = if convolution { n_sh } else { 1 };
-        let terms = volume.grid.terms();
-        let mut contracted =
-            Vec::with_capacity(volume.values.len() / (SLOTS * terms) * 3 * out_terms);
-        for point in volume.values.chunks_exact(SLOTS * terms) {
-            let k = &point[3 * terms..];
-            for (ch, t_ch) in point[..3 * terms].chunks_exact(terms).enumerate() {
-                let (cc, ll) = (&c[ch][..n_sh], &l[ch][..n_sh]);
-                for t in 0..out_terms {
-                    // Term (j, t) sits at j · out_terms + t (out_terms = 1: the SH index j).
-                    contracted.push(
-                        (0..n_sh)
-                            .map(|j| cc[j] * t_ch[j * out_terms + t] - ll[j] * k[j * out_terms + t])
-                            .sum(),
-                    );
-                }
-            }
-        }
+        let out_terms = if convolution {
+            volume.grid.n_sh as usize
+        } else {
+            1
+        };
+        let points = volume.values.len() / (SLOTS * volume.grid.terms());
         DnrtInstance {
             volume,
             to_object: rt.map(|row| row.map(|x| x as f32)),
             centre_world: volume.centre_world(translation, rotation),
             c,
-            contracted,
+            l,
+            contracted: vec![0.0; points * 3 * out_terms],
             out_terms,
             convolution,
         }
     }
 
-    /// Per channel, the contracted values (`Σ_j c_j M_j`: 1, or `Σ_j c_j G_jt` for each t
-    /// with convolution) at object-frame `x` inside the inner cube (clamped), trilinear over
-    /// the 8 surrounding grid points.
+    /// Grid points.
+    fn n_points(&self) -> usize {
+        self.contracted.len() / (3 * self.out_terms)
+    }
+
+    /// Contracts grid point `p` with this frame's `c` and `l` into its `3 · out_terms` values.
+    fn contract_point(&mut self, p: usize) {
+        let (n_sh, out_terms) = (self.volume.grid.n_sh as usize, self.out_terms);
+        let terms = self.volume.grid.terms();
+        let point = &self.volume.values[p * SLOTS * terms..(p + 1) * SLOTS * terms];
+        let out = &mut self.contracted[p * 3 * out_terms..(p + 1) * 3 * out_terms];
+        let k = &point[3 * terms..];
+        for (ch, t_ch) in point[..3 * terms].chunks_exact(terms).enumerate() {
+            let (cc, ll) = (&self.c[ch][..n_sh], &self.l[ch][..n_sh]);
+            for t in 0..out_terms {
+                // Term (j, t) sits at j · out_terms + t (out_terms = 1: the SH index j).
+                out[ch * out_terms + t] = (0..n_sh)
+                    .map(|j| cc[j] * t_ch[j * out_terms + t] - ll[j] * k[j * out_terms + t])
+                    .sum();
+            }
+        }
+    }
+
+    /// The grid cell holding object-frame `x` (clamped inside the inner cube): its lowest
+    /// corner's indices and `x`'s position in it (0 to 1 per axis).
     #[inline]
-    fn transfer(&self, x: [f32; 3]) -> [[f32; SH_COEFFS]; 3] {
+    fn cell(&self, x: [f32; 3]) -> ([usize; 3], [f32; 3]) {
         let g = &self.volume.grid;
         let n = g.resolution as usize;
         let mut i0 = [0usize; 3];
@@ -175,6 +225,16 @@ impl<'a> DnrtInstance<'a> {
             i0[a] = base;
             t[a] = (gc - base as f32).clamp(0.0, 1.0);
         }
+        (i0, t)
+    }
+
+    /// Per channel, the contracted values (`Σ_j c_j M_j`: 1, or `Σ_j c_j G_jt` for each t
+    /// with convolution) at object-frame `x` inside the inner cube (clamped), trilinear over
+    /// the 8 surrounding grid points.
+    #[inline]
+    fn transfer(&self, x: [f32; 3]) -> [[f32; SH_COEFFS]; 3] {
+        let n = self.volume.grid.resolution as usize;
+        let (i0, t) = self.cell(x);
         let k = self.out_terms;
         let per_point = 3 * k;
         let base = ((i0[2] * n + i0[1]) * n + i0[0]) * per_point;
@@ -221,10 +281,10 @@ impl<'a> DnrtInstance<'a> {
         self.centre_world
     }
 
-    /// The radiance the object adds at one receiver (negative where it occludes more than it
-    /// reflects).
+    /// Where a receiver at `position` with `normal` reads the grid, and the factor its value
+    /// takes (`(n_o·n)₊` times the fade); `None` where it adds nothing (see [`DnrtInstance::shade`]).
     #[inline]
-    pub fn shade(&self, position: [f32; 3], normal: [f32; 3], albedo: [f32; 3]) -> [f32; 3] {
+    fn lookup(&self, position: [f32; 3], normal: [f32; 3]) -> Option<Lookup> {
         let g = &self.volume.grid;
         let d: [f32; 3] = std::array::from_fn(|k| position[k] - self.centre_world[k]);
         // Object frame, relative to the centre.
@@ -233,12 +293,12 @@ impl<'a> DnrtInstance<'a> {
         });
         let r = x[0].abs().max(x[1].abs()).max(x[2].abs());
         if r.is_nan() || r > g.outer_half_extent {
-            return [0.0; 3];
+            return None;
         }
         let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         let n_len = (normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]).sqrt();
         if !(dist > 0.0 && n_len > 0.0 && n_len.is_finite()) {
-            return [0.0; 3];
+            return None;
         }
         // Intermediate normal: (n_o·n)₊; with convolution the cosine lobe is in the grid.
         let lambert = if self.convolution {
@@ -247,7 +307,7 @@ impl<'a> DnrtInstance<'a> {
             -(d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2]) / (dist * n_len)
         };
         if lambert.is_nan() || lambert <= 0.0 {
-            return [0.0; 3];
+            return None;
         }
         let inner = g.inner_half_extent;
         let (sample, fade) = if r <= inner {
@@ -264,11 +324,24 @@ impl<'a> DnrtInstance<'a> {
             (x.map(|v| v * q), fade)
         };
         if fade == 0.0 {
-            return [0.0; 3];
+            return None;
         }
         let local: [f32; 3] = std::array::from_fn(|k| sample[k] + g.centre[k]);
+        Some(Lookup {
+            local,
+            k: lambert * fade,
+            n_len,
+        })
+    }
+
+    /// The radiance the object adds at one receiver (negative where it occludes more than it
+    /// reflects).
+    #[inline]
+    pub fn shade(&self, position: [f32; 3], normal: [f32; 3], albedo: [f32; 3]) -> [f32; 3] {
+        let Some(Lookup { local, k, n_len }) = self.lookup(position, normal) else {
+            return [0.0; 3];
+        };
         let m = self.transfer(local);
-        let k = lambert * fade;
         if self.convolution {
             // Σ_t v_t Y_t(n) at the receiver's normal, in the object frame.
             let nw = normal.map(|v| (v / n_len) as f64);
@@ -556,12 +629,39 @@ mod tests {
 
     /// The texels near the object get what the whole layout's pass gives them, bit for bit,
     /// and the rest nothing: on a layout of many surfaces spread over 80 m, posed at several
-    /// places and turns (including astride two surfaces and off every texel).
+    /// places and turns (including astride two surfaces and off every texel); so does
+    /// [`DnrtNear`], which contracts only the grid points those texels read, with an
+    /// intermediate-normal grid and with a convolution grid.
     #[test]
     fn texels_near_the_object_are_the_whole_passes() {
-        use lightfarm_proto::bundle::SurfaceInfo;
         let grid = affine_grid(4, 4, DnrtPlacement::Quadratic);
-        let volume = DnrtVolume::new(&grid).unwrap();
+        texels_near_are_the_whole_pass(&DnrtVolume::new(&grid).unwrap(), 64);
+        // 9³ points of a convolution grid (4 SH in, 4 out), every value its own.
+        let n = 9usize;
+        let values: Vec<f64> = (0..n * n * n * 4 * 16)
+            .map(|k| 0.01 * ((k * 7919) % 101) as f64 - 0.3)
+            .collect();
+        let grid = DnrtGrid::encode_values(
+            "conv",
+            [0.1, 0.0, -0.1],
+            0.5,
+            0.8,
+            1.6,
+            n as u32,
+            4,
+            DnrtPlacement::Regular,
+            DnrtNormals::Convolution,
+            DnrtCodec::F32,
+            vec![[0.0, 0.25]; 32],
+            &values,
+        );
+        texels_near_are_the_whole_pass(&DnrtVolume::new(&grid).unwrap(), n * n * n);
+    }
+
+    /// [`texels_near_the_object_are_the_whole_passes`] on one grid of `points` points.
+    fn texels_near_are_the_whole_pass(volume: &DnrtVolume, points: usize) {
+        use lightfarm_proto::bundle::SurfaceInfo;
+        let volume = volume.clone();
         // 40 surfaces of 25 texels, each a 5 × 5 patch of 0.2 m texels, strung along x (a
         // surface every 2 m), the receivers facing every which way.
         let (mut positions, mut normals, mut surfaces) = (Vec::new(), Vec::new(), Vec::new());
@@ -613,6 +713,13 @@ mod tests {
             assert_eq!(bits(&near), bits(&whole), "pose at {translation:?}");
             let visited: usize = ranges.iter().map(|r| r.len()).sum();
             assert!(visited < n / 4, "{visited} of {n} texels visited");
+            let (c, l) = ([[0.3; 9]; 3], [[0.05; 9]; 3]);
+            let mut lazy = DnrtNear::new(&volume, translation, rotation, c, l);
+            let mut only = vec![[1.0f32; 3]; n];
+            lazy.apply_texels_near(&layout, &bounds, &mut ranges, &mut only)
+                .unwrap();
+            assert_eq!(bits(&only), bits(&whole), "DnrtNear at {translation:?}");
+            assert!(lazy.contracted_points() < points, "{points} points");
             shaded_somewhere += whole.iter().filter(|o| o[0] != 1.0).count();
         }
         assert!(shaded_somewhere > 10, "the poses shade some texels");
