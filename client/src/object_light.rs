@@ -59,6 +59,11 @@ pub enum ObjectLightError {
          (Runtime::apply_probes)"
     )]
     FieldSize { expected: usize, got: usize },
+    #[error(
+        "this ObjectLight was made for a bundle of {texels} texels and {grids} DNRT grids, \
+         not this one"
+    )]
+    OtherBundle { texels: usize, grids: usize },
     #[error(transparent)]
     Dnrt(#[from] DnrtError),
 }
@@ -98,8 +103,9 @@ impl ObjectLight {
     /// leaving the texels (`Runtime::apply_probes` of the direct light at one bounce, of direct
     /// plus indirect light when `bounced`); `level` the bundle's occluders
     /// (`Occluders::from_layout`), which with the other posed objects shadow each object's
-    /// light-probe input from `lights`. No poses: no light. Allocates per object (its grid
-    /// contracted with this frame's light, and with several objects the others' occluders).
+    /// light-probe input from `lights`. No poses: no light. Allocates per object (room for its
+    /// grid contracted with this frame's light, and with several objects the others'
+    /// occluders).
     pub fn update(
         &mut self,
         bundle: &Bundle,
@@ -111,6 +117,11 @@ impl ObjectLight {
     ) -> Result<(), ObjectLightError> {
         // Check everything before the last light is cleared.
         let grids = bundle.dnrt.as_deref().unwrap_or(&[]);
+        let texels = self.light.radiance.len();
+        if bundle.layout.n_texels() != texels || grids.len() != self.volumes.len() {
+            let grids = self.volumes.len();
+            return Err(ObjectLightError::OtherBundle { texels, grids });
+        }
         let mut which = Vec::with_capacity(poses.len());
         for pose in poses {
             let g = grids.iter().position(|g| g.object == pose.id);
@@ -343,6 +354,18 @@ mod tests {
             .update(&no_volume, &field, false, &level, &lights, &ball)
             .unwrap_err();
         assert_eq!(err, ObjectLightError::NoProbeVolume);
+        let other =
+            lightfarm_proto::testing::probe_bundle(&mut lightfarm_proto::testing::Lcg(3), true);
+        let err = objects
+            .update(&other, &field, false, &level, &lights, &ball)
+            .unwrap_err();
+        assert_eq!(
+            err,
+            ObjectLightError::OtherBundle {
+                texels: bundle.layout.n_texels(),
+                grids: 1
+            }
+        );
         assert_eq!((objects.light().clone(), objects.spans().to_vec()), kept);
     }
 

@@ -22,7 +22,7 @@ use lightfarm_client::{Bounces, ObjectLight};
 
 use crate::boundary::{slice, slice_mut, status_call};
 use crate::direct::{client_lights, LfPointLight};
-use crate::reach::LfTexelSpan;
+use crate::reach::{spans_fit, LfTexelSpan};
 use crate::runtime::{check_rgb_len, LfRuntime};
 use crate::status::CapiError;
 
@@ -81,14 +81,7 @@ pub unsafe extern "C" fn lf_runtime_object_light(
         let lights = client_lights(lights)?;
         let objects = rt.object_light(&lights)?;
         let spans = objects.spans();
-        *count = spans.len();
-        if spans.len() > capacity {
-            return Err(CapiError::TooFew {
-                what: "out_spans",
-                needed: spans.len(),
-                got: capacity,
-            });
-        }
+        spans_fit(spans.len(), out_spans, capacity, count)?;
         // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
         let out_spans = unsafe { slice_mut(out_spans, spans.len(), "out_spans") }?;
         let (out, _) = out.as_chunks_mut::<3>();

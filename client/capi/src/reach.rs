@@ -52,6 +52,29 @@ pub(crate) fn check_spans(spans: &[LfTexelSpan], texels: usize) -> Result<(), Ca
     Ok(())
 }
 
+/// Sets `*count` to the `needed` spans and fails unless they fit C's `out_spans` (`capacity`
+/// entries; NULL only when none is needed): `TooFew` names the room needed, so the caller can
+/// ask again with enough.
+pub(crate) fn spans_fit(
+    needed: usize,
+    out_spans: *const LfTexelSpan,
+    capacity: usize,
+    count: &mut usize,
+) -> Result<(), CapiError> {
+    *count = needed;
+    if needed > capacity {
+        return Err(CapiError::TooFew {
+            what: "out_spans",
+            needed,
+            got: capacity,
+        });
+    }
+    if out_spans.is_null() && needed > 0 {
+        return Err(CapiError::NullPointer("out_spans"));
+    }
+    Ok(())
+}
+
 /// Copies `spans` to C's `out`.
 ///
 /// # Safety
@@ -105,17 +128,7 @@ pub unsafe extern "C" fn lf_runtime_light_reach(
             });
         }
         let spans = rt.light_reach([0, 1, 2].map(|k| f64::from(position[k])));
-        *count = spans.len();
-        if spans.len() > capacity {
-            return Err(CapiError::TooFew {
-                what: "out_spans",
-                needed: spans.len(),
-                got: capacity,
-            });
-        }
-        if out_spans.is_null() && !spans.is_empty() {
-            return Err(CapiError::NullPointer("out_spans"));
-        }
+        spans_fit(spans.len(), out_spans, capacity, count)?;
         // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
         unsafe { write_spans(spans, out_spans) }
     })
@@ -167,17 +180,7 @@ pub unsafe extern "C" fn lf_runtime_light_direct(
         check_rgb_len(rt, "out_rgb", out_len)?;
         // The walk alone first: nothing is written unless the spans fit.
         let needed = rt.light_reach(light.position).len();
-        *count = needed;
-        if needed > capacity {
-            return Err(CapiError::TooFew {
-                what: "out_spans",
-                needed,
-                got: capacity,
-            });
-        }
-        if out_spans.is_null() && needed > 0 {
-            return Err(CapiError::NullPointer("out_spans"));
-        }
+        spans_fit(needed, out_spans, capacity, count)?;
         // SAFETY: `out_len` writable floats, per the contract, overlapping no input.
         let out = unsafe { slice_mut(out_rgb, out_len, "out_rgb") }?;
         let (out, _) = out.as_chunks_mut::<3>();

@@ -446,9 +446,32 @@ impl<'a> DnrtInstance<'a> {
         ranges: &mut Vec<Range<usize>>,
         out: &mut [[f32; 3]],
     ) -> Result<(), DnrtError> {
+        self.near_ranges(layout, bounds, ranges, out)?;
+        self.apply_ranges(layout, ranges, out)
+    }
+
+    /// The texel ranges of the surfaces within reach into `ranges`, after checking that the
+    /// layout's slices and `out` have one entry per texel.
+    fn near_ranges(
+        &self,
+        layout: &Layout,
+        bounds: &SurfaceBounds,
+        ranges: &mut Vec<Range<usize>>,
+        out: &[[f32; 3]],
+    ) -> Result<(), DnrtError> {
         self.check_gbuffer(layout.positions.len(), &layout.normals, &layout.albedo, out)?;
         bounds.near(self.centre_world, self.reach_radius(), ranges);
-        for r in ranges.iter() {
+        Ok(())
+    }
+
+    /// Adds the object's effect to the texels of `ranges` (clipped to the layout).
+    fn apply_ranges(
+        &self,
+        layout: &Layout,
+        ranges: &[Range<usize>],
+        out: &mut [[f32; 3]],
+    ) -> Result<(), DnrtError> {
+        for r in ranges {
             let r = r.start.min(out.len())..r.end.min(out.len());
             self.apply_gbuffer(
                 &layout.positions[r.clone()],

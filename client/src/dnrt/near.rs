@@ -70,9 +70,8 @@ impl<'a> DnrtNear<'a> {
         out: &mut [[f32; 3]],
     ) -> Result<(), DnrtError> {
         let instance = &mut self.instance;
-        let n = layout.positions.len();
-        instance.check_gbuffer(n, &layout.normals, &layout.albedo, out)?;
-        bounds.near(instance.centre_world, instance.reach_radius(), ranges);
+        instance.near_ranges(layout, bounds, ranges, out)?;
+        let n = out.len();
         let res = instance.volume.grid.resolution as usize;
         self.marked.clear();
         for t in ranges.iter().flat_map(|r| r.start.min(n)..r.end.min(n)) {
@@ -91,15 +90,6 @@ impl<'a> DnrtNear<'a> {
         for &p in &self.marked {
             instance.contract_point(p as usize);
         }
-        for r in ranges.iter() {
-            let r = r.start.min(n)..r.end.min(n);
-            instance.apply_gbuffer(
-                &layout.positions[r.clone()],
-                &layout.normals[r.clone()],
-                &layout.albedo[r.clone()],
-                &mut out[r],
-            )?;
-        }
-        Ok(())
+        instance.apply_ranges(layout, ranges, out)
     }
 }
