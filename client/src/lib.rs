@@ -4,9 +4,10 @@
 //! Typical frame loop:
 //!
 //! ```no_run
-//! # fn frame(bytes: &[u8], lights: &[lightfarm_proto::lights::Light]) -> Result<(), Box<dyn std::error::Error>> {
+//! # fn frame(bytes: &[u8], lights: &[lightfarm_proto::lights::Light],
+//! #     poses: &[lightfarm_proto::lights::Pose]) -> Result<(), Box<dyn std::error::Error>> {
 //! use lightfarm_client::{decode, direct_from_point_lights_by_reach, irradiance_at, Bounces,
-//!     IndirectLight, Method, Occluders, ProbeField, Runtime};
+//!     DirectLight, IndirectLight, Method, ObjectLight, Occluders, ProbeField, Runtime};
 //! let bundle = decode(bytes)?;
 //! let occluders = Occluders::from_layout(&bundle.layout);
 //! // Texel averages, shadows from 4 × 4 samples (what `eval` feeds the operators), each light traced
@@ -18,12 +19,25 @@
 //! // frame's answer) and `Bounces::Feedback` cost one application a frame while lights hold
 //! // still.
 //! runtime.apply(Method::Mrt, Bounces::default(), &direct, &mut indirect)?;
-//! // Dynamic objects: irradiance at any point and normal from the probe volume.
+//! // Dynamic objects: the probe volume, fed the light leaving the texels (direct plus
+//! // indirect at all bounces; the direct light alone at one), gives irradiance at any point
+//! // and normal.
 //! let mut field = ProbeField::default();
 //! if runtime.has_probes() {
-//!     runtime.apply_probes(&direct, &mut field)?;
+//!     let leaving = DirectLight {
+//!         radiance: (direct.radiance.iter().zip(&indirect.radiance))
+//!             .map(|(d, i)| [d[0] + i[0], d[1] + i[1], d[2] + i[2]])
+//!             .collect(),
+//!     };
+//!     runtime.apply_probes(&leaving, &mut field)?;
 //!     let volume = runtime.probe_volume().expect("has_probes");
 //!     let _rgb = irradiance_at(volume, &field, [1.0, 0.5, 2.0], [0.0, 1.0, 0.0]);
+//!     // Their light on the lightmap around them (DNRT; made once at load, `true`: the field
+//!     // holds bounced light), added to the indirect light with its bounces.
+//!     let mut objects = ObjectLight::new(runtime.bundle())?;
+//!     objects.update(runtime.bundle(), &field, true, &occluders, lights, poses)?;
+//!     objects.bounce(&mut runtime, Method::Mrt, Bounces::default(), &mut indirect)?;
+//!     let _with_objects = objects.light();
 //! }
 //! # Ok(()) }
 //! ```
