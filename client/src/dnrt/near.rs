@@ -3,7 +3,8 @@
 //!
 //! [`DnrtInstance::new`] contracts every grid point with the frame's light (`res³` points, each
 //! `3 · n_sh` multiply-adds per slot pair): on ball_corridor's 32³ grid that is 1.2 ms, while
-//! the lightmap texels within the object's reach read a few hundred cells. A receiver reads the
+//! the lightmap texels within the object's reach read a fraction of the points (there the
+//! 2,304 texels around the ball read 5,761 of 32,768). A receiver reads the
 //! 8 corners of one cell ([`DnrtInstance::lookup`], [`DnrtInstance::cell`]), so this marks the
 //! corners every texel on the surfaces within reach reads, contracts those (each with the same
 //! code and order as the whole grid's), then shades.
