@@ -105,6 +105,21 @@ fn example(exe: &Path) -> Command {
     command
 }
 
+/// Runs the compiled example with `args` and returns its (one-line) output, failing the test
+/// with its stderr when it fails; `what` names the run.
+fn run_example(exe: &Path, args: &[&std::ffi::OsStr], what: &str) -> String {
+    let output = example(exe).args(args).output().unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "apply failed on {what}: {}{stdout}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let line = stdout.lines().next().expect("one output line").to_string();
+    eprintln!("C example, {what}: {line}");
+    line
+}
+
 /// The value of `key=` in the example's output line.
 fn field<'a>(line: &'a str, key: &str) -> &'a str {
     line.split_whitespace()
@@ -184,19 +199,12 @@ fn c_example_matches_the_rust_client() {
         .fold(f64::NEG_INFINITY, |m, &x| m.max(x as f64));
 
     let exe = compile_example(&dir);
-    let output = example(&exe)
-        .arg(&bundle_path)
-        .arg(&lights_path)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(
-        output.status.success(),
-        "apply failed: {}{stdout}",
-        String::from_utf8_lossy(&output.stderr)
+    let line = run_example(
+        &exe,
+        &[bundle_path.as_os_str(), lights_path.as_os_str()],
+        "cornell",
     );
-    let line = stdout.lines().next().expect("one output line");
-    eprintln!("C example: {line}");
+    let line = line.as_str();
     assert_eq!(
         field(line, "texels").parse::<usize>().unwrap(),
         runtime.n_texels()
@@ -361,20 +369,13 @@ fn c_example_matches_the_rust_client() {
     objects
         .bounce(&mut runtime, method, Bounces::default(), &mut bounced)
         .unwrap();
-    let output = example(&exe)
-        .arg(&ball_path)
-        .arg(&ball_lights)
-        .arg(&pose_arg)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(
-        output.status.success(),
-        "apply failed on ball_corridor: {}{stdout}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let line = stdout.lines().next().expect("one output line");
-    eprintln!("C example, ball_corridor: {line}");
+    let args = [
+        ball_path.as_os_str(),
+        ball_lights.as_os_str(),
+        pose_arg.as_ref(),
+    ];
+    let line = run_example(&exe, &args, "ball_corridor");
+    let line = line.as_str();
     assert_eq!(
         field(line, "probes").parse::<usize>().unwrap(),
         probes.n_probes()

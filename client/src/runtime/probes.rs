@@ -30,7 +30,7 @@ use std::ops::Range;
 
 use lightfarm_proto::bundle::DeltaSource;
 
-use super::incremental::Sparse;
+use super::incremental::{merge_spans, Sparse};
 use super::kernels::{planar, set_matvec};
 use super::{ApplyError, Runtime};
 use crate::direct::DirectLight;
@@ -78,13 +78,8 @@ impl ProbeSources {
                 }
             }
         }
-        spans.sort_unstable_by_key(|r| (r.start, r.end));
-        for r in spans {
-            match sources.spans.last_mut() {
-                Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
-                _ => sources.spans.push(r),
-            }
-        }
+        merge_spans(&mut spans);
+        sources.spans = spans;
         sources.texels = sources.spans.iter().map(Range::len).sum();
         sources
     }

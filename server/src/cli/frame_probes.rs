@@ -60,11 +60,7 @@ impl ProbeWay {
         }
         let mut field = ProbeField::default();
         let n = runtime.n_texels();
-        if bounced {
-            runtime.apply_probes(&leaving_light(direct, indirect), &mut field)?;
-        } else {
-            runtime.apply_probes(direct, &mut field)?;
-        }
+        fill_field(runtime, bounced, direct, indirect, &mut field)?;
         Ok(Some(ProbeWay {
             bounced,
             field,
@@ -92,11 +88,7 @@ impl ProbeWay {
         field: &mut ProbeField,
     ) -> anyhow::Result<()> {
         let start = Instant::now();
-        if self.bounced {
-            runtime.apply_probes(&leaving_light(direct, indirect), field)?;
-        } else {
-            runtime.apply_probes(direct, field)?;
-        }
+        fill_field(runtime, self.bounced, direct, indirect, field)?;
         self.full_times.push(start.elapsed().as_secs_f64() * 1e3);
         Ok(())
     }
@@ -157,11 +149,7 @@ impl ProbeWay {
         indirect: &IndirectLight,
     ) -> anyhow::Result<ProbeTimes> {
         let mut want = ProbeField::default();
-        if self.bounced {
-            runtime.apply_probes(&leaving_light(direct, indirect), &mut want)?;
-        } else {
-            runtime.apply_probes(direct, &mut want)?;
-        }
+        fill_field(runtime, self.bounced, direct, indirect, &mut want)?;
         let (mut d2, mut w2) = (0.0f64, 0.0f64);
         for (g, w) in self.field.as_slice().iter().zip(want.as_slice()) {
             d2 += (*g as f64 - *w as f64).powi(2);
@@ -179,6 +167,23 @@ impl ProbeWay {
             },
         })
     }
+}
+
+/// `apply_probes` of the light leaving the texels into `field`: `direct` at one bounce, with
+/// `bounced` direct plus `indirect` (as `eval` feeds the probes).
+fn fill_field(
+    runtime: &mut Runtime,
+    bounced: bool,
+    direct: &DirectLight,
+    indirect: &IndirectLight,
+    field: &mut ProbeField,
+) -> anyhow::Result<()> {
+    if bounced {
+        runtime.apply_probes(&leaving_light(direct, indirect), field)?;
+    } else {
+        runtime.apply_probes(direct, field)?;
+    }
+    Ok(())
 }
 
 /// The texels in both `a` and `b` (each ascending and disjoint), ascending and disjoint.
