@@ -156,6 +156,26 @@ pub(crate) fn runs(
     })
 }
 
+/// The widening [`run_bounds`] puts around each texel centre of `run` (texels sharing one
+/// normal): [`sample_bounds`] of a texel at the origin at the run's widest size, so every
+/// sample point of a texel at `x` lies in `[x + lo, x + hi]` up to the rounding of `x`'s own
+/// coordinates (which `run_bounds` pads for).
+pub(crate) fn texel_extent(layout: &Layout, run: Range<usize>, m: usize) -> ([f64; 3], [f64; 3]) {
+    let first = run.start;
+    let mut size = [0.0f32; 2];
+    for t in run {
+        let s = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
+        size = [size[0].max(s[0].abs()), size[1].max(s[1].abs())];
+    }
+    let at = TexelAt {
+        x: [0.0; 3],
+        n: layout.normals[first],
+        rho: [0.0; 3],
+        size,
+    };
+    sample_bounds(&at, m)
+}
+
 /// A box holding every one of the `m × m` sample points of the texels `run`, which share
 /// one normal ([`runs`]): [`sample_bounds`] of a texel at the run's widest size, around each
 /// centre (the box around the centres, widened by that texel's box about its centre).
@@ -163,24 +183,14 @@ pub(crate) fn run_bounds(layout: &Layout, run: Range<usize>, m: usize) -> ([f64;
     let first = run.start;
     let mut lo = layout.positions[first];
     let mut hi = lo;
-    let mut size = [0.0f32; 2];
-    for t in run {
+    for t in run.clone() {
         let x = layout.positions[t];
         for k in 0..3 {
             lo[k] = lo[k].min(x[k]);
             hi[k] = hi[k].max(x[k]);
         }
-        let s = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
-        size = [size[0].max(s[0].abs()), size[1].max(s[1].abs())];
     }
-    // One texel of that size at the origin: its box is the widening about a centre.
-    let at = TexelAt {
-        x: [0.0; 3],
-        n: layout.normals[first],
-        rho: [0.0; 3],
-        size,
-    };
-    let (wlo, whi) = sample_bounds(&at, m);
+    let (wlo, whi) = texel_extent(layout, run, m);
     let mag = lo
         .iter()
         .chain(&hi)

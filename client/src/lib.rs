@@ -57,6 +57,9 @@
 //!   every light's over a whole bundle the same way (`direct_from_point_lights_by_reach`).
 //! - [`dynamic_shadows`]: posed dynamic objects' triangles added to the occluders, for their
 //!   direct shadows ([`occluders_with_poses`]).
+//! - [`shadow_change`]: [`ShadowChange`], the change of direct light when posed objects move,
+//!   computed only on the texels whose shadow rays a moved object can cross, where it was or
+//!   is, for the lights whose reach it stands in (what `Runtime::apply_delta_in` relights by).
 //! - [`direct`]: direct radiance from point lights at every texel (`ρ/π · I · cosθ / r² · V`).
 //! - `texel_samples` (private): a texel's sample points and each one's unshadowed term, the
 //!   adaptive average's scratch and the exact mean near a light; what [`direct`] shadows and
@@ -119,6 +122,7 @@ pub mod reach_direct;
 pub mod runtime;
 #[cfg(feature = "fetch")]
 pub mod service;
+pub mod shadow_change;
 pub mod surface_bounds;
 mod texel_samples;
 
@@ -147,6 +151,7 @@ pub use runtime::{
 };
 #[cfg(feature = "fetch")]
 pub use service::{ServiceClient, ServiceError};
+pub use shadow_change::{ShadowChange, ShadowChangeError};
 pub use surface_bounds::SurfaceBounds;
 
 /// Decodes and validates a bundle (`Bundle::decode`): `Ok` only for a bundle [`Runtime::new`]

@@ -696,6 +696,20 @@ impl Occluders {
             .any(|(tree, _)| tree.occluded(origin, d, tmin, tmax))
     }
 
+    /// [`Occluders::occluded`] against the posed objects' triangles alone
+    /// ([`Occluders::with_triangles`]; false without any): with the level's answer from
+    /// elsewhere (a light buffer over its primitives), the same answer.
+    pub(crate) fn posed_occluded(&self, origin: [f32; 3], target: [f32; 3]) -> bool {
+        let Some(tree) = &self.posed else {
+            return false;
+        };
+        let origin = Vec3::from(origin);
+        let Some((d, tmin, tmax)) = self.segment(origin, Vec3::from(target)) else {
+            return false;
+        };
+        tree.occluded(origin, d, tmin, tmax)
+    }
+
     /// The same query by testing every primitive (the reference for the hierarchy).
     #[cfg(test)]
     fn occluded_brute(&self, origin: [f32; 3], target: [f32; 3]) -> bool {

@@ -332,30 +332,50 @@ impl ReachDirect {
         light: &Light,
         spans: &mut Vec<TexelSpan>,
     ) -> Shadows<'s> {
-        self.reach.texels(layout, light.position, spans);
         let light_at = light.position.map(|x| x as f32);
-        let Some(rooms) = self.reach.rooms_of_last_walk() else {
+        let mut list = std::mem::take(&mut self.list);
+        let in_rooms = self.reached_prims(layout, light.position, spans, &mut list);
+        self.list = list;
+        if !in_rooms {
             self.last_occluders = level.len();
             if level.len() > WHOLE_LEVEL_MAX_OCCLUDERS {
                 return Shadows::Occluders(level);
             }
             self.buffer.build(level, light_at, None);
             return Shadows::Buffers(level, std::slice::from_ref(&self.buffer));
-        };
-        self.list.clear();
-        for &r in rooms {
-            for &p in &self.room_prims[r as usize] {
-                if !std::mem::replace(&mut self.picked[p as usize], true) {
-                    self.list.push(p);
-                }
-            }
-        }
-        for &p in &self.list {
-            self.picked[p as usize] = false;
         }
         self.buffer.build(level, light_at, Some(&self.list));
         self.last_occluders = self.list.len();
         Shadows::Buffers(level, std::slice::from_ref(&self.buffer))
+    }
+
+    /// Walks the reach of a light at `position` into `spans` and lists in `prims` the
+    /// occluders of the rooms it reached (each once, in the order met): all its shadow rays
+    /// there can meet (module doc). False, with `prims` left as it was, when the walk gave up
+    /// or left the level: then every occluder can.
+    pub(crate) fn reached_prims(
+        &mut self,
+        layout: &Layout,
+        position: [f64; 3],
+        spans: &mut Vec<TexelSpan>,
+        prims: &mut Vec<u32>,
+    ) -> bool {
+        self.reach.texels(layout, position, spans);
+        let Some(rooms) = self.reach.rooms_of_last_walk() else {
+            return false;
+        };
+        prims.clear();
+        for &r in rooms {
+            for &p in &self.room_prims[r as usize] {
+                if !std::mem::replace(&mut self.picked[p as usize], true) {
+                    prims.push(p);
+                }
+            }
+        }
+        for &p in prims.iter() {
+            self.picked[p as usize] = false;
+        }
+        true
     }
 
     /// Sets `spans` to the texels a light at `position` reaches ([`LightReach::texels`]),

@@ -23,6 +23,8 @@ struct Args {
 enum UpdateArg {
     /// One light moves; the others stay.
     OneLight,
+    /// One posed dynamic object moves; the lights and the other objects stay.
+    OneObject,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -138,15 +140,22 @@ enum Command {
         threads: usize,
         /// `one-light`: move one light (`--light`) along a small circle and time relighting by
         /// its change (its direct light alone, then `Runtime::apply_delta`) against relighting
-        /// everything, direct light included (uses the first `--bounces` mode).
+        /// everything, direct light included (uses the first `--bounces` mode). `one-object`:
+        /// move one posed dynamic object (`--object`) the same way and time relighting by the
+        /// change of its shadows (`ShadowChange`), its probes and its own light against
+        /// relighting everything.
         #[arg(long, value_enum)]
         update: Option<UpdateArg>,
         /// The light `--update one-light` and the moving-light lines move (index in the light
         /// set).
         #[arg(long, default_value_t = 0)]
         light: usize,
-        /// Radius (m) of the circle `--update one-light` moves the light on, one turn every
-        /// 120 frames (0.1: 5 mm a frame; 1: 5 cm a frame, a walking torch at 60 Hz).
+        /// The dynamic object `--update one-object` moves (index in the light set's poses).
+        #[arg(long, default_value_t = 0)]
+        object: usize,
+        /// Radius (m) of the circle `--update one-light` moves the light on (and `one-object`
+        /// the object), one turn every 120 frames (0.1: 5 mm a frame; 1: 5 cm a frame, a
+        /// walking torch at 60 Hz).
         #[arg(long, default_value_t = cli::frame_update::PATH_RADIUS)]
         radius: f64,
         /// With `--bounces feedback`: texels of due blocks and clutter objects a frame shoots
@@ -355,6 +364,7 @@ fn main() -> anyhow::Result<()> {
             threads,
             update,
             light,
+            object,
             radius,
             feedback_budget,
             texel_bounces,
@@ -365,7 +375,12 @@ fn main() -> anyhow::Result<()> {
             bounces: bounces.into_iter().map(|b| b.0).collect(),
             frames,
             threads,
-            update_light: update.map(|UpdateArg::OneLight| light),
+            update_light: update
+                .filter(|u| matches!(u, UpdateArg::OneLight))
+                .map(|_| light),
+            update_object: update
+                .filter(|u| matches!(u, UpdateArg::OneObject))
+                .map(|_| object),
             moving_light: light,
             radius,
             feedback_budget,

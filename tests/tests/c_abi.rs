@@ -10,7 +10,9 @@
 //! `lf_runtime_apply_delta_in_spans`), agrees with relighting everything, and moved back in
 //! `LF_BOUNCES_FEEDBACK` settles (`lf_runtime_feedback_due`) to the first answer; and, on
 //! `ball_corridor` (a dynamic object, so a probe volume), that the probe field it fills from
-//! the light leaving the texels and its irradiance at a point are the Rust client's.
+//! the light leaving the texels and its irradiance at a point, the placed object's own light
+//! and its bounces, and the change of direct light its shadow makes when it moves
+//! (`lf_runtime_shadow_change`) are the Rust client's.
 //!
 //! The library is found beside this test binary: `lightfarm-client-capi` is a dev-dependency
 //! of this crate, so cargo builds its cdylib into `target/<profile>/deps/` (and, when the capi
@@ -23,7 +25,7 @@ use std::process::Command;
 use lightfarm_client::{
     direct_from_point_lights, direct_from_point_lights_averaged, frame_occluders,
     occluders_with_poses, Atlas, Bounces, IndirectLight, Light, Method, ObjectLight, Occluders,
-    Runtime,
+    Runtime, ShadowChange,
 };
 use lightfarm_proto::lights::{LightKind, LightSet, Pose};
 use lightfarm_proto::scene::Transport;
@@ -403,6 +405,22 @@ fn c_example_matches_the_rust_client() {
         "object_bounce_checksum",
         number(line, "object_bounce_checksum"),
         bounce_sum,
+    );
+    // The ball moved 0.1 m along x (in f32, as C adds it): the client's change of its shadow.
+    let mut moved = poses.clone();
+    moved[0].translation[0] = (poses[0].translation[0] as f32 + 0.1f32) as f64;
+    let samples = lightfarm::LF_DIRECT_SAMPLES_PER_EDGE;
+    let mut shadows = ShadowChange::new(&bundle, &occluders, &light, samples, &poses);
+    shadows.update(&bundle, &occluders, &moved).unwrap();
+    let spans: usize = field(line, "shadow_spans").parse().unwrap();
+    assert_eq!(spans, shadows.spans().len());
+    assert!(spans > 0, "the ball's shadow moves");
+    let shadow_sum = sum(&shadows.change().radiance);
+    assert!(shadow_sum != 0.0);
+    assert_close(
+        "shadow_checksum",
+        number(line, "shadow_checksum"),
+        shadow_sum,
     );
 
     // A file that is not a bundle: exit status 1 and the library's reason on stderr.

@@ -17,7 +17,7 @@
  *   texels=N method=drt|mrt applications=A checksum=S max=M direct_checksum=D surfaces=K
  *   first_surface=NAME atlas=WxH engine_direct_checksum=ED engine_checksum=E
  *   probes=P [probe_checksum=PC probe_irradiance=PE [object_spans=OS object_checksum=OC
- *   object_bounce_checksum=OB]] moved_spans=MS moved_error=ME
+ *   object_bounce_checksum=OB shadow_spans=SS shadow_checksum=SC]] moved_spans=MS moved_error=ME
  *   light_direct_same=B feedback_calls=FC feedback_error=FE feedback_lag=FL feedback_left=FR
  *
  * with S the sum of every output float, M the largest, D the sum of the direct light, ED the
@@ -26,7 +26,8 @@
  * dynamic objects), fed the light leaving the texels (direct plus indirect), PC the sum of the
  * field's floats and PE the irradiance 0.25 m above texel 0 (sum of R, G and B); with POSE,
  * the placed object's own light on the texels around it (OS: its spans, OC: the sum of its
- * floats) and the sum OB of its bounces; then moves
+ * floats) and the sum OB of its bounces, and the change of direct light its shadow makes when
+ * it moves 0.1 m along x (SS: its spans, SC: the sum of its floats); then moves
  * light 0 by 0.25 m and relights by the
  * change (MS: the spans it reaches, ME: relative L2 against relighting everything, B: 1 when
  * the one-call direct light of a light's reach is the two-call one), and moves it back in
@@ -171,11 +172,12 @@ out:
 /* The placed objects' own light around them and its bounces (see the top comment); prints
  * " object_spans=OS object_checksum=OC object_bounce_checksum=OB". Returns 0, or 1 on error. */
 static int object_part(LfRuntime *rt, int32_t method, const LfPointLight *lights,
-                       long n_lights, size_t n_floats) {
+                       long n_lights, const LfPose *pose, size_t n_floats) {
     size_t capacity = 0, count = 0, i, k;
     LfTexelSpan *spans = NULL;
     float *light = calloc(n_floats, sizeof *light), *bounced = malloc(n_floats * sizeof *bounced);
-    double light_sum = 0.0, bounce_sum = 0.0;
+    double light_sum = 0.0, bounce_sum = 0.0, shadow_sum = 0.0;
+    LfPose moved = *pose;
     int32_t status;
     int result = 1;
 
@@ -209,6 +211,31 @@ static int object_part(LfRuntime *rt, int32_t method, const LfPointLight *lights
     for (i = 0; i < n_floats; i++) bounce_sum += bounced[i];
     printf(" object_spans=%zu object_checksum=%.6e object_bounce_checksum=%.6e", count,
            light_sum, bounce_sum);
+    /* The object moved 0.1 m along x: the change of direct light its shadow makes, on the
+       spans it lies in (asked for first, as above), then the object put back. */
+    moved.translation[0] += 0.1f;
+    if (lf_runtime_set_poses(rt, &moved, 1) != LF_STATUS_OK) {
+        result = fail();
+        goto out;
+    }
+    status = lf_runtime_shadow_change(rt, lights, (size_t)n_lights, spans, capacity, &count,
+                                      light, n_floats);
+    if (status == LF_STATUS_BAD_LENGTH && count > capacity) {
+        LfTexelSpan *more = realloc(spans, count * sizeof *spans);
+        if (!more) { fprintf(stderr, "out of memory\n"); goto out; }
+        spans = more;
+        capacity = count;
+        status = lf_runtime_shadow_change(rt, lights, (size_t)n_lights, spans, capacity, &count,
+                                          light, n_floats);
+    }
+    if (status != LF_STATUS_OK || lf_runtime_set_poses(rt, pose, 1) != LF_STATUS_OK) {
+        result = fail();
+        goto out;
+    }
+    for (k = 0; k < count; k++)
+        for (i = 3 * (size_t)spans[k].start; i < 3 * (size_t)spans[k].end; i++)
+            shadow_sum += light[i];
+    printf(" shadow_spans=%zu shadow_checksum=%.6e", count, shadow_sum);
     result = 0;
 out:
     free(spans); free(light); free(bounced);
@@ -216,8 +243,8 @@ out:
 }
 
 static int probe_part(LfRuntime *rt, int32_t method, const LfPointLight *lights,
-                      long n_lights, int posed, const float *direct, const float *indirect,
-                      size_t n_floats) {
+                      long n_lights, const LfPose *pose, const float *direct,
+                      const float *indirect, size_t n_floats) {
     size_t probes = lf_runtime_probe_count(rt), i;
     float *leaving, *field, pos[3], nrm[3], at[3], e[3];
     double field_sum = 0.0;
@@ -253,7 +280,7 @@ static int probe_part(LfRuntime *rt, int32_t method, const LfPointLight *lights,
     for (i = 0; i < probes * LF_PROBE_FLOATS; i++) field_sum += field[i];
     printf(" probe_checksum=%.6e probe_irradiance=%.6e", field_sum,
            (double)e[0] + (double)e[1] + (double)e[2]);
-    result = posed ? object_part(rt, method, lights, n_lights, n_floats) : 0;
+    result = pose ? object_part(rt, method, lights, n_lights, pose, n_floats) : 0;
 out:
     free(leaving); free(field);
     return result;
@@ -480,6 +507,8 @@ int main(int argc, char **argv) {
     float *direct, *indirect, *at_load;
     int32_t method, status;
     double checksum = 0.0, direct_checksum = 0.0, max = 0.0;
+    char id[128];
+    LfPose pose;
 
     if (argc != 3 && argc != 4) {
         fprintf(stderr, "usage: %s BUNDLE.lfb LIGHTS.txt [id,x,y,z,qx,qy,qz,qw]\n", argv[0]);
@@ -497,8 +526,6 @@ int main(int argc, char **argv) {
     if (lf_runtime_prepare_delta(rt) != LF_STATUS_OK) return fail();
     if (argc == 4) {
         /* The dynamic object, placed before direct light so that it carries its shadow. */
-        char id[128];
-        LfPose pose;
         if (sscanf(argv[3], "%127[^,],%f,%f,%f,%f,%f,%f,%f", id, &pose.translation[0],
                    &pose.translation[1], &pose.translation[2], &pose.rotation[0],
                    &pose.rotation[1], &pose.rotation[2], &pose.rotation[3]) != 8) {
@@ -531,7 +558,8 @@ int main(int argc, char **argv) {
            n_floats / 3, method == LF_METHOD_DRT ? "drt" : "mrt",
            (unsigned)lf_runtime_last_bounces(rt), checksum, max, direct_checksum);
     if (check_surfaces(rt) || engine_path(rt, method, lights, n_lights) ||
-        probe_part(rt, method, lights, n_lights, argc == 4, direct, indirect, n_floats))
+        probe_part(rt, method, lights, n_lights, argc == 4 ? &pose : NULL, direct, indirect,
+                   n_floats))
         return 1;
     at_load = malloc(n_floats * sizeof *at_load);
     if (!at_load) { fprintf(stderr, "out of memory\n"); return 1; }

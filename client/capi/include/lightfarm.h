@@ -832,6 +832,37 @@ int32_t lf_runtime_apply_delta(LfRuntime *rt,
                                float *indirect_rgb,
                                size_t indirect_len);
 
+/**
+ * The change of the `n_lights` point `lights`' direct light that the dynamic objects made by
+ * moving since the last call (see the module doc): writes the texel spans it lies in to
+ * `out_spans` (ascending, disjoint; their number to `*out_count`) and the change on those
+ * spans to `out_rgb` (`out_len` = `3 x texels` floats; every other texel keeps its value).
+ * Add it to the direct light, and relight by it with `lf_runtime_apply_delta_in_spans` on
+ * the same spans. No object moved: no span.
+ *
+ * Returns `LF_STATUS_OK`, or: `LF_STATUS_NULL_POINTER` (`rt`, `out_count`, `lights` with
+ * `n_lights > 0`, `out_rgb` with `out_len > 0`, or `out_spans` when spans are to be
+ * written), `LF_STATUS_INVALID_LIGHT`, `LF_STATUS_BAD_LENGTH` (`out_len` is not `3 x
+ * texels`, or `capacity` is below the number of spans: `*out_count` then holds the number
+ * needed, and the next call returns that change) or `LF_STATUS_PANIC`. On an
+ * error neither `out_spans` nor `out_rgb` is written. Allocates when the tracker is made and
+ * per call (the moved objects' shadow-ray hierarchy).
+ *
+ * # Safety
+ * `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+ * the call. `lights` must be NULL or point to `n_lights` readable `LfPointLight`s; `out_spans`
+ * NULL or `capacity` writable `LfTexelSpan`s; `out_count` NULL or writable; `out_rgb` NULL or
+ * `out_len` writable floats; none overlapping another.
+ */
+int32_t lf_runtime_shadow_change(LfRuntime *rt,
+                                 const LfPointLight *lights,
+                                 size_t n_lights,
+                                 LfTexelSpan *out_spans,
+                                 size_t capacity,
+                                 size_t *out_count,
+                                 float *out_rgb,
+                                 size_t out_len);
+
 #ifdef __cplusplus
 }  // extern "C"
 #endif  // __cplusplus

@@ -39,6 +39,12 @@
 //!    it carries their shadows; recompute the direct light near an object after moving it */
 //! LfPose ball = { "red_ball", { 2.2f, 0.45f, 0.5f }, { 0.0f, 0.0f, 0.0f, 1.0f } };
 //! lf_runtime_set_poses(rt, &ball, 1);
+//! /* or, once the direct light is made, move an object and relight by the change of its
+//!    shadows alone (where it was and where it is), added to the direct light on its spans */
+//! ball.translation[0] += 0.05f;
+//! lf_runtime_set_poses(rt, &ball, 1);
+//! lf_runtime_shadow_change(rt, lights, n_lights, spans, capacity, &n_spans, change, n);
+//! lf_runtime_apply_delta_in_spans(rt, method, change, n, spans, n_spans, indirect, n);
 //! /* and their own light, from the probe volume (lf_runtime_probe_count(rt) > 0): the light
 //!    leaving the texels (direct, plus indirect with more than one bounce) fills it, a change of
 //!    that light on given spans keeps it up to date, then irradiance at a point and normal */
@@ -59,6 +65,8 @@
 //! - [`direct`]: [`LfPointLight`] and direct light from point lights at every texel.
 //! - [`poses`]: [`LfPose`] and [`lf_runtime_set_poses`]: the dynamic objects placed for the
 //!   direct light's shadows.
+//! - [`shadows`]: the change of direct light when placed objects move
+//!   ([`lf_runtime_shadow_change`]), computed only where their shadows were and are.
 //! - [`objects`]: the placed dynamic objects' own light on the texels around them (DNRT,
 //!   [`lf_runtime_object_light`], from the probe field and the point lights) and its bounces
 //!   ([`lf_runtime_bounce_object_light`]).
@@ -104,6 +112,7 @@ pub mod poses;
 pub mod probes;
 pub mod reach;
 pub mod runtime;
+pub mod shadows;
 pub mod status;
 
 pub use bounces::LfBounces;
@@ -131,4 +140,5 @@ pub use runtime::{
     lf_runtime_new, lf_runtime_prepare_delta, lf_runtime_set_bounces,
     lf_runtime_set_feedback_budget, lf_runtime_texel_count, LfRuntime,
 };
+pub use shadows::lf_runtime_shadow_change;
 pub use status::{CapiError, LfStatus};

@@ -17,7 +17,7 @@
 use lightfarm_client::{
     direct_from_point_lights_adaptive_in, direct_scale, frame_occluders, occluders_with_poses,
     Applied, Atlas, Bounces, DirectLight, IndirectLight, Light, ObjectLight, Occluders,
-    PosedObjects, ProbeField, ReachDirect, Runtime, TexelSpan,
+    PosedObjects, ProbeField, ReachDirect, Runtime, ShadowChange, TexelSpan,
 };
 use lightfarm_proto::bundle::Bundle;
 use lightfarm_proto::lights::Pose;
@@ -72,6 +72,13 @@ pub struct LfRuntime {
     /// The posed objects' light (`lf_runtime_object_light`; None until its first call, which
     /// decodes the bundle's DNRT grids).
     pub(crate) objects: Option<ObjectLight>,
+    /// The change of direct light as objects move (`lf_runtime_shadow_change`; None until its
+    /// first call), the poses the next change starts from (those of the last change handed
+    /// over; before the first, the poses before the last `lf_runtime_set_poses`), and the
+    /// poses of a change computed but not handed over yet.
+    pub(crate) shadows: Option<ShadowChange>,
+    pub(crate) shadow_from: Vec<Pose>,
+    pub(crate) shadow_pending: Option<Vec<Pose>>,
 }
 
 impl LfRuntime {
@@ -107,6 +114,9 @@ impl LfRuntime {
             probes: ProbeField::default(),
             poses: Vec::new(),
             objects: None,
+            shadows: None,
+            shadow_from: Vec::new(),
+            shadow_pending: None,
         })
     }
 
@@ -235,7 +245,10 @@ impl LfRuntime {
     /// with them in the rooms they touch; no pose, the level's alone. The clamp scale stays
     /// the level's.
     pub(crate) fn set_poses(&mut self, poses: &[Pose]) {
-        self.poses = poses.to_vec();
+        let before = std::mem::replace(&mut self.poses, poses.to_vec());
+        if self.shadows.is_none() {
+            self.shadow_from = before;
+        }
         self.posed = occluders_with_poses(&self.level, self.runtime.bundle(), poses);
         self.reach = self.new_reach();
     }

@@ -100,6 +100,11 @@ pub(crate) enum Shadows<'a> {
     Occluders(&'a Occluders),
     /// One [`LightBuffer`] per light, in the lighting's light order, over these occluders.
     Buffers(&'a Occluders, &'a [LightBuffer]),
+    /// One [`LightBuffer`] per light over the level's occluders (some of them), and the posed
+    /// objects' triangles ([`Occluders::with_triangles`]) through their own hierarchy: the
+    /// lights' shadows where objects move ([`crate::shadow_change`]), whose buffers need no
+    /// rebuild as the objects move.
+    BuffersAndPosed(&'a Occluders, &'a [LightBuffer]),
     /// Only these primitives of the occluders can cross the segments at hand (a run of texels
     /// after [`BoxShadow::Listed`]).
     Listed(&'a Occluders, &'a [u32]),
@@ -141,7 +146,7 @@ impl<'a> Lighting<'a> {
             [one] => Positions::One(f32_position(one)),
             _ => Positions::Many(lights.iter().map(f32_position).collect()),
         };
-        if let Shadows::Buffers(_, buffers) = shadows {
+        if let Shadows::Buffers(_, buffers) | Shadows::BuffersAndPosed(_, buffers) = shadows {
             assert!(
                 buffers.len() == positions.len()
                     && buffers
@@ -177,6 +182,10 @@ impl<'a> Lighting<'a> {
             Shadows::Clear => false,
             Shadows::Occluders(occluders) => occluders.occluded(x, self.positions[li]),
             Shadows::Buffers(occluders, buffers) => buffers[li].occluded(occluders, x),
+            Shadows::BuffersAndPosed(occluders, buffers) => {
+                buffers[li].occluded(occluders, x)
+                    || occluders.posed_occluded(x, self.positions[li])
+            }
             Shadows::Listed(occluders, prims) => occluders
                 .shadow_segment(x, self.positions[li])
                 .is_some_and(|seg| {

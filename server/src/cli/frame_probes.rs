@@ -140,6 +140,11 @@ impl ProbeWay {
         Ok(())
     }
 
+    /// The update way's probe field as of its last frame.
+    pub fn field(&self) -> &ProbeField {
+        &self.field
+    }
+
     /// The figures, after the last frame: the update's field against `apply_probes` of its
     /// leaving light (`direct` and `indirect`, the update's answer).
     pub fn finish(

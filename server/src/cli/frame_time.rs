@@ -35,6 +35,7 @@ use lightfarm_client::{Bounces, Bundle, IndirectLight, Method, Occluders, Runtim
 use lightfarm_proto::lights::LightSet;
 
 use super::frame_moving::{time_moving, MOVING_FRAMES, MOVING_RADIUS};
+use super::frame_object::time_object;
 use super::frame_update::{time_update, Ways};
 use super::read_text;
 use crate::evaluate::operator_direct;
@@ -51,6 +52,9 @@ pub struct FrameTimeArgs {
     pub threads: usize,
     /// `--update one-light`: time moving light `light` ([`super::frame_update`]) instead.
     pub update_light: Option<usize>,
+    /// `--update one-object`: time moving posed object `object` ([`super::frame_object`])
+    /// instead.
+    pub update_object: Option<usize>,
     /// The light the moving-light lines move ([`super::frame_moving`]).
     pub moving_light: usize,
     /// Radius (m) of the `--update one-light` light's circle ([`super::frame_update`]).
@@ -223,6 +227,59 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
     } else {
         args.bounces.clone()
     };
+    if let Some(object) = args.update_object {
+        let mode = modes[0];
+        let frames = args.frames;
+        let t = time_object(
+            &mut runtime,
+            &occluders,
+            &lights,
+            object,
+            method,
+            mode,
+            frames,
+            args.radius,
+        )?;
+        let name = &t.object;
+        for (way_name, way) in [("full", t.full), ("update", t.update)] {
+            crate::say!(
+                "update=one-object object={name} way={way_name} method={method:?} bounces={} \
+                 frames={frames} direct_ms={:.4} operator_ms={:.4} objects_ms={:.4} \
+                 total_ms={:.4}",
+                mode_name(mode),
+                way.direct_ms,
+                way.operator_ms,
+                way.objects_ms,
+                way.total_ms
+            );
+        }
+        if let Some(p) = t.probes {
+            crate::say!(
+                "update=one-object object={name} probes={} full_ms={:.4} update_ms={:.4} \
+                 drift_rel_l2={:.2e}",
+                p.probes,
+                p.full_ms,
+                p.update_ms,
+                p.drift
+            );
+        }
+        crate::say!(
+            "update=one-object object={name} method={method:?} bounces={} frames={frames} \
+             lights={} lights_relit={} texels_changed={}/{} object_light={} \
+             direct_drift_rel_l2={:.2e} drift_rel_l2={:.2e} speedup={:.1} median_ms={:.4}",
+            mode_name(mode),
+            lights.lights.len(),
+            t.lights_relit,
+            t.texels_changed,
+            runtime.n_texels(),
+            t.object_light,
+            t.direct_drift,
+            t.drift,
+            t.full.total_ms / t.update.total_ms,
+            t.update.total_ms
+        );
+        return Ok(());
+    }
     if let Some(moved) = args.update_light {
         let mode = modes[0];
         let frames = args.frames;

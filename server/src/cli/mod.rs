@@ -5,7 +5,8 @@
 //! # Layout
 //! - [`bake`], [`inspect`], [`eval`] (with [`eval_sh`] and [`lightmap_files`]),
 //!   [`reference`](mod@reference), [`compare`], [`frame_time`] (with [`frame_update`]:
-//!   `--update one-light`, its probe volume's part [`frame_probes`], and [`frame_moving`]: the
+//!   `--update one-light`, its probe volume's part [`frame_probes`], [`frame_object`]:
+//!   `--update one-object`, and [`frame_moving`]: the
 //!   bounce modes while a light moves),
 //!   [`export`] (the lit level as glTF): the offline commands.
 //! - [`serve`], [`worker`]: the bake service and a farm worker.
@@ -22,6 +23,7 @@ pub mod eval;
 pub mod eval_sh;
 pub mod export;
 pub mod frame_moving;
+pub mod frame_object;
 pub mod frame_probes;
 pub mod frame_time;
 pub mod frame_update;
