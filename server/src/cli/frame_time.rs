@@ -16,7 +16,8 @@
 //! The direct light's own time (every light, texel-averaged as `eval` feeds the operators, one
 //! thread) is printed first, apart from the operators'. With `--update one-light`, one light
 //! moves instead and relighting by the change is timed against relighting everything
-//! ([`super::frame_update`]).
+//! ([`super::frame_update`]); with `--update one-object`, one posed dynamic object moves
+//! ([`super::frame_object`]).
 //!
 //! With `feedback` among the modes, it also prints how many feedback frames the light takes to
 //! come within 1% (relative L2) of `Converged` at 1e-5 after the lights switch on from dark (the
