@@ -5,32 +5,39 @@
 //! the change, like a moving light's).
 //!
 //! Which texels: a texel's light from a point light `L` can change only if a segment from one
-//! of its samples to `L` crosses a moved object's triangles (an object placed as before
-//! changes no segment's answer), where it was or where it is, which lie in the object's box. With the
-//! texel's samples within `r_t` of a centre `x` (the ball around their box) and the object's
-//! box within `ρ` of `c`, every such segment point `p + s (L − p)` lies within `(1 − s) r_t ≤
-//! r_t` of `x + s (L − x)`, so the segment can meet the object only if the segment from `x` to
-//! `L` passes within `ρ + r_t` of `c`. That test (per run of texels first, then per texel) is
-//! conservative: a texel it drops keeps its light bit for bit. Lights are first kept only when
-//! the object's ball meets the box around the light and the samples of every texel it reaches
-//! (its reach is fixed at [`ShadowChange::new`]: objects only take light away, they never let
-//! a light reach another room).
+//! of its samples to `L` crosses a moved object's triangles, where it was or where it is (an
+//! object placed as before changes no segment's answer); they lie in the object's box. With
+//! the texel's samples within `r_t` of a centre `x` (the ball around their box) and the
+//! object's box within `ρ` of `c`, every such segment point `p + s (L − p)` lies within
+//! `(1 − s) r_t ≤ r_t` of `x + s (L − x)`, so the segment can meet the object only if the
+//! segment from `x` to `L` passes within `ρ + r_t` of `c`. That test (per group of
+//! `RUNS_PER_GROUP` (16) runs of texels, per run, then per texel) is conservative: a texel it
+//! drops keeps its light bit for bit. Lights are first kept only when the object's ball meets
+//! the box around the light and the samples of every texel it reaches (its reach is fixed at
+//! [`ShadowChange::new`]: objects only take light away, they never let a light reach another
+//! room).
 //!
 //! On the texels kept, each light's direct light is made twice with the adaptive texel average
 //! of the direct-light module (`samples_per_edge`, the level's [`crate::direct_scale`]): with
-//! the occluders of the objects' last poses and with this frame's, and the change adds their
-//! difference. Each is bit-identical to the same light's term over the whole level with those
-//! occluders (`ReachDirect::with_posed(…).all_lights`), so the change summed into the direct
-//! light a game keeps equals that direct light to float rounding (the whole-level sum adds the
-//! lights' terms per texel, the change adds per-light differences).
+//! the occluders of the objects' last poses (kept from the last update where it relit the same
+//! texels of that light) and with this frame's, and the change adds their difference. Each
+//! is bit-identical to the same light's term over the whole level with those occluders
+//! (`ReachDirect::with_posed(…).all_lights`), so the change summed into the direct light a
+//! game keeps equals that direct light to float rounding (the whole-level sum adds the lights'
+//! terms per texel, the change adds per-light differences).
 //!
 //! Units: radiance leaving the texels (W/m²/sr per channel), metres, world frame.
 //!
+//! Memory: per light, its reach's runs of texels (80 bytes a run) and occluder list; three
+//! RGB values per texel (the change, and one light's term before and after a move). The
+//! 1,000-block level with a ball (165 lights): 82,515 runs and 26,805 listed occluders, 7.0 MB,
+//! and 9.7 MB per texel.
+//!
 //! Invariants: [`ShadowChange::change`] is zero outside [`ShadowChange::spans`] (ascending,
 //! disjoint); each [`ShadowChange::update`] first clears what the last one wrote; a refused
-//! call changes nothing. The first update's change is from the poses [`ShadowChange::new`] was given
-//! (those the caller's direct light was made with), so a game feeds that direct light at load
-//! and every change after it.
+//! call changes nothing. The first update's change is from the poses [`ShadowChange::new`] was
+//! given (those the caller's direct light was made with), so a game feeds that direct light at
+//! load and every change after it. Results do not depend on the order of the poses.
 
 use std::ops::Range;
 

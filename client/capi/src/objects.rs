@@ -22,7 +22,7 @@ use lightfarm_client::{Bounces, ObjectLight};
 
 use crate::boundary::{slice, slice_mut, status_call};
 use crate::direct::{client_lights, LfPointLight};
-use crate::reach::{spans_fit, LfTexelSpan};
+use crate::reach::{write_light_on_spans, LfTexelSpan};
 use crate::runtime::{check_rgb_len, LfRuntime};
 use crate::status::CapiError;
 
@@ -80,21 +80,9 @@ pub unsafe extern "C" fn lf_runtime_object_light(
         check_rgb_len(rt, "out_rgb", out.len())?;
         let lights = client_lights(lights)?;
         let objects = rt.object_light(&lights)?;
-        let spans = objects.spans();
-        spans_fit(spans.len(), out_spans, capacity, count)?;
-        // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
-        let out_spans = unsafe { slice_mut(out_spans, spans.len(), "out_spans") }?;
-        let (out, _) = out.as_chunks_mut::<3>();
-        let light = &objects.light().radiance;
-        for (o, r) in out_spans.iter_mut().zip(spans) {
-            *o = LfTexelSpan {
-                start: r.start as u32,
-                end: r.end as u32,
-                in_sight: 0,
-            };
-            out[r.clone()].copy_from_slice(&light[r.clone()]);
-        }
-        Ok(())
+        let (spans, light) = (objects.spans(), &objects.light().radiance);
+        // SAFETY: `out_spans` NULL or `capacity` writable spans, per the contract.
+        unsafe { write_light_on_spans(spans, light, out_spans, capacity, count, out) }
     })
 }
 

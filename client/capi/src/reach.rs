@@ -16,6 +16,8 @@
 //! rooms section (format before 2.1) reaches everything (one span over every texel). Texels
 //! outside the spans are never written.
 
+use std::ops::Range;
+
 use lightfarm_client::{direct_from_point_lights_adaptive_in, TexelSpan};
 
 use crate::boundary::{slice, slice_mut, status_call};
@@ -89,6 +91,36 @@ unsafe fn write_spans(spans: &[TexelSpan], out: *mut LfTexelSpan) -> Result<(), 
             end: s.texels.end as u32,
             in_sight: u8::from(s.in_sight),
         };
+    }
+    Ok(())
+}
+
+/// Hands a light that lies on `spans` (ascending, disjoint texel ranges) over to C: the spans
+/// to `out_spans` (their number to `*count`; see [`spans_fit`], which refuses before anything is
+/// written) and `light`'s values on them to `out` (`3 x texels` floats, texel-major; every other
+/// texel keeps its value).
+///
+/// # Safety
+/// `out_spans` must be NULL or point to `capacity` writable `LfTexelSpan`s.
+pub(crate) unsafe fn write_light_on_spans(
+    spans: &[Range<usize>],
+    light: &[[f32; 3]],
+    out_spans: *mut LfTexelSpan,
+    capacity: usize,
+    count: &mut usize,
+    out: &mut [f32],
+) -> Result<(), CapiError> {
+    spans_fit(spans.len(), out_spans, capacity, count)?;
+    // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
+    let out_spans = unsafe { slice_mut(out_spans, spans.len(), "out_spans") }?;
+    let (out, _) = out.as_chunks_mut::<3>();
+    for (o, r) in out_spans.iter_mut().zip(spans) {
+        *o = LfTexelSpan {
+            start: r.start as u32,
+            end: r.end as u32,
+            in_sight: 0,
+        };
+        out[r.clone()].copy_from_slice(&light[r.clone()]);
     }
     Ok(())
 }

@@ -20,7 +20,7 @@ use lightfarm_client::ShadowChange;
 
 use crate::boundary::{slice, slice_mut, status_call};
 use crate::direct::{client_lights, LfPointLight, LF_DIRECT_SAMPLES_PER_EDGE};
-use crate::reach::{spans_fit, LfTexelSpan};
+use crate::reach::{write_light_on_spans, LfTexelSpan};
 use crate::runtime::{check_rgb_len, LfRuntime};
 use crate::status::CapiError;
 
@@ -87,20 +87,9 @@ pub unsafe extern "C" fn lf_runtime_shadow_change(
                 .expect("the tracker was made for this runtime's bundle");
             rt.shadow_pending = Some(rt.poses.clone());
         }
-        let spans = shadows.spans();
-        spans_fit(spans.len(), out_spans, capacity, count)?;
-        // SAFETY: `capacity` >= spans.len() writable spans, per the contract.
-        let out_spans = unsafe { slice_mut(out_spans, spans.len(), "out_spans") }?;
-        let (out, _) = out.as_chunks_mut::<3>();
-        let change = &shadows.change().radiance;
-        for (o, r) in out_spans.iter_mut().zip(spans) {
-            *o = LfTexelSpan {
-                start: r.start as u32,
-                end: r.end as u32,
-                in_sight: 0,
-            };
-            out[r.clone()].copy_from_slice(&change[r.clone()]);
-        }
+        let (spans, change) = (shadows.spans(), &shadows.change().radiance);
+        // SAFETY: `out_spans` NULL or `capacity` writable spans, per the contract.
+        unsafe { write_light_on_spans(spans, change, out_spans, capacity, count, out) }?;
         rt.shadow_from = rt.shadow_pending.take().expect("computed above");
         Ok(())
     })

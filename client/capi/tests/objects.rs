@@ -12,21 +12,12 @@ use lightfarm::*;
 use lightfarm_client::{
     Bounces, DirectLight, IndirectLight, Light, Method, ObjectLight, Occluders, ProbeField, Runtime,
 };
-use lightfarm_proto::bundle::Bundle;
-use lightfarm_proto::lights::{LightKind, Pose};
+use lightfarm_proto::lights::LightKind;
 use lightfarm_proto::testing::{ball_bundle, Lcg};
 
 mod common;
 
 use common::{last_error, Rt, OK};
-
-fn load(bundle: &Bundle) -> Rt {
-    let bytes = bundle.encode();
-    // SAFETY: `bytes.len()` readable bytes.
-    let rt = unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) };
-    assert!(!rt.is_null(), "{}", last_error());
-    Rt(rt)
-}
 
 const LAMP: LfPointLight = LfPointLight {
     position: [3.0, 0.0, 3.0],
@@ -38,27 +29,6 @@ fn lamp() -> Light {
         kind: LightKind::Point,
         position: LAMP.position.map(f64::from),
         intensity: LAMP.intensity.map(f64::from),
-    }
-}
-
-/// Places `ball` at `at` through C; the same pose for the client.
-fn place(rt: &Rt, id: &CString, at: [f32; 3]) -> Pose {
-    let pose = LfPose {
-        id: id.as_ptr(),
-        translation: at,
-        rotation: [0.0, 0.0, 0.0, 1.0],
-    };
-    // SAFETY: one readable pose with a NUL-terminated id.
-    assert_eq!(
-        unsafe { lf_runtime_set_poses(rt.0, &pose, 1) },
-        OK,
-        "{}",
-        last_error()
-    );
-    Pose {
-        id: id.to_str().unwrap().into(),
-        translation: at.map(f64::from),
-        rotation: [0.0, 0.0, 0.0, 1.0],
     }
 }
 
@@ -114,7 +84,7 @@ fn fill_field(rt: &Rt, client: &mut Runtime, light: &[f32]) -> ProbeField {
 #[test]
 fn the_objects_light_through_the_c_abi_is_the_clients() {
     let bundle = ball_bundle();
-    let rt = load(&bundle);
+    let rt = Rt::from_bytes(&bundle.encode());
     let mut client = Runtime::new(bundle.clone());
     let n = client.n_texels();
     let level = Occluders::from_layout(&bundle.layout);
@@ -123,7 +93,7 @@ fn the_objects_light_through_the_c_abi_is_the_clients() {
     let light: Vec<f32> = (0..3 * n).map(|_| rng.range(0.0, 2.0)).collect();
 
     // Before the field is filled: refused, nothing written.
-    place(&rt, &id, [3.0, 0.0, 0.8]);
+    rt.place(&id, [3.0, 0.0, 0.8]);
     let (status, _, out) = object_light(&rt, n, 16, 7.0);
     assert_eq!(status, LfStatus::BadLength as i32);
     assert!(
@@ -138,7 +108,7 @@ fn the_objects_light_through_the_c_abi_is_the_clients() {
     for (mode, bounced) in [(LfBounces::One, false), (LfBounces::Converged, true)] {
         set_bounces(&rt, mode);
         for at in [[3.0, 0.0, 0.8], [9.5, 0.3, 1.1]] {
-            let pose = place(&rt, &id, at);
+            let pose = rt.place(&id, at);
             let (status, spans, out) = object_light(&rt, n, 16, 7.0);
             assert_eq!(status, OK, "{}", last_error());
             let poses = [pose];
@@ -215,7 +185,7 @@ fn a_placed_object_needs_its_grid_and_the_probe_volume() {
     // The shape but no grid.
     let mut no_grid = ball_bundle();
     no_grid.dnrt = None;
-    let rt = load(&no_grid);
+    let rt = Rt::from_bytes(&no_grid.encode());
     let n = no_grid.layout.n_texels();
     let light = vec![0.5f32; 3 * n];
     // SAFETY: `light.len()` readable floats.
@@ -223,7 +193,7 @@ fn a_placed_object_needs_its_grid_and_the_probe_volume() {
         unsafe { lf_runtime_apply_probes(rt.0, light.as_ptr(), light.len()) },
         OK
     );
-    place(&rt, &id, [3.0, 0.0, 0.8]);
+    rt.place(&id, [3.0, 0.0, 0.8]);
     let (status, _, out) = object_light(&rt, n, 16, 7.0);
     assert_eq!(status, LfStatus::MissingOperator as i32);
     assert_eq!(
@@ -235,8 +205,8 @@ fn a_placed_object_needs_its_grid_and_the_probe_volume() {
     // The shape and its grid but no probe volume.
     let mut no_volume = ball_bundle();
     no_volume.probes = None;
-    let rt = load(&no_volume);
-    place(&rt, &id, [3.0, 0.0, 0.8]);
+    let rt = Rt::from_bytes(&no_volume.encode());
+    rt.place(&id, [3.0, 0.0, 0.8]);
     let (status, _, _) = object_light(&rt, no_volume.layout.n_texels(), 16, 7.0);
     assert_eq!(status, LfStatus::MissingOperator as i32);
     assert_eq!(

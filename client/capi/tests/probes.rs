@@ -15,13 +15,6 @@ mod common;
 
 use common::{last_error, Rt, OK};
 
-fn load(bytes: &[u8]) -> Rt {
-    // SAFETY: `bytes.len()` readable bytes.
-    let rt = unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) };
-    assert!(!rt.is_null(), "{}", last_error());
-    Rt(rt)
-}
-
 fn light(rng: &mut Lcg, n: usize) -> Vec<f32> {
     (0..3 * n).map(|_| rng.range(0.0, 2.0)).collect()
 }
@@ -41,7 +34,7 @@ fn probes_through_the_c_abi_are_the_runtimes() {
     let mut rng = Lcg(41);
     let bundle = probe_bundle(&mut rng, true);
     let bytes = bundle.encode();
-    let rt = load(&bytes);
+    let rt = Rt::from_bytes(&bytes);
     let mut client = Runtime::new(lightfarm_proto::bundle::Bundle::decode(&bytes).unwrap());
     let n = client.n_texels();
     // SAFETY: live runtime.
@@ -183,7 +176,7 @@ fn probes_through_the_c_abi_are_the_runtimes() {
 fn a_bundle_without_probes_says_so() {
     let mut rng = Lcg(42);
     let bytes = drt_bundle(&mut rng, true, true, false).encode();
-    let rt = load(&bytes);
+    let rt = Rt::from_bytes(&bytes);
     // SAFETY: live runtime.
     let n = unsafe { lf_runtime_texel_count(rt.0) };
     // SAFETY: live runtime.

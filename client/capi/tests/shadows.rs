@@ -10,21 +10,12 @@ use std::ptr::null_mut;
 
 use lightfarm::*;
 use lightfarm_client::{Light, Occluders, ShadowChange};
-use lightfarm_proto::bundle::Bundle;
-use lightfarm_proto::lights::{LightKind, Pose};
+use lightfarm_proto::lights::LightKind;
 use lightfarm_proto::testing::ball_bundle;
 
 mod common;
 
 use common::{last_error, Rt, OK};
-
-fn load(bundle: &Bundle) -> Rt {
-    let bytes = bundle.encode();
-    // SAFETY: `bytes.len()` readable bytes.
-    let rt = unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) };
-    assert!(!rt.is_null(), "{}", last_error());
-    Rt(rt)
-}
 
 fn client_light(l: &LfPointLight) -> Light {
     Light {
@@ -32,22 +23,6 @@ fn client_light(l: &LfPointLight) -> Light {
         position: l.position.map(f64::from),
         intensity: l.intensity.map(f64::from),
     }
-}
-
-/// Places `ball` at `at` through C; the same pose for the client.
-fn place(rt: &Rt, id: &CString, at: [f32; 3]) -> Vec<Pose> {
-    let pose = LfPose {
-        id: id.as_ptr(),
-        translation: at,
-        rotation: [0.0, 0.0, 0.0, 1.0],
-    };
-    // SAFETY: one readable pose with a NUL-terminated id.
-    assert_eq!(unsafe { lf_runtime_set_poses(rt.0, &pose, 1) }, OK);
-    vec![Pose {
-        id: id.to_str().unwrap().into(),
-        translation: at.map(f64::from),
-        rotation: [0.0, 0.0, 0.0, 1.0],
-    }]
 }
 
 /// `lf_runtime_shadow_change` into a buffer of `fill` values: (status, span count, spans,
@@ -106,7 +81,7 @@ fn the_change_of_a_moving_objects_shadow_through_the_c_abi_is_the_clients() {
     let bundle = ball_bundle();
     let n = bundle.layout.n_texels();
     let level = Occluders::from_layout(&bundle.layout);
-    let rt = load(&bundle);
+    let rt = Rt::from_bytes(&bundle.encode());
     let id = CString::new("ball").unwrap();
     let lamp = LfPointLight {
         position: [6.0, 0.5, 3.0],
@@ -115,7 +90,7 @@ fn the_change_of_a_moving_objects_shadow_through_the_c_abi_is_the_clients() {
     let lamps = [client_light(&lamp)];
 
     // The first call: from the poses before the last lf_runtime_set_poses (none at load).
-    let at_a = place(&rt, &id, [5.5, 0.5, 1.2]);
+    let at_a = vec![rt.place(&id, [5.5, 0.5, 1.2])];
     let mut client = ShadowChange::new(&bundle, &level, &lamps, 4, &[]);
     client.update(&bundle, &level, &at_a).unwrap();
     let got = shadow_change(&rt, &[lamp], n, 16);
@@ -123,13 +98,13 @@ fn the_change_of_a_moving_objects_shadow_through_the_c_abi_is_the_clients() {
     same_as(&got, &client, "placed");
 
     // Moved: the change from there.
-    let at_b = place(&rt, &id, [6.5, 0.4, 1.3]);
+    let at_b = vec![rt.place(&id, [6.5, 0.4, 1.3])];
     client.update(&bundle, &level, &at_b).unwrap();
     same_as(&shadow_change(&rt, &[lamp], n, 16), &client, "moved");
 
     // Too few spans: the number needed and nothing written; the next call hands the change
     // over (the object moved on in between: that move comes with the call after).
-    let at_c = place(&rt, &id, [4.5, 0.5, 1.1]);
+    let at_c = vec![rt.place(&id, [4.5, 0.5, 1.1])];
     client.update(&bundle, &level, &at_c).unwrap();
     let (status, count, spans, out) = shadow_change(&rt, &[lamp], n, 0);
     assert_eq!(status, LfStatus::BadLength as i32);
@@ -140,7 +115,7 @@ fn the_change_of_a_moving_objects_shadow_through_the_c_abi_is_the_clients() {
         last_error()
     );
     assert!(spans.is_empty() && out.iter().all(|&v| v == 7.0));
-    let at_d = place(&rt, &id, [3.5, 0.5, 1.1]);
+    let at_d = vec![rt.place(&id, [3.5, 0.5, 1.1])];
     same_as(&shadow_change(&rt, &[lamp], n, 16), &client, "handed over");
     client.update(&bundle, &level, &at_d).unwrap();
     same_as(&shadow_change(&rt, &[lamp], n, 16), &client, "after it");
@@ -150,7 +125,7 @@ fn the_change_of_a_moving_objects_shadow_through_the_c_abi_is_the_clients() {
         position: [4.0, 0.5, 2.5],
         intensity: [5.0; 3],
     };
-    let at_e = place(&rt, &id, [4.0, 0.5, 1.0]);
+    let at_e = vec![rt.place(&id, [4.0, 0.5, 1.0])];
     let mut again = ShadowChange::new(&bundle, &level, &[client_light(&other)], 4, &at_d);
     again.update(&bundle, &level, &at_e).unwrap();
     same_as(&shadow_change(&rt, &[other], n, 16), &again, "other lights");

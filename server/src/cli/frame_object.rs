@@ -157,14 +157,8 @@ pub fn time_object(
     let grids = bundle.dnrt.as_deref().unwrap_or(&[]);
     let object_light =
         runtime.has_probes() && poses.iter().all(|p| grids.iter().any(|g| g.object == p.id));
-    let objects = |bundle: &Bundle| -> anyhow::Result<Option<ObjectLight>> {
-        Ok(if object_light {
-            Some(ObjectLight::new(bundle)?)
-        } else {
-            None
-        })
-    };
-    let (mut full_objects, mut update_objects) = (objects(&bundle)?, objects(&bundle)?);
+    let objects = || object_light.then(|| ObjectLight::new(&bundle)).transpose();
+    let (mut full_objects, mut update_objects) = (objects()?, objects()?);
 
     // Frame 0, both ways from the same poses.
     poses[object] = path_pose(&start_pose, radius, 0);

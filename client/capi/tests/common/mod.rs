@@ -1,18 +1,47 @@
 //! What every C ABI test file shares: the status code of success, a guard that frees its
-//! runtime, and the thread's last error read through `lf_last_error` with its size contract
+//! runtime (and loads it, and places a dynamic object), and the thread's last error read through `lf_last_error` with its size contract
 //! checked.
 
 #![allow(dead_code)] // each test file uses its own part
 
-use std::ffi::CStr;
+use std::ffi::{CStr, CString};
 use std::ptr::null_mut;
 
 use lightfarm::*;
+use lightfarm_proto::lights::Pose;
 
 pub const OK: i32 = LfStatus::Ok as i32;
 
 /// Owns a runtime for the length of a test.
 pub struct Rt(pub *mut LfRuntime);
+
+impl Rt {
+    /// The runtime of the bundle `bytes` (panics with the library's reason if refused).
+    pub fn from_bytes(bytes: &[u8]) -> Rt {
+        // SAFETY: `bytes.len()` readable bytes.
+        let rt = unsafe { lf_runtime_new(bytes.as_ptr(), bytes.len()) };
+        assert!(!rt.is_null(), "{}", last_error());
+        Rt(rt)
+    }
+
+    /// Places the dynamic object `id` at `at` (no rotation) through C; the same pose for the
+    /// client.
+    pub fn place(&self, id: &CString, at: [f32; 3]) -> Pose {
+        let pose = LfPose {
+            id: id.as_ptr(),
+            translation: at,
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        };
+        // SAFETY: one readable pose with a NUL-terminated id.
+        let status = unsafe { lf_runtime_set_poses(self.0, &pose, 1) };
+        assert_eq!(status, OK, "{}", last_error());
+        Pose {
+            id: id.to_str().unwrap().into(),
+            translation: at.map(f64::from),
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        }
+    }
+}
 
 impl Drop for Rt {
     fn drop(&mut self) {
