@@ -47,8 +47,21 @@ pub struct PosedObjects {
     /// ([`Occluders::with_triangles`]: the level's hierarchy shared, the objects' in one of
     /// their own, numbered after the level's).
     pub occluders: Occluders,
-    /// Per posed object, the bounds `(min, max)` of its posed triangles (metres).
+    /// Per posed object, the bounds `(min, max)` of its posed triangles (metres), in the order
+    /// of [`shadowing_poses`].
     pub boxes: Vec<([f64; 3], [f64; 3])>,
+}
+
+/// The poses of `poses` that cast shadows (their object has a shape with triangles in
+/// `bundle`), in order, each with its shape: what [`occluders_with_poses`] places.
+pub fn shadowing_poses<'a>(
+    bundle: &'a Bundle,
+    poses: &'a [Pose],
+) -> impl Iterator<Item = (&'a Pose, &'a DynamicShape)> + 'a {
+    poses.iter().filter_map(|pose| {
+        let shape = bundle.dynamic_shapes.iter().find(|s| s.object == pose.id)?;
+        (!shape.triangles.is_empty()).then_some((pose, shape))
+    })
 }
 
 /// The occluders this frame's direct light is shadowed with: the level's with the posed objects
@@ -65,10 +78,7 @@ pub fn occluders_with_poses(
     poses: &[Pose],
 ) -> Option<PosedObjects> {
     let (mut triangles, mut boxes) = (Vec::new(), Vec::new());
-    for pose in poses {
-        let Some(shape) = bundle.dynamic_shapes.iter().find(|s| s.object == pose.id) else {
-            continue;
-        };
+    for (pose, shape) in shadowing_poses(bundle, poses) {
         let posed = posed_triangles(shape, pose);
         let mut bounds: Option<(DVec3, DVec3)> = None;
         for v in posed.iter().flatten() {

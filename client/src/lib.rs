@@ -133,7 +133,9 @@ pub use direct::{
     point_irradiance, DirectLight, TexelSpan,
 };
 pub use dnrt::{DnrtError, DnrtInstance, DnrtNear, DnrtVolume};
-pub use dynamic_shadows::{frame_occluders, occluders_with_poses, posed_triangles, PosedObjects};
+pub use dynamic_shadows::{
+    frame_occluders, occluders_with_poses, posed_triangles, shadowing_poses, PosedObjects,
+};
 #[cfg(feature = "fetch")]
 pub use fetch::{BundleFetcher, FetchError, Fetched};
 pub use light_reach::LightReach;

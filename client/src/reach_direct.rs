@@ -49,6 +49,23 @@ use lightfarm_proto::lights::Light;
 /// f32 rounding, and harmless when larger (an extra occluder never changes an answer).
 const ROOM_PAD_REL: f64 = 1e-4;
 
+/// Builds `buffer` for a light at `at` over the level's occluders its reach can meet: `prims`
+/// (the reached rooms', [`ReachDirect::reached_prims`]) or, with `None` (the walk left the
+/// level), all of them when there are at most [`WHOLE_LEVEL_MAX_OCCLUDERS`]. False, with
+/// `buffer` left as it was, when the level is too large for that: trace its hierarchy.
+pub(crate) fn reach_buffer(
+    buffer: &mut LightBuffer,
+    level: &Occluders,
+    at: [f32; 3],
+    prims: Option<&[u32]>,
+) -> bool {
+    if prims.is_none() && level.len() > WHOLE_LEVEL_MAX_OCCLUDERS {
+        return false;
+    }
+    buffer.build(level, at, prims);
+    true
+}
+
 /// A bundle's light reach with, per room, the level's occluders that touch it.
 #[derive(Clone, Debug)]
 pub struct ReachDirect {
@@ -336,17 +353,13 @@ impl ReachDirect {
         let mut list = std::mem::take(&mut self.list);
         let in_rooms = self.reached_prims(layout, light.position, spans, &mut list);
         self.list = list;
-        if !in_rooms {
-            self.last_occluders = level.len();
-            if level.len() > WHOLE_LEVEL_MAX_OCCLUDERS {
-                return Shadows::Occluders(level);
-            }
-            self.buffer.build(level, light_at, None);
-            return Shadows::Buffers(level, std::slice::from_ref(&self.buffer));
+        let prims = in_rooms.then_some(self.list.as_slice());
+        self.last_occluders = prims.map_or(level.len(), <[u32]>::len);
+        if reach_buffer(&mut self.buffer, level, light_at, prims) {
+            Shadows::Buffers(level, std::slice::from_ref(&self.buffer))
+        } else {
+            Shadows::Occluders(level)
         }
-        self.buffer.build(level, light_at, Some(&self.list));
-        self.last_occluders = self.list.len();
-        Shadows::Buffers(level, std::slice::from_ref(&self.buffer))
     }
 
     /// Walks the reach of a light at `position` into `spans` and lists in `prims` the

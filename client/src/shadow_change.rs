@@ -47,10 +47,10 @@ use lightfarm_proto::lights::{Light, Pose};
 
 use crate::box_shadows::{run_bounds, runs, texel_extent, BoxShadows};
 use crate::direct::{adaptive_in_with, direct_scale, DirectLight, Shadows, TexelSpan};
-use crate::dynamic_shadows::{occluders_with_poses, posed_triangles, PosedObjects};
-use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
+use crate::dynamic_shadows::{occluders_with_poses, shadowing_poses, PosedObjects};
+use crate::light_buffer::LightBuffer;
 use crate::occluders::Occluders;
-use crate::reach_direct::ReachDirect;
+use crate::reach_direct::{reach_buffer, ReachDirect};
 use crate::runtime::merge_spans;
 
 /// An object's ball is widened by this much of the level's scale before the test (far above
@@ -145,12 +145,13 @@ impl LightRuns {
 }
 
 /// What the last update kept of a light it relit: the light's buffer over the level's
-/// occluders (the light never moves), and its direct light on the texels it relit with the
-/// objects where they then were (this update's light before the move there).
+/// occluders (the light never moves; None: the level is traced by its hierarchy), and its
+/// direct light on the texels it relit with the objects where they then were (this update's
+/// light before the move there).
 #[derive(Clone, Debug, Default)]
 struct Relit {
     light: usize,
-    buffer: LightBuffer,
+    buffer: Option<LightBuffer>,
     spans: Vec<Range<usize>>,
     values: Vec<[f32; 3]>,
 }
@@ -265,7 +266,7 @@ impl ShadowChange {
         let pad = PAD_REL * level.scale() as f64;
         let last = occluders_with_poses(level, bundle, poses);
         let mut placed = Vec::new();
-        placed_balls(bundle, poses, pad, &mut placed);
+        placed_balls(bundle, poses, last.as_ref(), pad, &mut placed);
         ShadowChange {
             lights: lights.to_vec(),
             reach,
@@ -318,7 +319,13 @@ impl ShadowChange {
         // The objects that moved (a pose not placed the same before, matched one to one),
         // where they were and where they are: an object that stayed changes no segment's
         // answer.
-        placed_balls(bundle, poses, self.pad, &mut self.placed_now);
+        placed_balls(
+            bundle,
+            poses,
+            posed.as_ref(),
+            self.pad,
+            &mut self.placed_now,
+        );
         self.matched.clear();
         self.matched.resize(self.placed.len(), false);
         self.both.clear();
@@ -378,30 +385,21 @@ impl ShadowChange {
             let mut relit = match self.relit.iter().position(|r| r.light == i) {
                 Some(k) => self.relit.swap_remove(k),
                 None => {
-                    let mut r = Relit {
-                        light: i,
-                        ..Relit::default()
-                    };
+                    let mut buffer = LightBuffer::new();
                     let at = light.position.map(|x| x as f32);
-                    match &reach.prims {
-                        Some(prims) => r.buffer.build(level, at, Some(prims)),
-                        None if level.len() <= WHOLE_LEVEL_MAX_OCCLUDERS => {
-                            r.buffer.build(level, at, None)
-                        }
-                        None => {}
+                    let prims = reach.prims.as_deref();
+                    Relit {
+                        light: i,
+                        buffer: reach_buffer(&mut buffer, level, at, prims).then_some(buffer),
+                        ..Relit::default()
                     }
-                    r
                 }
             };
-            let buffered = reach.prims.is_some() || level.len() <= WHOLE_LEVEL_MAX_OCCLUDERS;
-            let shadows = |occluders| {
-                if buffered {
-                    // The level's occluders through the buffer, the objects' triangles
-                    // through their own hierarchy.
-                    Shadows::BuffersAndPosed(occluders, std::slice::from_ref(&relit.buffer))
-                } else {
-                    Shadows::Occluders(occluders)
-                }
+            let shadows = |occluders| match &relit.buffer {
+                // The level's occluders through the buffer, the objects' triangles through
+                // their own hierarchy.
+                Some(b) => Shadows::BuffersAndPosed(occluders, std::slice::from_ref(b)),
+                None => Shadows::Occluders(occluders),
             };
             let mut k = 0;
             for r in &relit.spans {
@@ -474,24 +472,22 @@ impl ShadowChange {
     }
 }
 
-/// Each pose of `poses` whose object has a shape in `bundle`, with the ball around its posed
-/// triangles widened by `pad`, into `out`.
-fn placed_balls(bundle: &Bundle, poses: &[Pose], pad: f64, out: &mut Vec<(Pose, Ball)>) {
+/// Each pose of `poses` that casts a shadow, with the ball around its posed triangles (their
+/// box in `posed`, made by `occluders_with_poses` from the same poses) widened by `pad`, into
+/// `out`.
+fn placed_balls(
+    bundle: &Bundle,
+    poses: &[Pose],
+    posed: Option<&PosedObjects>,
+    pad: f64,
+    out: &mut Vec<(Pose, Ball)>,
+) {
     out.clear();
-    for pose in poses {
-        let Some(shape) = bundle.dynamic_shapes.iter().find(|s| s.object == pose.id) else {
-            continue;
-        };
-        let mut bounds: Option<(DVec3, DVec3)> = None;
-        for v in posed_triangles(shape, pose).iter().flatten() {
-            let v = DVec3::from_array(v.map(f64::from));
-            bounds = Some(bounds.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))));
-        }
-        if let Some((lo, hi)) = bounds {
-            let ball = Ball::around((lo.to_array(), hi.to_array()));
-            let radius = ball.radius + pad;
-            out.push((pose.clone(), Ball { radius, ..ball }));
-        }
+    let boxes = posed.map_or(&[][..], |p| &p.boxes);
+    for ((pose, _), &b) in shadowing_poses(bundle, poses).zip(boxes) {
+        let ball = Ball::around(b);
+        let radius = ball.radius + pad;
+        out.push((pose.clone(), Ball { radius, ..ball }));
     }
 }
 

@@ -32,15 +32,14 @@ use std::ops::Range;
 use std::time::Instant;
 
 use lightfarm_client::{
-    direct_from_point_lights_adaptive, direct_scale, occluders_with_poses, relative_l2, Bounces,
-    Bundle, DirectLight, IndirectLight, Method, ObjectLight, Occluders, ProbeField, ReachDirect,
-    Runtime, ShadowChange,
+    direct_scale, relative_l2, Bounces, IndirectLight, Method, ObjectLight, Occluders, ProbeField,
+    ReachDirect, Runtime, ShadowChange,
 };
 use lightfarm_proto::glam::DQuat;
 use lightfarm_proto::lights::{LightSet, Pose};
 
 use super::frame_probes::{ProbeTimes, ProbeWay};
-use super::frame_update::median;
+use super::frame_update::{direct_of, median};
 use crate::evaluate::{is_bounced, DIRECT_SAMPLES_PER_EDGE};
 
 /// Frames of one turn of the path.
@@ -91,33 +90,6 @@ pub fn path_pose(pose: &Pose, radius: f64, frame: usize) -> Pose {
     }
 }
 
-/// Every light's direct light with the objects at `poses` (the full way's).
-fn whole_direct(
-    reach: &mut Option<ReachDirect>,
-    bundle: &Bundle,
-    level: &Occluders,
-    lights: &LightSet,
-    poses: &[Pose],
-    scale: f64,
-) -> DirectLight {
-    let layout = &bundle.layout;
-    let posed = occluders_with_poses(level, bundle, poses);
-    let m = DIRECT_SAMPLES_PER_EDGE;
-    match (reach.as_mut(), posed.as_ref()) {
-        (Some(r), Some(p)) => {
-            r.with_posed(p)
-                .all_lights(layout, &p.occluders, &lights.lights, m, scale)
-        }
-        (Some(r), None) => r.all_lights(layout, level, &lights.lights, m, scale),
-        (None, p) => direct_from_point_lights_adaptive(
-            layout,
-            p.map_or(level, |p| &p.occluders),
-            &lights.lights,
-            m,
-        ),
-    }
-}
-
 /// `a + b + c` per texel and channel (the light a way adds to the lightmap).
 fn sum3(a: &[[f32; 3]], b: &[[f32; 3]], c: &[[f32; 3]]) -> Vec<[f32; 3]> {
     (a.iter().zip(b).zip(c))
@@ -163,7 +135,14 @@ pub fn time_object(
     // Frame 0, both ways from the same poses.
     poses[object] = path_pose(&start_pose, radius, 0);
     let mut full_reach = ReachDirect::new(&bundle, level);
-    let direct0 = whole_direct(&mut full_reach, &bundle, level, lights, &poses, scale);
+    let direct0 = direct_of(
+        &mut full_reach,
+        &bundle,
+        level,
+        &lights.lights,
+        &poses,
+        scale,
+    );
     let mut full_out = IndirectLight::default();
     runtime.apply(method, bounces, &direct0, &mut full_out)?;
     // The update way keeps frame 0's direct light and adds every change to it.
@@ -189,7 +168,14 @@ pub fn time_object(
         poses[object] = path_pose(&start_pose, radius, frame);
         // Full.
         let t0 = Instant::now();
-        let direct = whole_direct(&mut full_reach, &bundle, level, lights, &poses, scale);
+        let direct = direct_of(
+            &mut full_reach,
+            &bundle,
+            level,
+            &lights.lights,
+            &poses,
+            scale,
+        );
         let t1 = Instant::now();
         runtime.apply(method, bounces, &direct, &mut full_out)?;
         let t2 = Instant::now();

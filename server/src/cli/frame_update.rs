@@ -54,10 +54,12 @@ use std::ops::Range;
 
 use lightfarm_client::{
     direct_from_point_lights_adaptive, direct_from_point_lights_adaptive_in, direct_scale,
-    every_sample_by_reach, relative_l1, relative_l2, Bounces, DirectLight, IndirectLight, Light,
-    Method, Occluders, ProbeField, ReachDirect, Runtime, TexelSpan,
+    every_sample_by_reach, frame_occluders, occluders_with_poses, relative_l1, relative_l2,
+    Bounces, Bundle, DirectLight, IndirectLight, Light, Method, Occluders, ProbeField, ReachDirect,
+    Runtime, TexelSpan,
 };
 use lightfarm_proto::bundle::Layout;
+use lightfarm_proto::lights::Pose;
 
 use super::frame_probes::{ProbeTimes, ProbeWay};
 use crate::evaluate::{is_bounced, DIRECT_SAMPLES_PER_EDGE};
@@ -182,20 +184,29 @@ pub(crate) fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// The texel-averaged direct light both ways feed the operators, with shadow rays only where
-/// visibility changes across a texel ([`direct_from_point_lights_adaptive`]); with rooms, each
-/// light on the texels it reaches only ([`ReachDirect::all_lights`], the same bits).
-fn direct_of(
+/// Every light's direct light with the dynamic objects at `poses` (none: the level alone), as
+/// the full way relights it: texel-averaged with adaptive shadow rays
+/// ([`DIRECT_SAMPLES_PER_EDGE`]), each light where it reaches against the occluders there
+/// when the bundle has rooms (`reach`, the level's; `ReachDirect::with_posed` adds the
+/// objects), every texel otherwise.
+pub(crate) fn direct_of(
     reach: &mut Option<ReachDirect>,
-    layout: &Layout,
-    occluders: &Occluders,
+    bundle: &Bundle,
+    level: &Occluders,
     lights: &[Light],
+    poses: &[Pose],
     scale: f64,
 ) -> DirectLight {
-    match reach {
-        Some(r) => r.all_lights(layout, occluders, lights, DIRECT_SAMPLES_PER_EDGE, scale),
-        None => {
-            direct_from_point_lights_adaptive(layout, occluders, lights, DIRECT_SAMPLES_PER_EDGE)
+    let layout = &bundle.layout;
+    let posed = occluders_with_poses(level, bundle, poses);
+    let m = DIRECT_SAMPLES_PER_EDGE;
+    match (reach.as_mut(), posed.as_ref()) {
+        (Some(r), Some(p)) => r
+            .with_posed(p)
+            .all_lights(layout, &p.occluders, lights, m, scale),
+        (Some(r), None) => r.all_lights(layout, level, lights, m, scale),
+        (None, p) => {
+            direct_from_point_lights_adaptive(layout, frame_occluders(level, p), lights, m)
         }
     }
 }
@@ -308,7 +319,14 @@ pub fn time_update(
     // Each way walks its lights' reaches with scratch of its own.
     let mut full_reach = ReachDirect::new(runtime.bundle(), occluders);
     let both = ways == Ways::Both;
-    let direct0 = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
+    let direct0 = direct_of(
+        &mut full_reach,
+        runtime.bundle(),
+        occluders,
+        &lights,
+        &[],
+        scale,
+    );
     let (mut direct_error, mut direct_every_sample_ms) = (f64::NAN, f64::NAN);
     if both {
         // Every sample traced (each light where it reaches, with rooms).
@@ -375,7 +393,14 @@ pub fn time_update(
     let mut warm_way = warm.then(|| {
         let mut others = lights.clone();
         others.remove(moved);
-        let others = direct_of(&mut full_reach, &layout, occluders, &others, scale);
+        let others = direct_of(
+            &mut full_reach,
+            runtime.bundle(),
+            occluders,
+            &others,
+            &[],
+            scale,
+        );
         let mut total = others.clone();
         for (t, p) in total.radiance.iter_mut().zip(&previous) {
             *t = [t[0] + p[0], t[1] + p[1], t[2] + p[2]];
@@ -401,7 +426,14 @@ pub fn time_update(
         // Full: every light's direct light, then apply (every frame, or after the last).
         if both || frame == frames {
             let start = Instant::now();
-            let direct = direct_of(&mut full_reach, &layout, occluders, &lights, scale);
+            let direct = direct_of(
+                &mut full_reach,
+                runtime.bundle(),
+                occluders,
+                &lights,
+                &[],
+                scale,
+            );
             let mid = Instant::now();
             runtime.apply(method, bounces, &direct, &mut full_out)?;
             full[0].push((mid - start).as_secs_f64() * 1e3);
