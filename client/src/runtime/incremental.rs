@@ -48,12 +48,13 @@
 //! operators' part of a frame went from 10.9 ms (whole-level passes and the whole gather) to
 //! 2.0 ms.
 //!
-//! The maze (T=16), one light moving, one bounce: a frame's products read 1.8 M packed entries
-//! (3.2 MB; 60% of the bytes are matrices the codec kept in f32, f16 being over its budget,
-//! none of whose values are f16 numbers), and perf puts about half of the operators' time in those products. The bytes are
-//! not the whole bound: the same level baked with every matrix in 8 bits (`--codec u8`)
-//! relit only 14% faster (operators' part, four interleaved runs each: 1.16–1.31 against
-//! 1.38–1.51 ms, medians 1.21 and 1.42, in a slow hour of the shared machine).
+//! The maze (T=16), one light moving, one bounce: a frame's products read 1.94 M packed
+//! entries, all 8-bit (2.1 MB; DRT's delta entries, on floored 8-bit grids, were read as f32
+//! before `packed` recognised those grids: 3.5 MB), and perf puts about half of the
+//! operators' time in those products. The bytes are not the bound: a quarter of them for the
+//! deltas made the operators' part 0.77–0.83 → 0.72–0.75 ms (with 16-row panels; three
+//! interleaved runs each), and without the full way's passes between frames (caches warm; a
+//! temporary switch) it was 0.51–0.54 ms either way.
 //!
 //! Invariant: outside [`Runtime::apply_delta`] no reach is set, so `apply` and the probes always
 //! do the full work.
