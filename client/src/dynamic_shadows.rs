@@ -44,8 +44,9 @@ pub fn posed_triangles(shape: &DynamicShape, pose: &Pose) -> Vec<[[f32; 3]; 3]> 
 #[derive(Clone, Debug)]
 pub struct PosedObjects {
     /// The level's occluders plus every posed object's triangles, with the level's margins
-    /// ([`Occluders::with_triangles`]: the level's hierarchy shared, the objects' in one of
-    /// their own, numbered after the level's).
+    /// ([`Occluders::with_objects_triangles`]: the level's hierarchy shared, the objects' in
+    /// one of their own, numbered after the level's, each triangle's object numbered by its
+    /// place in [`shadowing_poses`], for [`Occluders::occluded_except`]).
     pub occluders: Occluders,
     /// Per posed object, the bounds `(min, max)` of its posed triangles (metres), in the order
     /// of [`shadowing_poses`].
@@ -77,7 +78,7 @@ pub fn occluders_with_poses(
     bundle: &Bundle,
     poses: &[Pose],
 ) -> Option<PosedObjects> {
-    let (mut triangles, mut boxes) = (Vec::new(), Vec::new());
+    let (mut triangles, mut owners, mut boxes) = (Vec::new(), Vec::new(), Vec::new());
     for (pose, shape) in shadowing_poses(bundle, poses) {
         let posed = posed_triangles(shape, pose);
         let mut bounds: Option<(DVec3, DVec3)> = None;
@@ -86,12 +87,13 @@ pub fn occluders_with_poses(
             bounds = Some(bounds.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))));
         }
         if let Some((lo, hi)) = bounds {
+            owners.resize(owners.len() + posed.len(), boxes.len() as u32);
             boxes.push((lo.to_array(), hi.to_array()));
             triangles.extend(posed);
         }
     }
     (!triangles.is_empty()).then(|| PosedObjects {
-        occluders: level.with_triangles(&triangles),
+        occluders: level.with_objects_triangles(&triangles, &owners),
         boxes,
     })
 }

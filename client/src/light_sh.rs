@@ -24,8 +24,20 @@ pub fn point_light_irradiance_sh(
     lights: &[Light],
     position: [f32; 3],
 ) -> [[f32; SH_COEFFS]; 3] {
+    let occluded = |a, b| occluders.occluded(a, b);
+    point_light_irradiance_sh_with(occluded, occluders.scale(), lights, position)
+}
+
+/// [`point_light_irradiance_sh`] with the shadow query `occluded(position, light)` of
+/// occluders of scale `scale`.
+pub(crate) fn point_light_irradiance_sh_with(
+    occluded: impl Fn([f32; 3], [f32; 3]) -> bool,
+    scale: f32,
+    lights: &[Light],
+    position: [f32; 3],
+) -> [[f32; SH_COEFFS]; 3] {
     let mut out = [[0.0f64; SH_COEFFS]; 3];
-    let min_r2 = (R_MIN_REL * occluders.scale() as f64).powi(2);
+    let min_r2 = (R_MIN_REL * scale as f64).powi(2);
     let a = irradiance_weights();
     for light in lights {
         let LightKind::Point = light.kind;
@@ -35,7 +47,7 @@ pub fn point_light_irradiance_sh(
             continue;
         }
         let target = light.position.map(|x| x as f32);
-        if occluders.occluded(position, target) {
+        if occluded(position, target) {
             continue;
         }
         let dist = dist2.sqrt();

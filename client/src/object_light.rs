@@ -37,8 +37,8 @@ use lightfarm_proto::sh::SH_COEFFS;
 
 use crate::direct::DirectLight;
 use crate::dnrt::{DnrtError, DnrtNear, DnrtVolume};
-use crate::dynamic_shadows::{frame_occluders, occluders_with_poses};
-use crate::light_sh::point_light_irradiance_sh;
+use crate::dynamic_shadows::{frame_occluders, occluders_with_poses, shadowing_poses};
+use crate::light_sh::{point_light_irradiance_sh, point_light_irradiance_sh_with};
 use crate::occluders::Occluders;
 use crate::probes::{irradiance_sh_at, radiance_sh_at, ProbeField};
 use crate::runtime::{
@@ -144,10 +144,19 @@ impl ObjectLight {
         let Some(volume) = volume else {
             return Ok(());
         };
-        for (i, (pose, &g)) in poses.iter().zip(&which).enumerate() {
+        // Every object posed once, each numbered by its place among the shadowing poses.
+        let posed = occluders_with_poses(level, bundle, poses);
+        let occluders = frame_occluders(level, posed.as_ref());
+        let mut placed = 0u32;
+        for (pose, &g) in poses.iter().zip(&which) {
+            let casts = shadowing_poses(bundle, std::slice::from_ref(pose)).next();
+            let own = casts.map(|_| {
+                placed += 1;
+                placed - 1
+            });
             let dnrt = &self.volumes[g];
             let centre = dnrt.centre_world(pose.translation, pose.rotation);
-            let mut lit = lights_at_object(bundle, level, poses, i, lights, centre);
+            let mut lit = lights_at_object(occluders, own, lights, centre);
             if bounced {
                 let walls = irradiance_sh_at(volume, field, centre);
                 for (l, w) in lit.iter_mut().zip(walls) {
@@ -204,23 +213,28 @@ impl ObjectLight {
     }
 }
 
-/// The point lights' irradiance SH at posed object `i`'s centre `centre` (its light-probe
-/// input): shadowed by the level's occluders `level` and by the other posed objects, not by
-/// the object's own triangles, which enclose its centre. With one pose, the level's answer.
+/// The point lights' irradiance SH at a posed object's centre `centre` (its light-probe
+/// input): shadowed by the frame's `occluders` (the level's with every posed object in,
+/// [`occluders_with_poses`]) but for the object's own triangles (`own`, its number there;
+/// `None` when it casts no shadow), which enclose its centre. With one pose, the level's
+/// answer. One hierarchy over every object serves all of them: the objects' light costs a
+/// build over their triangles once a frame, not once per object.
 fn lights_at_object(
-    bundle: &Bundle,
-    level: &Occluders,
-    poses: &[Pose],
-    i: usize,
+    occluders: &Occluders,
+    own: Option<u32>,
     lights: &[Light],
     centre: [f32; 3],
 ) -> [[f32; SH_COEFFS]; 3] {
-    let others: Vec<Pose> = (poses.iter().enumerate())
-        .filter(|&(j, _)| j != i)
-        .map(|(_, p)| p.clone())
-        .collect();
-    let others = occluders_with_poses(level, bundle, &others);
-    point_light_irradiance_sh(frame_occluders(level, others.as_ref()), lights, centre)
+    let scale = occluders.scale();
+    match own {
+        Some(own) => point_light_irradiance_sh_with(
+            |a, b| occluders.occluded_except(a, b, own),
+            scale,
+            lights,
+            centre,
+        ),
+        None => point_light_irradiance_sh(occluders, lights, centre),
+    }
 }
 
 #[cfg(test)]
@@ -443,9 +457,18 @@ mod tests {
         ];
         let lamp = std::slice::from_ref(&lamp);
         let energy = |sh: [[f32; 9]; 3]| sh.iter().flatten().map(|c| c.abs()).sum::<f32>();
-        let lower_alone = lights_at_object(&bundle, &level, &both[1..], 0, lamp, [0.0, 0.5, 0.0]);
-        let lower = lights_at_object(&bundle, &level, &both, 1, lamp, [0.0, 0.5, 0.0]);
-        let upper = lights_at_object(&bundle, &level, &both, 0, lamp, [0.0, 2.0, 0.0]);
+        let at = |poses: &[Pose], own: u32, centre: [f32; 3]| {
+            let posed = occluders_with_poses(&level, &bundle, poses);
+            lights_at_object(
+                frame_occluders(&level, posed.as_ref()),
+                Some(own),
+                lamp,
+                centre,
+            )
+        };
+        let lower_alone = at(&both[1..], 0, [0.0, 0.5, 0.0]);
+        let lower = at(&both, 1, [0.0, 0.5, 0.0]);
+        let upper = at(&both, 0, [0.0, 2.0, 0.0]);
         // 10 W/sr at 2.5 m: the DC term of the lobe is Â₀ · 1.6 · Y₀₀ > 0.
         assert!(energy(lower_alone) > 0.5, "{lower_alone:?}");
         assert_eq!(energy(lower), 0.0, "{lower:?}");

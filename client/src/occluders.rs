@@ -12,7 +12,10 @@
 //! level's primitives. Placing objects every frame then costs a build over the objects'
 //! triangles, not over the level, and keeps the level's primitive numbers (the rooms' lists of
 //! `reach_direct` stay valid); a query asks both hierarchies, which answers what one over all
-//! the primitives would.
+//! the primitives would. The objects' triangles may carry their object's number
+//! ([`Occluders::with_objects_triangles`]), so that a query from inside one object leaves its
+//! own surface out ([`Occluders::occluded_except`]: the light-probe input at an object's
+//! centre), with one hierarchy for every object of a frame.
 //!
 //! Invariants:
 //! - Hits count only strictly inside the segment, away from both ends by
@@ -111,8 +114,15 @@ struct Node {
 struct Tree {
     /// Primitives, reordered so every leaf's are contiguous.
     prims: Vec<Prim>,
+    /// Per primitive (same order), the posed object it belongs to
+    /// ([`Occluders::with_objects_triangles`]; [`NO_OWNER`] for none); empty when no
+    /// primitive has one.
+    owners: Vec<u32>,
     nodes: Vec<Node>,
 }
+
+/// The owner of a primitive that belongs to no posed object.
+const NO_OWNER: u32 = u32::MAX;
 
 /// Occluding geometry with a BVH for shadow rays.
 #[derive(Clone, Debug)]
@@ -301,19 +311,45 @@ impl Occluders {
     /// `triangles` crosses gets exactly this one's answer. Costs a build over the objects'
     /// triangles only.
     pub fn with_triangles(&self, triangles: &[[[f32; 3]; 3]]) -> Occluders {
-        let mut prims = self
-            .posed
-            .as_ref()
-            .map_or_else(Vec::new, |t| t.prims.clone());
-        let added: Vec<Prim> = triangles.iter().map(|t| Prim::Tri(*t)).collect();
-        let bounds = match (self.bounds, added.iter().map(Prim::bounds).reduce(union)) {
+        self.with_objects_triangles(triangles, &[])
+    }
+
+    /// [`Occluders::with_triangles`] with each triangle's object: `owners[k]` numbers the
+    /// object triangle k belongs to (empty: none), so that
+    /// [`Occluders::occluded_except`] can leave one object's own triangles out.
+    pub fn with_objects_triangles(&self, triangles: &[[[f32; 3]; 3]], owners: &[u32]) -> Occluders {
+        debug_assert!(owners.is_empty() || owners.len() == triangles.len());
+        let mut prims: Vec<(Prim, u32)> = match &self.posed {
+            Some(t) => (t.prims.iter().enumerate())
+                .map(|(i, &p)| (p, t.owners.get(i).copied().unwrap_or(NO_OWNER)))
+                .collect(),
+            None => Vec::new(),
+        };
+        let added = triangles
+            .iter()
+            .enumerate()
+            .map(|(k, t)| (Prim::Tri(*t), owners.get(k).copied().unwrap_or(NO_OWNER)));
+        let first_added = prims.len();
+        prims.extend(added);
+        let added_bounds = prims[first_added..]
+            .iter()
+            .map(|(p, _)| p.bounds())
+            .reduce(union);
+        let bounds = match (self.bounds, added_bounds) {
             (Some(a), Some(b)) => Some(union(a, b)),
             (a, b) => a.or(b),
         };
-        prims.extend(added);
+        let owned = prims.iter().any(|&(_, o)| o != NO_OWNER);
+        let posed = (!prims.is_empty()).then(|| {
+            let mut tree = Tree::build_owned(prims, BOX_PAD * self.scale);
+            if !owned {
+                tree.owners = Vec::new();
+            }
+            tree
+        });
         Occluders {
             level: Arc::clone(&self.level),
-            posed: (!prims.is_empty()).then(|| Tree::build(prims, BOX_PAD * self.scale)),
+            posed,
             bounds,
             scale: self.scale,
         }
@@ -354,11 +390,26 @@ impl Occluders {
 
 impl Tree {
     /// The hierarchy over `prims`, node boxes padded by `pad`.
-    fn build(mut prims: Vec<Prim>, pad: f32) -> Tree {
+    fn build(prims: Vec<Prim>, pad: f32) -> Tree {
+        let (prims, _) = Tree::build_with(prims.into_iter().map(|p| (p, ())).collect(), pad);
+        prims
+    }
+
+    /// [`Tree::build`] over primitives with their owners (kept in [`Tree::owners`]).
+    fn build_owned(prims: Vec<(Prim, u32)>, pad: f32) -> Tree {
+        let (mut tree, owners) = Tree::build_with(prims, pad);
+        tree.owners = owners;
+        tree
+    }
+
+    /// The hierarchy over `prims` (each with a payload, returned in the tree's primitive
+    /// order), node boxes padded by `pad`.
+    fn build_with<O: Copy>(prims: Vec<(Prim, O)>, pad: f32) -> (Tree, Vec<O>) {
         let mut nodes: Vec<Node> = Vec::with_capacity(2 * prims.len().div_ceil(LEAF_SIZE).max(1));
+        let (mut sorted, mut payloads) = (Vec::new(), Vec::new());
         if !prims.is_empty() {
-            let mut centroids: Vec<([f32; 3], Prim)> =
-                prims.iter().map(|p| (p.centroid(), *p)).collect();
+            let mut centroids: Vec<([f32; 3], Prim, O)> =
+                prims.iter().map(|&(p, o)| (p.centroid(), p, o)).collect();
             nodes.push(Node {
                 min: [0.0; 3],
                 max: [0.0; 3],
@@ -370,7 +421,7 @@ impl Tree {
             while let Some((ni, start, end)) = work.pop() {
                 let items = &mut centroids[start..end];
                 let (mut lo, mut hi) = items[0].1.bounds();
-                for (_, p) in items.iter() {
+                for (_, p, _) in items.iter() {
                     (lo, hi) = union((lo, hi), p.bounds());
                 }
                 for k in 0..3 {
@@ -385,7 +436,7 @@ impl Tree {
                     continue;
                 }
                 let (mut clo, mut chi) = (items[0].0, items[0].0);
-                for (c, _) in items.iter() {
+                for (c, _, _) in items.iter() {
                     (clo, chi) = union((clo, chi), (*c, *c));
                 }
                 let ext = Vec3::from(chi) - Vec3::from(clo);
@@ -416,9 +467,14 @@ impl Tree {
                 work.push((left, start, start + mid));
                 work.push((left + 1, start + mid, end));
             }
-            prims = centroids.into_iter().map(|(_, p)| p).collect();
+            (sorted, payloads) = centroids.into_iter().map(|(_, p, o)| (p, o)).unzip();
         }
-        Tree { prims, nodes }
+        let tree = Tree {
+            prims: sorted,
+            owners: Vec::new(),
+            nodes,
+        };
+        (tree, payloads)
     }
 
     /// Appends `first +` the index of every primitive whose bounds meet the closed box
@@ -450,6 +506,19 @@ impl Tree {
     /// Does a primitive cross `origin + t·d` for `tmin < t < tmax`? (the traversal of
     /// [`Occluders::occluded`]).
     fn occluded(&self, origin: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+        self.occluded_by(origin, d, tmin, tmax, |_| true)
+    }
+
+    /// [`Tree::occluded`] by the primitives `counts(i)` holds (i in the tree's order).
+    #[inline(always)]
+    fn occluded_by(
+        &self,
+        origin: Vec3,
+        d: Vec3,
+        tmin: f32,
+        tmax: f32,
+        counts: impl Fn(usize) -> bool,
+    ) -> bool {
         if self.nodes.is_empty() {
             return false;
         }
@@ -463,7 +532,9 @@ impl Tree {
                 if node.count > 0 {
                     let first = node.first as usize;
                     let leaf = &self.prims[first..first + node.count as usize];
-                    if leaf.iter().any(|p| p.hit(origin, d, tmin, tmax)) {
+                    let hit =
+                        |(k, p): (usize, &Prim)| counts(first + k) && p.hit(origin, d, tmin, tmax);
+                    if leaf.iter().enumerate().any(hit) {
                         return true;
                     }
                 } else {
@@ -696,6 +767,26 @@ impl Occluders {
             .any(|(tree, _)| tree.occluded(origin, d, tmin, tmax))
     }
 
+    /// [`Occluders::occluded`] without posed object `object`'s own triangles (its number in
+    /// [`Occluders::with_objects_triangles`]): what occluders made with every other object's
+    /// triangles alone would answer (a query from inside an object, which its own surface
+    /// encloses).
+    pub fn occluded_except(&self, origin: [f32; 3], target: [f32; 3], object: u32) -> bool {
+        if self.is_empty() {
+            return false;
+        }
+        let origin = Vec3::from(origin);
+        let Some((d, tmin, tmax)) = self.segment(origin, Vec3::from(target)) else {
+            return false;
+        };
+        self.level.occluded(origin, d, tmin, tmax)
+            || self.posed.as_ref().is_some_and(|t| {
+                t.occluded_by(origin, d, tmin, tmax, |i| {
+                    t.owners.get(i).is_none_or(|&o| o != object)
+                })
+            })
+    }
+
     /// [`Occluders::occluded`] against the posed objects' triangles alone
     /// ([`Occluders::with_triangles`]; false without any): with the level's answer from
     /// elsewhere (a light buffer over its primitives), the same answer.
@@ -905,6 +996,58 @@ pub(crate) mod tests {
         assert!(
             hits > total / 10 && hits < total * 9 / 10,
             "{hits} of {total}"
+        );
+    }
+
+    /// Leaving one object's triangles out ([`Occluders::occluded_except`] over every object
+    /// numbered, [`Occluders::with_objects_triangles`]) answers what occluders made with the
+    /// other objects' triangles alone answer, for every object, segments through and from
+    /// inside the objects included.
+    #[test]
+    fn leaving_one_object_out_answers_what_the_others_alone_answer() {
+        let mut rng = Lcg(0x0b_1ec7);
+        let (mut differ, mut total) = (0, 0);
+        for scene in 0..12 {
+            let (rects, tris) = random_scene(&mut rng, 8 + scene, 36);
+            let (level_tris, posed) = tris.split_at(6);
+            let level = Occluders::new(&rects, level_tris);
+            // Five objects of six triangles each, in order.
+            let owners: Vec<u32> = (0..posed.len() as u32).map(|k| k / 6).collect();
+            let all = level.with_objects_triangles(posed, &owners);
+            assert_eq!(all.len(), level.len() + posed.len());
+            for object in 0..5u32 {
+                let others: Vec<_> = (posed.iter().zip(&owners))
+                    .filter(|&(_, &o)| o != object)
+                    .map(|(t, _)| *t)
+                    .collect();
+                let want_from = level.with_triangles(&others);
+                for _ in 0..150 {
+                    // From a vertex of the object half the time: a ray from inside it.
+                    let o = if rng.next_u32().is_multiple_of(2) {
+                        posed[(object as usize) * 6][0]
+                    } else {
+                        rng.point(-6.0, 6.0)
+                    };
+                    let t = rng.point(-6.0, 6.0);
+                    let got = all.occluded_except(o, t, object);
+                    assert_eq!(
+                        got,
+                        want_from.occluded(o, t),
+                        "scene {scene} object {object}"
+                    );
+                    differ += (got != all.occluded(o, t)) as usize;
+                    total += 1;
+                }
+            }
+            // An object no triangle has leaves nothing out.
+            for _ in 0..50 {
+                let (o, t) = (rng.point(-6.0, 6.0), rng.point(-6.0, 6.0));
+                assert_eq!(all.occluded_except(o, t, 99), all.occluded(o, t));
+            }
+        }
+        assert!(
+            differ * 200 > total,
+            "the object's own triangles matter: {differ}/{total}"
         );
     }
 
