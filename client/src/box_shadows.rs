@@ -6,7 +6,7 @@
 //! [`BoxShadows::query`] walks the [`LightBuffer`] cells that the directions from the light to
 //! the box pick (every entry [`LightBuffer::occluded`] could test for an origin in the box),
 //! and classifies each primitive against the whole box with
-//! [`Occluders::prim_crosses_from_box`]:
+//! [`Occluders::prim_crosses_box_segments`]:
 //! - [`BoxShadow::Dark`]: one primitive crosses every segment, so every sample is occluded;
 //! - [`BoxShadow::Clear`]: none can cross any, so no sample is;
 //! - [`BoxShadow::Listed`]: the primitives that may ([`BoxShadows::listed`]); a shadow ray from
@@ -104,13 +104,14 @@ impl BoxShadows {
             return BoxShadow::Unknown;
         }
         let (seen, stamp, listed) = (&mut self.seen, self.stamp, &mut self.listed);
+        let segments = occluders.box_segments(light, lo, hi);
         let walked = buffer.entries_toward_box(lo, hi, reach, MAX_CELLS, |prim, rank| {
             let s = &mut seen[rank as usize];
             if *s == stamp {
                 return true;
             }
             *s = stamp;
-            match occluders.prim_crosses_from_box(prim as usize, light, lo, hi) {
+            match occluders.prim_crosses_box_segments(prim as usize, &segments) {
                 BoxCross::Never => true,
                 BoxCross::Every => false,
                 BoxCross::Maybe => {

@@ -47,14 +47,27 @@ const T_EPS_REL: f32 = 1e-4;
 const EPS_SCALE: f32 = 1e-4;
 /// Node-box padding, relative to the scene scale.
 const BOX_PAD: f32 = 1e-5;
-/// [`Occluders::prim_crosses_from_box`]'s slack on positions, relative to the largest
+/// [`Occluders::prim_crosses_box_segments`]'s slack on positions, relative to the largest
 /// coordinate or the scale: a hundred times the f32 test's rounding.
 const BOX_SLACK_REL: f64 = 1e-5;
-/// [`Occluders::prim_crosses_from_box`]'s slack on segment parameters (the f32 test rounds `t`
+/// [`Occluders::prim_crosses_box_segments`]'s slack on segment parameters (the f32 test rounds `t`
 /// to a few 1e-7).
 const BOX_T_SLACK: f64 = 1e-5;
 
-/// What one primitive does to a box's shadow segments ([`Occluders::prim_crosses_from_box`]).
+/// The shadow segments from a box to a light ([`Occluders::box_segments`]): the light and the
+/// box in f64, whether all are finite, the slack on positions and the box's distance to the
+/// light.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct BoxSegments {
+    l: [f64; 3],
+    lo: [f64; 3],
+    hi: [f64; 3],
+    finite: bool,
+    slack: f64,
+    len_min: f64,
+}
+
+/// What one primitive does to a box's shadow segments ([`Occluders::prim_crosses_box_segments`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum BoxCross {
     /// It crosses none of them.
@@ -629,11 +642,8 @@ impl Occluders {
         self.prim(i).hit(seg.o, seg.d, seg.tmin, seg.tmax)
     }
 
-    /// What primitive `i` does to every segment [`Occluders::occluded`] tests from a point of
-    /// the box `[lo, hi]` to `light` (module [`crate::box_shadows`] says why each answer is
-    /// exact to the f32 test): [`BoxCross::Never`] when it crosses none, [`BoxCross::Every`]
-    /// when it crosses each one, else [`BoxCross::Maybe`]. Conservative: `Maybe` is always a
-    /// correct answer, and a non-finite box or light gets it.
+    /// [`Occluders::prim_crosses_box_segments`] of one box (the form the tests use).
+    #[cfg(test)]
     pub(crate) fn prim_crosses_from_box(
         &self,
         i: usize,
@@ -641,15 +651,50 @@ impl Occluders {
         lo: [f64; 3],
         hi: [f64; 3],
     ) -> BoxCross {
+        self.prim_crosses_box_segments(i, &self.box_segments(light, lo, hi))
+    }
+
+    /// The segments from the box `[lo, hi]` to `light`, prepared for
+    /// [`Occluders::prim_crosses_box_segments`] (what the tests of every primitive share).
+    pub(crate) fn box_segments(&self, light: [f32; 3], lo: [f64; 3], hi: [f64; 3]) -> BoxSegments {
         let l = light.map(f64::from);
-        if !(l.iter().chain(&lo).chain(&hi).all(|x| x.is_finite())) {
-            return BoxCross::Maybe;
-        }
+        let finite = l.iter().chain(&lo).chain(&hi).all(|x| x.is_finite());
         // Slack for the f32 test's rounding: coordinates and the scale set its size.
         let mag = (0..3).fold(self.scale as f64, |m, k| {
             m.max(l[k].abs()).max(lo[k].abs()).max(hi[k].abs())
         });
-        let slack = BOX_SLACK_REL * mag;
+        BoxSegments {
+            l,
+            lo,
+            hi,
+            finite,
+            slack: BOX_SLACK_REL * mag,
+            len_min: if finite {
+                box_distance(l, lo, hi)
+            } else {
+                f64::NAN
+            },
+        }
+    }
+
+    /// What primitive `i` does to every segment [`Occluders::occluded`] tests from a point of
+    /// the box `[lo, hi]` to `light` (prepared by [`Occluders::box_segments`], once for all the
+    /// primitives a box query tests; module [`crate::box_shadows`] says why each answer is
+    /// exact to the f32 test): [`BoxCross::Never`] when it crosses none, [`BoxCross::Every`]
+    /// when it crosses each one, else [`BoxCross::Maybe`]. Conservative: `Maybe` is always a
+    /// correct answer, and a non-finite box or light gets it.
+    pub(crate) fn prim_crosses_box_segments(&self, i: usize, b: &BoxSegments) -> BoxCross {
+        let BoxSegments {
+            l,
+            lo,
+            hi,
+            finite,
+            slack,
+            len_min,
+        } = *b;
+        if !finite {
+            return BoxCross::Maybe;
+        }
         match *self.prim(i) {
             Prim::Rect {
                 axis,
@@ -670,15 +715,20 @@ impl Occluders {
                 }
                 // Every segment crosses the plane: where, is the central projection from the
                 // light of the box onto it, inside the box around its corners' projections.
+                // A corner's projection along tangent k takes `s` from its coordinate along
+                // the normal and its own coordinate along k: the eight corners give, per
+                // tangent, the four pairs of (lo or hi along a, lo or hi along k), two
+                // divisions in all.
                 let (u, v) = tangent_axes(axis);
                 let (mut plo, mut phi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-                for corner in 0..8 {
-                    let p = [0, 1, 2].map(|k| if corner >> k & 1 == 0 { lo[k] } else { hi[k] });
-                    let s = (c - l[a]) / (p[a] - l[a]);
+                for pa in [lo[a], hi[a]] {
+                    let s = (c - l[a]) / (pa - l[a]);
                     for (j, k) in [u, v].into_iter().enumerate() {
-                        let x = l[k] + s * (p[k] - l[k]);
-                        plo[j] = plo[j].min(x);
-                        phi[j] = phi[j].max(x);
+                        for pk in [lo[k], hi[k]] {
+                            let x = l[k] + s * (pk - l[k]);
+                            plo[j] = plo[j].min(x);
+                            phi[j] = phi[j].max(x);
+                        }
                     }
                 }
                 let (rmin, rmax) = (min.map(f64::from), max.map(f64::from));
@@ -692,7 +742,6 @@ impl Occluders {
                 // interval, whose margin is widest for the shortest segment.
                 let t_at = |oa: f64| (c - oa) / (l[a] - oa);
                 let (t0, t1) = (t_at(lo[a]), t_at(hi[a]));
-                let len_min = box_distance(l, lo, hi);
                 if len_min.is_nan() || len_min <= 0.0 {
                     return BoxCross::Maybe;
                 }
