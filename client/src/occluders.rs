@@ -404,8 +404,8 @@ impl Occluders {
 impl Tree {
     /// The hierarchy over `prims`, node boxes padded by `pad`.
     fn build(prims: Vec<Prim>, pad: f32) -> Tree {
-        let (prims, _) = Tree::build_with(prims.into_iter().map(|p| (p, ())).collect(), pad);
-        prims
+        let (tree, _) = Tree::build_with(prims.into_iter().map(|p| (p, ())).collect(), pad);
+        tree
     }
 
     /// [`Tree::build`] over primitives with their owners (kept in [`Tree::owners`]).
@@ -1071,7 +1071,7 @@ pub(crate) mod tests {
                     .collect();
                 let want_from = level.with_triangles(&others);
                 for _ in 0..150 {
-                    // From a vertex of the object half the time: a ray from inside it.
+                    // From a vertex of the object half the time: a ray leaving its surface.
                     let o = if rng.next_u32().is_multiple_of(2) {
                         posed[(object as usize) * 6][0]
                     } else {
