@@ -43,7 +43,9 @@
 //! ```
 //!
 //! # Layout
-//! - [`occluders`]: a BVH over the bundle's occluder rects and triangles; shadow-ray queries.
+//! - [`occluders`] (a folder: `mod.rs` the queries, `tree.rs` the primitives and the BVH,
+//!   `box_cross.rs` a primitive against a box's shadow segments, `tests.rs`): a BVH over the
+//!   bundle's occluder rects and triangles; shadow-ray queries.
 //! - [`light_buffer`]: one point light's shadow rays answered from a cube of direction cells
 //!   listing the occluders nearest first (rebuilt per frame for a moving light; the same
 //!   answers as the BVH).
