@@ -20,10 +20,10 @@
 
 use lightfarm_client::{Bounces, ObjectLight};
 
-use crate::boundary::{slice, slice_mut, status_call};
-use crate::direct::{client_lights, LfPointLight};
-use crate::reach::{write_light_on_spans, LfTexelSpan};
-use crate::runtime::{check_rgb_len, LfRuntime};
+use crate::boundary::{slice_mut, status_call};
+use crate::direct::LfPointLight;
+use crate::reach::{lights_and_light_out, write_light_on_spans, LfTexelSpan};
+use crate::runtime::LfRuntime;
 use crate::status::CapiError;
 
 /// Whether `bounces` feeds an object the walls' light too (its reflection of the point lights
@@ -66,19 +66,9 @@ pub unsafe extern "C" fn lf_runtime_object_light(
     out_len: usize,
 ) -> i32 {
     status_call("lf_runtime_object_light", || {
-        // SAFETY: NULL or live and unshared, per the contract.
-        let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
-        // SAFETY: NULL or writable, per the contract.
-        let count = unsafe { out_count.as_mut() }.ok_or(CapiError::NullPointer("out_count"))?;
-        // SAFETY: readable and writable for their lengths, per the contract.
-        let (lights, out) = unsafe {
-            (
-                slice(lights, n_lights, "lights")?,
-                slice_mut(out_rgb, out_len, "out_rgb")?,
-            )
-        };
-        check_rgb_len(rt, "out_rgb", out.len())?;
-        let lights = client_lights(lights)?;
+        // SAFETY: the arguments are as `lights_and_light_out` needs, per the contract.
+        let (rt, count, lights, out) =
+            unsafe { lights_and_light_out(rt, lights, n_lights, out_count, out_rgb, out_len) }?;
         let objects = rt.object_light(&lights)?;
         let (spans, light) = (objects.spans(), &objects.light().radiance);
         // SAFETY: `out_spans` NULL or `capacity` writable spans, per the contract.

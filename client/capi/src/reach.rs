@@ -18,7 +18,7 @@
 
 use std::ops::Range;
 
-use lightfarm_client::{direct_from_point_lights_adaptive_in, TexelSpan};
+use lightfarm_client::{direct_from_point_lights_adaptive_in, Light, TexelSpan};
 
 use crate::boundary::{slice, slice_mut, status_call};
 use crate::direct::{client_lights, LfPointLight, LF_DIRECT_SAMPLES_PER_EDGE};
@@ -94,6 +94,44 @@ unsafe fn write_spans(spans: &[TexelSpan], out: *mut LfTexelSpan) -> Result<(), 
     }
     Ok(())
 }
+
+/// What a call taking the point lights and handing a light over on spans reads from its
+/// arguments (`lf_runtime_object_light`, `lf_runtime_shadow_change`), checked in this order:
+/// the runtime, the count to write, the lights, the RGB output (the runtime's `3 x texels`
+/// floats), then each light's values.
+///
+/// # Safety
+/// `rt` must be NULL or a live pointer from `lf_runtime_new`, used by no other thread during
+/// the call; `lights` NULL or `n_lights` readable `LfPointLight`s; `out_count` NULL or
+/// writable; `out_rgb` NULL or `out_len` writable floats; none overlapping another.
+pub(crate) unsafe fn lights_and_light_out<'a>(
+    rt: *mut LfRuntime,
+    lights: *const LfPointLight,
+    n_lights: usize,
+    out_count: *mut usize,
+    out_rgb: *mut f32,
+    out_len: usize,
+) -> Result<LightsAndLightOut<'a>, CapiError> {
+    // SAFETY: NULL or live and unshared, per the contract.
+    let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
+    // SAFETY: NULL or writable, per the contract.
+    let count = unsafe { out_count.as_mut() }.ok_or(CapiError::NullPointer("out_count"))?;
+    // SAFETY: readable and writable for their lengths, per the contract.
+    let (lights, out) = unsafe {
+        (
+            slice(lights, n_lights, "lights")?,
+            slice_mut(out_rgb, out_len, "out_rgb")?,
+        )
+    };
+    check_rgb_len(rt, "out_rgb", out.len())?;
+    let lights = client_lights(lights)?;
+    Ok((rt, count, lights, out))
+}
+
+/// [`lights_and_light_out`]'s result: the runtime, the count to write, the lights, the RGB
+/// output.
+pub(crate) type LightsAndLightOut<'a> =
+    (&'a mut LfRuntime, &'a mut usize, Vec<Light>, &'a mut [f32]);
 
 /// Hands a light that lies on `spans` (ascending, disjoint texel ranges) over to C: the spans
 /// to `out_spans` (their number to `*count`; see [`spans_fit`], which refuses before anything is

@@ -18,11 +18,10 @@
 
 use lightfarm_client::ShadowChange;
 
-use crate::boundary::{slice, slice_mut, status_call};
-use crate::direct::{client_lights, LfPointLight, LF_DIRECT_SAMPLES_PER_EDGE};
-use crate::reach::{write_light_on_spans, LfTexelSpan};
-use crate::runtime::{check_rgb_len, LfRuntime};
-use crate::status::CapiError;
+use crate::boundary::status_call;
+use crate::direct::{LfPointLight, LF_DIRECT_SAMPLES_PER_EDGE};
+use crate::reach::{lights_and_light_out, write_light_on_spans, LfTexelSpan};
+use crate::runtime::LfRuntime;
 
 /// The change of the `n_lights` point `lights`' direct light that the dynamic objects made by
 /// moving since the last call (see the module doc): writes the texel spans it lies in to
@@ -57,19 +56,9 @@ pub unsafe extern "C" fn lf_runtime_shadow_change(
     out_len: usize,
 ) -> i32 {
     status_call("lf_runtime_shadow_change", || {
-        // SAFETY: NULL or live and unshared, per the contract.
-        let rt = unsafe { rt.as_mut() }.ok_or(CapiError::NullPointer("rt"))?;
-        // SAFETY: NULL or writable, per the contract.
-        let count = unsafe { out_count.as_mut() }.ok_or(CapiError::NullPointer("out_count"))?;
-        // SAFETY: readable and writable for their lengths, per the contract.
-        let (lights, out) = unsafe {
-            (
-                slice(lights, n_lights, "lights")?,
-                slice_mut(out_rgb, out_len, "out_rgb")?,
-            )
-        };
-        check_rgb_len(rt, "out_rgb", out.len())?;
-        let lights = client_lights(lights)?;
+        // SAFETY: the arguments are as `lights_and_light_out` needs, per the contract.
+        let (rt, count, lights, out) =
+            unsafe { lights_and_light_out(rt, lights, n_lights, out_count, out_rgb, out_len) }?;
         // Made (again) from the poses of the last change handed over; a change computed but
         // not handed over (too few spans) is one of the old lights', and is dropped.
         if rt.shadows.as_ref().is_none_or(|s| s.lights() != lights) {
