@@ -13,6 +13,9 @@
 //!   the box is occluded exactly when one of them crosses it;
 //! - [`BoxShadow::Unknown`]: the box covers too many cells to be worth it (near the light).
 //!
+//! After `Listed`, [`BoxShadows::refine`] answers the same for a box inside the queried one (a
+//! texel of the run) from the listed primitives alone.
+//!
 //! Why the answers are the f32 test's, bit for bit. A point `o` of the box and the light `l`,
 //! both f32, give the segment `o + t (l − o)` that counts a rect `(axis a, plane c)` for
 //! `tmin < t < tmax`, `t = (c − o_a) / (l_a − o_a)` in f32. A difference of f32 values has the
@@ -61,6 +64,8 @@ pub(crate) struct BoxShadows {
     seen: Vec<u32>,
     stamp: u32,
     listed: Vec<u32>,
+    /// What [`BoxShadows::refine`] kept of `listed`.
+    refined: Vec<u32>,
 }
 
 impl BoxShadows {
@@ -129,8 +134,42 @@ impl BoxShadows {
     }
 
     /// The primitives the last `Listed` query kept.
+    #[cfg(test)]
     pub(crate) fn listed(&self) -> &[u32] {
         &self.listed
+    }
+
+    /// After a query answered `Listed`, the same answer for a smaller box `[lo, hi]` whose
+    /// shadow segments only [`BoxShadows::listed`] can cross (a texel of the queried run: its
+    /// samples lie in the run's box), from those primitives alone: `Clear` when none can
+    /// cross them, `Dark` when one crosses every one, else `Listed` with the ones that may in
+    /// [`BoxShadows::refined`]. The query's list stays as it was.
+    pub(crate) fn refine(
+        &mut self,
+        occluders: &Occluders,
+        light: [f32; 3],
+        lo: [f64; 3],
+        hi: [f64; 3],
+    ) -> BoxShadow {
+        self.refined.clear();
+        let segments = occluders.box_segments(light, lo, hi);
+        for &prim in &self.listed {
+            match occluders.prim_crosses_box_segments(prim as usize, &segments) {
+                BoxCross::Never => {}
+                BoxCross::Every => return BoxShadow::Dark,
+                BoxCross::Maybe => self.refined.push(prim),
+            }
+        }
+        if self.refined.is_empty() {
+            BoxShadow::Clear
+        } else {
+            BoxShadow::Listed
+        }
+    }
+
+    /// The primitives the last `Listed` refinement kept.
+    pub(crate) fn refined(&self) -> &[u32] {
+        &self.refined
     }
 }
 
@@ -181,6 +220,17 @@ pub(crate) fn texel_extent(layout: &Layout, run: Range<usize>, m: usize) -> ([f6
 /// one normal ([`runs`]): [`sample_bounds`] of a texel at the run's widest size, around each
 /// centre (the box around the centres, widened by that texel's box about its centre).
 pub(crate) fn run_bounds(layout: &Layout, run: Range<usize>, m: usize) -> ([f64; 3], [f64; 3]) {
+    run_box(layout, run.clone(), texel_extent(layout, run, m))
+}
+
+/// [`run_bounds`] with the widening `(wlo, whi)` of a run holding `run` ([`texel_extent`] of
+/// it: of one run, for its texels one at a time).
+#[inline]
+pub(crate) fn run_box(
+    layout: &Layout,
+    run: Range<usize>,
+    (wlo, whi): ([f64; 3], [f64; 3]),
+) -> ([f64; 3], [f64; 3]) {
     let first = run.start;
     let mut lo = layout.positions[first];
     let mut hi = lo;
@@ -191,7 +241,6 @@ pub(crate) fn run_bounds(layout: &Layout, run: Range<usize>, m: usize) -> ([f64;
             hi[k] = hi[k].max(x[k]);
         }
     }
-    let (wlo, whi) = texel_extent(layout, run, m);
     let mag = lo
         .iter()
         .chain(&hi)
@@ -325,6 +374,61 @@ mod tests {
             }
         }
         // Clear, Dark, Listed, Unknown.
+        assert!(counts[..3].iter().all(|&c| c >= 20), "{counts:?}");
+    }
+
+    /// After a `Listed` query, a box inside the queried one refined from the listed
+    /// primitives alone gets the buffer's answer at each of its points, as a query would: a
+    /// `Clear` box has no occluded point, a `Dark` one no lit point, a `Listed` one the
+    /// buffer's answer from its shorter list; every verdict occurs.
+    #[test]
+    fn a_refined_box_answers_what_the_buffer_answers_at_each_point() {
+        let mut rng = Lcg(0x7e1f_11ed);
+        let mut counts = [0usize; 4];
+        let mut query = BoxShadows::new();
+        let mut buffer = LightBuffer::new();
+        for case in 0..60 {
+            let (rects, tris) = scene_with_walls(&mut rng, 40, 10);
+            let occ = Occluders::new(&rects, &tris);
+            for round in 0..20 {
+                let light = rng.point(-6.0, 6.0);
+                buffer.build(&occ, light, None);
+                let (lo, hi) = random_box(&mut rng, &rects);
+                let (blo, bhi) = (lo.map(f64::from), hi.map(f64::from));
+                if query.query(&buffer, &occ, blo, bhi) != BoxShadow::Listed {
+                    continue;
+                }
+                let listed = query.listed().len();
+                for _ in 0..4 {
+                    // A box inside the queried one (two random points of it: its 9th, after the
+                    // corners).
+                    let [a, b] = [0, 1].map(|_| points_in(&mut rng, lo, hi, 1)[8]);
+                    let slo = [0, 1, 2].map(|k| a[k].min(b[k]));
+                    let shi = [0, 1, 2].map(|k| a[k].max(b[k]));
+                    let (sl, sh) = (slo.map(f64::from), shi.map(f64::from));
+                    let verdict = query.refine(&occ, light, sl, sh);
+                    assert_eq!(query.listed().len(), listed, "the query's list stays");
+                    assert!(query.refined().len() <= listed);
+                    counts[verdict as usize] += 1;
+                    for p in points_in(&mut rng, slo, shi, 24) {
+                        let want = buffer.occluded(&occ, p);
+                        let got = match verdict {
+                            BoxShadow::Clear => false,
+                            BoxShadow::Dark => true,
+                            BoxShadow::Listed => occ.shadow_segment(p, light).is_some_and(|seg| {
+                                query
+                                    .refined()
+                                    .iter()
+                                    .any(|&i| occ.prim_crosses(i as usize, &seg))
+                            }),
+                            BoxShadow::Unknown => unreachable!("a refinement always answers"),
+                        };
+                        assert_eq!(got, want, "case {case}.{round}: {verdict:?} at {p:?}");
+                    }
+                }
+            }
+        }
+        // Clear, Dark, Listed.
         assert!(counts[..3].iter().all(|&c| c >= 20), "{counts:?}");
     }
 }

@@ -252,6 +252,32 @@ pub(crate) fn near_light_mean(t: &TexelAt, light: &Light) -> Option<f64> {
     if t.n[u] != 0.0 || t.n[v] != 0.0 {
         return slanted_near_light_mean(t, light, (a, u, v));
     }
+    axis_aligned_near_mean(t, light, (a, u, v))
+}
+
+/// [`unshadowed_mean`] of an axis-aligned texel whose normal lies along axis `a` (tangent axes
+/// `u`, `v`: [`dominant_axis`], [`tangent_axes`]), for a caller that has them already: the
+/// same operations, so the same bits. The far rule runs in the caller's instruction set.
+#[inline(always)]
+pub(crate) fn axis_aligned_mean(
+    t: &TexelAt,
+    light: &Light,
+    r2_min: f64,
+    axes: (usize, usize, usize),
+) -> f64 {
+    match axis_aligned_near_mean(t, light, axes) {
+        Some(mean) => mean,
+        None => axis_aligned_far_mean(t, light, r2_min, axes),
+    }
+}
+
+/// [`near_light_mean`] on an axis-aligned texel (normal along `a`).
+#[inline(always)]
+fn axis_aligned_near_mean(
+    t: &TexelAt,
+    light: &Light,
+    (a, u, v): (usize, usize, usize),
+) -> Option<f64> {
     let (su, sv) = ((t.size[0] as f64).abs(), (t.size[1] as f64).abs());
     let to = [0, 1, 2].map(|k| light.position[k] - t.x[k] as f64);
     // Height of the light above the texel's plane, on the lit side.

@@ -11,9 +11,11 @@
 //! (a few microseconds to build, then a handful of primitive tests per ray), else to the
 //! occluders' hierarchy: both give the same answers, so the values do not depend on which was
 //! used. With one light over a buffer (a light's reach, one light's term), texels go by runs of
-//! a few on one face (module `box_shadows`): a run the light sees whole traces no ray, one an
-//! occluder hides whole neither, and the rest test only the occluders that may cross their
-//! segments, all with the buffer's answers.
+//! a few on one face (module `box_shadows`): a run the light sees whole traces no ray (its
+//! values come from one loop, module `clear_run`), one an occluder hides whole neither, and in
+//! the rest each texel's own box is classified the same way against the occluders that may
+//! cross the run's segments, so that only texels a shadow's edge crosses trace rays, against
+//! those occluders alone; all with the buffer's answers.
 //!
 //! A texel's value is the mean of `L_d` over its area: the unshadowed mean of `cosθ / r²`
 //! times the share of it an `m × m` grid of samples sees. Within a few texels of the light
@@ -35,6 +37,8 @@
 //! - this file: the convention, the lights' shadow queries (`Lighting`, `Shadows`), the
 //!   whole-level functions, the adaptive average and its runs of texels, one light's terms,
 //!   and the same rule at points that are not texels (`point_irradiance`).
+//! - `clear_run`: a run of texels the lights see whole, without the adaptive average's
+//!   per-texel steps.
 //! - `tests`: closed forms, shadows, light buffers and the adaptive average against tracing
 //!   every sample; the fixtures other modules' tests share.
 
@@ -43,7 +47,7 @@ use std::ops::Range;
 use lightfarm_proto::bundle::Layout;
 use lightfarm_proto::lights::{Light, LightKind};
 
-use crate::box_shadows::{run_bounds, runs, BoxShadow, BoxShadows};
+use crate::box_shadows::{run_bounds, run_box, runs, texel_extent, BoxShadow, BoxShadows};
 use crate::light_buffer::{LightBuffer, WHOLE_LEVEL_MAX_OCCLUDERS};
 use crate::occluders::Occluders;
 pub use crate::texel_samples::ADAPTIVE_MAX_SAMPLES_PER_EDGE;
@@ -505,6 +509,9 @@ pub(crate) fn adaptive_in_with(
                 out[texels].fill([0.0; 3]);
                 return;
             };
+            if let Some(axes) = clear_run::axes(lighting, layout, &texels, m) {
+                return clear_run::values(lighting, layout, (texels, m, axes), &mut samples, out);
+            }
             for t in texels {
                 out[t] = texel_direct(lighting, TexelAt::of(layout, t), m, Some(&mut samples));
             }
@@ -565,8 +572,30 @@ fn for_each_shadowed(
                 BoxShadow::Clear => each(Some(&clear), run),
                 BoxShadow::Dark => each(None, run),
                 BoxShadow::Listed => {
-                    let listed = lighting.with_shadows(Shadows::Listed(occluders, query.listed()));
-                    each(Some(&listed), run);
+                    // Texel by texel, the listed occluders against the texel's own box: most
+                    // texels of such a run lie wholly in or out of the shadow.
+                    let mut clear_from = run.start;
+                    let extent = texel_extent(layout, run.clone(), m);
+                    for t in run.clone() {
+                        let (lo, hi) = run_box(layout, t..t + 1, extent);
+                        let answer = query.refine(occluders, buffer.light(), lo, hi);
+                        if answer == BoxShadow::Clear {
+                            continue;
+                        }
+                        if clear_from < t {
+                            each(Some(&clear), clear_from..t);
+                        }
+                        clear_from = t + 1;
+                        if answer == BoxShadow::Dark {
+                            each(None, t..t + 1);
+                        } else {
+                            let listed = Shadows::Listed(occluders, query.refined());
+                            each(Some(&lighting.with_shadows(listed)), t..t + 1);
+                        }
+                    }
+                    if clear_from < run.end {
+                        each(Some(&clear), clear_from..run.end);
+                    }
                 }
                 BoxShadow::Unknown => each(Some(lighting), run),
             }
@@ -725,6 +754,11 @@ pub(crate) fn add_light_term_in(
         |lighting, texels| {
             // A run without light adds zero terms.
             let Some(lighting) = lighting else { return };
+            if let Some(axes) = clear_run::axes(lighting, layout, &texels, m) {
+                if !every_sample {
+                    return clear_run::terms(lighting, layout, (texels, axes), irr);
+                }
+            }
             for t in texels {
                 let at = TexelAt::of(layout, t);
                 // Every sample's term is zero when the light faces away (`faces_away`): what the
@@ -786,5 +820,6 @@ pub(crate) fn finish_irradiance(layout: &Layout, irr: &[[f64; 3]]) -> DirectLigh
     }
 }
 
+mod clear_run;
 #[cfg(test)]
 pub(crate) mod tests;

@@ -258,9 +258,11 @@ fn light_buffers_light_texels_bit_for_bit_as_the_hierarchy() {
             layout.positions.push(rng.point(-4.0, 4.0));
             layout.normals.push(n.map(|x| x / len.max(0.1)));
             layout.albedo.push([0.5, 0.6, 0.7]);
+            let size = [rng.range(0.05, 0.5), rng.range(0.05, 0.5)];
+            // A few texels without a size (their centre alone).
             layout
                 .texel_size
-                .push([rng.range(0.05, 0.5), rng.range(0.05, 0.5)]);
+                .push(if k % 37 == 5 { [0.0, 0.0] } else { size });
         }
         push_random_rects(&mut rng, &mut layout, 10 + 5 * case, 5.0, 3.0);
         for _ in 0..(3 * case) {
@@ -302,8 +304,131 @@ fn light_buffers_light_texels_bit_for_bit_as_the_hierarchy() {
             &mut by_tree,
         );
         assert_eq!(by_buffers.radiance, by_tree, "case {case}, adaptive");
+        // One light over its buffer: runs of texels by box queries (a run in sight by
+        // `clear_run`, a listed one texel by texel), against every texel's own rays.
+        for light in &lights {
+            let one = std::slice::from_ref(light);
+            let by_buffer = direct_from_point_lights_adaptive(&layout, &occ, one, 4);
+            let mut by_tree = vec![[0.0f32; 3]; layout.n_texels()];
+            let tree = Shadows::Occluders(&occ);
+            let mut boxes = BoxShadows::new();
+            adaptive_in_with(&layout, tree, one, 4, scale, &all, &mut boxes, &mut by_tree);
+            assert_eq!(by_buffer.radiance, by_tree, "case {case}, one light");
+            let mut buffer = LightBuffer::new();
+            buffer.build(&occ, light.position.map(|x| x as f32), None);
+            let buffers = std::slice::from_ref(&buffer);
+            let mut terms = [vec![[0.0f64; 3]; layout.n_texels()], vec![]];
+            terms[1] = terms[0].clone();
+            for (shadows, irr) in [Shadows::Buffers(&occ, buffers), tree]
+                .into_iter()
+                .zip(&mut terms)
+            {
+                add_light_term_in(
+                    &layout, shadows, light, 4, scale, &all, false, &mut boxes, irr,
+                );
+            }
+            assert_eq!(terms[0], terms[1], "case {case}, one light's terms");
+        }
     }
     assert!(lit > 1000, "{lit} texels lit");
+}
+
+/// One light over its buffer, on floors and walls of texels in runs (as the bake lays them
+/// out) under random rects and triangles: the runs' box queries, the listed runs' texel
+/// boxes and the runs in sight (`clear_run`) give every texel what its own rays against the
+/// hierarchy give it, bit for bit, as values and as one light's terms; near lights and far,
+/// 2 and 4 samples per edge.
+#[test]
+fn one_lights_runs_of_texels_give_what_each_texels_own_rays_give() {
+    use crate::occluders::tests::Lcg;
+    let mut rng = Lcg(0x0e1a_57ed);
+    let (k, side) = (24usize, 0.2f32);
+    let mut lit = 0;
+    for case in 0..8 {
+        let mut layout = tiled_floor(k, side);
+        // A wall's texels facing +x at x = 0 and a ceiling's facing −z at z = 3.
+        for (n, lift) in [([1.0f32, 0.0, 0.0], 0usize), ([0.0, 0.0, -1.0], 1)] {
+            for i in 0..k * k {
+                let (a, b) = ((i % k) as f32 + 0.5, (i / k) as f32 + 0.5);
+                let p = if lift == 0 {
+                    [0.0, a * side, b * side * 0.6]
+                } else {
+                    [a * side, b * side, 3.0]
+                };
+                layout.positions.push(p);
+                layout.normals.push(n);
+                layout.albedo.push([0.5, 0.6, 0.7]);
+                layout.texel_size.push([side, side]);
+            }
+        }
+        let extent = k as f32 * side;
+        for _ in 0..6 + 2 * case {
+            let (a, b) = (rng.range(0.0, extent), rng.range(0.0, extent));
+            layout.rects.push(Rect {
+                axis: (rng.next_u32() % 3) as u8,
+                coord: rng.range(0.2, 2.5),
+                min: [a, b],
+                max: [a + rng.range(0.02, 1.0), b + rng.range(0.02, 1.0)],
+            });
+        }
+        for _ in 0..case {
+            let c = [
+                rng.range(0.5, 4.0),
+                rng.range(0.5, 4.0),
+                rng.range(0.3, 2.5),
+            ];
+            let mut p = || {
+                let o = rng.point(-0.5, 0.5);
+                [c[0] + o[0], c[1] + o[1], c[2] + o[2]]
+            };
+            layout.triangles.push([p(), p(), p()]);
+        }
+        let occ = Occluders::from_layout(&layout);
+        let scale = direct_scale(&layout, &occ);
+        let all = [TexelSpan {
+            texels: 0..layout.n_texels(),
+            in_sight: false,
+        }];
+        for round in 0..6 {
+            let height = if round % 3 == 0 {
+                0.05
+            } else {
+                rng.range(0.3, 2.8)
+            };
+            let p = [rng.range(0.2, 4.6), rng.range(0.2, 4.6), height];
+            let light = light(p.map(f64::from), [1.0, 2.0, 3.0]);
+            let one = std::slice::from_ref(&light);
+            let tree = Shadows::Occluders(&occ);
+            let mut buffer = LightBuffer::new();
+            buffer.build(&occ, p, None);
+            let buffers = std::slice::from_ref(&buffer);
+            let mut boxes = BoxShadows::new();
+            for m in [2, 4] {
+                let mut values = [vec![[0.0f32; 3]; layout.n_texels()], vec![]];
+                values[1] = values[0].clone();
+                for (shadows, out) in [Shadows::Buffers(&occ, buffers), tree]
+                    .into_iter()
+                    .zip(&mut values)
+                {
+                    adaptive_in_with(&layout, shadows, one, m, scale, &all, &mut boxes, out);
+                }
+                assert_eq!(values[0], values[1], "case {case}.{round}, m = {m}");
+                lit += values[0].iter().filter(|v| v[0] > 0.0).count();
+                let mut terms = [vec![[0.0f64; 3]; layout.n_texels()], vec![]];
+                terms[1] = terms[0].clone();
+                for (shadows, irr) in [Shadows::Buffers(&occ, buffers), tree]
+                    .into_iter()
+                    .zip(&mut terms)
+                {
+                    add_light_term_in(
+                        &layout, shadows, &light, m, scale, &all, false, &mut boxes, irr,
+                    );
+                }
+                assert_eq!(terms[0], terms[1], "case {case}.{round}, m = {m}, terms");
+            }
+        }
+    }
+    assert!(lit > 20_000, "{lit} texels lit");
 }
 
 /// The adaptive average as first written (every sample point made, the unshadowed terms
