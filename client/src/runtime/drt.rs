@@ -15,8 +15,9 @@ use std::ops::Range;
 
 use lightfarm_proto::bundle::DeltaSource;
 
-use crate::packed_gather::{pad_direct, texel_units, GatherColumns};
+use crate::packed_gather::{pad_direct, texel_units, GatherColumns, PackedGather};
 
+use super::incremental::units_of_rows;
 use super::kernels::{group, planar, scatter_matvec, set_matvec};
 use super::Runtime;
 
@@ -136,7 +137,7 @@ impl Runtime {
                 continue;
             }
             if let Some(sparse) = sparse.as_mut() {
-                sparse.mark_texels(e.rows.iter().map(|&r| r as usize));
+                sparse.mark_entry_rows(i);
             }
             match mix {
                 None => {
@@ -175,12 +176,7 @@ impl Runtime {
         let Some(g) = &self.ops.gather else { return };
         if self.gather_by_change.is_none() {
             let units = self.texel_units();
-            self.gather_by_change = Some(GatherByChange::new(
-                g.by_columns(),
-                &units,
-                g.n_rows(),
-                self.n_texels,
-            ));
+            self.gather_by_change = Some(GatherByChange::new(g, &units, self.n_texels));
         }
     }
 
@@ -216,14 +212,18 @@ impl Runtime {
             ranges,
             tiles,
             unit_rows,
+            row_units,
+            lit_units,
             sums,
             touched,
             marked,
             ..
         } = by_change;
+        lit_units.clear();
         for u in reached {
             let lit = columns.scatter(ranges[u].clone(), direct, sums);
             if columns.scatter_tiles(tiles[u].clone(), direct, sums) | lit {
+                lit_units.push(u as u32);
                 for &r in unit_rows.get(u) {
                     if !std::mem::replace(&mut marked[r as usize], true) {
                         touched.push(r);
@@ -232,7 +232,9 @@ impl Runtime {
             }
         }
         if let Some(sparse) = self.sparse.as_mut().filter(|s| s.active) {
-            sparse.mark_texels(touched.iter().map(|&i| g.row_texel(i as usize)));
+            for &u in lit_units.iter() {
+                sparse.mark_units(row_units.get(u as usize));
+            }
         }
         columns.finish(g, sums, touched, marked, out);
     }
@@ -263,19 +265,20 @@ pub(super) struct GatherByChange {
     units: usize,
     /// Per unit, the rows reading one of its texels (listed when the unit carries light).
     unit_rows: Ragged,
+    /// Per unit, the units of those rows' texels, each once in the order the rows first reach
+    /// them (what this call writes when the unit carries light).
+    row_units: Ragged,
+    /// Scratch: the units that carried light this call.
+    lit_units: Vec<u32>,
     sums: Vec<[f32; 4]>,
     touched: Vec<u32>,
     marked: Vec<bool>,
 }
 
 impl GatherByChange {
-    fn new(
-        columns: GatherColumns,
-        units: &[Range<usize>],
-        n_rows: usize,
-        n_texels: usize,
-    ) -> GatherByChange {
-        let (ranges, _) = texel_units(units, n_texels);
+    fn new(gather: &PackedGather, units: &[Range<usize>], n_texels: usize) -> GatherByChange {
+        let (columns, n_rows) = (gather.by_columns(), gather.n_rows());
+        let (ranges, unit_of) = texel_units(units, n_texels);
         let tiles: Vec<Range<usize>> = ranges.iter().map(|r| columns.tiles_of(r.clone())).collect();
         let mut marked = vec![false; n_rows];
         let mut unit_rows = Ragged::default();
@@ -292,7 +295,20 @@ impl GatherByChange {
             }
             unit_rows.start.push(unit_rows.items.len() as u32);
         }
+        let row_texels: Vec<u32> = (0..n_rows).map(|i| gather.row_texel(i) as u32).collect();
+        let texels_of = |u: usize| -> Vec<u32> {
+            unit_rows
+                .get(u)
+                .iter()
+                .map(|&i| row_texels[i as usize])
+                .collect()
+        };
+        let lists: Vec<Vec<u32>> = (0..ranges.len()).map(texels_of).collect();
+        let (items, start) = units_of_rows(lists.iter().map(Vec::as_slice), &unit_of, ranges.len());
+        let row_units = Ragged { items, start };
         GatherByChange {
+            row_units,
+            lit_units: Vec::new(),
             columns,
             ranges,
             tiles,

@@ -160,6 +160,10 @@ pub(super) struct Sparse {
     unit_entry_start: Vec<u32>,
     /// Scratch: the entries this call's reached units may move.
     entries: Vec<u32>,
+    /// Per DRT delta entry: the units of its rows, each once in the order the rows first
+    /// reach them, `entry_units[entry_unit_start[i] .. entry_unit_start[i + 1]]`.
+    entry_units: Vec<u32>,
+    entry_unit_start: Vec<u32>,
     /// Per block, while it is reached: the runs of its texels (from the block's first) whose
     /// input is not zero in every channel, so its projection reads those columns alone.
     nonzero: Vec<Vec<Range<usize>>>,
@@ -179,10 +183,19 @@ impl Sparse {
         let (ranges, unit_of) = texel_units(&units, rt.n_texels);
         let (targets, target_start) = transport_targets(rt);
         let (unit_entries, unit_entry_start) = delta_entries_by_unit(rt, n_blocks, &unit_of);
+        let rows = rt
+            .bundle
+            .drt
+            .iter()
+            .flat_map(|d| &d.entries)
+            .map(|e| &e.rows[..]);
+        let (entry_units, entry_unit_start) = units_of_rows(rows, &unit_of, ranges.len());
         Sparse {
             unit_entries,
             unit_entry_start,
             entries: Vec::new(),
+            entry_units,
+            entry_unit_start,
             targets,
             target_start,
             blocks_written: Vec::new(),
@@ -233,11 +246,20 @@ impl Sparse {
         }
     }
 
-    /// Marks the units of `texels` as written (the stages that scatter into rows call this
-    /// while the call is active).
-    pub(super) fn mark_texels(&mut self, texels: impl Iterator<Item = usize>) {
-        for t in texels {
-            self.mark(self.unit_of[t] as usize);
+    /// Marks the units of DRT delta entry `i`'s rows as written (it scatters into them), in
+    /// the order its rows first reach them, from a list made once.
+    pub(super) fn mark_entry_rows(&mut self, i: usize) {
+        let r = self.entry_unit_start[i] as usize..self.entry_unit_start[i + 1] as usize;
+        for k in r {
+            self.mark(self.entry_units[k] as usize);
+        }
+    }
+
+    /// Marks `units` as written, in order (the stages that scatter into rows call this, or
+    /// [`Sparse::mark_entry_rows`], while the call is active).
+    pub(super) fn mark_units(&mut self, units: &[u32]) {
+        for &u in units {
+            self.mark(u as usize);
         }
     }
 
@@ -794,6 +816,28 @@ fn grouped_by_key(mut pairs: Vec<(u32, u32)>, n: usize) -> (Vec<u32>, Vec<u32>) 
         start[k + 1] += start[k];
     }
     (pairs.into_iter().map(|(_, v)| v).collect(), start)
+}
+
+/// Per list of texels (`lists`), the units of `unit_of` (`n_units` of them) its texels lie
+/// in, each once in the order the texels first reach them: `(units, start)`, list `i`'s
+/// `units[start[i] .. start[i + 1]]`.
+pub(super) fn units_of_rows<'a>(
+    lists: impl Iterator<Item = &'a [u32]>,
+    unit_of: &[u32],
+    n_units: usize,
+) -> (Vec<u32>, Vec<u32>) {
+    let (mut units, mut start) = (Vec::new(), vec![0u32]);
+    let mut seen = vec![u32::MAX; n_units];
+    for (i, texels) in lists.enumerate() {
+        for &t in texels {
+            let u = unit_of[t as usize];
+            if std::mem::replace(&mut seen[u as usize], i as u32) != i as u32 {
+                units.push(u);
+            }
+        }
+        start.push(units.len() as u32);
+    }
+    (units, start)
 }
 
 /// Per unit (of `unit_of`, the sparse state's), the DRT delta entries whose source reads it:
