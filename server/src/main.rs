@@ -158,6 +158,13 @@ enum Command {
         /// walking torch at 60 Hz).
         #[arg(long, default_value_t = cli::frame_update::PATH_RADIUS)]
         radius: f64,
+        /// With `--update one-light`: time relighting by the change alone, frame after frame,
+        /// as a game that only moves the light runs it (relighting everything runs once, after
+        /// the last frame, for the drift; its line and the speedup are left out). Without it
+        /// the two ways alternate frame by frame, and the full way's passes over the level
+        /// leave the caches cold for each update.
+        #[arg(long)]
+        update_alone: bool,
         /// With `--bounces feedback`: texels of due blocks and clutter objects a frame shoots
         /// at most besides the change's (`Runtime::set_feedback_budget`; default: all due).
         #[arg(long)]
@@ -366,6 +373,7 @@ fn main() -> anyhow::Result<()> {
             light,
             object,
             radius,
+            update_alone,
             feedback_budget,
             texel_bounces,
         } => cli::frame_time::run(cli::frame_time::FrameTimeArgs {
@@ -383,6 +391,7 @@ fn main() -> anyhow::Result<()> {
                 .map(|_| object),
             moving_light: light,
             radius,
+            update_alone,
             feedback_budget,
             texel_bounces,
         }),

@@ -1,6 +1,7 @@
 //! The CLI contract other tools depend on: `bake`, `eval`, `reference`, `compare`, `schema`,
 //! `inspect` (a report whose reader has left is no error), `serve` (up with its stdout's reader
-//! gone), run as processes on a small scene.
+//! gone), `frame-time --update one-light` (both ways, or the update alone), run as processes
+//! on a small scene.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -194,6 +195,50 @@ fn bake_and_eval_a_scene_with_mesh_clutter() {
         .count();
     assert!(mesh_texels > 0, "RESULT.json has no mesh texels");
     assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `frame-time --update one-light` times both ways frame by frame, or, with `--update-alone`,
+/// relighting by the change alone (no full line, no speedup); either way the update ends
+/// where relighting everything ends, to float rounding at one bounce.
+#[test]
+fn frame_time_times_one_light_both_ways_or_the_update_alone() {
+    let dir = workdir("one-light");
+    let (scene, lights) = write_scene(&dir);
+    let bundle = dir.join("out.lfb");
+    run(lightfarm()
+        .arg("bake")
+        .arg(&scene)
+        .arg("-o")
+        .arg(&bundle)
+        .arg("--no-cache"));
+    for alone in [false, true] {
+        let mut cmd = lightfarm();
+        cmd.arg("frame-time")
+            .arg(&bundle)
+            .arg("--lights")
+            .arg(&lights)
+            .args(["--update", "one-light", "--bounces", "1", "--frames", "6"]);
+        if alone {
+            cmd.arg("--update-alone");
+        }
+        let out = run(&mut cmd);
+        let has = |way: &str| out.lines().any(|l| l.contains(&format!(" way={way} ")));
+        assert_eq!((has("full"), has("update")), (!alone, true), "{out}");
+        let last = out.lines().last().unwrap();
+        assert_eq!(last.contains(" speedup="), !alone, "{last}");
+        let value = |key: &str| -> f64 {
+            let at = last.find(key).unwrap_or_else(|| panic!("{key} in {last}"));
+            last[at + key.len()..]
+                .split(' ')
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap()
+        };
+        assert!(value("median_ms=") > 0.0, "{last}");
+        assert!(value("drift_rel_l2=") < 1e-4, "{last}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -16,7 +16,8 @@
 //! The direct light's own time (every light, texel-averaged as `eval` feeds the operators, one
 //! thread) is printed first, apart from the operators'. With `--update one-light`, one light
 //! moves instead and relighting by the change is timed against relighting everything
-//! ([`super::frame_update`]); with `--update one-object`, one posed dynamic object moves
+//! ([`super::frame_update`]; with `--update-alone`, relighting by the change alone, as a game
+//! that only moves the light runs it); with `--update one-object`, one posed dynamic object moves
 //! ([`super::frame_object`]).
 //!
 //! With `feedback` among the modes, it also prints how many feedback frames the light takes to
@@ -60,6 +61,8 @@ pub struct FrameTimeArgs {
     pub moving_light: usize,
     /// Radius (m) of the `--update one-light` light's circle ([`super::frame_update`]).
     pub radius: f64,
+    /// `--update one-light` times relighting by the change alone ([`Ways::UpdateOnly`]).
+    pub update_alone: bool,
     /// Texels of due units a `Feedback` call by the change shoots at most besides the
     /// change's (`Runtime::set_feedback_budget`; None: all due).
     pub feedback_budget: Option<usize>,
@@ -292,18 +295,25 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
             method,
             mode,
             frames,
-            Ways::Both,
+            if args.update_alone {
+                Ways::UpdateOnly
+            } else {
+                Ways::Both
+            },
             args.radius,
         )?;
-        crate::say!(
-            "update=one-light direct light: lights={} texels={} every_sample_ms={:.4} \
-             adaptive_rel_l2={:.2e}",
-            lights.lights.len(),
-            runtime.n_texels(),
-            t.direct_every_sample_ms,
-            t.direct_error
-        );
-        for (name, way) in [("full", t.full), ("update", t.update)] {
+        if !args.update_alone {
+            crate::say!(
+                "update=one-light direct light: lights={} texels={} every_sample_ms={:.4} \
+                 adaptive_rel_l2={:.2e}",
+                lights.lights.len(),
+                runtime.n_texels(),
+                t.direct_every_sample_ms,
+                t.direct_error
+            );
+        }
+        let ways = [("full", t.full), ("update", t.update)];
+        for (name, way) in ways.into_iter().skip(args.update_alone as usize) {
             crate::say!(
                 "update=one-light light={moved} way={name} method={method:?} bounces={} \
                  frames={frames} direct_ms={:.4} operator_ms={:.4} total_ms={:.4}",
@@ -357,14 +367,17 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
                 s.surface_max
             );
         }
+        let speedup = match args.update_alone {
+            true => String::new(),
+            false => format!(" speedup={:.1}", t.full.total_ms / t.update.total_ms),
+        };
         crate::say!(
             "update=one-light light={moved} method={method:?} bounces={} frames={frames} \
-             blocks_projected={}/{} drift_rel_l2={:.2e} speedup={:.1} median_ms={:.4}",
+             blocks_projected={}/{} drift_rel_l2={:.2e}{speedup} median_ms={:.4}",
             mode_name(mode),
             t.blocks_projected,
             t.blocks_total,
             t.drift,
-            t.full.total_ms / t.update.total_ms,
             t.update.total_ms
         );
         return Ok(());

@@ -4,7 +4,8 @@
 //! Light `--light K` (default 0) moves on a horizontal circle of radius `--radius` m (default
 //! [`PATH_RADIUS`]) around its position, one turn every [`PATH_FRAMES`] frames. Every frame
 //! both ways relight the level for the light's new position, interleaved so the machine's
-//! noise falls on both alike:
+//! noise falls on both alike (or, [`Ways::UpdateOnly`], the update alone: the full way's
+//! passes over the level then leave no cold caches between its frames):
 //! - **full**: every light's direct light (texel-averaged, shadows from the 4 × 4 samples `eval` feeds the
 //!   operators, with shadow rays only where visibility changes across a texel:
 //!   `direct_from_point_lights_adaptive`; with rooms each light is traced only where it reaches,
