@@ -132,7 +132,7 @@ impl Chain {
     /// Zeroes the sum and the input where the last call left them.
     fn clear(&mut self, ranges: &[Range<usize>]) {
         for &u in &self.sum_units {
-            self.sum[ranges[u].clone()].fill([0.0; 3]);
+            self.sum[ranges[u].clone()].as_flattened_mut().fill(0.0);
             self.summed[u] = false;
             self.sum_energy[u] = 0.0;
         }
@@ -142,7 +142,7 @@ impl Chain {
 
     fn clear_input(&mut self, ranges: &[Range<usize>]) {
         for &u in &self.input_units {
-            self.input[ranges[u].clone()].fill([0.0; 3]);
+            self.input[ranges[u].clone()].as_flattened_mut().fill(0.0);
         }
         self.input_units.clear();
         self.spans.clear();

@@ -537,11 +537,10 @@ impl Runtime {
             }
         };
         self.spare_reach = self.reach.take();
+        // Channel by channel as one run of floats (the same sums, in wide registers).
         let add = |o: &mut [[f32; 3]], d: &[[f32; 3]]| {
-            for (o, d) in o.iter_mut().zip(d) {
-                o[0] += d[0];
-                o[1] += d[1];
-                o[2] += d[2];
+            for (o, d) in o.as_flattened_mut().iter_mut().zip(d.as_flattened()) {
+                *o += d;
             }
         };
         // The change's indirect light and the units it lies on (None: anywhere).
@@ -693,7 +692,9 @@ impl Runtime {
             sparse.change_everywhere = false;
         } else {
             for &u in &sparse.written {
-                change[sparse.ranges[u].clone()].fill([0.0; 3]);
+                change[sparse.ranges[u].clone()]
+                    .as_flattened_mut()
+                    .fill(0.0);
             }
         }
         for &u in &sparse.written {
@@ -748,11 +749,10 @@ impl Runtime {
         sparse.active = false;
         let albedo = &self.bundle.layout.albedo;
         for &u in &sparse.written {
-            for t in sparse.ranges[u].clone() {
-                let (o, rho) = (&mut change[t], albedo[t]);
-                o[0] *= rho[0];
-                o[1] *= rho[1];
-                o[2] *= rho[2];
+            let r = sparse.ranges[u].clone();
+            let rho = albedo[r.clone()].as_flattened();
+            for (o, rho) in change[r].as_flattened_mut().iter_mut().zip(rho) {
+                *o *= rho;
             }
         }
         self.sparse = Some(sparse);

@@ -244,10 +244,10 @@ impl Runtime {
 
     /// Multiplies every texel by its albedo (the operators are albedo-free).
     pub(super) fn multiply_albedo(&self, out: &mut [[f32; 3]]) {
-        for (o, rho) in out.iter_mut().zip(&self.bundle.layout.albedo) {
-            o[0] *= rho[0];
-            o[1] *= rho[1];
-            o[2] *= rho[2];
+        let n = out.len().min(self.bundle.layout.albedo.len());
+        let rho = self.bundle.layout.albedo[..n].as_flattened();
+        for (o, rho) in out[..n].as_flattened_mut().iter_mut().zip(rho) {
+            *o *= rho;
         }
     }
 }

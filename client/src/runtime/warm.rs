@@ -130,10 +130,9 @@ impl WarmStart {
         if self.method == Some(method) {
             self.has_previous = false;
             for r in spans {
-                for (a, d) in self.answer[r.clone()].iter_mut().zip(&change[r]) {
-                    a[0] += d[0];
-                    a[1] += d[1];
-                    a[2] += d[2];
+                let d = change[r.clone()].as_flattened();
+                for (a, d) in self.answer[r].as_flattened_mut().iter_mut().zip(d) {
+                    *a += d;
                 }
             }
         }

@@ -449,21 +449,33 @@ pub fn time_update(
         let start = Instant::now();
         lit(&mut reach, &lights[moved], &mut spans_now, &mut now);
         for span in &change_spans {
-            change.radiance[span.clone()].fill([0.0; 3]);
+            change.radiance[span.clone()].as_flattened_mut().fill(0.0);
         }
         union_of(&spans_before, &spans_now, &mut change_spans);
-        for t in change_spans.iter().flat_map(Range::clone) {
-            let (l, p) = (now[t], previous[t]);
+        for span in &change_spans {
+            // Channel by channel as runs of floats (the same values, in wide registers).
+            let (l, p) = (
+                now[span.clone()].as_flattened(),
+                previous[span.clone()].as_flattened(),
+            );
             match warm_way.as_mut() {
                 Some((_, others, total)) => {
-                    let o = others.radiance[t];
-                    total.radiance[t] = [o[0] + l[0], o[1] + l[1], o[2] + l[2]];
+                    let o = others.radiance[span.clone()].as_flattened();
+                    let t = total.radiance[span.clone()].as_flattened_mut();
+                    for ((t, &o), &l) in t.iter_mut().zip(o).zip(l) {
+                        *t = o + l;
+                    }
                 }
-                None => change.radiance[t] = [l[0] - p[0], l[1] - p[1], l[2] - p[2]],
+                None => {
+                    let c = change.radiance[span.clone()].as_flattened_mut();
+                    for ((c, &l), &p) in c.iter_mut().zip(l).zip(p) {
+                        *c = l - p;
+                    }
+                }
             }
         }
         for span in &spans_before {
-            previous[span.texels.clone()].fill([0.0; 3]);
+            previous[span.texels.clone()].as_flattened_mut().fill(0.0);
         }
         std::mem::swap(&mut previous, &mut now);
         std::mem::swap(&mut spans_before, &mut spans_now);
