@@ -140,10 +140,10 @@ impl BoxShadows {
     }
 
     /// After a query answered `Listed`, the same answer for a smaller box `[lo, hi]` whose
-    /// shadow segments only [`BoxShadows::listed`] can cross (a texel of the queried run: its
-    /// samples lie in the run's box), from those primitives alone: `Clear` when none can
-    /// cross them, `Dark` when one crosses every one, else `Listed` with the ones that may in
-    /// [`BoxShadows::refined`]. The query's list stays as it was.
+    /// shadow segments only the query's listed primitives can cross (a texel of the queried
+    /// run: its samples lie in the run's box), from those primitives alone: `Clear` when none
+    /// can cross them, `Dark` when one crosses every one, else `Listed` with the ones that may
+    /// in [`BoxShadows::refined`]. The query's list stays as it was.
     pub(crate) fn refine(
         &mut self,
         occluders: &Occluders,
@@ -335,6 +335,26 @@ mod tests {
         }
     }
 
+    /// Whether `p` is in shadow by a box's `verdict` over the box (by `listed`, the
+    /// primitives it listed, when `Listed`); `None` when it does not say (`Unknown`).
+    fn verdicts_answer(
+        verdict: BoxShadow,
+        listed: &[u32],
+        occ: &Occluders,
+        light: [f32; 3],
+        p: [f32; 3],
+    ) -> Option<bool> {
+        match verdict {
+            BoxShadow::Clear => Some(false),
+            BoxShadow::Dark => Some(true),
+            BoxShadow::Listed => Some(
+                occ.shadow_segment(p, light)
+                    .is_some_and(|seg| listed.iter().any(|&i| occ.prim_crosses(i as usize, &seg))),
+            ),
+            BoxShadow::Unknown => None,
+        }
+    }
+
     /// Against the light buffer, point by point: a `Clear` box has no occluded point, a `Dark`
     /// one no lit point, and a `Listed` one gets the buffer's answer from its list alone; with
     /// the buffer over all occluders and over a subset, and every verdict occurring.
@@ -358,17 +378,8 @@ mod tests {
                 counts[verdict as usize] += 1;
                 for p in points_in(&mut rng, lo, hi, 24) {
                     let want = buffer.occluded(&occ, p);
-                    let got = match verdict {
-                        BoxShadow::Clear => false,
-                        BoxShadow::Dark => true,
-                        BoxShadow::Listed => occ.shadow_segment(p, light).is_some_and(|seg| {
-                            query
-                                .listed()
-                                .iter()
-                                .any(|&i| occ.prim_crosses(i as usize, &seg))
-                        }),
-                        BoxShadow::Unknown => want,
-                    };
+                    let got =
+                        verdicts_answer(verdict, query.listed(), &occ, light, p).unwrap_or(want);
                     assert_eq!(got, want, "case {case}.{round}: {verdict:?} at {p:?}");
                 }
             }
@@ -412,17 +423,8 @@ mod tests {
                     counts[verdict as usize] += 1;
                     for p in points_in(&mut rng, slo, shi, 24) {
                         let want = buffer.occluded(&occ, p);
-                        let got = match verdict {
-                            BoxShadow::Clear => false,
-                            BoxShadow::Dark => true,
-                            BoxShadow::Listed => occ.shadow_segment(p, light).is_some_and(|seg| {
-                                query
-                                    .refined()
-                                    .iter()
-                                    .any(|&i| occ.prim_crosses(i as usize, &seg))
-                            }),
-                            BoxShadow::Unknown => unreachable!("a refinement always answers"),
-                        };
+                        let got = verdicts_answer(verdict, query.refined(), &occ, light, p)
+                            .expect("a refinement always answers");
                         assert_eq!(got, want, "case {case}.{round}: {verdict:?} at {p:?}");
                     }
                 }

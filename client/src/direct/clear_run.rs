@@ -168,9 +168,9 @@ fn texel(layout: &Layout, t: usize, size: [f32; 2]) -> TexelAt {
     }
 }
 
-/// [`crate::texel_samples::faces_away`] of a texel whose normal lies along `a` (its tangent components zero, as on
-/// every texel of an axis-aligned run): the light is behind or in its plane, or the product
-/// is NaN. The same product and test, so the same answer.
+/// [`crate::texel_samples::faces_away`] of a texel whose normal lies along `a` (its tangent
+/// components zero, as on every texel of an axis-aligned run): the light is behind or in its
+/// plane, or the product is NaN. The same product and test, so the same answer.
 #[inline(always)]
 #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(… > 0)`: a NaN product faces away too.
 fn faces_away_along(t: &TexelAt, light: &Light, (a, _, _): (usize, usize, usize)) -> bool {

@@ -316,21 +316,38 @@ fn light_buffers_light_texels_bit_for_bit_as_the_hierarchy() {
             assert_eq!(by_buffer.radiance, by_tree, "case {case}, one light");
             let mut buffer = LightBuffer::new();
             buffer.build(&occ, light.position.map(|x| x as f32), None);
-            let buffers = std::slice::from_ref(&buffer);
-            let mut terms = [vec![[0.0f64; 3]; layout.n_texels()], vec![]];
-            terms[1] = terms[0].clone();
-            for (shadows, irr) in [Shadows::Buffers(&occ, buffers), tree]
-                .into_iter()
-                .zip(&mut terms)
-            {
-                add_light_term_in(
-                    &layout, shadows, light, 4, scale, &all, false, &mut boxes, irr,
-                );
-            }
+            let terms = terms_both_ways(&layout, &occ, &buffer, light, 4, scale, &mut boxes);
             assert_eq!(terms[0], terms[1], "case {case}, one light's terms");
         }
     }
     assert!(lit > 1000, "{lit} texels lit");
+}
+
+/// One light's term over every texel of `layout` (`m` samples per edge), made over its
+/// `buffer` and over the whole hierarchy, in that order.
+fn terms_both_ways(
+    layout: &Layout,
+    occ: &Occluders,
+    buffer: &LightBuffer,
+    light: &Light,
+    m: u32,
+    scale: f64,
+    boxes: &mut BoxShadows,
+) -> [Vec<[f64; 3]>; 2] {
+    let all = [TexelSpan {
+        texels: 0..layout.n_texels(),
+        in_sight: false,
+    }];
+    let buffers = std::slice::from_ref(buffer);
+    let mut terms = [vec![[0.0f64; 3]; layout.n_texels()], vec![]];
+    terms[1] = terms[0].clone();
+    for (shadows, irr) in [Shadows::Buffers(occ, buffers), Shadows::Occluders(occ)]
+        .into_iter()
+        .zip(&mut terms)
+    {
+        add_light_term_in(layout, shadows, light, m, scale, &all, false, boxes, irr);
+    }
+    terms
 }
 
 /// One light over its buffer, on floors and walls of texels in runs (as the bake lays them
@@ -414,16 +431,7 @@ fn one_lights_runs_of_texels_give_what_each_texels_own_rays_give() {
                 }
                 assert_eq!(values[0], values[1], "case {case}.{round}, m = {m}");
                 lit += values[0].iter().filter(|v| v[0] > 0.0).count();
-                let mut terms = [vec![[0.0f64; 3]; layout.n_texels()], vec![]];
-                terms[1] = terms[0].clone();
-                for (shadows, irr) in [Shadows::Buffers(&occ, buffers), tree]
-                    .into_iter()
-                    .zip(&mut terms)
-                {
-                    add_light_term_in(
-                        &layout, shadows, &light, m, scale, &all, false, &mut boxes, irr,
-                    );
-                }
+                let terms = terms_both_ways(&layout, &occ, &buffer, &light, m, scale, &mut boxes);
                 assert_eq!(terms[0], terms[1], "case {case}.{round}, m = {m}, terms");
             }
         }
