@@ -200,7 +200,8 @@ fn bake_and_eval_a_scene_with_mesh_clutter() {
 
 /// `frame-time --update one-light` times both ways frame by frame, or, with `--update-alone`,
 /// relighting by the change alone (no full line, no speedup); either way the update ends
-/// where relighting everything ends, to float rounding at one bounce.
+/// where relighting everything ends, to float rounding at one bounce. `--update-alone`
+/// without `--update one-light` is refused.
 #[test]
 fn frame_time_times_one_light_both_ways_or_the_update_alone() {
     let dir = workdir("one-light");
@@ -238,6 +239,25 @@ fn frame_time_times_one_light_both_ways_or_the_update_alone() {
         };
         assert!(value("median_ms=") > 0.0, "{last}");
         assert!(value("drift_rel_l2=") < 1e-4, "{last}");
+    }
+    // Without a light to move there is nothing to time alone: refused, by name.
+    for update in [None, Some("one-object")] {
+        let mut cmd = lightfarm();
+        cmd.arg("frame-time")
+            .arg(&bundle)
+            .arg("--lights")
+            .arg(&lights)
+            .args(["--update-alone", "--frames", "2"]);
+        if let Some(u) = update {
+            cmd.args(["--update", u]);
+        }
+        let out = cmd.output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{update:?}: {err}");
+        assert!(
+            err.contains("--update-alone times `--update one-light`"),
+            "{err}"
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

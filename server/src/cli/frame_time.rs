@@ -208,6 +208,9 @@ pub fn read_bandwidth() -> f64 {
 }
 
 pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
+    if args.update_alone && args.update_light.is_none() {
+        anyhow::bail!("--update-alone times `--update one-light`, which was not given");
+    }
     let bytes = std::fs::read(&args.bundle)
         .with_context(|| format!("cannot read {}", args.bundle.display()))?;
     let bundle = Bundle::decode(&bytes).with_context(|| format!("{}", args.bundle.display()))?;
