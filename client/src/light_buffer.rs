@@ -31,7 +31,9 @@
 
 use std::sync::atomic::{AtomicU32, Ordering};
 
-use crate::occluders::{tangent_axes, Occluders};
+use lightfarm_proto::face::tangent_axes;
+
+use crate::occluders::Occluders;
 
 /// Cells per cube-face edge: 6 × 16² direction cells. A moving light rebuilds its buffer
 /// every frame, and a finer cube listed each wall in more cells than the shorter lists saved:
@@ -231,7 +233,7 @@ impl LightBuffer {
         } else {
             2
         };
-        let (u, v) = tangent_axes(axis as u8);
+        let (u, v) = tangent_axes(axis);
         let face = 2 * axis + usize::from(w[axis] < 0.0);
         let n = CELLS_PER_EDGE;
         let cell = |t: f64| (((t + 1.0) * 0.5 * n as f64) as usize).min(n - 1);
@@ -323,7 +325,7 @@ fn face_cells(face: u8, lo: [f64; 3], hi: [f64; 3]) -> Option<[u16; 4]> {
     if xhi <= 0.0 {
         return None;
     }
-    let (u, v) = tangent_axes(axis as u8);
+    let (u, v) = tangent_axes(axis);
     let (u0, u1) = ratio_range(lo[u], hi[u], xlo, xhi)?;
     let (v0, v1) = ratio_range(lo[v], hi[v], xlo, xhi)?;
     let n = CELLS_PER_EDGE;

@@ -553,6 +553,7 @@ pub(crate) mod tests {
     use super::*;
     use crate::occluders::Occluders;
     use lightfarm_proto::bundle::{Rect, Rooms, SurfaceInfo};
+    use lightfarm_proto::face::tangent_axes;
 
     /// xorshift64*: a seeded stream for the tests.
     pub(crate) struct Rng(pub(crate) u64);
@@ -792,7 +793,7 @@ pub(crate) mod tests {
                     let (p, n, size) =
                         (layout.positions[t], layout.normals[t], layout.texel_size[t]);
                     let axis = (0..3).find(|&k| n[k] != 0.0).unwrap();
-                    let (u, v) = Face::ALL[2 * axis].tangent_axes();
+                    let (u, v) = tangent_axes(axis);
                     for j in 0..5 {
                         for i in 0..5 {
                             let mut q = p;

@@ -11,10 +11,9 @@
 //! any CPU: the AVX2 variants use IEEE division and square root, never fused products).
 
 use lightfarm_proto::bundle::Layout;
+use lightfarm_proto::face::tangent_axes;
 use lightfarm_proto::glam::DVec3;
 use lightfarm_proto::lights::Light;
-
-use crate::occluders::tangent_axes;
 
 /// The most samples per edge [`crate::direct::direct_from_point_lights_adaptive`] handles adaptively (its
 /// samples live on the stack); more fall back to [`crate::direct::direct_from_point_lights_averaged`].
@@ -30,6 +29,7 @@ pub(crate) struct TexelAt {
 }
 
 impl TexelAt {
+    #[inline(always)]
     pub(crate) fn of(layout: &Layout, t: usize) -> TexelAt {
         TexelAt {
             x: layout.positions[t],
@@ -127,7 +127,7 @@ pub(crate) fn corner_indices(m: usize) -> [usize; 4] {
 
 pub(crate) fn is_axis_aligned(n: [f32; 3]) -> bool {
     let a = dominant_axis(n);
-    let (u, v) = tangent_axes(a as u8);
+    let (u, v) = tangent_axes(a);
     n[u] == 0.0 && n[v] == 0.0
 }
 
@@ -137,7 +137,7 @@ pub(crate) fn is_axis_aligned(n: [f32; 3]) -> bool {
 #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(… > 0)`: a NaN product faces away too.
 pub(crate) fn faces_away(x: &[f32; 3], n: &[f32; 3], light: &Light) -> bool {
     let a = dominant_axis(*n);
-    let (u, v) = tangent_axes(a as u8);
+    let (u, v) = tangent_axes(a);
     n[u] == 0.0 && n[v] == 0.0 && !(n[a] as f64 * (light.position[a] - x[a] as f64) > 0.0)
 }
 
@@ -167,7 +167,7 @@ const GAUSS_2_OFFSET: f64 = 0.288_675_134_594_812_9;
 /// The nodes are summed row by row.
 pub(crate) fn far_light_mean(t: &TexelAt, light: &Light, r2_min: f64) -> f64 {
     let a = dominant_axis(t.n);
-    let (u, v) = tangent_axes(a as u8);
+    let (u, v) = tangent_axes(a);
     let x = DVec3::from(t.x.map(f64::from));
     let n = t.n.map(f64::from);
     let slanted = n[u] != 0.0 || n[v] != 0.0;
@@ -248,7 +248,7 @@ fn axis_aligned_far_mean(
 /// [`far_light_mean`] stands).
 pub(crate) fn near_light_mean(t: &TexelAt, light: &Light) -> Option<f64> {
     let a = dominant_axis(t.n);
-    let (u, v) = tangent_axes(a as u8);
+    let (u, v) = tangent_axes(a);
     if t.n[u] != 0.0 || t.n[v] != 0.0 {
         return slanted_near_light_mean(t, light, (a, u, v));
     }
@@ -418,7 +418,7 @@ fn unshadowed_at(x: DVec3, n: [f32; 3], light: &Light, r2_min: f64) -> f64 {
 #[inline]
 pub(crate) fn sample_point(x: [f32; 3], n: [f32; 3], size: [f32; 2], ou: f32, ov: f32) -> [f32; 3] {
     let axis = dominant_axis(n);
-    let (u, v) = tangent_axes(axis as u8);
+    let (u, v) = tangent_axes(axis);
     let du = ou * size[0];
     let dv = ov * size[1];
     let slanted = n[u] != 0.0 || n[v] != 0.0;
@@ -442,7 +442,7 @@ pub(crate) fn sample_point(x: [f32; 3], n: [f32; 3], size: [f32; 2], ou: f32, ov
 /// when anything is not finite.
 pub(crate) fn sample_bounds(t: &TexelAt, m: usize) -> ([f64; 3], [f64; 3]) {
     let axis = dominant_axis(t.n);
-    let (u, v) = tangent_axes(axis as u8);
+    let (u, v) = tangent_axes(axis);
     let x = t.x.map(f64::from);
     let reach = 0.5 - 0.5 / m.max(1) as f64;
     let (hu, hv) = (
@@ -543,7 +543,7 @@ fn unshadowed_grid_on<const A: usize>(
     g: &mut [f64],
 ) {
     const M: usize = ADAPTIVE_MAX_SAMPLES_PER_EDGE as usize;
-    let (u, v) = tangent_axes(A as u8);
+    let (u, v) = tangent_axes(A);
     let (x, size, l) = (t.x, t.size, light.position);
     let nn = t.n.map(f64::from);
     // Per column (u) and row (v): the component toward the light, its square and its product
@@ -606,7 +606,7 @@ pub(crate) fn sample_points(
     out: &mut [[f32; 3]],
 ) {
     let axis = dominant_axis(n);
-    let (u, v) = tangent_axes(axis as u8);
+    let (u, v) = tangent_axes(axis);
     // The offset of sample `i` along an edge, in texel units: the same expression per sample
     // whether evaluated once per column (up to 16 samples per edge) or per sample.
     let offset = |i: usize| (i as f32 + 0.5) / m as f32 - 0.5;
@@ -656,6 +656,7 @@ mod tests {
     use super::{
         far_light_mean, near_light_mean, sample_offset, unshadowed, TexelAt, NEAR_HALF_DIAGONALS,
     };
+    use lightfarm_proto::face::tangent_axes;
     use lightfarm_proto::lights::{Light, LightKind};
 
     fn light(position: [f64; 3]) -> Light {
@@ -746,7 +747,7 @@ mod tests {
         for i in 0..2000 {
             let axis = i % 3;
             let sign = if i % 2 == 0 { 1.0f32 } else { -1.0 };
-            let (u, v) = crate::occluders::tangent_axes(axis as u8);
+            let (u, v) = tangent_axes(axis);
             let mut n = [0.0f32; 3];
             n[axis] = sign;
             let size = [1.0f32, (0.25 + 1.75 * uniform()) as f32];

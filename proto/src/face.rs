@@ -8,6 +8,18 @@
 
 use serde::{Deserialize, Serialize};
 
+/// The two world axes other than `axis` (0 = x, 1 = y, 2 = z; any larger value is taken as
+/// z), ascending: the tangent axes of every face, rect or texel plane perpendicular to `axis`,
+/// in the order the texel frame uses. The one definition every crate uses.
+#[inline]
+pub const fn tangent_axes(axis: usize) -> (usize, usize) {
+    match axis {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    }
+}
+
 /// One face of an axis-aligned box.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub enum Face {
@@ -60,13 +72,9 @@ impl Face {
         self.index() % 2 == 1
     }
 
-    /// The two tangent axes, ascending.
+    /// The two tangent axes, ascending ([`tangent_axes`] of [`Face::axis`]).
     pub fn tangent_axes(self) -> (usize, usize) {
-        match self.axis() {
-            0 => (1, 2),
-            1 => (0, 2),
-            _ => (0, 1),
-        }
+        tangent_axes(self.axis())
     }
 
     /// The face on the other side of a shared plane (`+x` ↔ `-x`).

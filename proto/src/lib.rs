@@ -15,7 +15,7 @@
 //!   the choice by error budget, writing and reading).
 //! - [`box_symmetry`]: the 48 symmetries of an axis-aligned box and how they map faces and
 //!   face grids onto a canonical shape's.
-//! - [`face`]: box faces and the texel layout on each.
+//! - [`face`]: box faces and the texel layout on each (`tangent_axes`, shared by every crate).
 //! - [`wire`]: the little-endian encoding the bundle and the operator cache share.
 //! - [`range_coder`]: an adaptive binary range coder (LZMA's) and its models, for the bundle
 //!   sections whose symbols a context predicts better than zstd's order-0 Huffman codes them.

@@ -16,10 +16,10 @@
 use std::ops::Range;
 
 use lightfarm_proto::bundle::Layout;
+use lightfarm_proto::face::tangent_axes;
 use lightfarm_proto::lights::Light;
 
 use super::{add_term, is_dark, outgoing, texel_direct, Lighting, Shadows};
-use crate::occluders::tangent_axes;
 use crate::texel_samples::{
     axis_aligned_mean, dominant_axis, is_axis_aligned, TexelAt, TexelSamples,
     ADAPTIVE_MAX_SAMPLES_PER_EDGE,
@@ -44,7 +44,7 @@ pub(super) fn axes(
         return None;
     }
     let a = dominant_axis(n);
-    let (u, v) = tangent_axes(a as u8);
+    let (u, v) = tangent_axes(a);
     Some((a, u, v))
 }
 
@@ -85,12 +85,11 @@ fn values_portable(
     out: &mut [[f32; 3]],
 ) {
     for t in run {
-        let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
-        if size == [0.0, 0.0] {
-            out[t] = texel_direct(lighting, TexelAt::of(layout, t), m, Some(samples));
+        let at = TexelAt::of(layout, t);
+        if at.size == [0.0, 0.0] {
+            out[t] = texel_direct(lighting, at, m, Some(samples));
             continue;
         }
-        let at = texel(layout, t, size);
         let mut irr = [0.0f64; 3];
         for light in lighting.lights {
             if faces_away_along(&at, light, axes) || is_dark(light) {
@@ -142,29 +141,16 @@ fn terms_portable(
 ) {
     let light = &lighting.lights[0];
     for t in run {
-        let size = layout.texel_size.get(t).copied().unwrap_or([0.0, 0.0]);
-        let at = texel(layout, t, size);
+        let at = TexelAt::of(layout, t);
         if faces_away_along(&at, light, axes) {
             continue;
         }
-        if size == [0.0, 0.0] {
+        if at.size == [0.0, 0.0] {
             lighting.add_point(0, at.x, at.n, &mut irr[t]);
         } else if !is_dark(light) {
             let w = axis_aligned_mean(&at, light, lighting.r2_min, axes);
             add_term(&mut irr[t], light, w);
         }
-    }
-}
-
-/// Texel `t` of the layout, its size read already ([`TexelAt::of`]'s fields, built in place so
-/// that the loop keeps them in registers).
-#[inline(always)]
-fn texel(layout: &Layout, t: usize, size: [f32; 2]) -> TexelAt {
-    TexelAt {
-        x: layout.positions[t],
-        n: layout.normals[t],
-        rho: layout.albedo[t],
-        size,
     }
 }
 

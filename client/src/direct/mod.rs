@@ -754,8 +754,8 @@ pub(crate) fn add_light_term_in(
         |lighting, texels| {
             // A run without light adds zero terms.
             let Some(lighting) = lighting else { return };
-            if let Some(axes) = clear_run::axes(lighting, layout, &texels, m) {
-                if !every_sample {
+            if !every_sample {
+                if let Some(axes) = clear_run::axes(lighting, layout, &texels, m) {
                     return clear_run::terms(lighting, layout, (texels, axes), irr);
                 }
             }

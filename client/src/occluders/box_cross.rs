@@ -7,7 +7,9 @@
 //! rays use it).
 
 use super::tree::Prim;
-use super::{tangent_axes, Occluders, EPS_SCALE, T_EPS_REL};
+use lightfarm_proto::face::tangent_axes;
+
+use super::{Occluders, EPS_SCALE, T_EPS_REL};
 
 /// [`Occluders::prim_crosses_box_segments`]'s slack on positions, relative to the largest
 /// coordinate or the scale: a hundred times the f32 test's rounding.
@@ -129,7 +131,7 @@ impl Occluders {
                 // the normal and its own coordinate along k: the eight corners give, per
                 // tangent, the four pairs of (lo or hi along a, lo or hi along k), two
                 // divisions in all.
-                let (u, v) = tangent_axes(axis);
+                let (u, v) = tangent_axes(axis as usize);
                 let (mut plo, mut phi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
                 for pa in [lo[a], hi[a]] {
                     let s = (c - l[a]) / (pa - l[a]);

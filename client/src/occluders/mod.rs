@@ -87,15 +87,6 @@ pub struct Occluders {
     scale: f32,
 }
 
-/// The other two axes of `axis`, ascending (a rect's tangents; a texel plane's axes).
-pub(crate) fn tangent_axes(axis: u8) -> (usize, usize) {
-    match axis {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    }
-}
-
 impl Occluders {
     /// The layout's rects and triangles.
     pub fn from_layout(layout: &Layout) -> Occluders {

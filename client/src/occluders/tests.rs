@@ -2,6 +2,7 @@
 //! seeded fixtures other modules' tests share.
 
 use super::*;
+use lightfarm_proto::face::tangent_axes;
 
 /// A fixed-seed linear congruential generator (no `rand` in this crate).
 pub(crate) use lightfarm_proto::testing::Lcg;
@@ -65,7 +66,7 @@ pub(crate) fn random_box(rng: &mut Lcg, rects: &[Rect]) -> ([f32; 3], [f32; 3]) 
     }
     if rng.next_u32() % 2 == 0 && !rects.is_empty() {
         let r = &rects[rng.next_u32() as usize % rects.len()];
-        let (u, v) = tangent_axes(r.axis);
+        let (u, v) = tangent_axes(r.axis as usize);
         let a = r.axis as usize;
         lo[a] = r.coord;
         hi[a] = r.coord;
@@ -167,7 +168,7 @@ fn bvh_matches_brute_force_on_random_scenes() {
         }
         // Segments that start on a primitive (texel-like origins) and axis-parallel ones.
         for r in &rects {
-            let (u, v) = tangent_axes(r.axis);
+            let (u, v) = tangent_axes(r.axis as usize);
             let mut o = [0.0; 3];
             o[r.axis as usize] = r.coord;
             o[u] = rng.range(r.min[0], r.max[0]);

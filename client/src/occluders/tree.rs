@@ -9,7 +9,7 @@
 
 use lightfarm_proto::glam::Vec3;
 
-use super::tangent_axes;
+use lightfarm_proto::face::tangent_axes;
 
 /// Most primitives in a leaf.
 pub const LEAF_SIZE: usize = 4;
@@ -64,7 +64,7 @@ impl Prim {
                 min,
                 max,
             } => {
-                let (u, v) = tangent_axes(axis);
+                let (u, v) = tangent_axes(axis as usize);
                 let (mut lo, mut hi) = ([0.0; 3], [0.0; 3]);
                 lo[axis as usize] = coord;
                 hi[axis as usize] = coord;
@@ -116,7 +116,7 @@ impl Prim {
                 if !(t > tmin && t < tmax) {
                     return false;
                 }
-                let (u, v) = tangent_axes(axis);
+                let (u, v) = tangent_axes(axis as usize);
                 let pu = o[u] + t * d[u];
                 let pv = o[v] + t * d[v];
                 pu >= min[0] && pu <= max[0] && pv >= min[1] && pv <= max[1]

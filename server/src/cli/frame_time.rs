@@ -370,9 +370,10 @@ pub fn run(args: FrameTimeArgs) -> anyhow::Result<()> {
                 s.surface_max
             );
         }
-        let speedup = match args.update_alone {
-            true => String::new(),
-            false => format!(" speedup={:.1}", t.full.total_ms / t.update.total_ms),
+        let speedup = if args.update_alone {
+            String::new()
+        } else {
+            format!(" speedup={:.1}", t.full.total_ms / t.update.total_ms)
         };
         crate::say!(
             "update=one-light light={moved} method={method:?} bounces={} frames={frames} \

@@ -8,6 +8,7 @@
 //! from the face's `(min_u, min_v)` corner.
 
 use lightfarm_proto::bundle::Layout;
+use lightfarm_proto::face::tangent_axes;
 
 /// One axis-aligned face of a surface.
 #[derive(Clone, Debug, PartialEq)]
@@ -74,11 +75,7 @@ pub fn box_faces(layout: &Layout, offset: usize, count: usize) -> Result<Vec<Box
                 start - offset
             ));
         }
-        let (u, v) = match axis {
-            0 => (1, 2),
-            1 => (0, 2),
-            _ => (0, 1),
-        };
+        let (u, v) = tangent_axes(axis);
         let size = layout.texel_size[start];
         let first = layout.positions[start];
         let n_u = (start..stop)

@@ -12,6 +12,8 @@
 //! Frames: world, metres. Invariant: `meets` never answers false for a box some recorded
 //! segment touches (to within the margin); it may answer true for boxes no segment touches.
 
+use lightfarm_proto::face::tangent_axes;
+
 /// Squares per cube face side.
 const CELLS: usize = 4;
 
@@ -36,19 +38,11 @@ fn cell_of(d: [f64; 3]) -> u8 {
     } else {
         0
     };
-    let (u, v) = tangents(a);
+    let (u, v) = tangent_axes(a);
     let major = d[a].abs().max(f64::MIN_POSITIVE);
     let bin = |x: f64| (((x / major + 1.0) * 0.5 * CELLS as f64) as usize).min(CELLS - 1);
     let face = 2 * a + usize::from(d[a] > 0.0);
     (face * CELLS * CELLS + bin(d[v]) * CELLS + bin(d[u])) as u8
-}
-
-fn tangents(axis: usize) -> (usize, usize) {
-    match axis {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    }
 }
 
 /// Cells of a whole cube map.
@@ -133,7 +127,7 @@ impl RayReach {
             let cell = cell as usize;
             let face = cell / (CELLS * CELLS);
             let (a, s) = (face / 2, if face % 2 == 1 { 1.0 } else { -1.0 });
-            let (u, v) = tangents(a);
+            let (u, v) = tangent_axes(a);
             let (iv, iu) = ((cell / CELLS) % CELLS, cell % CELLS);
             let edge = |i: usize| -1.0 + 2.0 * i as f64 / CELLS as f64;
             let (u0, u1) = (edge(iu) - SLACK, edge(iu + 1) + SLACK);

@@ -37,7 +37,7 @@ impl LightfieldFrame {
     }
 
     fn tangents(&self) -> (usize, usize) {
-        crate::bake::tracer::tangents(self.axis)
+        lightfarm_proto::face::tangent_axes(self.axis)
     }
 
     /// Index of the cell and bin of a ray crossing the plane at `p` travelling along `w`.

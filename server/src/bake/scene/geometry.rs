@@ -72,11 +72,7 @@ impl Surface {
         n
     }
     pub fn tangent_axes(&self) -> (usize, usize) {
-        match self.axis {
-            0 => (1, 2),
-            1 => (0, 2),
-            _ => (0, 1),
-        }
+        lightfarm_proto::face::tangent_axes(self.axis)
     }
     /// Centre of texel `(i, j)`.
     pub fn texel_center(&self, i: usize, j: usize) -> [f64; 3] {

@@ -213,11 +213,7 @@ fn chart_frame(n: [f64; 3]) -> (DVec3, DVec3) {
     } else {
         2
     };
-    let (first, second) = match dominant {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    };
+    let (first, second) = lightfarm_proto::face::tangent_axes(dominant);
     let mut e = DVec3::ZERO;
     e[first] = 1.0;
     let u = e - e.dot(n) * n;

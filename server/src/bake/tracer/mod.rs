@@ -56,6 +56,8 @@ use glam::{DVec3, Vec3A};
 use bvh8::Bvh8;
 use packet::{FastTriangle, TrianglePacket};
 
+use lightfarm_proto::face::tangent_axes;
+
 use crate::bake::scene::geometry::Primitive;
 
 /// A ray hit.
@@ -257,7 +259,7 @@ fn primitive_bounds(p: &Primitive, pad: f64) -> ([f64; 3], [f64; 3]) {
             max,
             ..
         } => {
-            let (u, v) = tangents(*axis);
+            let (u, v) = tangent_axes(*axis);
             let mut lo = [0.0; 3];
             let mut hi = [0.0; 3];
             lo[*axis] = *coord;
@@ -286,14 +288,6 @@ fn primitive_bounds(p: &Primitive, pad: f64) -> ([f64; 3], [f64; 3]) {
         hi[k] += pad_k;
     }
     (lo, hi)
-}
-
-pub(crate) fn tangents(axis: usize) -> (usize, usize) {
-    match axis {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    }
 }
 
 impl Tracer {
@@ -414,7 +408,7 @@ impl Tracer {
                 if da == 0.0 || t < epsilon - mt || t > far + mt {
                     return Verdict::Miss;
                 }
-                let (u, v) = tangents(a);
+                let (u, v) = tangent_axes(a);
                 let pu = o[u] + t * d[u];
                 let pv = o[v] + t * d[v];
                 let m = F32_MARGIN * s + mt;
@@ -488,7 +482,7 @@ impl Tracer {
                 if !(t > self.epsilon && t < tmax) {
                     return None;
                 }
-                let (u, v) = tangents(*axis);
+                let (u, v) = tangent_axes(*axis);
                 let pu = o[u] + t * d[u];
                 let pv = o[v] + t * d[v];
                 let e = self.edge_epsilon;

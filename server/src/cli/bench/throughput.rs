@@ -20,7 +20,9 @@ use crate::bake::math::sampling::{
     sample_cosine_hemisphere, sobol_2d, stream_key, to_world, Purpose,
 };
 use crate::bake::scene::geometry::{Geometry, Primitive};
-use crate::bake::tracer::{tangents, Tracer};
+use lightfarm_proto::face::tangent_axes;
+
+use crate::bake::tracer::Tracer;
 
 /// One round of [`measure_throughput`].
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
@@ -101,7 +103,7 @@ pub fn triangle_soup(primitives: &[Primitive]) -> Vec<[[f64; 3]; 3]> {
                 max,
                 ..
             } => {
-                let (u, v) = tangents(*axis);
+                let (u, v) = tangent_axes(*axis);
                 let corner = |a: f64, b: f64| {
                     let mut c = [0.0; 3];
                     c[*axis] = *coord;
